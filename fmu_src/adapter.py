@@ -1,0 +1,123 @@
+"""The thin layer between pythonfmu and ``models``: registration, parameters, errors.
+
+Every slave callback that computes is wrapped so that no Python exception escapes to
+pythonfmu during a step (it would become fmi2Fatal and kill the instance): bad inputs are
+logged, naming the variable and value, and the step is discarded (do_step returns False).
+Bad parameters are found in exit_initialization_mode; pythonfmu can only report those as
+fmi2Fatal, so the exception raised there carries the message (parameter, file, line).
+"""
+from __future__ import annotations
+
+import os
+import traceback
+from pathlib import Path
+
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real, String
+from pythonfmu.enums import Fmi2Status
+
+from models.estimator import StationConfig
+from models.identification import IdentifierConfig
+from models.track import GradeProfile, ProfileError, SpeedProfile
+
+from .variables import Var, variables_for
+
+_CAUSALITY = {"parameter": Fmi2Causality.parameter, "input": Fmi2Causality.input,
+              "output": Fmi2Causality.output}
+_VARIABILITY = {"fixed": Fmi2Variability.fixed, "continuous": Fmi2Variability.continuous,
+                "discrete": Fmi2Variability.discrete}
+_TYPE = {"Real": Real, "Integer": Integer, "String": String}
+
+
+class ParameterError(ValueError):
+    """A parameter or profile the FMU cannot start with; the message names it."""
+
+
+def register_variables(slave, fmu: str) -> dict:
+    """Register the table's variables of ``fmu`` on ``slave``; returns the live value dict."""
+    values: dict = {}
+    for var in variables_for(fmu):
+        values[var.name] = var.start
+        kwargs = dict(causality=_CAUSALITY[var.causality],
+                      variability=_VARIABILITY[var.variability],
+                      description=var.description,
+                      getter=(lambda n=var.name: values[n]))
+        if var.causality == "output":
+            kwargs["initial"] = Fmi2Initial.exact
+        else:
+            kwargs["setter"] = _setter(values, var)
+        slave.register_variable(_TYPE[var.type](var.name, start=var.start, **kwargs))
+    return values
+
+
+def _setter(values: dict, var: Var):
+    def set_value(v, name=var.name):
+        values[name] = v
+    return set_value
+
+
+def resolve_profile_path(path: str, resources: str | None) -> Path:
+    """A relative path is looked up in the FMU's resources/ first, then the working directory."""
+    p = Path(path)
+    if p.is_absolute():
+        return p
+    if resources:
+        candidate = Path(resources) / p
+        if candidate.is_file():
+            return candidate
+    return Path(os.getcwd()) / p
+
+
+def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, SpeedProfile | None]:
+    """Read track.grade_profile and track.speed_profile; ParameterError names file and line."""
+    def read(param: str) -> tuple[str, str] | None:
+        raw = values[param]
+        if not raw:
+            return None
+        path = resolve_profile_path(raw, resources)
+        try:
+            return path.read_text(encoding="utf-8"), str(path)
+        except OSError as e:
+            raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
+
+    try:
+        grade_src = read("track.grade_profile")
+        grade = GradeProfile.from_csv_text(*grade_src) if grade_src else GradeProfile.level()
+        speed_src = read("track.speed_profile")
+        speed = SpeedProfile.from_csv_text(*speed_src) if speed_src else None
+    except ProfileError as e:
+        raise ParameterError(str(e)) from None
+    return grade, speed
+
+
+def initialise(slave, build):
+    """Build the model chain from the parameters; log and re-raise a clear error if it fails."""
+    try:
+        return build()
+    except (ValueError, ParameterError) as e:
+        slave.log(f"initialisation failed: {e}", Fmi2Status.error)
+        raise ParameterError(f"initialisation failed: {e}") from None
+
+
+def guarded_step(slave, step) -> bool:
+    """Run one step; on bad input or any failure log it and discard the step (return False)."""
+    from models.chain import StepRejected
+    try:
+        step()
+        return True
+    except StepRejected as e:
+        slave.log(f"step discarded: {e}", Fmi2Status.discard)
+        return False
+    except Exception as e:  # the FMU never takes its host down
+        slave.log(f"step failed: {type(e).__name__}: {e}\n{traceback.format_exc()}", Fmi2Status.error)
+        return False
+
+
+def estimator_settings(v: dict) -> tuple[IdentifierConfig, StationConfig]:
+    """est.* and track.station_dwell parameters -> configs (shared with RailCarEstimator)."""
+    ident = IdentifierConfig(
+        batch_size=int(v["est.batch_size"]), forgetting=v["est.forgetting"], gamma=v["est.gamma"],
+        mass_initial=v["est.mass_initial"], mass_std_initial=v["est.mass_std_initial"],
+        A0_initial=v["est.A0_initial"], A1_initial=v["est.A1_initial"], A2_initial=v["est.A2_initial"],
+        A0_std_initial=v["est.A0_std_initial"], A1_std_initial=v["est.A1_std_initial"],
+        A2_std_initial=v["est.A2_std_initial"], sigma2_initial=v["est.sigma2_initial"])
+    return ident, StationConfig(dwell=v["track.station_dwell"])

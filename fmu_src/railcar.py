@@ -1,0 +1,47 @@
+"""RailCar FMU: car dynamics (plant), sensors, parameter identification and Kalman filter."""
+from pythonfmu import Fmi2Slave
+
+from fmu_src.adapter import estimator_settings, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.variables import RAILCAR
+from models.chain import ChainConfig, RailCarChain
+from models.dynamics import VehicleParams
+
+
+class RailCar(Fmi2Slave):
+    author = "rail-car FMU team"
+    description = "Rail-car motion: dynamics eq. (2), sensors, least-squares identification, Kalman filter"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.values = register_variables(self, RAILCAR)
+        self.chain = None
+
+    def _build(self):
+        v = self.values
+        vehicle = VehicleParams(
+            mass=v["car.mass"], A0=v["car.A0"], A1=v["car.A1"], A2=v["car.A2"], gamma=v["car.gamma"],
+            length=v["car.length"], traction_force_max=v["car.traction_force_max"],
+            traction_power_max=v["car.traction_power_max"], brake_force_max=v["car.brake_force_max"],
+            adhesion_mass_fraction=v["car.adhesion_mass_fraction"], adhesion_factor=v["car.adhesion_factor"])
+        ident, station = estimator_settings(v)
+        cfg = ChainConfig(vehicle=vehicle, solver_step=v["solver.step"],
+                          process_noise_psd=v["car.process_noise_psd"],
+                          sample_period=v["sensor.sample_period"], speed_std=v["sensor.speed_std"],
+                          position_std=v["sensor.position_std"], seed=int(v["seed"]), station=station,
+                          identifier=ident, filter_kind=int(v["filter.kind"]))
+        grade, speed = load_profiles(v, self.resources)
+        chain = RailCarChain(cfg, grade, speed)
+        self.values.update(chain.outputs())
+        return chain
+
+    def exit_initialization_mode(self):
+        self.chain = initialise(self, self._build)
+
+    def do_step(self, current_time, step_size):
+        v = self.values
+
+        def step():
+            self.chain.do_step(current_time, step_size, v["traction_force_demand"],
+                               v["brake_force_demand"], v["wind_speed"])
+            v.update(self.chain.outputs())
+        return guarded_step(self, step)

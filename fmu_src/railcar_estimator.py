@@ -1,0 +1,36 @@
+"""RailCarEstimator FMU: identification and filter on measurements from anywhere."""
+from pythonfmu import Fmi2Slave
+
+from fmu_src.adapter import estimator_settings, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.variables import ESTIMATOR
+from models.chain import EstimatorChain
+
+
+class RailCarEstimator(Fmi2Slave):
+    author = "rail-car FMU team"
+    description = "Rail-car parameter identification (LS, eqs. (3)-(12)) and Kalman filter on measurements"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.values = register_variables(self, ESTIMATOR)
+        self.chain = None
+
+    def _build(self):
+        v = self.values
+        ident, station = estimator_settings(v)
+        grade, speed = load_profiles(v, self.resources)
+        return EstimatorChain(ident, speed_std=v["sensor.speed_std"], position_std=v["sensor.position_std"],
+                              filter_kind=int(v["filter.kind"]), length=v["car.length"], station=station,
+                              grade_profile=grade, speed_profile=speed)
+
+    def exit_initialization_mode(self):
+        self.chain = initialise(self, self._build)
+
+    def do_step(self, current_time, step_size):
+        v = self.values
+
+        def step():
+            self.chain.do_step(current_time, step_size, v["traction_force"], v["brake_force"],
+                               v["sensor.speed"], v["sensor.position"])
+            v.update(self.chain.outputs())
+        return guarded_step(self, step)

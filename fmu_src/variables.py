@@ -1,0 +1,129 @@
+"""The one table of FMU variables: name, causality, variability, type, unit, start, bounds, doc.
+
+It drives the slaves' registration (``adapter.py``), the units and bounds that ``build.py``
+writes into modelDescription.xml, and the README's variable tables. Names and units of the
+contract (``shared/spec/FMU_INTERFACE.md``) must never change.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+RAILCAR, ESTIMATOR = "RailCar", "RailCarEstimator"
+BOTH = (RAILCAR, ESTIMATOR)
+
+
+@dataclass(frozen=True)
+class Var:
+    name: str
+    causality: str          # parameter | input | output
+    type: str               # Real | Integer | String
+    unit: str | None
+    start: object
+    description: str
+    fmus: tuple[str, ...] = BOTH
+    min: float | None = None
+    max: float | None = None
+
+    @property
+    def variability(self) -> str:
+        if self.causality == "parameter":
+            return "fixed"
+        if self.type == "Real":
+            return "continuous"
+        return "discrete"
+
+
+# (name, SI base-unit exponents, factor): factor converts the unit into SI (FMI 2.0 BaseUnit)
+UNITS: dict[str, tuple[dict[str, int], float]] = {
+    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0),
+    "W": ({"kg": 1, "m": 2, "s": -3}, 1.0),
+    "t": ({"kg": 1}, 1000.0),
+    "m": ({"m": 1}, 1.0),
+    "s": ({"s": 1}, 1.0),
+    "m/s": ({"m": 1, "s": -1}, 1.0),
+    "m/s2": ({"m": 1, "s": -2}, 1.0),
+    "m2/s2": ({"m": 2, "s": -2}, 1.0),
+    "m2/s3": ({"m": 2, "s": -3}, 1.0),
+    "permille": ({}, 1e-3),
+    "N/kN": ({}, 1e-3),
+    "N/kN/(m/s)": ({"m": -1, "s": 1}, 1e-3),
+    "N/kN/(m/s)2": ({"m": -2, "s": 2}, 1e-3),
+    "1": ({}, 1.0),
+}
+
+R, RE = (RAILCAR,), (ESTIMATOR,)
+
+VARIABLES: tuple[Var, ...] = (
+    # ---------------------------------------------------------------- RailCar inputs
+    Var("traction_force_demand", "input", "Real", "N", 0.0, "traction force asked for, >= 0", R, min=0.0),
+    Var("brake_force_demand", "input", "Real", "N", 0.0, "brake force asked for, >= 0", R, min=0.0),
+    Var("wind_speed", "input", "Real", "m/s", 0.0, "wind along the track, headwind > 0", R),
+    # ---------------------------------------------------------------- RailCarEstimator inputs
+    Var("traction_force", "input", "Real", "N", 0.0, "measured traction force, >= 0", RE, min=0.0),
+    Var("brake_force", "input", "Real", "N", 0.0, "measured brake force, >= 0", RE, min=0.0),
+    Var("sensor.speed", "input", "Real", "m/s", 0.0, "measured speed", RE),
+    Var("sensor.position", "input", "Real", "m", 0.0, "measured distance from the previous station", RE),
+    # ---------------------------------------------------------------- true car (RailCar)
+    Var("car.mass", "parameter", "Real", "t", 30.0, "true mass with passengers", R, min=0.0),
+    Var("car.A0", "parameter", "Real", "N/kN", 0.89, "true main-resistance coefficient A0, eq. (1)", R, min=0.0),
+    Var("car.A1", "parameter", "Real", "N/kN/(m/s)", 0.0288, "true main-resistance coefficient A1, eq. (1)", R, min=0.0),
+    Var("car.A2", "parameter", "Real", "N/kN/(m/s)2", 0.010498, "true main-resistance coefficient A2 (air drag), eq. (1)", R, min=0.0),
+    Var("car.gamma", "parameter", "Real", "1", 0.0, "rotating-mass factor: acceleration divided by 1 + gamma", R, min=0.0),
+    Var("car.traction_force_max", "parameter", "Real", "N", 40e3, "traction force limit (constant-force zone)", R, min=0.0),
+    Var("car.traction_power_max", "parameter", "Real", "W", 400e3, "traction power limit (constant-power zone)", R, min=0.0),
+    Var("car.brake_force_max", "parameter", "Real", "N", 45e3, "brake force limit (emergency)", R, min=0.0),
+    Var("car.adhesion_mass_fraction", "parameter", "Real", "1", 1.0, "share of the mass on driven axles", R, min=0.0, max=1.0),
+    Var("car.adhesion_factor", "parameter", "Real", "1", 1.0, "scales the dry-rail adhesion coefficient (Curtius-Kniffler); wet rail ~0.5", R, min=0.0),
+    Var("car.process_noise_psd", "parameter", "Real", "m2/s3", 1e-4, "process noise: white acceleration noise density; sigma^2 per step dt = psd * dt", R, min=0.0),
+    Var("solver.step", "parameter", "Real", "s", 0.05, "plant's fixed internal integration step (RK4)", R, min=0.0),
+    Var("sensor.sample_period", "parameter", "Real", "s", 0.1, "sensor sampling period; the estimator runs at this period", R, min=0.0),
+    Var("seed", "parameter", "Integer", None, 1, "random seed; same seed, same inputs => bit-identical outputs", R),
+    # ---------------------------------------------------------------- both: sensors, track, estimator settings
+    Var("sensor.speed_std", "parameter", "Real", "m/s", 0.05, "speed measurement noise standard deviation", BOTH, min=0.0),
+    Var("sensor.position_std", "parameter", "Real", "m", 1.0, "distance measurement noise standard deviation", BOTH, min=0.0),
+    Var("car.length", "parameter", "Real", "m", 0.0, "car/train length over which the grade is averaged; 0 = point mass", BOTH, min=0.0),
+    Var("track.grade_profile", "parameter", "String", None, "", "CSV 'distance_m,grade_permille', grade piecewise constant from each distance; empty = level track"),
+    Var("track.speed_profile", "parameter", "String", None, "", "CSV 'distance_m,speed_mps', reference speed V_zad(X), piecewise linear; needed by the linearised filter"),
+    Var("track.station_dwell", "parameter", "Real", "s", 20.0, "a standstill at least this long is a station stop", BOTH, min=0.0),
+    Var("est.batch_size", "parameter", "Integer", None, 50, "N, samples of the first batch least-squares solve (>= 4)", BOTH),
+    Var("est.forgetting", "parameter", "Real", "1", 0.0, "mu0 in [0, 1): 0 = mu(n) = 1/n (ordinary LS), else exponential forgetting 1 - mu0", BOTH, min=0.0, max=1.0),
+    Var("est.gamma", "parameter", "Real", "1", 0.0, "rotating-mass factor the estimator assumes (0 = the paper's eq. (2))", BOTH, min=0.0),
+    Var("est.mass_initial", "parameter", "Real", "t", 30.0, "initial (prior) mass", BOTH, min=0.0),
+    Var("est.mass_std_initial", "parameter", "Real", "t", 10.0, "initial (prior) mass standard deviation", BOTH, min=0.0),
+    Var("est.A0_initial", "parameter", "Real", "N/kN", 1.0, "initial (prior) A0", BOTH),
+    Var("est.A1_initial", "parameter", "Real", "N/kN/(m/s)", 0.03, "initial (prior) A1", BOTH),
+    Var("est.A2_initial", "parameter", "Real", "N/kN/(m/s)2", 0.01, "initial (prior) A2", BOTH),
+    Var("est.A0_std_initial", "parameter", "Real", "N/kN", 5.0, "prior standard deviation of A0", BOTH, min=0.0),
+    Var("est.A1_std_initial", "parameter", "Real", "N/kN/(m/s)", 0.1, "prior standard deviation of A1", BOTH, min=0.0),
+    Var("est.A2_std_initial", "parameter", "Real", "N/kN/(m/s)2", 0.02, "prior standard deviation of A2", BOTH, min=0.0),
+    Var("est.sigma2_initial", "parameter", "Real", "m2/s2", 1e-4, "initial process-noise variance per sample", BOTH, min=0.0),
+    Var("filter.kind", "parameter", "Integer", None, 0, "0 auto (linearised if a speed profile is given, else EKF), 1 linearised eqs. (13)-(19), 2 EKF", BOTH),
+    # ---------------------------------------------------------------- RailCar outputs: truth and measurements
+    Var("car.speed", "output", "Real", "m/s", 0.0, "true speed", R),
+    Var("car.position", "output", "Real", "m", 0.0, "true distance from the previous station", R),
+    Var("car.acceleration", "output", "Real", "m/s2", 0.0, "true acceleration", R),
+    Var("car.traction_force", "output", "Real", "N", 0.0, "traction force applied (after traction and adhesion limits)", R),
+    Var("car.brake_force", "output", "Real", "N", 0.0, "brake force applied", R),
+    Var("car.grade", "output", "Real", "permille", 0.0, "grade under the car (averaged over car.length)", R),
+    Var("car.mode", "output", "Integer", None, 0, "0 standstill, 1 traction, 2 coasting, 3 braking", R),
+    Var("sensor.speed", "output", "Real", "m/s", 0.0, "measured speed", R),
+    Var("sensor.position", "output", "Real", "m", 0.0, "measured distance", R),
+    # ---------------------------------------------------------------- estimator outputs (both)
+    Var("est.mass", "output", "Real", "t", 30.0, "identified mass P = 1/(g Theta1) (effective mass P(1+gamma) if est.gamma = 0 < car.gamma)"),
+    Var("est.mass_std", "output", "Real", "t", 10.0, "standard deviation of est.mass from the estimator's covariance"),
+    Var("est.A0", "output", "Real", "N/kN", 1.0, "identified A0"),
+    Var("est.A1", "output", "Real", "N/kN/(m/s)", 0.03, "identified A1"),
+    Var("est.A2", "output", "Real", "N/kN/(m/s)2", 0.01, "identified A2"),
+    Var("est.sigma2", "output", "Real", "m2/s2", 1e-4, "identified process-noise variance per sample, eq. (12) less the speed sensor's share"),
+    Var("est.samples", "output", "Integer", None, 0, "samples used by the identification so far"),
+    Var("est.station_stops", "output", "Integer", None, 0, "station stops recognised (mass identification restarts)"),
+    Var("filter.speed", "output", "Real", "m/s", 0.0, "filtered speed"),
+    Var("filter.position", "output", "Real", "m", 0.0, "filtered distance"),
+    Var("filter.speed_std", "output", "Real", "m/s", 0.0, "standard deviation of filter.speed"),
+    Var("filter.position_std", "output", "Real", "m", 0.0, "standard deviation of filter.position"),
+)
+
+
+def variables_for(fmu: str) -> tuple[Var, ...]:
+    """The variables of one FMU, in value-reference order."""
+    return tuple(v for v in VARIABLES if fmu in v.fmus)

@@ -1,0 +1,195 @@
+"""The whole RailCar chain without FMI: plant -> sensors -> online estimator.
+
+``RailCarChain.do_step(t, h, ...)`` is what the FMU's doStep does. Truth is integrated on the
+plant's fixed grid; sensors sample every ``sample_period`` [s] on their own grid (sample j at
+j * sample_period), so results do not depend on the host's communication step beyond the
+integrator's error. Between samples the sensors and estimates hold their last values.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from .dynamics import CarPlant, VehicleParams
+from .estimator import OnlineEstimator, StationConfig
+from .filters import FilterConfig
+from .identification import IdentifierConfig
+from .noise import noise_streams
+from .track import GradeProfile, SpeedProfile
+
+
+class StepRejected(ValueError):
+    """An input or step size the chain refuses; nothing was changed. Names the variable."""
+
+
+def check_force(name: str, value: float) -> None:
+    """Raise StepRejected unless ``value`` [N] is finite and >= 0."""
+    if not math.isfinite(value) or value < 0.0:
+        raise StepRejected(f"{name} must be finite and >= 0 [N], got {value!r}")
+
+
+def check_finite(name: str, value: float, unit: str) -> None:
+    if not math.isfinite(value):
+        raise StepRejected(f"{name} must be finite [{unit}], got {value!r}")
+
+
+def check_step(current_time: float, step_size: float) -> None:
+    if not (math.isfinite(step_size) and step_size > 0.0):
+        raise StepRejected(f"communication step size must be > 0 [s], got {step_size!r}")
+    if not math.isfinite(current_time):
+        raise StepRejected(f"current time must be finite [s], got {current_time!r}")
+
+
+@dataclass
+class ChainConfig:
+    """Everything RailCar needs besides the profiles (names follow the FMU variables)."""
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    solver_step: float = 0.05          # plant's internal step [s]
+    process_noise_psd: float = 1e-4    # [m^2/s^3]
+    sample_period: float = 0.1         # sensors [s]
+    speed_std: float = 0.05            # [m/s]
+    position_std: float = 1.0          # [m]
+    seed: int = 1
+    station: StationConfig = field(default_factory=StationConfig)
+    identifier: IdentifierConfig = field(default_factory=IdentifierConfig)
+    filter_kind: int = 0
+
+    def validate(self) -> None:
+        self.vehicle.validate()
+        if not (self.sample_period > 0 and math.isfinite(self.sample_period)):
+            raise ValueError(f"sensor.sample_period must be > 0, got {self.sample_period}")
+        for name in ("speed_std", "position_std"):
+            v = getattr(self, name)
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"sensor.{name} must be > 0, got {v}")
+        if self.sample_period + 1e-12 < self.solver_step:
+            raise ValueError(f"solver.step ({self.solver_step}) must not exceed "
+                             f"sensor.sample_period ({self.sample_period})")
+
+
+def build_estimator(id_cfg: IdentifierConfig, speed_std: float, position_std: float,
+                    filter_kind: int, length: float, station: StationConfig,
+                    grade_profile: GradeProfile, speed_profile: SpeedProfile | None) -> OnlineEstimator:
+    """The estimator both FMUs run, from their parameters."""
+    id_cfg.speed_std = speed_std
+    filt = FilterConfig(dt=id_cfg.dt, speed_std=speed_std, position_std=position_std,
+                        gamma=id_cfg.gamma, kind=filter_kind, length=length)
+    return OnlineEstimator(id_cfg, filt, station, grade_profile, speed_profile)
+
+
+class RailCarChain:
+    """Plant + sensors + estimator; one instance per FMU instance."""
+
+    def __init__(self, cfg: ChainConfig, grade_profile: GradeProfile,
+                 speed_profile: SpeedProfile | None = None):
+        cfg.validate()
+        self.cfg = cfg
+        streams = noise_streams(cfg.seed, ("process", "speed_sensor", "position_sensor"))
+        self._speed_noise = streams["speed_sensor"]
+        self._position_noise = streams["position_sensor"]
+        self.plant = CarPlant(cfg.vehicle, grade_profile, step=cfg.solver_step,
+                              noise_psd=cfg.process_noise_psd, station_dwell=cfg.station.dwell,
+                              normal_draws=streams["process"])
+        cfg.identifier.dt = cfg.sample_period
+        self.estimator = build_estimator(cfg.identifier, cfg.speed_std, cfg.position_std,
+                                         cfg.filter_kind, cfg.vehicle.length, cfg.station,
+                                         grade_profile, speed_profile)
+        self._sample_index = 0
+        self.sensor_speed = 0.0
+        self.sensor_position = 0.0
+        self._take_sample()
+
+    def _take_sample(self) -> None:
+        s = self.plant.state
+        self.sensor_speed = s.speed + self.cfg.speed_std * self._speed_noise()
+        self.sensor_position = s.position + self.cfg.position_std * self._position_noise()
+        self.estimator.measure(self.sensor_speed, self.sensor_position)
+
+    def next_sample_time(self) -> float:
+        return (self._sample_index + 1) * self.cfg.sample_period
+
+    def do_step(self, current_time: float, step_size: float, traction_demand: float,
+                brake_demand: float, wind_speed: float) -> None:
+        """Advance from ``current_time`` by ``step_size`` [s] with demands [N] and wind [m/s] held.
+
+        Raises StepRejected (naming the variable) before changing anything on bad input.
+        """
+        check_step(current_time, step_size)
+        check_force("traction_force_demand", traction_demand)
+        check_force("brake_force_demand", brake_demand)
+        check_finite("wind_speed", wind_speed, "m/s")
+        t_end = current_time + step_size
+        eps = 1e-9 * max(1.0, abs(t_end))
+        if abs(current_time - self.plant.time) > eps:
+            raise StepRejected(f"current time {current_time!r} s does not continue the FMU's "
+                               f"time {self.plant.time!r} s")
+        while True:
+            t_sample = self.next_sample_time()
+            if t_sample > t_end + eps:
+                self.plant.advance(t_end, traction_demand, brake_demand, wind_speed)
+                return
+            self.plant.advance(t_sample, traction_demand, brake_demand, wind_speed)
+            # forces applied over the last sample interval, then the new measurement
+            ts = self.cfg.sample_period
+            self.estimator.propagate(self.plant.traction_impulse / ts, self.plant.brake_impulse / ts, ts)
+            self.plant.traction_impulse = self.plant.brake_impulse = 0.0
+            self._sample_index += 1
+            self._take_sample()
+
+    def outputs(self) -> dict[str, float]:
+        """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*)."""
+        s = self.plant.state
+        out = {
+            "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,
+            "car.traction_force": s.traction_force, "car.brake_force": s.brake_force,
+            "car.grade": s.grade, "car.mode": s.mode,
+            "sensor.speed": self.sensor_speed, "sensor.position": self.sensor_position,
+        }
+        out.update(self.estimator.outputs())
+        return out
+
+
+class EstimatorChain:
+    """RailCarEstimator without FMI: one measurement per communication step.
+
+    At doStep(t, h) the inputs are the measurements at t and the forces applied over
+    [t, t+h]; the outputs after the step are the estimates for t + h (the filter's one-step
+    prediction) and the identification up to t. The estimator is built at the first step,
+    whose size h is the nominal sampling period.
+    """
+
+    def __init__(self, identifier: IdentifierConfig, *, speed_std: float, position_std: float,
+                 filter_kind: int, length: float, station: StationConfig,
+                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None):
+        for name, v in (("sensor.speed_std", speed_std), ("sensor.position_std", position_std)):
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"{name} must be > 0, got {v}")
+        self._args = (identifier, speed_std, position_std, filter_kind, length, station,
+                      grade_profile, speed_profile)
+        identifier.dt = 1.0
+        build_estimator(*self._args)      # validates every setting now, at initialisation
+        self.estimator: OnlineEstimator | None = None
+        self.time = None
+
+    def do_step(self, current_time: float, step_size: float, traction: float, brake: float,
+                speed_meas: float, position_meas: float) -> None:
+        """Raises StepRejected (naming the variable) before changing anything on bad input."""
+        check_step(current_time, step_size)
+        check_force("traction_force", traction)
+        check_force("brake_force", brake)
+        check_finite("sensor.speed", speed_meas, "m/s")
+        check_finite("sensor.position", position_meas, "m")
+        if self.time is not None and abs(current_time - self.time) > 1e-9 * max(1.0, abs(current_time)):
+            raise StepRejected(f"current time {current_time!r} s does not continue the FMU's "
+                               f"time {self.time!r} s")
+        if self.estimator is None:
+            self._args[0].dt = step_size
+            self.estimator = build_estimator(*self._args)
+        self.estimator.measure(speed_meas, position_meas)
+        self.estimator.propagate(traction, brake, step_size)
+        self.time = current_time + step_size
+
+    def outputs(self) -> dict[str, float]:
+        if self.estimator is None:
+            return {}
+        return self.estimator.outputs(predicted=True)

@@ -1,0 +1,140 @@
+"""The online estimator: station detection, identification and filter, driven by measurements.
+
+Shared by both FMUs. Per sample n: ``measure(V_meas, X_meas)`` (identification of the pair
+n-1, n and the filter's update), then ``propagate(F, B, dt)`` with the forces applied until
+sample n+1 (the filter's prediction). Forces [N], speeds [m/s], distances [m], dt [s].
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .filters import FilterConfig, MotionFilter
+from .identification import IdentifierConfig, ParameterIdentifier, regressor
+from .track import GradeProfile, SpeedProfile
+from .units import G
+
+
+@dataclass
+class StationConfig:
+    dwell: float = 20.0              # standstill at least this long is a station stop [s]
+    speed_threshold: float = 0.0     # |V_meas| below it counts as still [m/s]; 0 = automatic
+    position_threshold: float = 0.0  # X_meas below it counts as "restarted near 0" [m]; 0 = auto
+
+    def validate(self) -> None:
+        if not (self.dwell > 0 and math.isfinite(self.dwell)):
+            raise ValueError(f"track.station_dwell must be > 0, got {self.dwell}")
+
+
+class StationDetector:
+    """Recognises standstill and station stops from measurements alone.
+
+    A sample is *moving* when it and the previous one exceed the speed threshold (two in a row,
+    so that one noisy sample neither starts nor ends a standstill). A standstill of at least
+    ``dwell`` is a station stop; the stop is *confirmed* when the measured distance restarts
+    near 0 (the contract of ``track.station_dwell``).
+    """
+
+    def __init__(self, cfg: StationConfig, speed_std: float, position_std: float):
+        cfg.validate()
+        self.v_thr = cfg.speed_threshold or max(3.0 * speed_std, 0.05)
+        self.x_thr = cfg.position_threshold or max(5.0 * position_std, 2.0)
+        self.dwell = cfg.dwell
+        self.still_time = 0.0
+        self._prev_fast = False
+        self.moving = False
+        self._restarted = False
+
+    def observe(self, speed_meas: float, position_meas: float, dt: float) -> bool:
+        """Take one sample; True when a station stop is confirmed at this sample."""
+        fast = abs(speed_meas) > self.v_thr
+        self.moving = fast and self._prev_fast
+        self._prev_fast = fast
+        if self.moving:
+            self.still_time = 0.0
+            self._restarted = False
+            return False
+        self.still_time += dt
+        if (self.still_time >= self.dwell and not self._restarted
+                and abs(position_meas) < self.x_thr):
+            self._restarted = True
+            return True
+        return False
+
+
+class OnlineEstimator:
+    """Identification (eqs. (3)-(12)) feeding the filter ((13)-(19) or EKF), sample by sample."""
+
+    def __init__(self, id_cfg: IdentifierConfig, filt_cfg: FilterConfig, station_cfg: StationConfig,
+                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None):
+        self.ident = ParameterIdentifier(id_cfg)
+        self.filter = MotionFilter(filt_cfg, grade_profile, speed_profile)
+        self.station = StationDetector(station_cfg, filt_cfg.speed_std, filt_cfg.position_std)
+        self.grade_profile = grade_profile
+        self.length = filt_cfg.length
+        self.gamma = id_cfg.gamma
+        self.dt_nominal = id_cfg.dt
+        self.station_stops = 0
+        self._prev = None            # (V_meas, X_meas, moving) of the previous sample
+        self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
+        self._dt = id_cfg.dt         # length of that interval [s]
+
+    def measure(self, speed_meas: float, position_meas: float) -> None:
+        """Sample n: identification on the pair (n-1, n), station logic, filter update."""
+        dt = self._dt
+        moving_before = self.station.moving
+        stop = self.station.observe(speed_meas, position_meas, dt)
+        prev = self._prev
+        if (prev is not None and moving_before and self.station.moving
+                and position_meas >= prev[1] - 10.0 * self.filter.cfg.position_std - 1.0):
+            traction, brake = self._forces
+            grade = self.grade_profile.average(prev[1], self.length)
+            self.ident.update(traction, brake, prev[0], speed_meas, grade, dt)
+        self._prev = (speed_meas, position_meas)
+        if stop:
+            self.station_stops += 1
+            self.ident.restart_mass()
+            self.filter.restart()
+        else:
+            self.filter.update(speed_meas, position_meas)
+
+    def propagate(self, traction: float, brake: float, dt: float) -> None:
+        """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""
+        theta = self.ident.theta
+        q = self.process_noise(traction, brake, dt)
+        self.filter.predict(traction, brake, theta, q, dt)
+        self._forces = (traction, brake)
+        self._dt = dt
+
+    def process_noise(self, traction: float, brake: float, dt: float) -> float:
+        """Filter's process noise per step [(m/s)^2]: identified sigma^2 plus parameter uncertainty.
+
+        The model's prediction error over dt from an uncertain Theta is k phi^T cov(Theta) phi k,
+        k = g dt / 1000 / (1 + gamma); adding it keeps the filter honest while Theta is learnt.
+        """
+        phi = regressor(traction, brake, self.filter.speed)
+        k = G * dt / 1000.0 / (1.0 + self.gamma)
+        q_param = k * k * float(phi @ self.ident.covariance() @ phi)
+        return self.ident.sigma2() * dt / self.dt_nominal + q_param
+
+    def outputs(self, predicted: bool = False) -> dict[str, float]:
+        """est.* and filter.* values: the filter's posterior at the last measurement, or with
+        ``predicted`` its one-step prediction (the estimate for the next sample's instant)."""
+        f = self.filter
+        th = self.ident.theta
+        out = {
+            "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
+            "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),
+            "est.sigma2": self.ident.sigma2(),
+            "est.samples": self.ident.samples, "est.station_stops": self.station_stops,
+        }
+        if predicted:
+            out.update({"filter.speed": f.predicted_speed, "filter.position": f.predicted_position,
+                        "filter.speed_std": f.predicted_speed_std,
+                        "filter.position_std": f.predicted_position_std})
+        else:
+            out.update({"filter.speed": f.speed, "filter.position": f.position,
+                        "filter.speed_std": f.speed_std, "filter.position_std": f.position_std})
+        return out

@@ -1,0 +1,181 @@
+"""Kalman filters of speed and distance: the paper's linearised filter (13)-(19) and an EKF.
+
+State (x, X): x = V - V_zad (speed deviation [m/s]) for the linearised filter, x = V for the
+EKF; X distance from the previous station [m]. Measurements z = (V_meas - V_zad, X_meas)
+(eq. (14), H = I), noise covariance Rm = diag(sigma_V^2, sigma_X^2).
+
+Functional core: ``linearised_model`` (13), ``kf_update`` (15), (17), (18), ``kf_predict``
+(16), (19), ``ekf_model`` (eq. (2) and its Jacobian). ``MotionFilter`` runs them sample by
+sample. Matrices are 2x2 numpy arrays.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .track import GradeProfile, SpeedProfile
+from .units import G
+
+LINEARISED, EKF = 1, 2
+"""Values of ``filter.kind`` (0 = automatic: linearised when a speed profile is given)."""
+
+
+def specific_net_force(traction: float, brake: float, speed: float, grade: float,
+                       theta: np.ndarray) -> float:
+    """(F-B)/(Pg) - A0 - A1 V - A2 V^2 - i [N/kN] with Theta = (1/(Pg), A0, A1, A2)."""
+    return theta[0] * (traction - brake) - theta[1] - theta[2] * speed - theta[3] * speed * speed - grade
+
+
+def linearised_model(vzad: float, vzad_next: float, traction: float, brake: float, grade: float,
+                     theta: np.ndarray, dt: float, gamma: float = 0.0) -> tuple[float, float, float]:
+    """(a[n], c[n], C[n]) of eq. (13) around the reference speeds V_zad[n], V_zad[n+1] [m/s]."""
+    k = G / 1000.0 / (1.0 + gamma) * dt
+    c = vzad - vzad_next + k * specific_net_force(traction, brake, vzad, grade, theta)
+    a = 1.0 - k * (theta[2] + 2.0 * theta[3] * vzad)
+    return a, c, vzad * dt
+
+
+def kf_update(x_bar: np.ndarray, M: np.ndarray, z: np.ndarray, Rm: np.ndarray):
+    """Eqs. (15), (17), (18) with H = I: returns (x_hat, P, K).
+
+    P = M - M (M + R)^-1 M (18), K = P R^-1 (17), x_hat = x_bar + K (z - x_bar) (15).
+    """
+    P = M - M @ np.linalg.solve(M + Rm, M)
+    P = 0.5 * (P + P.T)
+    K = P @ np.linalg.inv(Rm)
+    return x_bar + K @ (z - x_bar), P, K
+
+
+def kf_predict(x_hat: np.ndarray, P: np.ndarray, Phi: np.ndarray, u: np.ndarray, q: float):
+    """Eqs. (16), (19): x_bar = u + Phi x_hat, M = Phi P Phi^T + diag(q, 0)."""
+    M = Phi @ P @ Phi.T
+    M[0, 0] += q
+    return u + Phi @ x_hat, M
+
+
+def ekf_model(speed: float, traction: float, brake: float, grade: float, theta: np.ndarray,
+              dt: float, gamma: float = 0.0) -> tuple[float, float]:
+    """Eq. (2) without noise for a moving car: (V[n+1], dV[n+1]/dV[n]), V >= 0."""
+    k = G / 1000.0 / (1.0 + gamma) * dt
+    v_next = speed + k * specific_net_force(traction, brake, speed, grade, theta)
+    dv = 1.0 - k * (theta[2] + 2.0 * theta[3] * speed)
+    return max(v_next, 0.0), dv
+
+
+@dataclass
+class FilterConfig:
+    dt: float = 0.1             # sampling period [s]
+    speed_std: float = 0.05     # measurement noise of V [m/s]
+    position_std: float = 1.0   # measurement noise of X [m]
+    gamma: float = 0.0          # rotating-mass factor assumed by the model [-]
+    kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF
+    length: float = 0.0         # car length for grade averaging [m]
+
+    def validate(self, has_speed_profile: bool) -> None:
+        for name in ("speed_std", "position_std"):
+            v = getattr(self, name)
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"sensor.{name} must be > 0 for the filter, got {v}")
+        if self.kind not in (0, LINEARISED, EKF):
+            raise ValueError(f"filter.kind must be 0 (auto), 1 (linearised) or 2 (EKF), got {self.kind}")
+        if self.kind == LINEARISED and not has_speed_profile:
+            raise ValueError("filter.kind = 1 (linearised, eqs. (13)-(19)) needs track.speed_profile")
+
+
+class MotionFilter:
+    """Sample-by-sample filter of (V, X); restarts exactly at a station (P~[0] = 0).
+
+    Call ``update`` with each measurement and ``predict`` with the forces applied until the
+    next one. ``speed``/``position`` and their stds are the posterior after ``update``;
+    ``predicted_speed``/``predicted_position`` the one-step prediction after ``predict``.
+    """
+
+    def __init__(self, cfg: FilterConfig, grade_profile: GradeProfile,
+                 speed_profile: SpeedProfile | None):
+        cfg.validate(speed_profile is not None)
+        self.cfg = cfg
+        self.grade_profile = grade_profile
+        self.speed_profile = speed_profile
+        self.kind = cfg.kind or (LINEARISED if speed_profile is not None else EKF)
+        self.Rm = np.diag([cfg.speed_std ** 2, cfg.position_std ** 2])
+        self.restart()
+
+    def restart(self) -> None:
+        """The car stands at the station: V = 0, X = 0 known exactly (P~[0] = 0)."""
+        self.x_bar = np.zeros(2)
+        self.M = np.zeros((2, 2))
+        self.x_hat = np.zeros(2)
+        self.P = np.zeros((2, 2))
+        self.vzad_hat = self.vzad_bar = self._vzad(0.0)   # V_zad at posterior / prediction [m/s]
+
+    def _vzad(self, x: float) -> float:
+        return self.speed_profile.at(x) if self.speed_profile is not None else 0.0
+
+    def update(self, speed_meas: float, position_meas: float) -> None:
+        """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m]."""
+        vzad = self.vzad_bar if self.kind == LINEARISED else 0.0
+        z = np.array([speed_meas - vzad, position_meas])
+        self.x_hat, self.P, _ = kf_update(self.x_bar, self.M, z, self.Rm)
+        if self.x_hat[0] + vzad < 0.0:            # a car never moves backwards
+            self.x_hat[0] = -vzad
+        self.vzad_hat = vzad
+
+    def predict(self, traction: float, brake: float, theta: np.ndarray, q: float, dt: float) -> None:
+        """Eqs. (16), (19) (or the EKF's) over dt [s] with forces [N] held, process noise q [(m/s)^2]."""
+        speed_hat = self.speed
+        x_pos = float(self.x_hat[1])
+        grade = self.grade_profile.average(x_pos, self.cfg.length)
+        if self.kind == LINEARISED:
+            vzad = self.vzad_hat
+            vzad_next = self._vzad(x_pos + speed_hat * dt)
+            a, c, C = linearised_model(vzad, vzad_next, traction, brake, grade, theta, dt, self.cfg.gamma)
+            Phi = np.array([[a, 0.0], [dt, 1.0]])
+            u = np.array([c, C])
+            self.vzad_bar = vzad_next
+        else:
+            v_next, dv = ekf_model(speed_hat, traction, brake, grade, theta, dt, self.cfg.gamma)
+            Phi = np.array([[dv, 0.0], [dt, 1.0]])
+            u = np.array([v_next - dv * speed_hat, 0.0])
+        self.x_bar, self.M = kf_predict(self.x_hat, self.P, Phi, u, q)
+        if self.x_bar[0] + self.vzad_bar < 0.0:
+            self.x_bar[0] = -self.vzad_bar
+
+    @property
+    def speed(self) -> float:
+        """Filtered speed [m/s] at the last measurement."""
+        return max(float(self.x_hat[0]) + self.vzad_hat, 0.0)
+
+    @property
+    def position(self) -> float:
+        """Filtered distance [m] at the last measurement."""
+        return float(self.x_hat[1])
+
+    @property
+    def speed_std(self) -> float:
+        """Std of the filtered speed [m/s]."""
+        return math.sqrt(max(self.P[0, 0], 0.0))
+
+    @property
+    def position_std(self) -> float:
+        """Std of the filtered distance [m]."""
+        return math.sqrt(max(self.P[1, 1], 0.0))
+
+    @property
+    def predicted_speed(self) -> float:
+        """One-step predicted speed [m/s]."""
+        return max(float(self.x_bar[0]) + self.vzad_bar, 0.0)
+
+    @property
+    def predicted_position(self) -> float:
+        """One-step predicted distance [m]."""
+        return float(self.x_bar[1])
+
+    @property
+    def predicted_speed_std(self) -> float:
+        return math.sqrt(max(self.M[0, 0], 0.0))
+
+    @property
+    def predicted_position_std(self) -> float:
+        return math.sqrt(max(self.M[1, 1], 0.0))
