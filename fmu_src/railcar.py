@@ -42,6 +42,6 @@ class RailCar(Fmi2Slave):
 
         def step():
             self.chain.do_step(current_time, step_size, v["traction_force_demand"],
-                               v["brake_force_demand"], v["wind_speed"])
+                               v["brake_force_demand"], v["wind_speed"], v["car.payload"])
             v.update(self.chain.outputs())
         return guarded_step(self, step)

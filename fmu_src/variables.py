@@ -58,6 +58,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("traction_force_demand", "input", "Real", "N", 0.0, "traction force asked for, >= 0", R, min=0.0),
     Var("brake_force_demand", "input", "Real", "N", 0.0, "brake force asked for, >= 0", R, min=0.0),
     Var("wind_speed", "input", "Real", "m/s", 0.0, "wind along the track, headwind > 0", R),
+    Var("car.payload", "input", "Real", "t", 0.0, "passengers boarded on top of car.mass (changes at station stops)", R),
     # ---------------------------------------------------------------- RailCarEstimator inputs
     Var("traction_force", "input", "Real", "N", 0.0, "measured traction force, >= 0", RE, min=0.0),
     Var("brake_force", "input", "Real", "N", 0.0, "measured brake force, >= 0", RE, min=0.0),
@@ -97,7 +98,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.A1_std_initial", "parameter", "Real", "N/kN/(m/s)", 0.1, "prior standard deviation of A1", BOTH, min=0.0),
     Var("est.A2_std_initial", "parameter", "Real", "N/kN/(m/s)2", 0.02, "prior standard deviation of A2", BOTH, min=0.0),
     Var("est.sigma2_initial", "parameter", "Real", "m2/s2", 1e-4, "initial process-noise variance per sample", BOTH, min=0.0),
-    Var("filter.kind", "parameter", "Integer", None, 0, "0 auto (linearised if a speed profile is given, else EKF), 1 linearised eqs. (13)-(19), 2 EKF", BOTH),
+    Var("filter.kind", "parameter", "Integer", None, 0, "0 auto (1 if a speed profile is given, else 2); 1 linearised around V_zad, eq. (13), trapezoid distance; 2 EKF; 3 eqs. (13)-(19) verbatim", BOTH),
     # ---------------------------------------------------------------- RailCar outputs: truth and measurements
     Var("car.speed", "output", "Real", "m/s", 0.0, "true speed", R),
     Var("car.position", "output", "Real", "m", 0.0, "true distance from the previous station", R),
@@ -106,6 +107,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("car.brake_force", "output", "Real", "N", 0.0, "brake force applied", R),
     Var("car.grade", "output", "Real", "permille", 0.0, "grade under the car (averaged over car.length)", R),
     Var("car.mode", "output", "Integer", None, 0, "0 standstill, 1 traction, 2 coasting, 3 braking", R),
+    Var("car.total_mass", "output", "Real", "t", 30.0, "true mass now: car.mass + car.payload", R),
     Var("sensor.speed", "output", "Real", "m/s", 0.0, "measured speed", R),
     Var("sensor.position", "output", "Real", "m", 0.0, "measured distance", R),
     # ---------------------------------------------------------------- estimator outputs (both)

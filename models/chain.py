@@ -87,6 +87,7 @@ class RailCarChain:
         streams = noise_streams(cfg.seed, ("process", "speed_sensor", "position_sensor"))
         self._speed_noise = streams["speed_sensor"]
         self._position_noise = streams["position_sensor"]
+        self.base_mass = cfg.vehicle.mass
         self.plant = CarPlant(cfg.vehicle, grade_profile, step=cfg.solver_step,
                               noise_psd=cfg.process_noise_psd, station_dwell=cfg.station.dwell,
                               normal_draws=streams["process"])
@@ -109,8 +110,9 @@ class RailCarChain:
         return (self._sample_index + 1) * self.cfg.sample_period
 
     def do_step(self, current_time: float, step_size: float, traction_demand: float,
-                brake_demand: float, wind_speed: float) -> None:
-        """Advance from ``current_time`` by ``step_size`` [s] with demands [N] and wind [m/s] held.
+                brake_demand: float, wind_speed: float, payload: float = 0.0) -> None:
+        """Advance from ``current_time`` by ``step_size`` [s] with demands [N], wind [m/s] and
+        payload [t] (passengers on top of car.mass) held.
 
         Raises StepRejected (naming the variable) before changing anything on bad input.
         """
@@ -118,6 +120,11 @@ class RailCarChain:
         check_force("traction_force_demand", traction_demand)
         check_force("brake_force_demand", brake_demand)
         check_finite("wind_speed", wind_speed, "m/s")
+        check_finite("car.payload", payload, "t")
+        mass = self.base_mass + payload
+        if mass <= 0.0:
+            raise StepRejected(f"car.payload {payload!r} t leaves a mass <= 0 (car.mass {self.base_mass} t)")
+        self.plant.p.mass = mass
         t_end = current_time + step_size
         eps = 1e-9 * max(1.0, abs(t_end))
         if abs(current_time - self.plant.time) > eps:
@@ -142,7 +149,7 @@ class RailCarChain:
         out = {
             "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,
             "car.traction_force": s.traction_force, "car.brake_force": s.brake_force,
-            "car.grade": s.grade, "car.mode": s.mode,
+            "car.grade": s.grade, "car.mode": s.mode, "car.total_mass": self.plant.p.mass,
             "sensor.speed": self.sensor_speed, "sensor.position": self.sensor_position,
         }
         out.update(self.estimator.outputs())

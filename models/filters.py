@@ -18,8 +18,11 @@ import numpy as np
 from .track import GradeProfile, SpeedProfile
 from .units import G
 
-LINEARISED, EKF = 1, 2
-"""Values of ``filter.kind`` (0 = automatic: linearised when a speed profile is given)."""
+LINEARISED, EKF, PAPER = 1, 2, 3
+"""Values of ``filter.kind``: 0 = automatic (LINEARISED when a speed profile is given, else EKF);
+LINEARISED = linearised around V_zad, eq. (13), with the trapezoid distance update and
+white-acceleration process noise; EKF = eq. (2) relinearised at the estimate, same distance
+update; PAPER = eqs. (13)-(19) verbatim (Euler distance, Q = diag(sigma^2, 0)), the baseline."""
 
 
 def specific_net_force(traction: float, brake: float, speed: float, grade: float,
@@ -78,10 +81,12 @@ class FilterConfig:
             v = getattr(self, name)
             if not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"sensor.{name} must be > 0 for the filter, got {v}")
-        if self.kind not in (0, LINEARISED, EKF):
-            raise ValueError(f"filter.kind must be 0 (auto), 1 (linearised) or 2 (EKF), got {self.kind}")
-        if self.kind == LINEARISED and not has_speed_profile:
-            raise ValueError("filter.kind = 1 (linearised, eqs. (13)-(19)) needs track.speed_profile")
+        if self.kind not in (0, LINEARISED, EKF, PAPER):
+            raise ValueError(f"filter.kind must be 0 (auto), 1 (linearised), 2 (EKF) or 3 "
+                             f"(paper verbatim), got {self.kind}")
+        if self.kind in (LINEARISED, PAPER) and not has_speed_profile:
+            raise ValueError(f"filter.kind = {self.kind} (linearised around V_zad, eq. (13)) "
+                             f"needs track.speed_profile")
 
 
 class MotionFilter:
@@ -108,14 +113,15 @@ class MotionFilter:
         self.M = np.zeros((2, 2))
         self.x_hat = np.zeros(2)
         self.P = np.zeros((2, 2))
-        self.vzad_hat = self.vzad_bar = self._vzad(0.0)   # V_zad at posterior / prediction [m/s]
+        # V_zad at the posterior's / the prediction's instant [m/s]; 0 for the EKF (absolute speed)
+        self.vzad_hat = self.vzad_bar = self._vzad(0.0) if self.kind in (LINEARISED, PAPER) else 0.0
 
     def _vzad(self, x: float) -> float:
         return self.speed_profile.at(x) if self.speed_profile is not None else 0.0
 
     def update(self, speed_meas: float, position_meas: float) -> None:
         """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m]."""
-        vzad = self.vzad_bar if self.kind == LINEARISED else 0.0
+        vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
         z = np.array([speed_meas - vzad, position_meas])
         self.x_hat, self.P, _ = kf_update(self.x_bar, self.M, z, self.Rm)
         if self.x_hat[0] + vzad < 0.0:            # a car never moves backwards
@@ -127,20 +133,33 @@ class MotionFilter:
         speed_hat = self.speed
         x_pos = float(self.x_hat[1])
         grade = self.grade_profile.average(x_pos, self.cfg.length)
-        if self.kind == LINEARISED:
+        if self.kind in (LINEARISED, PAPER):
             vzad = self.vzad_hat
             vzad_next = self._vzad(x_pos + speed_hat * dt)
             a, c, C = linearised_model(vzad, vzad_next, traction, brake, grade, theta, dt, self.cfg.gamma)
-            Phi = np.array([[a, 0.0], [dt, 1.0]])
-            u = np.array([c, C])
             self.vzad_bar = vzad_next
+            if self.kind == PAPER:                          # eqs. (16), (19) verbatim
+                Phi = np.array([[a, 0.0], [dt, 1.0]])
+                self.x_bar, self.M = kf_predict(self.x_hat, self.P, Phi, np.array([c, C]), q)
+                if self.x_bar[0] + vzad_next < 0.0:
+                    self.x_bar[0] = -vzad_next
+                return
+            dv, v_next_minus_dv_v = a, c + vzad_next - a * vzad     # V' = c + V_zad' + a (V - V_zad)
         else:
             v_next, dv = ekf_model(speed_hat, traction, brake, grade, theta, dt, self.cfg.gamma)
-            Phi = np.array([[dv, 0.0], [dt, 1.0]])
-            u = np.array([v_next - dv * speed_hat, 0.0])
-        self.x_bar, self.M = kf_predict(self.x_hat, self.P, Phi, u, q)
-        if self.x_bar[0] + self.vzad_bar < 0.0:
-            self.x_bar[0] = -self.vzad_bar
+            v_next_minus_dv_v = v_next - dv * speed_hat
+        # speed row in absolute terms: V' = v0 + dv V. Distance by the trapezoid rule,
+        # X' = X + dt (V + V') / 2, and the process noise as white acceleration noise over the
+        # step, which moves the distance too: the paper's X' = X + V dt with Q = diag(sigma^2, 0)
+        # lags under acceleration and makes the distance's covariance over-confident.
+        vzad_hat = self.vzad_hat if self.kind == LINEARISED else 0.0
+        vzad_bar = self.vzad_bar if self.kind == LINEARISED else 0.0
+        v_hat = float(self.x_hat[0]) + vzad_hat
+        v_pred = max(v_next_minus_dv_v + dv * v_hat, 0.0)
+        Phi = np.array([[dv, 0.0], [0.5 * dt * (1.0 + dv), 1.0]])
+        self.x_bar = np.array([v_pred - vzad_bar, float(self.x_hat[1]) + 0.5 * dt * (v_hat + v_pred)])
+        Q = q * np.array([[1.0, 0.5 * dt], [0.5 * dt, dt * dt / 3.0]])
+        self.M = Phi @ self.P @ Phi.T + Q
 
     @property
     def speed(self) -> float:

@@ -1,0 +1,173 @@
+"""Run scenarios on the RailCar FMU with fmpy: extract once, step in a closed loop, record.
+
+The runner always steps with the scenario's communication step (no silent coarsening), checks
+the run reaches its stop time, keeps the FMU's log, and raises ``RunError`` with that log
+when a call fails. Value references are looked up by name.
+"""
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import pythonfmu  # noqa: F401  (import before loading a pythonfmu FMU: the FMU reuses it)
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+from fmpy import calloc, free
+
+from .driver import PhaseDriver
+from .scenario import Scenario
+
+INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload")
+
+
+class RunError(RuntimeError):
+    """A run that failed; carries the FMU's log messages."""
+
+    def __init__(self, message: str, log: list[str]):
+        super().__init__(message + ("\nFMU log:\n  " + "\n  ".join(log[-20:]) if log else ""))
+        self.log = log
+
+
+@dataclass
+class RunResult:
+    """Recorded outputs of one run: ``signals[name]`` is an array over ``time`` [s]."""
+    scenario: Scenario
+    time: np.ndarray
+    signals: dict[str, np.ndarray]
+    units: dict[str, str]
+    log: list[str] = field(default_factory=list)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "time":
+            return self.time
+        return self.signals[name]
+
+
+class FmuRunner:
+    """One extracted FMU, reused for many runs (a new instance per run)."""
+
+    def __init__(self, fmu_path: str | Path):
+        self.fmu_path = Path(fmu_path)
+        if not self.fmu_path.is_file():
+            raise FileNotFoundError(f"FMU not found: {self.fmu_path} (build it with: python build.py)")
+        self.md = read_model_description(str(self.fmu_path))
+        self.unzipdir = extract(str(self.fmu_path))
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.outputs = [v.name for v in self.md.modelVariables if v.causality == "output"]
+        self.units = {v.name: (v.unit or v.declaredType and v.declaredType.unit or "")
+                      for v in self.md.modelVariables}
+        self._runs = 0
+
+    def close(self) -> None:
+        shutil.rmtree(self.unzipdir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def vr(self, name: str) -> int:
+        try:
+            return self.vars[name].valueReference
+        except KeyError:
+            raise KeyError(f"{self.md.modelName} has no variable '{name}'") from None
+
+    def _instantiate(self, log: list[str]) -> FMU2Slave:
+        def logger(_env, instance, status, category, message):
+            log.append(f"[{status}] {category.decode(errors='replace') if category else ''}: "
+                       f"{message.decode(errors='replace') if message else ''}")
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._runs += 1
+        fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
+                        modelIdentifier=self.md.coSimulation.modelIdentifier,
+                        instanceName=f"{self.md.modelName}_{self._runs}")
+        fmu.instantiate(callbacks=callbacks, loggingOn=True)
+        fmu._keep_callbacks = callbacks        # the C side holds pointers to them
+        return fmu
+
+    def set_parameters(self, fmu: FMU2Slave, parameters: dict) -> None:
+        for name, value in parameters.items():
+            var = self.vars.get(name)
+            if var is None:
+                raise KeyError(f"{self.md.modelName} has no parameter '{name}'")
+            if var.type == "Real":
+                fmu.setReal([var.valueReference], [float(value)])
+            elif var.type == "Integer":
+                fmu.setInteger([var.valueReference], [int(value)])
+            elif var.type == "String":
+                fmu.setString([var.valueReference], [str(value)])
+            else:
+                raise TypeError(f"{name}: unsupported type {var.type}")
+
+    def run(self, scenario: Scenario, outputs: list[str] | None = None) -> RunResult:
+        """Run ``scenario`` to its end and return every output (or ``outputs``) over time."""
+        outputs = list(outputs or self.outputs)
+        real_out = [n for n in outputs if self.vars[n].type == "Real"]
+        int_out = [n for n in outputs if self.vars[n].type == "Integer"]
+        real_vr = [self.vr(n) for n in real_out]
+        int_vr = [self.vr(n) for n in int_out]
+        in_vr = [self.vr(n) for n in INPUTS]
+        speed_i, pos_i = real_out.index("car.speed"), real_out.index("car.position")
+
+        h = scenario.step_s
+        n_max = int(round(scenario.duration_s / h))
+        log: list[str] = []
+        fmu = self._instantiate(log)
+        rows_t, rows_r, rows_i = [], [], []
+        try:
+            try:
+                fmu.setupExperiment(startTime=0.0, stopTime=scenario.duration_s)
+                fmu.enterInitializationMode()
+                self.set_parameters(fmu, scenario.parameters)
+                fmu.exitInitializationMode()
+            except Exception as e:
+                raise RunError(f"{scenario.name}: initialisation failed: {e}", log) from None
+            driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
+                                 scenario.parameter("car.traction_force_max"),
+                                 scenario.parameter("car.brake_force_max")) if scenario.phases else None
+            payload = 0.0
+            finished = False
+            r = fmu.getReal(real_vr)
+            rows_t.append(0.0), rows_r.append(r), rows_i.append(fmu.getInteger(int_vr))
+            for k in range(n_max):
+                t = k * h
+                if driver is not None:
+                    traction, brake, dm = driver.demands(t, r[speed_i], r[pos_i])
+                    payload += dm
+                    if driver.finished and scenario.stop_after_last_phase and r[speed_i] <= 0.0:
+                        finished = True
+                        break
+                else:
+                    traction, brake = scenario.time_table.at(t)
+                fmu.setReal(in_vr, [traction, brake, scenario.wind_at(t), payload])
+                try:
+                    fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+                except Exception as e:
+                    raise RunError(f"{scenario.name}: doStep at t = {t:.3f} s failed: {e}", log) from None
+                r = fmu.getReal(real_vr)
+                rows_t.append((k + 1) * h), rows_r.append(r), rows_i.append(fmu.getInteger(int_vr))
+            fmu.terminate()
+        finally:
+            try:
+                fmu.freeInstance()
+            except Exception:
+                pass
+        time = np.array(rows_t)
+        if not finished and not math.isclose(time[-1], n_max * h, rel_tol=1e-12, abs_tol=1e-9):
+            raise RunError(f"{scenario.name}: run ended at {time[-1]} s, not at {n_max * h} s", log)
+        r_arr = np.array(rows_r).reshape(len(rows_t), len(real_out))
+        i_arr = np.array(rows_i).reshape(len(rows_t), len(int_out))
+        signals = {n: r_arr[:, j] for j, n in enumerate(real_out)}
+        signals.update({n: i_arr[:, j] for j, n in enumerate(int_out)})
+        units = {n: self.units.get(n, "") for n in outputs}
+        return RunResult(scenario, time, signals, units, log)
