@@ -129,3 +129,17 @@ VARIABLES: tuple[Var, ...] = (
 def variables_for(fmu: str) -> tuple[Var, ...]:
     """The variables of one FMU, in value-reference order."""
     return tuple(v for v in VARIABLES if fmu in v.fmus)
+
+
+def markdown_table(fmu: str) -> str:
+    """The README's table of one FMU's variables, generated from this table."""
+    lines = ["| name | causality | type | unit | start | description |", "|---|---|---|---|---|---|"]
+    for v in variables_for(fmu):
+        start = f'"{v.start}"' if v.type == "String" else f"{v.start:g}" if isinstance(v.start, float) else str(v.start)
+        lines.append(f"| `{v.name}` | {v.causality} | {v.type} | {v.unit or '–'} | {start} | {v.description} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    for name in BOTH:
+        print(f"### `{name}`\n\n{markdown_table(name)}\n")

@@ -77,7 +77,8 @@ class OnlineEstimator:
         self.gamma = id_cfg.gamma
         self.dt_nominal = id_cfg.dt
         self.station_stops = 0
-        self._prev = None            # (V_meas, X_meas, moving) of the previous sample
+        self._prev = None            # (V_meas, X_meas) of the previous sample
+        self._pair_used = False      # the pair ending at the previous sample was identified
         self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
         self._dt = id_cfg.dt         # length of that interval [s]
 
@@ -87,11 +88,14 @@ class OnlineEstimator:
         moving_before = self.station.moving
         stop = self.station.observe(speed_meas, position_meas, dt)
         prev = self._prev
-        if (prev is not None and moving_before and self.station.moving
-                and position_meas >= prev[1] - 10.0 * self.filter.cfg.position_std - 1.0):
+        used = (prev is not None and moving_before and self.station.moving
+                and position_meas >= prev[1] - 10.0 * self.filter.cfg.position_std - 1.0)
+        if used:
             traction, brake = self._forces
             grade = self.grade_profile.average(prev[1], self.length)
-            self.ident.update(traction, brake, prev[0], speed_meas, grade, dt)
+            self.ident.update(traction, brake, prev[0], speed_meas, grade, dt,
+                              contiguous=self._pair_used)
+        self._pair_used = used
         self._prev = (speed_meas, position_meas)
         if stop:
             self.station_stops += 1

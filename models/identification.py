@@ -105,7 +105,7 @@ class IdentifierConfig:
     A1_std_initial: float = 0.1      # [N/kN/(m/s)]
     A2_std_initial: float = 0.02     # [N/kN/(m/s)^2]
     sigma2_initial: float = 1e-4     # process-noise variance per step [(m/s)^2]
-    speed_std: float = 0.0           # measurement noise of V [m/s], for the sigma^2 correction
+    speed_std: float = 0.0           # measurement noise of V [m/s]: scales the prior's weight
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
@@ -152,7 +152,19 @@ class ParameterIdentifier:
         self.s2 = self.s2_ref         # residual variance of e(n)
         self._batch_phi: list[np.ndarray] = []
         self._batch_y: list[float] = []
+        self._batch_contiguous: list[bool] = []
         self.mass_restarts = 0
+        # honest covariance (see covariance()): information J (with the prior), white-noise
+        # meat W, differenced-noise meat D (closed runs; the open run's end is _last_phi),
+        # lag-0/lag-1 autocovariance of the residuals
+        self.J = self.J0.copy()
+        self.W = np.zeros((4, 4))
+        self.D = np.zeros((4, 4))
+        self._last_phi = None
+        self._last_err = None
+        self.c0 = self.s2_ref
+        self.c1 = 0.0
+        self._n_c1 = 0
 
     @property
     def samples(self) -> int:
@@ -164,15 +176,44 @@ class ParameterIdentifier:
         """True once the first batch has been solved."""
         return self.S is not None
 
+    def _accumulate(self, phi: np.ndarray, contiguous: bool, lam: float) -> None:
+        """Add one regressor to J, W and D (weights of exponential forgetting lam = 1 - mu0)."""
+        outer = np.outer(phi, phi)
+        if lam < 1.0:
+            self.J = lam * (self.J - self.J0) + self.J0
+            self.W *= lam * lam
+            self.D *= lam * lam
+        self.J += outer
+        self.W += outer
+        last = self._last_phi
+        if contiguous and last is not None:
+            d = phi - last
+            self.D += np.outer(d, d)
+        else:
+            if last is not None:
+                self.D += np.outer(last, last)      # close the previous run
+            self.D += outer                         # open a new one
+        self._last_phi = phi
+
+    def _residual_stats(self, err: float, contiguous: bool, mu: float) -> None:
+        self.c0 += mu * (err * err - self.c0)
+        if contiguous and self._last_err is not None:
+            self._n_c1 += 1
+            w = mu if self.cfg.forgetting > 0.0 else 1.0 / self._n_c1
+            self.c1 += w * (err * self._last_err - self.c1)
+        self._last_err = err
+
     def update(self, traction: float, brake: float, speed: float, speed_next: float,
-               grade: float, dt: float | None = None) -> None:
+               grade: float, dt: float | None = None, contiguous: bool = True) -> None:
         """Use the sample pair n, n+1: forces [N] applied between them, measured speeds [m/s],
-        grade [permille] at n, their spacing dt [s] (default: the configured period)."""
+        grade [permille] at n, their spacing dt [s] (default: the configured period).
+        ``contiguous``: this pair directly follows the last one used (they share a sample)."""
         phi = regressor(traction, brake, speed)
         y = regression_target(speed, speed_next, grade, dt or self.cfg.dt, self.cfg.gamma)
         if self.S is None:
             self._batch_phi.append(phi)
             self._batch_y.append(y)
+            self._batch_contiguous.append(contiguous)
             if len(self._batch_y) >= self.cfg.batch_size:
                 self._solve_batch()
             return
@@ -181,6 +222,8 @@ class ParameterIdentifier:
         pred_err = y - float(self.theta @ phi)
         gain_den = 1.0 + mu / (1.0 - mu) * float(phi @ self.S @ phi)
         self.theta, self.S = rls_step(self.theta, self.S, phi, y, mu)
+        self._accumulate(phi, contiguous, 1.0 - self.cfg.forgetting)
+        self._residual_stats(pred_err / math.sqrt(gain_den), contiguous, mu)
         if self.cfg.forgetting > 0.0:
             # regularised forgetting: keep the prior's information (anti-windup)
             self.S = np.linalg.inv(np.linalg.inv(self.S) + mu * mu * self.J0)
@@ -200,8 +243,15 @@ class ParameterIdentifier:
         resid = y - phi @ self.theta
         self.q_e = float(resid @ resid)
         self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
+        for k in range(n):
+            self._accumulate(phi[k], self._batch_contiguous[k], 1.0)
+        self.c0 = self.q_e / max(n - 4, 1)
+        lagged = [resid[k] * resid[k - 1] for k in range(1, n) if self._batch_contiguous[k]]
+        self._n_c1 = len(lagged)
+        self.c1 = float(np.mean(lagged)) if lagged else 0.0
+        self._last_err = float(resid[-1])
         self.n = n
-        self._batch_phi, self._batch_y = [], []
+        self._batch_phi, self._batch_y, self._batch_contiguous = [], [], []
 
     def restart_mass(self) -> None:
         """New passengers: reopen 1/(Pg) with its prior; the A's keep what they learnt."""
@@ -215,6 +265,13 @@ class ParameterIdentifier:
         R[1:, 0] = 0.0
         R[0, 0] = self.J0[0, 0] / self._n_eff()
         self.S = np.linalg.inv(R)
+        J = self.J
+        J[1:, 1:] -= np.outer(J[1:, 0], J[0, 1:]) / J[0, 0]
+        J[0, 1:] = J[1:, 0] = 0.0
+        J[0, 0] = self.J0[0, 0]
+        for meat in (self.W, self.D):
+            meat[0, :] = meat[:, 0] = 0.0
+        self._last_phi = None
 
     def _n_eff(self) -> float:
         mu0 = self.cfg.forgetting
@@ -224,11 +281,31 @@ class ParameterIdentifier:
 
     # ------------------------------------------------------------ outputs
 
+    def noise_split(self) -> tuple[float, float]:
+        """(a, b) [(N/kN)^2]: e(n) = u(n+1) - u(n) + p(n) with var(u) = a (the differenced
+        speed measurement) and var(p) = b (process noise), from the residuals' lag-0 and lag-1
+        autocovariance c0 = 2a + b, c1 = -a. Needs no knowledge of the sensor's noise."""
+        a = max(-self.c1, 0.0)
+        b = max(self.c0 - 2.0 * a, 1e-12 * self.c0)
+        return a, b
+
     def covariance(self) -> np.ndarray:
-        """Covariance of Theta-hat: s^2 S / n_eff, or the prior's before the batch."""
+        """Covariance of Theta-hat [Theta units^2], a sandwich J^-1 M J^-1.
+
+        The paper's s^2 (Phi^T Phi)^-1 assumes white e(n); but V is measured, so e(n) carries
+        the *difference* of two measurement errors (MA(1), lag-1 correlation -1/2), whose sum
+        telescopes: the white formula overstates the mass's std tens of times. The meat is
+        M = a D + b W + s2_ref J0, with D = sum over runs of consecutive samples of the
+        differenced regressors (plus the runs' ends), W = sum phi phi^T, and the prior's own.
+        """
+        Jinv = np.linalg.inv(self.J)
         if self.S is None:
-            return self.s2_ref * np.linalg.inv(self.J0)
-        return self.s2 * self.S / self._n_eff()
+            return self.s2_ref * Jinv @ self.J0 @ Jinv
+        a, b = self.noise_split()
+        D = self.D if self._last_phi is None else self.D + np.outer(self._last_phi, self._last_phi)
+        meat = a * D + b * self.W + self.s2_ref * self.J0
+        cov = Jinv @ meat @ Jinv
+        return 0.5 * (cov + cov.T)
 
     @property
     def mass(self) -> float:
@@ -241,14 +318,18 @@ class ParameterIdentifier:
         return math.sqrt(max(var, 0.0)) / (G * self.theta[0] ** 2)
 
     def sigma2(self) -> float:
-        """Process-noise variance per step [(m/s)^2]: eq. (12) less the measurement's share.
+        """Process-noise variance per step [(m/s)^2], eq. (12) applied to the process share b.
 
-        V is measured, so the differenced y(n) carries 2 sigma_V^2 of measurement noise; that
-        share is removed, and the result is floored at one standard error of the estimate
-        (eq. (12) * sqrt(2 / n)) so the filter never gets a zero or negative process noise.
+        V is measured, so the residual variance c0 of eq. (12) also holds 2a of differenced
+        measurement noise (see noise_split); only b is process noise. It is floored at one
+        standard error of c0 (c0 sqrt(2/n)) so the filter never gets a zero process noise.
         """
         if self.S is None:
             return self.cfg.sigma2_initial
-        s2_eq12 = sigma2_from_residual(self.s2, self.cfg.dt, self.cfg.gamma)
-        corrected = s2_eq12 - 2.0 * self.cfg.speed_std ** 2
-        return max(corrected, s2_eq12 * math.sqrt(2.0 / self._n_eff()))
+        a, b = self.noise_split()
+        b = max(b, self.c0 * math.sqrt(2.0 / self._n_eff()))
+        return sigma2_from_residual(b, self.cfg.dt, self.cfg.gamma)
+
+    def sigma2_paper(self) -> float:
+        """sigma^2 exactly as eq. (12): g^2 dt^2 / 10^6 * Q_e / (n - 4) [(m/s)^2]."""
+        return sigma2_from_residual(self.s2, self.cfg.dt, self.cfg.gamma)
