@@ -1,0 +1,103 @@
+"""Harness: scenario validation, drivers, metrics, and the main job end to end."""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.driver import PhaseDriver, parse_phase
+from harness.metrics import rmse, stop_indices, time_to_stay_within, w0_relative_rms_error
+from harness.scenario import ScenarioError, load_scenario, scenario_from_dict
+
+ROOT = Path(__file__).resolve().parent.parent
+MINIMAL = {"name": "t", "driver": [{"action": "traction", "until_speed_mps": 5.0}]}
+
+
+def test_default_scenario_loads_and_resolves_profiles():
+    s = load_scenario(ROOT / "scenarios" / "default.toml")
+    assert s.parameter("car.mass") == 34.0
+    assert Path(s.parameter("track.grade_profile")).is_file()
+    assert [p.action for p in s.phases] == ["traction", "coast", "brake_to_stop", "hold"]
+    assert s.parameter("est.batch_size") == 50          # FMU default where the file is silent
+
+
+@pytest.mark.parametrize("patch,needle", [
+    ({"parameters": {"car.mas": 3.0}}, 'parameters."car.mas": not a RailCar parameter'),
+    ({"parameters": {"car.mass": "heavy"}}, 'parameters."car.mass": expected a finite number'),
+    ({"parameters": {"seed": 1.5}}, 'parameters."seed": expected an integer'),
+    ({"parameters": {"track.grade_profile": "nope.csv"}}, "file not found"),
+    ({"step_s": 0.0}, "step_s must be > 0"),
+    ({"driver": [{"action": "fly"}]}, "driver[0].action: must be one of"),
+    ({"driver": [{"action": "brake_to_stop"}]}, "driver[0]: brake_to_stop needs stop_at_m"),
+    ({"driver": [{"action": "coast", "until_speed_kmh": 5, "until_speed_mps": 1}]}, "not both"),
+    ({"wind": [{"time_s": 1.0}]}, "wind[0].speed_mps: expected a finite number"),
+    ({"colour": "red"}, "unknown key 'colour'"),
+])
+def test_invalid_scenarios_name_file_key_and_reason(patch, needle):
+    data = dict(MINIMAL, **patch)
+    with pytest.raises(ScenarioError) as e:
+        scenario_from_dict(data, "my.toml", ROOT / "scenarios")
+    assert "my.toml" in str(e.value) and needle in str(e.value)
+
+
+def test_bad_toml_names_the_file(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("name = \n")
+    with pytest.raises(ScenarioError, match="bad.toml: not valid TOML"):
+        load_scenario(p)
+
+
+def test_phase_driver_runs_phases_on_speed_distance_and_time():
+    phases = tuple(parse_phase(p, "x") for p in [
+        {"action": "traction", "until_speed_mps": 10.0},
+        {"action": "coast", "until_brake_curve": True},
+        {"action": "brake_to_stop", "stop_at_m": 1000.0, "decel_mps2": 1.0},
+        {"action": "hold", "until_time_s": 5.0, "mass_change_t": 2.0}])
+    d = PhaseDriver(phases, 30.0, 40e3, 45e3)
+    assert d.demands(0.0, 0.0, 0.0)[:2] == (40e3, 0.0)
+    assert d.demands(1.0, 10.0, 100.0)[:2] == (0.0, 0.0)            # coasting
+    f, b, _ = d.demands(2.0, 10.0, 951.0)                             # 100/(2*49) >= 1 m/s^2: brake
+    assert f == 0.0 and b == pytest.approx(1000 * 30 * 100 / (2 * 49), rel=1e-12)
+    _, b, dm = d.demands(3.0, 0.0, 1000.0)                            # stopped: hold, passengers board
+    assert dm == 2.0 and b > 0
+    d.demands(8.0, 0.0, 1000.0)
+    assert d.finished
+
+
+def test_metrics_on_hand_made_arrays():
+    assert rmse(np.array([1.0, 3.0]), np.array([0.0, 0.0])) == pytest.approx(math.sqrt(5.0), rel=1e-15)
+    assert stop_indices(np.array([0, 1, 2, 0, 0, 1, 0])) == [4, 6]
+    t = np.arange(6.0)
+    assert time_to_stay_within(t, np.array([0.5, 0.2, 0.005, 0.02, 0.001, 0.0]), 0.01) == 4.0
+    v = np.array([0.0, 5.0, 10.0])
+    assert w0_relative_rms_error(v, (1.0, 0.0, 0.01), (1.0, 0.0, 0.01)) == 0.0
+
+
+def test_main_job_meets_the_backbone_targets(built_fmus, tmp_path):
+    """Issue 2's default run: est.mass within 1 % of car.mass, filter beats the sensor (RMSE)."""
+    from harness.__main__ import main
+    from harness.metrics import summarise
+    from harness.runner import FmuRunner
+    s = load_scenario(ROOT / "scenarios" / "default.toml")
+    with FmuRunner(built_fmus["RailCar"]) as runner:
+        result = runner.run(s)
+    summary = summarise(result, (0.89, 0.0288, 0.010498))
+    assert summary.stops == 1
+    assert abs(summary.mass_error_pct) < 1.0
+    assert summary.speed_rmse_filter < summary.speed_rmse_sensor
+    assert summary.position_rmse_filter < summary.position_rmse_sensor
+    # and the CLI writes the report
+    assert main(["run", str(ROOT / "scenarios" / "default.toml"), "--out", str(tmp_path),
+                 "--dist", str(built_fmus["RailCar"].parent)]) == 0
+    for name in ("summary.md", "speed.png", "estimates.png", "resistance.png", "default_result.csv"):
+        assert (tmp_path / name).stat().st_size > 0
+    header = (tmp_path / "default_result.csv").read_text().splitlines()[0]
+    assert header.startswith("time [s],") and "car.speed [m/s]" in header
+
+
+def test_cli_exit_code_2_on_invalid_scenario(tmp_path, capsys):
+    from harness.__main__ import main
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\n')
+    assert main(["run", str(p)]) == 2
+    assert "no driving script" in capsys.readouterr().err
