@@ -79,13 +79,16 @@ def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, Sp
         except OSError as e:
             raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
 
+    grade_src = read("track.grade_profile")
     try:
-        grade_src = read("track.grade_profile")
         grade = GradeProfile.from_csv_text(*grade_src) if grade_src else GradeProfile.level()
-        speed_src = read("track.speed_profile")
+    except ProfileError as e:
+        raise ParameterError(f"track.grade_profile: {e}") from None
+    speed_src = read("track.speed_profile")
+    try:
         speed = SpeedProfile.from_csv_text(*speed_src) if speed_src else None
     except ProfileError as e:
-        raise ParameterError(str(e)) from None
+        raise ParameterError(f"track.speed_profile: {e}") from None
     return grade, speed
 
 

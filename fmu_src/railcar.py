@@ -15,6 +15,10 @@ class RailCar(Fmi2Slave):
         super().__init__(**kwargs)
         self.values = register_variables(self, RAILCAR)
         self.chain = None
+        self.start_time = 0.0
+
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self.start_time = float(start_time)
 
     def _build(self):
         v = self.values
@@ -30,7 +34,7 @@ class RailCar(Fmi2Slave):
                           position_std=v["sensor.position_std"], seed=int(v["seed"]), station=station,
                           identifier=ident, filter_kind=int(v["filter.kind"]))
         grade, speed = load_profiles(v, self.resources)
-        chain = RailCarChain(cfg, grade, speed)
+        chain = RailCarChain(cfg, grade, speed, start_time=self.start_time)
         self.values.update(chain.outputs())
         return chain
 

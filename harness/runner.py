@@ -125,13 +125,16 @@ class FmuRunner:
         fmu = self._instantiate(log)
         rows_t, rows_r, rows_i = [], [], []
         try:
-            try:
-                fmu.setupExperiment(startTime=0.0, stopTime=scenario.duration_s)
-                fmu.enterInitializationMode()
-                self.set_parameters(fmu, scenario.parameters)
-                fmu.exitInitializationMode()
-            except Exception as e:
-                raise RunError(f"{scenario.name}: initialisation failed: {e}", log) from None
+            fmu.setupExperiment(startTime=0.0, stopTime=scenario.duration_s)
+            fmu.enterInitializationMode()
+            self.set_parameters(fmu, scenario.parameters)
+            fmu.exitInitializationMode()
+        except Exception as e:
+            # pythonfmu reports initialisation errors as fmi2Fatal; after Fatal the FMI standard
+            # allows no further call on the instance (pythonfmu's freeInstance would segfault),
+            # so the instance is deliberately leaked.
+            raise RunError(f"{scenario.name}: initialisation failed: {e}", log) from None
+        try:
             driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
                                  scenario.parameter("car.traction_force_max"),
                                  scenario.parameter("car.brake_force_max")) if scenario.phases else None

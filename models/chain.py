@@ -8,7 +8,7 @@ integrator's error. Between samples the sensors and estimates hold their last va
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from .dynamics import CarPlant, VehicleParams
 from .estimator import OnlineEstimator, StationConfig
@@ -56,6 +56,8 @@ class ChainConfig:
 
     def validate(self) -> None:
         self.vehicle.validate()
+        if not 0 <= int(self.seed) < 2 ** 63:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
         if not (self.sample_period > 0 and math.isfinite(self.sample_period)):
             raise ValueError(f"sensor.sample_period must be > 0, got {self.sample_period}")
         for name in ("speed_std", "position_std"):
@@ -81,9 +83,13 @@ class RailCarChain:
     """Plant + sensors + estimator; one instance per FMU instance."""
 
     def __init__(self, cfg: ChainConfig, grade_profile: GradeProfile,
-                 speed_profile: SpeedProfile | None = None):
-        cfg.validate()
+                 speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
+        cfg = replace(cfg, vehicle=replace(cfg.vehicle), identifier=replace(cfg.identifier))
+        cfg.validate()     # a private copy: payload changes the mass, and dt is set below
+        if not math.isfinite(start_time):
+            raise ValueError(f"start time must be finite, got {start_time}")
         self.cfg = cfg
+        self.start_time = start_time    # the host's time of the chain's internal t = 0 [s]
         streams = noise_streams(cfg.seed, ("process", "speed_sensor", "position_sensor"))
         self._speed_noise = streams["speed_sensor"]
         self._position_noise = streams["position_sensor"]
@@ -117,6 +123,7 @@ class RailCarChain:
         Raises StepRejected (naming the variable) before changing anything on bad input.
         """
         check_step(current_time, step_size)
+        current_time -= self.start_time          # internal time starts at 0
         check_force("traction_force_demand", traction_demand)
         check_force("brake_force_demand", brake_demand)
         check_finite("wind_speed", wind_speed, "m/s")
@@ -128,8 +135,8 @@ class RailCarChain:
         t_end = current_time + step_size
         eps = 1e-9 * max(1.0, abs(t_end))
         if abs(current_time - self.plant.time) > eps:
-            raise StepRejected(f"current time {current_time!r} s does not continue the FMU's "
-                               f"time {self.plant.time!r} s")
+            raise StepRejected(f"current time {current_time + self.start_time!r} s does not continue "
+                               f"the FMU's time {self.plant.time + self.start_time!r} s")
         while True:
             t_sample = self.next_sample_time()
             if t_sample > t_end + eps:
@@ -171,6 +178,7 @@ class EstimatorChain:
         for name, v in (("sensor.speed_std", speed_std), ("sensor.position_std", position_std)):
             if not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"{name} must be > 0, got {v}")
+        identifier = replace(identifier)     # a private copy: dt is set at the first step
         self._args = (identifier, speed_std, position_std, filter_kind, length, station,
                       grade_profile, speed_profile)
         identifier.dt = 1.0

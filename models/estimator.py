@@ -32,7 +32,8 @@ class StationDetector:
     """Recognises standstill and station stops from measurements alone.
 
     A sample is *moving* when it and the previous one exceed the speed threshold (two in a row,
-    so that one noisy sample neither starts nor ends a standstill). A standstill of at least
+    so that one noisy sample does not end a standstill; one slow sample while moving only
+    pauses identification for two pairs, which would contain it). A standstill of at least
     ``dwell`` is a station stop; the stop is *confirmed* when the measured distance restarts
     near 0 (the contract of ``track.station_dwell``).
     """

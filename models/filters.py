@@ -77,6 +77,8 @@ class FilterConfig:
     length: float = 0.0         # car length for grade averaging [m]
 
     def validate(self, has_speed_profile: bool) -> None:
+        if not (self.length >= 0 and math.isfinite(self.length)):
+            raise ValueError(f"car.length must be >= 0, got {self.length}")
         for name in ("speed_std", "position_std"):
             v = getattr(self, name)
             if not (v > 0 and math.isfinite(v)):

@@ -124,6 +124,8 @@ class IdentifierConfig:
             v = getattr(self, name)
             if not math.isfinite(v):
                 raise ValueError(f"est.{name} must be finite, got {v}")
+        if self.gamma < 0:
+            raise ValueError(f"est.gamma must be >= 0, got {self.gamma}")
 
 
 class ParameterIdentifier:
