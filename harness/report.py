@@ -33,6 +33,15 @@ def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Pa
     return path
 
 
+def _save(fig, title: str, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_run(result, out_dir: Path) -> list[Path]:
     """Speed and distance (true, measured, filtered) vs distance; estimates vs time with 2-sigma bands."""
     import matplotlib
@@ -56,12 +65,7 @@ def plot_run(result, out_dir: Path) -> list[Path]:
     ax[1].set_ylabel("speed error [m/s]")
     ax[1].set_xlabel("distance from the previous station [m]")
     ax[1].legend(loc="best")
-    fig.suptitle(f"{result.scenario.name}: speed vs distance")
-    fig.tight_layout()
-    p = out_dir / "speed.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    figs.append(p)
+    figs.append(_save(fig, f"{result.scenario.name}: speed vs distance", out_dir / "speed.png"))
 
     fig, ax = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     m, s = result["est.mass"], result["est.mass_std"]
@@ -81,12 +85,8 @@ def plot_run(result, out_dir: Path) -> list[Path]:
     ax[2].plot(t, result["car.speed"], color="k", label="true speed [m/s]")
     ax[2].set_ylabel("speed [m/s]")
     ax[2].set_xlabel("time [s]")
-    fig.suptitle(f"{result.scenario.name}: identification and filter vs time")
-    fig.tight_layout()
-    p = out_dir / "estimates.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    figs.append(p)
+    figs.append(_save(fig, f"{result.scenario.name}: identification and filter vs time",
+                      out_dir / "estimates.png"))
     return figs
 
 
@@ -106,12 +106,7 @@ def plot_resistance(result, true_A: tuple, out_dir: Path) -> Path:
     ax.set_xlabel("speed [m/s]")
     ax.set_ylabel("w0 [N/kN]")
     ax.legend()
-    ax.set_title(f"{result.scenario.name}: main resistance eq. (1)")
-    fig.tight_layout()
-    p = out_dir / "resistance.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p
+    return _save(fig, f"{result.scenario.name}: main resistance eq. (1)", out_dir / "resistance.png")
 
 
 def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path) -> list[Path]:
