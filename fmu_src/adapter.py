@@ -16,6 +16,7 @@ from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
 from models.estimator import StationConfig
+from models.filters import FilterConfig
 from models.identification import IdentifierConfig
 from models.track import GradeProfile, ProfileError, SpeedProfile
 
@@ -115,12 +116,15 @@ def guarded_step(slave, step) -> bool:
         return False
 
 
-def estimator_settings(v: dict) -> tuple[IdentifierConfig, StationConfig]:
-    """est.* and track.station_dwell parameters -> configs (shared with RailCarEstimator)."""
+def estimator_settings(v: dict) -> tuple[IdentifierConfig, FilterConfig, StationConfig]:
+    """est.*, sensor noise, filter.kind and track.station_dwell -> configs (both FMUs)."""
     ident = IdentifierConfig(
         batch_size=int(v["est.batch_size"]), forgetting=v["est.forgetting"], gamma=v["est.gamma"],
         mass_initial=v["est.mass_initial"], mass_std_initial=v["est.mass_std_initial"],
         A0_initial=v["est.A0_initial"], A1_initial=v["est.A1_initial"], A2_initial=v["est.A2_initial"],
         A0_std_initial=v["est.A0_std_initial"], A1_std_initial=v["est.A1_std_initial"],
         A2_std_initial=v["est.A2_std_initial"], sigma2_initial=v["est.sigma2_initial"])
-    return ident, StationConfig(dwell=v["track.station_dwell"])
+    filt = FilterConfig(speed_std=v["sensor.speed_std"], position_std=v["sensor.position_std"],
+                        position_std_rel=v["sensor.position_std_rel"], kind=int(v["filter.kind"]),
+                        length=v["car.length"])
+    return ident, filt, StationConfig(dwell=v["track.station_dwell"])

@@ -27,12 +27,12 @@ class RailCar(Fmi2Slave):
             length=v["car.length"], traction_force_max=v["car.traction_force_max"],
             traction_power_max=v["car.traction_power_max"], brake_force_max=v["car.brake_force_max"],
             adhesion_mass_fraction=v["car.adhesion_mass_fraction"], adhesion_factor=v["car.adhesion_factor"])
-        ident, station = estimator_settings(v)
+        ident, filt, station = estimator_settings(v)
         cfg = ChainConfig(vehicle=vehicle, solver_step=v["solver.step"],
                           process_noise_psd=v["car.process_noise_psd"],
-                          sample_period=v["sensor.sample_period"], speed_std=v["sensor.speed_std"],
-                          position_std=v["sensor.position_std"], seed=int(v["seed"]), station=station,
-                          identifier=ident, filter_kind=int(v["filter.kind"]))
+                          sample_period=v["sensor.sample_period"], seed=int(v["seed"]),
+                          initial_speed=v["car.initial_speed"], initial_position=v["car.initial_position"],
+                          station=station, identifier=ident, filter=filt)
         grade, speed = load_profiles(v, self.resources)
         chain = RailCarChain(cfg, grade, speed, start_time=self.start_time)
         self.values.update(chain.outputs())

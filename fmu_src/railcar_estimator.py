@@ -17,11 +17,9 @@ class RailCarEstimator(Fmi2Slave):
 
     def _build(self):
         v = self.values
-        ident, station = estimator_settings(v)
+        ident, filt, station = estimator_settings(v)
         grade, speed = load_profiles(v, self.resources)
-        return EstimatorChain(ident, speed_std=v["sensor.speed_std"], position_std=v["sensor.position_std"],
-                              filter_kind=int(v["filter.kind"]), length=v["car.length"], station=station,
-                              grade_profile=grade, speed_profile=speed)
+        return EstimatorChain(ident, filt, station, grade, speed)
 
     def exit_initialization_mode(self):
         self.chain = initialise(self, self._build)

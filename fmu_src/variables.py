@@ -76,12 +76,15 @@ VARIABLES: tuple[Var, ...] = (
     Var("car.adhesion_mass_fraction", "parameter", "Real", "1", 1.0, "share of the mass on driven axles", R, min=0.0, max=1.0),
     Var("car.adhesion_factor", "parameter", "Real", "1", 1.0, "scales the dry-rail adhesion coefficient (Curtius-Kniffler); wet rail ~0.5", R, min=0.0),
     Var("car.process_noise_psd", "parameter", "Real", "m2/s3", 1e-4, "process noise: white acceleration noise density; sigma^2 per step dt = psd * dt", R, min=0.0),
+    Var("car.initial_speed", "parameter", "Real", "m/s", 0.0, "speed at the start; > 0 starts the car moving mid-line", R, min=0.0),
+    Var("car.initial_position", "parameter", "Real", "m", 0.0, "distance from the previous station at the start", R, min=0.0),
     Var("solver.step", "parameter", "Real", "s", 0.05, "plant's fixed internal integration step (RK4)", R, min=0.0),
     Var("sensor.sample_period", "parameter", "Real", "s", 0.1, "sensor sampling period; the estimator runs at this period", R, min=0.0),
     Var("seed", "parameter", "Integer", None, 1, "random seed; same seed, same inputs => bit-identical outputs", R),
     # ---------------------------------------------------------------- both: sensors, track, estimator settings
     Var("sensor.speed_std", "parameter", "Real", "m/s", 0.05, "speed measurement noise standard deviation", BOTH, min=0.0),
     Var("sensor.position_std", "parameter", "Real", "m", 1.0, "distance measurement noise standard deviation", BOTH, min=0.0),
+    Var("sensor.position_std_rel", "parameter", "Real", "1", 0.0, "plus this share of the distance (odometry drift): std = position_std + rel * distance", BOTH, min=0.0),
     Var("car.length", "parameter", "Real", "m", 0.0, "car/train length over which the grade is averaged; 0 = point mass", BOTH, min=0.0),
     Var("track.grade_profile", "parameter", "String", None, "", "CSV 'distance_m,grade_permille', grade piecewise constant from each distance; empty = level track"),
     Var("track.speed_profile", "parameter", "String", None, "", "CSV 'distance_m,speed_mps', reference speed V_zad(X), piecewise linear; needed by the linearised filter"),
@@ -140,6 +143,21 @@ def markdown_table(fmu: str) -> str:
     return "\n".join(lines)
 
 
+def readme_block() -> str:
+    """What stands between the README's variables markers."""
+    return "\n" + "\n\n".join(f"### `{n}`\n\n{markdown_table(n)}" for n in BOTH) + "\n"
+
+
 if __name__ == "__main__":
-    for name in BOTH:
-        print(f"### `{name}`\n\n{markdown_table(name)}\n")
+    import sys
+    from pathlib import Path
+    if "--update-readme" in sys.argv:
+        readme = Path(__file__).resolve().parent.parent / "README.md"
+        text = readme.read_text(encoding="utf-8")
+        head, rest = text.split("<!-- variables:start -->")
+        tail = rest.split("<!-- variables:end -->")[1]
+        readme.write_text(f"{head}<!-- variables:start -->{readme_block()}<!-- variables:end -->{tail}",
+                          encoding="utf-8")
+        print(f"updated {readme}")
+    else:
+        print(readme_block())

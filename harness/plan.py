@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from models.chain import ChainConfig, RailCarChain
 from models.dynamics import VehicleParams
+from models.filters import FilterConfig
 from models.track import GradeProfile
 
 from .driver import PhaseDriver
@@ -26,8 +27,8 @@ def plan_speed_profile(scenario: Scenario, spacing_m: float = 10.0) -> tuple[lis
     if p("track.grade_profile"):
         with open(p("track.grade_profile"), encoding="utf-8") as f:
             grade = GradeProfile.from_csv_text(f.read(), p("track.grade_profile"))
-    chain = RailCarChain(ChainConfig(vehicle=vehicle, process_noise_psd=0.0, speed_std=1e-9,
-                                     position_std=1e-9), grade)
+    chain = RailCarChain(ChainConfig(vehicle=vehicle, process_noise_psd=0.0,
+                                     filter=FilterConfig(speed_std=1e-9, position_std=1e-9)), grade)
     driver = PhaseDriver(scenario.phases, vehicle.mass, vehicle.traction_force_max, vehicle.brake_force_max)
     h = scenario.step_s
     xs, vs = [0.0], [0.0]

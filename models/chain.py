@@ -47,12 +47,12 @@ class ChainConfig:
     solver_step: float = 0.05          # plant's internal step [s]
     process_noise_psd: float = 1e-4    # [m^2/s^3]
     sample_period: float = 0.1         # sensors [s]
-    speed_std: float = 0.05            # [m/s]
-    position_std: float = 1.0          # [m]
     seed: int = 1
+    initial_speed: float = 0.0         # [m/s]; > 0 starts the car moving mid-line
+    initial_position: float = 0.0      # [m] from the previous station
     station: StationConfig = field(default_factory=StationConfig)
     identifier: IdentifierConfig = field(default_factory=IdentifierConfig)
-    filter_kind: int = 0
+    filter: FilterConfig = field(default_factory=FilterConfig)   # sensor noise and filter kind
 
     def validate(self) -> None:
         self.vehicle.validate()
@@ -60,22 +60,21 @@ class ChainConfig:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         if not (self.sample_period > 0 and math.isfinite(self.sample_period)):
             raise ValueError(f"sensor.sample_period must be > 0, got {self.sample_period}")
-        for name in ("speed_std", "position_std"):
+        for name in ("initial_speed", "initial_position"):
             v = getattr(self, name)
-            if not (v > 0 and math.isfinite(v)):
-                raise ValueError(f"sensor.{name} must be > 0, got {v}")
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"car.{name} must be >= 0, got {v}")
         if self.sample_period + 1e-12 < self.solver_step:
             raise ValueError(f"solver.step ({self.solver_step}) must not exceed "
                              f"sensor.sample_period ({self.sample_period})")
 
 
-def build_estimator(id_cfg: IdentifierConfig, speed_std: float, position_std: float,
-                    filter_kind: int, length: float, station: StationConfig,
-                    grade_profile: GradeProfile, speed_profile: SpeedProfile | None) -> OnlineEstimator:
-    """The estimator both FMUs run, from their parameters."""
-    id_cfg.speed_std = speed_std
-    filt = FilterConfig(dt=id_cfg.dt, speed_std=speed_std, position_std=position_std,
-                        gamma=id_cfg.gamma, kind=filter_kind, length=length)
+def build_estimator(id_cfg: IdentifierConfig, filt: FilterConfig, station: StationConfig,
+                    grade_profile: GradeProfile, speed_profile: SpeedProfile | None,
+                    dt: float) -> OnlineEstimator:
+    """The estimator both FMUs run, sampling every dt [s] (private copies of the configs)."""
+    id_cfg = replace(id_cfg, dt=dt, speed_std=filt.speed_std)
+    filt = replace(filt, dt=dt, gamma=id_cfg.gamma)
     return OnlineEstimator(id_cfg, filt, station, grade_profile, speed_profile)
 
 
@@ -84,8 +83,8 @@ class RailCarChain:
 
     def __init__(self, cfg: ChainConfig, grade_profile: GradeProfile,
                  speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
-        cfg = replace(cfg, vehicle=replace(cfg.vehicle), identifier=replace(cfg.identifier))
-        cfg.validate()     # a private copy: payload changes the mass, and dt is set below
+        cfg = replace(cfg, vehicle=replace(cfg.vehicle))
+        cfg.validate()     # a private copy: payload changes the mass
         if not math.isfinite(start_time):
             raise ValueError(f"start time must be finite, got {start_time}")
         self.cfg = cfg
@@ -97,10 +96,12 @@ class RailCarChain:
         self.plant = CarPlant(cfg.vehicle, grade_profile, step=cfg.solver_step,
                               noise_psd=cfg.process_noise_psd, station_dwell=cfg.station.dwell,
                               normal_draws=streams["process"])
-        cfg.identifier.dt = cfg.sample_period
-        self.estimator = build_estimator(cfg.identifier, cfg.speed_std, cfg.position_std,
-                                         cfg.filter_kind, cfg.vehicle.length, cfg.station,
-                                         grade_profile, speed_profile)
+        self.plant.state.speed = cfg.initial_speed
+        self.plant.state.position = cfg.initial_position
+        self.plant.refresh_outputs()
+        filt = replace(cfg.filter, length=cfg.vehicle.length)
+        self.estimator = build_estimator(cfg.identifier, filt, cfg.station, grade_profile,
+                                         speed_profile, cfg.sample_period)
         self._sample_index = 0
         self.sensor_speed = 0.0
         self.sensor_position = 0.0
@@ -108,8 +109,9 @@ class RailCarChain:
 
     def _take_sample(self) -> None:
         s = self.plant.state
-        self.sensor_speed = s.speed + self.cfg.speed_std * self._speed_noise()
-        self.sensor_position = s.position + self.cfg.position_std * self._position_noise()
+        f = self.cfg.filter
+        self.sensor_speed = s.speed + f.speed_std * self._speed_noise()
+        self.sensor_position = s.position + f.position_noise_std(s.position) * self._position_noise()
         self.estimator.measure(self.sensor_speed, self.sensor_position)
 
     def next_sample_time(self) -> float:
@@ -172,17 +174,10 @@ class EstimatorChain:
     whose size h is the nominal sampling period.
     """
 
-    def __init__(self, identifier: IdentifierConfig, *, speed_std: float, position_std: float,
-                 filter_kind: int, length: float, station: StationConfig,
+    def __init__(self, identifier: IdentifierConfig, filt: FilterConfig, station: StationConfig,
                  grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None):
-        for name, v in (("sensor.speed_std", speed_std), ("sensor.position_std", position_std)):
-            if not (v > 0 and math.isfinite(v)):
-                raise ValueError(f"{name} must be > 0, got {v}")
-        identifier = replace(identifier)     # a private copy: dt is set at the first step
-        self._args = (identifier, speed_std, position_std, filter_kind, length, station,
-                      grade_profile, speed_profile)
-        identifier.dt = 1.0
-        build_estimator(*self._args)      # validates every setting now, at initialisation
+        self._args = (identifier, filt, station, grade_profile, speed_profile)
+        build_estimator(*self._args, dt=1.0)   # validates every setting now, at initialisation
         self.estimator: OnlineEstimator | None = None
         self.time = None
 
@@ -198,8 +193,7 @@ class EstimatorChain:
             raise StepRejected(f"current time {current_time!r} s does not continue the FMU's "
                                f"time {self.time!r} s")
         if self.estimator is None:
-            self._args[0].dt = step_size
-            self.estimator = build_estimator(*self._args)
+            self.estimator = build_estimator(*self._args, dt=step_size)
         self.estimator.measure(speed_meas, position_meas)
         self.estimator.propagate(traction, brake, step_size)
         self.time = current_time + step_size

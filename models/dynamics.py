@@ -223,6 +223,11 @@ class CarPlant:
         else:
             s.mode = COASTING
 
+    def refresh_outputs(self, traction_demand: float = 0.0, brake_demand: float = 0.0,
+                        wind: float = 0.0) -> None:
+        """Recompute acceleration, forces, grade and mode after the state was set."""
+        self._update_outputs(traction_demand, brake_demand, wind)
+
     def next_grid_time(self) -> float:
         return (self._grid_index + 1) * self.h
 

@@ -89,6 +89,12 @@ class OnlineEstimator:
         moving_before = self.station.moving
         stop = self.station.observe(speed_meas, position_meas, dt)
         prev = self._prev
+        if prev is None and not (abs(speed_meas) < self.station.v_thr
+                                 and abs(position_meas) < self.station.x_thr):
+            # the run starts away from a station (a log cut mid-line, a car already moving)
+            self.filter.start_from_measurement(speed_meas, position_meas)
+            self._prev = (speed_meas, position_meas)
+            return
         used = (prev is not None and moving_before and self.station.moving
                 and position_meas >= prev[1] - 10.0 * self.filter.cfg.position_std - 1.0)
         if used:

@@ -72,11 +72,18 @@ class FilterConfig:
     dt: float = 0.1             # sampling period [s]
     speed_std: float = 0.05     # measurement noise of V [m/s]
     position_std: float = 1.0   # measurement noise of X [m]
+    position_std_rel: float = 0.0  # plus this share of the distance [-] (odometry drift, ETCS)
     gamma: float = 0.0          # rotating-mass factor assumed by the model [-]
     kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF
     length: float = 0.0         # car length for grade averaging [m]
 
+    def position_noise_std(self, distance: float) -> float:
+        """Std of the measured distance [m] at ``distance`` [m]: position_std + rel * |X|."""
+        return self.position_std + self.position_std_rel * abs(distance)
+
     def validate(self, has_speed_profile: bool) -> None:
+        if not (self.position_std_rel >= 0 and math.isfinite(self.position_std_rel)):
+            raise ValueError(f"sensor.position_std_rel must be >= 0, got {self.position_std_rel}")
         if not (self.length >= 0 and math.isfinite(self.length)):
             raise ValueError(f"car.length must be >= 0, got {self.length}")
         for name in ("speed_std", "position_std"):
@@ -109,6 +116,14 @@ class MotionFilter:
         self.Rm = np.diag([cfg.speed_std ** 2, cfg.position_std ** 2])
         self.restart()
 
+    def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
+        """A run that does not start at a station: state = first measurement, P = its noise."""
+        self.restart()
+        vzad = self._vzad(position_meas) if self.kind in (LINEARISED, PAPER) else 0.0
+        self.vzad_hat = self.vzad_bar = vzad
+        self.x_hat = np.array([max(speed_meas, 0.0) - vzad, position_meas])
+        self.P = np.diag([self.cfg.speed_std ** 2, self.cfg.position_noise_std(position_meas) ** 2])
+
     def restart(self) -> None:
         """The car stands at the station: V = 0, X = 0 known exactly (P~[0] = 0)."""
         self.x_bar = np.zeros(2)
@@ -125,6 +140,8 @@ class MotionFilter:
         """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m]."""
         vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
         z = np.array([speed_meas - vzad, position_meas])
+        if self.cfg.position_std_rel:
+            self.Rm[1, 1] = self.cfg.position_noise_std(position_meas) ** 2
         self.x_hat, self.P, _ = kf_update(self.x_bar, self.M, z, self.Rm)
         if self.x_hat[0] + vzad < 0.0:            # a car never moves backwards
             self.x_hat[0] = -vzad

@@ -106,6 +106,7 @@ class IdentifierConfig:
     A2_std_initial: float = 0.02     # [N/kN/(m/s)^2]
     sigma2_initial: float = 1e-4     # process-noise variance per step [(m/s)^2]
     speed_std: float = 0.0           # measurement noise of V [m/s]: scales the prior's weight
+    frozen: bool = False             # keep the initial values (an oracle that knows the truth)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
@@ -210,6 +211,8 @@ class ParameterIdentifier:
         """Use the sample pair n, n+1: forces [N] applied between them, measured speeds [m/s],
         grade [permille] at n, their spacing dt [s] (default: the configured period).
         ``contiguous``: this pair directly follows the last one used (they share a sample)."""
+        if self.cfg.frozen:
+            return
         phi = regressor(traction, brake, speed)
         y = regression_target(speed, speed_next, grade, dt or self.cfg.dt, self.cfg.gamma)
         if self.S is None:
@@ -258,7 +261,7 @@ class ParameterIdentifier:
     def restart_mass(self) -> None:
         """New passengers: reopen 1/(Pg) with its prior; the A's keep what they learnt."""
         self.mass_restarts += 1
-        if self.S is None:
+        if self.S is None or self.cfg.frozen:
             return
         R = np.linalg.inv(self.S)
         r00 = R[0, 0]
@@ -300,6 +303,8 @@ class ParameterIdentifier:
         M = a D + b W + s2_ref J0, with D = sum over runs of consecutive samples of the
         differenced regressors (plus the runs' ends), W = sum phi phi^T, and the prior's own.
         """
+        if self.cfg.frozen:
+            return np.zeros((4, 4))
         Jinv = np.linalg.inv(self.J)
         if self.S is None:
             return self.s2_ref * Jinv @ self.J0 @ Jinv
