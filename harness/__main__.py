@@ -1,9 +1,13 @@
 """Command line of the validation harness.
 
-    python -m harness run SCENARIO.toml [--out DIR] [--dist DIR] [--rebuild]
+    python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild]
+    python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
+    python -m harness regress [--update] [NAME ...]
+    python -m harness report [--out DIR] [NAME ...]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
 
-Exit codes: 0 success; 1 a run failed; 2 bad usage or an invalid scenario.
+Exit codes: 0 success; 1 a run failed or a regression/target check failed; 2 bad usage or
+invalid input (scenario, log, parameter).
 """
 from __future__ import annotations
 
@@ -37,7 +41,114 @@ def cmd_run(args) -> int:
     print(format_summary(summary))
     out = Path(args.out) if args.out else Path("out") / scenario.name
     files = write_report(result, summary, true_A, out)
+    if args.log:
+        from .replay import write_log
+        print(f"log for replay: {write_log(Path(args.log), result)}")
     print(f"report: {files[1]} (with {', '.join(p.name for p in files[2:])}; data {files[0].name})")
+    return EXIT_OK
+
+
+def _library(names: list[str]) -> list:
+    from .regress import library_scenarios
+    paths = library_scenarios()
+    if names:
+        known = {p.stem: p for p in paths}
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise ScenarioError(f"unknown library scenario(s): {', '.join(unknown)} "
+                                f"(known: {', '.join(sorted(known))})")
+        paths = [known[n] for n in names]
+    return [load_scenario(p) for p in paths]
+
+
+def _run_all(scenarios, dist, rebuild=False):
+    """Run scenarios on one extracted RailCar; yields (scenario, result or RunError)."""
+    from .fmus import DIST, ensure_built
+    from .progress import Progress
+    from .runner import FmuRunner, RunError
+    fmus = ensure_built(Path(dist) if dist else DIST, force=rebuild)
+    bar = Progress(len(scenarios), "scenarios")
+    with FmuRunner(fmus["RailCar"]) as runner:
+        for s in scenarios:
+            try:
+                result = runner.run(s)
+                bar.advance(s.name)
+                yield s, result
+            except RunError as e:
+                bar.advance(s.name, failed=True)
+                yield s, e
+
+
+def cmd_regress(args) -> int:
+    from .regress import compare, write_reference
+    scenarios = _library(args.names)
+    failed = False
+    for s, result in _run_all(scenarios, args.dist, args.rebuild):
+        if isinstance(result, Exception):
+            print(f"FAIL {s.name}: {result}")
+            failed = True
+            continue
+        if args.update:
+            before = compare(result)
+            write_reference(result)
+            if before.problems and before.max_abs:
+                changed = ", ".join(f"{k} (max |diff| {v:.3g})" for k, v in before.max_abs.items() if v > 0)
+                print(f"updated {s.name}: changed {changed or 'time grid'}")
+            elif before.problems:
+                print(f"updated {before.problems[0]}")
+            else:
+                print(f"unchanged {s.name}")
+            continue
+        c = compare(result)
+        print(f"{'ok  ' if c.ok else 'FAIL'} {s.name}")
+        for p in c.problems:
+            print(f"     {p}")
+        failed |= not c.ok
+    return EXIT_RUN_FAILED if failed else EXIT_OK
+
+
+def cmd_report(args) -> int:
+    from .library_report import format_table, library_rows, write_table
+    scenarios = _library(args.names)
+    results = list(_run_all(scenarios, args.dist, args.rebuild))
+    rows = library_rows(results)
+    print(format_table(rows))
+    out = Path(args.out) if args.out else Path("out") / "library"
+    path = write_table(rows, out)
+    print(f"table: {path}")
+    return EXIT_OK if all(r.ok for r in rows) else EXIT_RUN_FAILED
+
+
+def cmd_replay(args) -> int:
+    from .fmus import DIST, ensure_built
+    from .replay import LogError, read_log, replay_report
+    from .runner import FmuRunner, RunError
+    try:
+        log = read_log(args.log)
+    except LogError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    params = {}
+    for item in args.param or []:
+        if "=" not in item:
+            print(f"error: --param {item!r}: expected NAME=VALUE", file=sys.stderr)
+            return EXIT_USAGE
+        k, v = item.split("=", 1)
+        params[k] = v
+    fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
+    with FmuRunner(fmus["RailCarEstimator"]) as runner:
+        try:
+            params = runner.typed_parameters(params)
+        except (KeyError, ValueError) as e:
+            print(f"error: --param: {e}", file=sys.stderr)
+            return EXIT_USAGE
+        try:
+            signals, _ = runner.replay(log, params, what=Path(args.log).name)
+        except RunError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return EXIT_RUN_FAILED
+    out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
+    print(replay_report(log, signals, out))
     return EXIT_OK
 
 
@@ -58,7 +169,28 @@ def main(argv=None) -> int:
     p.add_argument("--out", help="report folder (default: out/<scenario name>)")
     p.add_argument("--dist", help="folder of the FMUs (default: dist/)")
     p.add_argument("--rebuild", action="store_true", help="rebuild the FMUs even if current")
+    p.add_argument("--log", help="also write the run's measurements as a replayable log CSV")
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser("replay", help="run RailCarEstimator on a logged CSV (time, forces, measured speed and distance)")
+    p.add_argument("log", help="log CSV, header 'time [s],traction_force [N],brake_force [N],sensor.speed [m/s],sensor.position [m]'")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="RailCarEstimator parameter, e.g. track.grade_profile=grade.csv (repeatable)")
+    p.add_argument("--out", help="folder for the estimates (default: out/replay_<log>)")
+    p.add_argument("--dist", help="folder of the FMUs (default: dist/)")
+    p.add_argument("--rebuild", action="store_true")
+    p.set_defaults(func=cmd_replay)
+    p = sub.add_parser("regress", help="run the library scenarios and compare with tests/regression references")
+    p.add_argument("names", nargs="*", help="library scenario names (default: all)")
+    p.add_argument("--update", action="store_true", help="rewrite the references and say what changed")
+    p.add_argument("--dist")
+    p.add_argument("--rebuild", action="store_true")
+    p.set_defaults(func=cmd_regress)
+    p = sub.add_parser("report", help="run the library scenarios and print and write one table of metrics")
+    p.add_argument("names", nargs="*", help="library scenario names (default: all)")
+    p.add_argument("--out", help="folder of the table (default: out/library)")
+    p.add_argument("--dist")
+    p.add_argument("--rebuild", action="store_true")
+    p.set_defaults(func=cmd_report)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
     p.add_argument("scenario")
     p.add_argument("--out", required=True, help="CSV file to write (distance_m,speed_mps)")

@@ -4,7 +4,7 @@ A phase driver sees the true speed [m/s] and distance [m] (the ideal odometry of
 test bench, so that driving decisions do not depend on sensor noise) and returns the
 traction and brake demands [N]. Phases (TOML ``[[driver]]`` entries):
 
-    action = "traction" | "coast" | "brake" | "brake_to_stop" | "hold"
+    action = "traction" | "coast" | "cruise" | "brake" | "brake_to_stop" | "hold"
     force_N = 40000          # traction/brake demand; default: the car's limit / a service brake
     until_speed_mps = 16.7   # (or until_speed_kmh) traction: reached from below; others: from above
     until_distance_m = 800   # distance from the previous station reached
@@ -13,6 +13,7 @@ traction and brake demands [N]. Phases (TOML ``[[driver]]`` entries):
     stop_at_m = 1500         # brake_to_stop: where to stop
     decel_mps2 = 0.8         # brake_to_stop: planned deceleration
     mass_change_t = 3.0      # hold: passengers boarding (the car's mass changes by this) [t]
+    target_speed_kmh = 50    # (or target_speed_mps) cruise: hold this speed with traction/brake
 
 brake_to_stop ends when the car stands; hold (a holding brake) ends by until_time_s.
 """
@@ -25,9 +26,11 @@ from pathlib import Path
 
 from models.units import kmh_to_mps
 
-ACTIONS = ("traction", "coast", "brake", "brake_to_stop", "hold")
+ACTIONS = ("traction", "coast", "cruise", "brake", "brake_to_stop", "hold")
+CRUISE_GAIN = 0.5   # [1/s] the cruise controller's demand: mass * gain * (target - speed)
 _PHASE_KEYS = {"action", "force_N", "until_speed_mps", "until_speed_kmh", "until_distance_m",
-               "until_time_s", "until_brake_curve", "stop_at_m", "decel_mps2", "mass_change_t"}
+               "until_time_s", "until_brake_curve", "stop_at_m", "decel_mps2", "mass_change_t",
+               "target_speed_mps", "target_speed_kmh"}
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,7 @@ class DriverPhase:
     stop_at_m: float | None = None
     decel_mps2: float = 0.8
     mass_change_t: float = 0.0
+    target_speed_mps: float | None = None
 
 
 def parse_phase(raw: dict, where: str, error=ValueError) -> DriverPhase:
@@ -67,6 +71,13 @@ def parse_phase(raw: dict, where: str, error=ValueError) -> DriverPhase:
         if speed is not None:
             raise error(f"{where}: give until_speed_mps or until_speed_kmh, not both")
         speed = kmh_to_mps(num("until_speed_kmh"))
+    target = num("target_speed_mps", positive=True)
+    if "target_speed_kmh" in raw:
+        if target is not None:
+            raise error(f"{where}: give target_speed_mps or target_speed_kmh, not both")
+        target = kmh_to_mps(num("target_speed_kmh", positive=True))
+    if action == "cruise" and target is None:
+        raise error(f"{where}: cruise needs target_speed_kmh or target_speed_mps")
     force = num("force_N")
     if force is not None and force < 0:
         raise error(f"{where}.force_N: must be >= 0, got {force}")
@@ -75,7 +86,7 @@ def parse_phase(raw: dict, where: str, error=ValueError) -> DriverPhase:
                         until_brake_curve=bool(raw.get("until_brake_curve", False)),
                         stop_at_m=num("stop_at_m", positive=True),
                         decel_mps2=num("decel_mps2", positive=True) or 0.8,
-                        mass_change_t=num("mass_change_t") or 0.0)
+                        mass_change_t=num("mass_change_t") or 0.0, target_speed_mps=target)
     if action == "brake_to_stop" and phase.stop_at_m is None:
         raise error(f"{where}: brake_to_stop needs stop_at_m")
     if action == "hold" and phase.until_time_s is None:
@@ -146,6 +157,11 @@ class PhaseDriver:
             return 0.0, (p.force_N if p.force_N is not None else 0.6 * self.b_max), mass_change
         if p.action == "hold":
             return 0.0, 0.3 * self.b_max, mass_change
+        if p.action == "cruise":
+            demand = 1000.0 * self.mass_t * CRUISE_GAIN * (p.target_speed_mps - speed)
+            if demand >= 0.0:
+                return min(demand, self.f_max), 0.0, mass_change
+            return 0.0, min(-demand, self.b_max), mass_change
         # brake_to_stop: the deceleration needed to stop at stop_at_m, as a force
         left = p.stop_at_m - position
         if speed <= self.STOPPED or left <= 0.05:

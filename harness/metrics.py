@@ -20,17 +20,12 @@ def rmse(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None
 
 
 def stop_indices(speed: np.ndarray) -> list[int]:
-    """Index of the last sample of each standstill that follows motion (speed [m/s])."""
-    still = np.asarray(speed) <= 0.0
-    out = []
-    moved = False
-    for k in range(len(still)):
-        if not still[k]:
-            moved = True
-        elif moved and (k + 1 == len(still) or not still[k + 1]):
-            out.append(k)
-            moved = False
-    return out
+    """Row at which the car comes to rest after moving (speed [m/s]): the arrival at each stop.
+
+    Metrics "at a stop" are taken there, before passengers board and change the mass.
+    """
+    v = np.asarray(speed)
+    return [k for k in range(1, len(v)) if v[k] <= 0.0 < v[k - 1]]
 
 
 def relative_error(estimate: float, truth: float) -> float:
@@ -89,41 +84,81 @@ class RunSummary:
     mass_std_t: float                  # [t]
     mass_error_pct: float              # [%] at the end
     mass_errors_at_stops_pct: list     # [%] at each stop
-    mass_time_within_1pct_s: float     # [s] from which |error| <= 1 % to the end of the first run
+    mass_time_within_1pct_s: list      # [s] after each departure until |error| <= 1 % to that stop
     A_true: tuple                      # (A0, A1, A2)
     A_est: tuple
     w0_rel_rms_error: float            # [-] over the travelled speed range
+    coast_time_errors_s: list          # [s] predicted - actual time of each coast, identified w0
     speed_rmse_sensor: float           # [m/s]
     speed_rmse_filter: float           # [m/s]
+    speed_rmse_oracle: float           # [m/s] the same filter knowing the true parameters
     position_rmse_sensor: float        # [m]
     position_rmse_filter: float        # [m]
+    position_rmse_oracle: float        # [m]
     speed_nees: float                  # [-]
     position_nees: float               # [-]
 
 
-def summarise(result, true_A: tuple) -> RunSummary:
-    """Compute the summary of a ``RunResult`` of RailCar; ``true_A`` = (A0, A1, A2) of the car."""
+def _segments(speed: np.ndarray) -> list[tuple[int, int]]:
+    """(departure row, arrival row) of each run that ends at rest."""
+    v = np.asarray(speed)
+    out = []
+    for k in stop_indices(v):
+        dep = k - 1
+        while dep > 0 and v[dep - 1] > 0.0:
+            dep -= 1
+        out.append((max(dep - 1, 0), k))
+    return out
+
+
+def summarise(result, true_A: tuple | None = None) -> RunSummary:
+    """Compute the summary of a ``RunResult`` of RailCar (true A's default to the scenario's)."""
+    s = result.scenario
+    if true_A is None:   # the coefficients at the end, moved by the wind then blowing
+        A = tuple(s.parameter(n) for n in ("car.A0", "car.A1", "car.A2"))
+        true_A = tuple(float(x) for x in true_theta(1.0, A, s.wind_at(float(result.time[-1])))[1:])
     t = result.time
     v = result["car.speed"]
     mass = result["car.total_mass"]
     est_mass = result["est.mass"]
     rel = (est_mass - mass) / mass
-    stops = stop_indices(v)
-    first_end = stops[0] + 1 if stops else None
+    segments = _segments(v)
     moving = v > 0.0
     est_A = (float(result["est.A0"][-1]), float(result["est.A1"][-1]), float(result["est.A2"][-1]))
+    oracle = oracle_filter(result, s.parameter("sensor.sample_period"))
+    nan = float("nan")
+
+    coast_errors = []
+    grade = None
+    for first, last in coast_segments(result["car.mode"], int(round(10.0 / s.step_s))):
+        if grade is None:
+            from models.track import GradeProfile
+            grade = GradeProfile.level()
+            if s.parameter("track.grade_profile"):
+                with open(s.parameter("track.grade_profile"), encoding="utf-8") as f:
+                    grade = GradeProfile.from_csv_text(f.read(), s.parameter("track.grade_profile"))
+        A_k = (float(result["est.A0"][last]), float(result["est.A1"][last]), float(result["est.A2"][last]))
+        x0, x1 = float(result["car.position"][first]), float(result["car.position"][last])
+        predicted = coast_time(float(v[first]), x0, x1, A_k, float(mass[first]), s.parameter("car.gamma"),
+                               s.parameter("car.length"), grade, s.wind_at(float(t[first])))
+        coast_errors.append(predicted - float(t[last] - t[first]))
+
     return RunSummary(
-        scenario=result.scenario.name, duration_s=float(t[-1]), stops=len(stops),
+        scenario=s.name, duration_s=float(t[-1]), stops=len(segments),
         mass_true_t=float(mass[-1]), mass_est_t=float(est_mass[-1]),
         mass_std_t=float(result["est.mass_std"][-1]), mass_error_pct=100.0 * float(rel[-1]),
-        mass_errors_at_stops_pct=[100.0 * float(rel[k]) for k in stops],
-        mass_time_within_1pct_s=time_to_stay_within(t, rel, 0.01, 0, first_end),
+        mass_errors_at_stops_pct=[100.0 * float(rel[k]) for _, k in segments],
+        mass_time_within_1pct_s=[time_to_stay_within(t, rel, 0.01, d, k + 1) - float(t[d])
+                                 for d, k in segments],
         A_true=tuple(true_A), A_est=est_A,
         w0_rel_rms_error=w0_relative_rms_error(v, est_A, true_A),
+        coast_time_errors_s=coast_errors,
         speed_rmse_sensor=rmse(result["sensor.speed"], v),
         speed_rmse_filter=rmse(result["filter.speed"], v),
+        speed_rmse_oracle=rmse(oracle[0], v) if oracle else nan,
         position_rmse_sensor=rmse(result["sensor.position"], result["car.position"]),
         position_rmse_filter=rmse(result["filter.position"], result["car.position"]),
+        position_rmse_oracle=rmse(oracle[1], result["car.position"]) if oracle else nan,
         speed_nees=normalised_error_squared(result["filter.speed"], v, result["filter.speed_std"], moving),
         position_nees=normalised_error_squared(result["filter.position"], result["car.position"],
                                                result["filter.position_std"], moving),
@@ -142,16 +177,107 @@ def format_summary(s: RunSummary) -> str:
         ("mass: true / estimated", f"{s.mass_true_t:.3f} / {s.mass_est_t:.3f} +- {s.mass_std_t:.3f}", "t"),
         ("mass error at the end", f(s.mass_error_pct, "{:+.3f}"), "%"),
         ("mass error at each stop", ", ".join(f"{e:+.3f}" for e in s.mass_errors_at_stops_pct) or "n/a", "%"),
-        ("mass within 1 % from", f(s.mass_time_within_1pct_s, "{:.1f}"), "s"),
+        ("mass within 1 % after departure", ", ".join(f(x, "{:.1f}") for x in s.mass_time_within_1pct_s) or "n/a", "s"),
         ("A0 true / est", f"{s.A_true[0]:.4g} / {s.A_est[0]:.4g}", "N/kN"),
         ("A1 true / est", f"{s.A_true[1]:.4g} / {s.A_est[1]:.4g}", "N/kN/(m/s)"),
         ("A2 true / est", f"{s.A_true[2]:.4g} / {s.A_est[2]:.4g}", "N/kN/(m/s)2"),
         ("w0(V) relative RMS error", f(100 * s.w0_rel_rms_error, "{:.1f}"), "%"),
-        ("speed RMSE sensor / filter", f"{s.speed_rmse_sensor:.4f} / {s.speed_rmse_filter:.4f} "
-         f"(ratio {s.speed_rmse_filter / s.speed_rmse_sensor:.2f})", "m/s"),
-        ("distance RMSE sensor / filter", f"{s.position_rmse_sensor:.3f} / {s.position_rmse_filter:.3f} "
-         f"(ratio {s.position_rmse_filter / s.position_rmse_sensor:.2f})", "m"),
+        ("coast run-time prediction error", ", ".join(f"{e:+.2f}" for e in s.coast_time_errors_s) or "n/a", "s"),
+        ("speed RMSE sensor / filter / oracle", f"{s.speed_rmse_sensor:.4f} / {s.speed_rmse_filter:.4f} / "
+         f"{f(s.speed_rmse_oracle, '{:.4f}')} (filter/sensor {s.speed_rmse_filter / s.speed_rmse_sensor:.2f})", "m/s"),
+        ("distance RMSE sensor / filter / oracle", f"{s.position_rmse_sensor:.3f} / {s.position_rmse_filter:.3f} / "
+         f"{f(s.position_rmse_oracle, '{:.3f}')} (filter/sensor {s.position_rmse_filter / s.position_rmse_sensor:.2f})", "m"),
         ("filter NEES speed / distance", f"{s.speed_nees:.2f} / {s.position_nees:.2f}", "-"),
     ]
     w = max(len(r[0]) for r in rows)
     return "\n".join(f"  {name:<{w}}  {val} {unit}".rstrip() for name, val, unit in rows)
+
+
+# ---------------------------------------------------------------- oracle filter and coast times
+
+def true_theta(mass_t: float, A: tuple, wind: float) -> np.ndarray:
+    """Theta = (1/(Pg), A0', A1', A2) of eq. (2) for a mass [t], still-air A's and wind [m/s].
+
+    Wind moves the coefficients (MODEL.md section 2): A0' = A0 + A2 Vw^2, A1' = A1 + 2 A2 Vw.
+    """
+    from models.units import G
+    a0, a1, a2 = A
+    return np.array([1.0 / (G * mass_t), a0 + a2 * wind * wind, a1 + 2.0 * a2 * wind, a2])
+
+
+def oracle_filter(result, sample_period: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Speed [m/s] and distance [m] of the same filter fed with the true parameters.
+
+    Replays the recorded measurements and applied forces through the models' estimator with a
+    frozen identifier holding the truth (mass per row, A's moved by the wind, sigma^2 =
+    psd * dt). Needs one sample per row (communication step = sensor.sample_period); else None.
+    """
+    from models.estimator import OnlineEstimator, StationConfig
+    from models.filters import FilterConfig
+    from models.identification import IdentifierConfig
+    from models.track import GradeProfile, SpeedProfile
+
+    s = result.scenario
+    h = s.step_s
+    if abs(h - sample_period) > 1e-12:
+        return None
+    p = s.parameter
+    A = (p("car.A0"), p("car.A1"), p("car.A2"))
+    grade = GradeProfile.level()
+    if p("track.grade_profile"):
+        with open(p("track.grade_profile"), encoding="utf-8") as f:
+            grade = GradeProfile.from_csv_text(f.read(), p("track.grade_profile"))
+    speed_profile = None
+    if p("track.speed_profile"):
+        with open(p("track.speed_profile"), encoding="utf-8") as f:
+            speed_profile = SpeedProfile.from_csv_text(f.read(), p("track.speed_profile"))
+    gamma = p("car.gamma")
+    ident = IdentifierConfig(dt=h, frozen=True, gamma=gamma, mass_initial=p("car.mass"),
+                             sigma2_initial=max(p("car.process_noise_psd") * h, 1e-12))
+    filt = FilterConfig(dt=h, speed_std=p("sensor.speed_std"), position_std=p("sensor.position_std"),
+                        position_std_rel=p("sensor.position_std_rel"), gamma=gamma,
+                        kind=int(p("filter.kind")), length=p("car.length"))
+    est = OnlineEstimator(ident, filt, StationConfig(dwell=p("track.station_dwell")), grade, speed_profile)
+    F, B = result["car.traction_force"], result["car.brake_force"]
+    mass = result["car.total_mass"]
+    n = len(result.time)
+    v_out, x_out = np.empty(n), np.empty(n)
+    for k in range(n):
+        est.ident.theta = true_theta(mass[k], A, s.wind_at(result.time[k]))
+        est.measure(result["sensor.speed"][k], result["sensor.position"][k])
+        v_out[k], x_out[k] = est.filter.speed, est.filter.position
+        if k + 1 < n:   # forces over [t_k, t_k+1]: trapezoid of the applied forces
+            est.propagate(0.5 * (F[k] + F[k + 1]), 0.5 * (B[k] + B[k + 1]), h)
+    return v_out, x_out
+
+
+def coast_segments(mode: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
+    """(first, last) row of each run of coasting (car.mode == 2) at least ``min_rows`` long."""
+    out, start = [], None
+    for k, m in enumerate(list(mode) + [-1]):
+        if m == 2 and start is None:
+            start = k
+        elif m != 2 and start is not None:
+            if k - start >= min_rows:
+                out.append((start, k - 1))
+            start = None
+    return out
+
+
+def coast_time(v0: float, x0: float, x1: float, A: tuple, mass_t: float, gamma: float, length: float,
+               grade_profile, wind: float = 0.0, h: float = 0.05, t_max: float = 3600.0) -> float:
+    """Time [s] to coast from x0 to x1 [m] starting at v0 [m/s] with resistance A (eq. (1)).
+
+    seed 003's measure of identified resistance: re-run the coast with it and compare times.
+    """
+    from models.dynamics import VehicleParams, rk4_step
+    p = VehicleParams(mass=mass_t, A0=A[0], A1=A[1], A2=A[2], gamma=gamma, length=length)
+    v, x, t = v0, x0, 0.0
+    while x < x1 and t < t_max:
+        v_new, x_new = rk4_step(v, x, h, 0.0, 0.0, wind, p, grade_profile)
+        if x_new >= x1:
+            return t + h * (x1 - x) / (x_new - x)
+        if v_new <= 0.0:
+            return float("inf")
+        v, x, t = v_new, x_new, t + h
+    return float("inf")

@@ -41,6 +41,7 @@ class RunResult:
     signals: dict[str, np.ndarray]
     units: dict[str, str]
     log: list[str] = field(default_factory=list)
+    inputs: dict[str, np.ndarray] = field(default_factory=dict)   # held over [t_k, t_k+1]
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -95,6 +96,27 @@ class FmuRunner:
         fmu._keep_callbacks = callbacks        # the C side holds pointers to them
         return fmu
 
+    def typed_parameters(self, raw: dict[str, str]) -> dict:
+        """Command-line NAME=VALUE strings -> values of the FMU parameters' types.
+
+        A String parameter that names an existing file is made absolute (the FMU resolves
+        relative paths against its resources/ folder first)."""
+        out = {}
+        for name, text in raw.items():
+            var = self.vars.get(name)
+            if var is None or var.causality != "parameter":
+                raise KeyError(f"{self.md.modelName} has no parameter '{name}'")
+            try:
+                if var.type == "Real":
+                    out[name] = float(text)
+                elif var.type == "Integer":
+                    out[name] = int(text)
+                else:
+                    out[name] = str(Path(text).resolve()) if text and Path(text).is_file() else text
+            except ValueError:
+                raise ValueError(f"{name}: '{text}' is not a valid {var.type}") from None
+        return out
+
     def set_parameters(self, fmu: FMU2Slave, parameters: dict) -> None:
         for name, value in parameters.items():
             var = self.vars.get(name)
@@ -109,6 +131,52 @@ class FmuRunner:
             else:
                 raise TypeError(f"{name}: unsupported type {var.type}")
 
+    def start(self, parameters: dict, stop_time: float, log: list[str], what: str) -> FMU2Slave:
+        """A new instance, initialised with ``parameters``; RunError (with the log) if that fails."""
+        fmu = self._instantiate(log)
+        try:
+            fmu.setupExperiment(startTime=0.0, stopTime=stop_time)
+            fmu.enterInitializationMode()
+            self.set_parameters(fmu, parameters)
+            fmu.exitInitializationMode()
+        except Exception as e:
+            # pythonfmu reports initialisation errors as fmi2Fatal; after Fatal the FMI standard
+            # allows no further call on the instance (pythonfmu's freeInstance would segfault),
+            # so the instance is deliberately leaked.
+            raise RunError(f"{what}: initialisation failed: {e}", log) from None
+        return fmu
+
+    def replay(self, log_data, parameters: dict, what: str = "replay"):
+        """Run RailCarEstimator over a measured log (see harness.replay); returns (time, signals).
+
+        Row k's measurements and forces drive doStep(t_k, t_k+1 - t_k); the outputs after it
+        (estimates for t_k+1) are stored at row k+1.
+        """
+        outputs = [n for n in self.outputs if self.vars[n].type == "Real"]
+        out_vr = [self.vr(n) for n in outputs]
+        in_names = ("traction_force", "brake_force", "sensor.speed", "sensor.position")
+        in_vr = [self.vr(n) for n in in_names]
+        t = log_data.time
+        log: list[str] = []
+        fmu = self.start(parameters, float(t[-1]), log, what)
+        rows = [fmu.getReal(out_vr)]
+        try:
+            for k in range(len(t) - 1):
+                fmu.setReal(in_vr, [float(log_data.columns[n][k]) for n in in_names])
+                try:
+                    fmu.doStep(currentCommunicationPoint=float(t[k]), communicationStepSize=float(t[k + 1] - t[k]))
+                except Exception as e:
+                    raise RunError(f"{what}: doStep at t = {t[k]:.3f} s (row {k + 2}) failed: {e}", log) from None
+                rows.append(fmu.getReal(out_vr))
+            fmu.terminate()
+        finally:
+            try:
+                fmu.freeInstance()
+            except Exception:
+                pass
+        arr = np.array(rows).reshape(len(rows), len(outputs))
+        return {n: arr[:, j] for j, n in enumerate(outputs)}, log
+
     def run(self, scenario: Scenario, outputs: list[str] | None = None) -> RunResult:
         """Run ``scenario`` to its end and return every output (or ``outputs``) over time."""
         outputs = list(outputs or self.outputs)
@@ -122,24 +190,15 @@ class FmuRunner:
         h = scenario.step_s
         n_max = int(round(scenario.duration_s / h))
         log: list[str] = []
-        fmu = self._instantiate(log)
+        fmu = self.start(scenario.parameters, scenario.duration_s, log, scenario.name)
         rows_t, rows_r, rows_i = [], [], []
-        try:
-            fmu.setupExperiment(startTime=0.0, stopTime=scenario.duration_s)
-            fmu.enterInitializationMode()
-            self.set_parameters(fmu, scenario.parameters)
-            fmu.exitInitializationMode()
-        except Exception as e:
-            # pythonfmu reports initialisation errors as fmi2Fatal; after Fatal the FMI standard
-            # allows no further call on the instance (pythonfmu's freeInstance would segfault),
-            # so the instance is deliberately leaked.
-            raise RunError(f"{scenario.name}: initialisation failed: {e}", log) from None
         try:
             driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
                                  scenario.parameter("car.traction_force_max"),
                                  scenario.parameter("car.brake_force_max")) if scenario.phases else None
             payload = 0.0
             finished = False
+            rows_in = []
             r = fmu.getReal(real_vr)
             rows_t.append(0.0), rows_r.append(r), rows_i.append(fmu.getInteger(int_vr))
             for k in range(n_max):
@@ -147,12 +206,14 @@ class FmuRunner:
                 if driver is not None:
                     traction, brake, dm = driver.demands(t, r[speed_i], r[pos_i])
                     payload += dm
-                    if driver.finished and scenario.stop_after_last_phase and r[speed_i] <= 0.0:
+                    if driver.finished and scenario.stop_after_last_phase:
                         finished = True
                         break
                 else:
                     traction, brake = scenario.time_table.at(t)
-                fmu.setReal(in_vr, [traction, brake, scenario.wind_at(t), payload])
+                u = [traction, brake, scenario.wind_at(t), payload]
+                rows_in.append(u)
+                fmu.setReal(in_vr, u)
                 try:
                     fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
                 except Exception as e:
@@ -173,4 +234,6 @@ class FmuRunner:
         signals = {n: r_arr[:, j] for j, n in enumerate(real_out)}
         signals.update({n: i_arr[:, j] for j, n in enumerate(int_out)})
         units = {n: self.units.get(n, "") for n in outputs}
-        return RunResult(scenario, time, signals, units, log)
+        u_arr = np.array(rows_in + rows_in[-1:] if rows_in else [[0.0] * len(INPUTS)]).reshape(-1, len(INPUTS))
+        inputs = {n: u_arr[:, j] for j, n in enumerate(INPUTS)}
+        return RunResult(scenario, time, signals, units, log, inputs)

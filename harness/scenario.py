@@ -8,7 +8,7 @@ schedule, and the run's step and duration. Every error names the file, the key a
     purpose = "one line"
     step_s = 0.1
     duration_s = 200.0
-    stop_after_last_phase = true
+    stop_after_last_phase = true      # the run ends when the driver's last phase is done
 
     [parameters]                      # RailCar parameters, contract names, SI units
     "car.mass" = 34.0

@@ -66,7 +66,7 @@ def test_phase_driver_runs_phases_on_speed_distance_and_time():
 
 def test_metrics_on_hand_made_arrays():
     assert rmse(np.array([1.0, 3.0]), np.array([0.0, 0.0])) == pytest.approx(math.sqrt(5.0), rel=1e-15)
-    assert stop_indices(np.array([0, 1, 2, 0, 0, 1, 0])) == [4, 6]
+    assert stop_indices(np.array([0, 1, 2, 0, 0, 1, 0])) == [3, 6]
     t = np.arange(6.0)
     assert time_to_stay_within(t, np.array([0.5, 0.2, 0.005, 0.02, 0.001, 0.0]), 0.01) == 4.0
     v = np.array([0.0, 5.0, 10.0])

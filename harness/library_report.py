@@ -1,0 +1,109 @@
+"""One table of metrics over the scenario library, with the harness's targets checked.
+
+Targets (issue 3), for scenarios whose speed noise is <= 0.05 m/s: est.mass within 1 % of the
+truth at every stop, and the filter's speed and distance RMSE at most 0.6x the raw sensor's.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from .metrics import RunSummary, summarise
+
+MASS_BOUND_PCT = 1.0
+RMSE_RATIO_BOUND = 0.6
+NOISE_LIMIT = 0.05     # [m/s] the targets apply up to this speed noise
+
+
+@dataclass
+class Row:
+    name: str
+    speed_std: float            # [m/s]
+    summary: RunSummary | None
+    error: str = ""
+
+    @property
+    def targets_apply(self) -> bool:
+        return self.speed_std <= NOISE_LIMIT + 1e-12
+
+    @property
+    def checks(self) -> dict[str, bool]:
+        s = self.summary
+        if s is None:
+            return {"run": False}
+        return {
+            "mass": all(abs(e) <= MASS_BOUND_PCT for e in s.mass_errors_at_stops_pct),
+            "speed": s.speed_rmse_filter <= RMSE_RATIO_BOUND * s.speed_rmse_sensor,
+            "distance": s.position_rmse_filter <= RMSE_RATIO_BOUND * s.position_rmse_sensor,
+        }
+
+    @property
+    def ok(self) -> bool:
+        return self.summary is not None and (not self.targets_apply or all(self.checks.values()))
+
+
+def library_rows(results) -> list[Row]:
+    """(scenario, RunResult or exception) pairs -> rows."""
+    rows = []
+    for s, r in results:
+        std = s.parameter("sensor.speed_std")
+        if isinstance(r, Exception):
+            rows.append(Row(s.name, std, None, str(r).splitlines()[0]))
+        else:
+            rows.append(Row(s.name, std, summarise(r)))
+    return rows
+
+
+def _fmt(x, spec):
+    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+HEADER = ("scenario", "V noise [m/s]", "stops", "max |mass err| at stops [%]", "mass within 1 % after [s]",
+          "w0 RMS err [%]", "coast time err [s]", "speed RMSE sensor/filter/oracle [m/s]", "filter/sensor",
+          "dist. RMSE sensor/filter/oracle [m]", "filter/sensor", "NEES v/x", "targets")
+
+
+def table_rows(rows: list[Row]) -> list[tuple[str, ...]]:
+    out = []
+    for r in rows:
+        s = r.summary
+        if s is None:
+            out.append((r.name, _fmt(r.speed_std, ".3g"), "–", "–", "–", "–", "–", "–", "–", "–", "–", "–",
+                        f"FAILED: {r.error}"))
+            continue
+        errs = s.mass_errors_at_stops_pct
+        target = ("ok" if all(r.checks.values()) else
+                  "MISSED " + ",".join(k for k, v in r.checks.items() if not v)) if r.targets_apply else "n/a (noisy)"
+        out.append((
+            r.name, _fmt(r.speed_std, ".3g"), str(s.stops),
+            _fmt(max((abs(e) for e in errs), default=float("nan")), ".3f"),
+            ", ".join(_fmt(x, ".0f") for x in s.mass_time_within_1pct_s) or "n/a",
+            _fmt(100 * s.w0_rel_rms_error, ".1f"),
+            ", ".join(f"{e:+.2f}" for e in s.coast_time_errors_s) or "n/a",
+            f"{s.speed_rmse_sensor:.4f}/{s.speed_rmse_filter:.4f}/{_fmt(s.speed_rmse_oracle, '.4f')}",
+            f"{s.speed_rmse_filter / s.speed_rmse_sensor:.2f}",
+            f"{s.position_rmse_sensor:.2f}/{s.position_rmse_filter:.2f}/{_fmt(s.position_rmse_oracle, '.2f')}",
+            f"{s.position_rmse_filter / s.position_rmse_sensor:.2f}",
+            f"{s.speed_nees:.2f}/{s.position_nees:.2f}", target))
+    return out
+
+
+def format_table(rows: list[Row]) -> str:
+    body = table_rows(rows)
+    widths = [max(len(h), *(len(b[j]) for b in body)) for j, h in enumerate(HEADER)]
+    line = "  ".join(h.ljust(w) for h, w in zip(HEADER, widths))
+    return "\n".join([line, "  ".join("-" * w for w in widths)] +
+                     ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body])
+
+
+def write_table(rows: list[Row], out: Path) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# Scenario library: truth vs estimates", "",
+             f"Targets for speed noise <= {NOISE_LIMIT} m/s: |mass error| <= {MASS_BOUND_PCT} % at every stop, "
+             f"filter RMSE <= {RMSE_RATIO_BOUND} x sensor RMSE (speed and distance).", "",
+             "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
+    lines += ["| " + " | ".join(b) + " |" for b in table_rows(rows)]
+    path = out / "library.md"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
