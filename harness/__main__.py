@@ -36,8 +36,8 @@ def cmd_run(args) -> int:
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    true_A = tuple(scenario.parameter(n) for n in ("car.A0", "car.A1", "car.A2"))
-    summary = summarise(result, true_A)
+    summary = summarise(result)
+    true_A = summary.A_true
     print(format_summary(summary))
     out = Path(args.out) if args.out else Path("out") / scenario.name
     files = write_report(result, summary, true_A, out)

@@ -59,7 +59,7 @@ def _fmt(x, spec):
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
-HEADER = ("scenario", "V noise [m/s]", "stops", "max |mass err| at stops [%]", "mass within 1 % after [s]",
+HEADER = ("scenario", "V noise [m/s]", "stops", "max abs mass err at stops [%]", "mass within 1 % after [s]",
           "w0 RMS err [%]", "coast time err [s]", "speed RMSE sensor/filter/oracle [m/s]", "filter/sensor",
           "dist. RMSE sensor/filter/oracle [m]", "filter/sensor", "NEES v/x", "targets")
 

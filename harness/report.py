@@ -109,10 +109,32 @@ def plot_resistance(result, true_A: tuple, out_dir: Path) -> Path:
     return _save(fig, f"{result.scenario.name}: main resistance eq. (1)", out_dir / "resistance.png")
 
 
+def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
+    """A0, A1, A2 identified vs time with +-2 sigma bands, and the truth."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = result.time
+    fig, ax = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    for j, (name, unit) in enumerate((("A0", "N/kN"), ("A1", "N/kN/(m/s)"), ("A2", "N/kN/(m/s)2"))):
+        est, sd = result[f"est.{name}"], result[f"est.{name}_std"]
+        ax[j].plot(t, est, color="tab:blue", label="identified")
+        ax[j].fill_between(t, est - 2 * sd, est + 2 * sd, color="tab:blue", alpha=0.15, label="+-2 sigma")
+        ax[j].axhline(true_A[j], color="k", lw=1, label="true (at the end)")
+        span = 6 * max(abs(true_A[j]), float(np.median(sd)), 1e-6)
+        ax[j].set_ylim(true_A[j] - span, true_A[j] + span)
+        ax[j].set_ylabel(f"{name} [{unit}]")
+    ax[0].legend(loc="best")
+    ax[2].set_xlabel("time [s]")
+    return _save(fig, f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
+
+
 def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path) -> list[Path]:
     """Everything for one run into ``out_dir``; returns the files written."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_result_csv(result, out_dir / f"{result.scenario.name}_result.csv")
-    figs = plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir)]
+    figs = plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir),
+                                        plot_resistance_vs_time(result, true_A, out_dir)]
     md = write_summary_md(summary, result.scenario, out_dir / "summary.md", figs)
     return [csv_path, md, *figs]

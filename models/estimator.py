@@ -135,9 +135,11 @@ class OnlineEstimator:
         ``predicted`` its one-step prediction (the estimate for the next sample's instant)."""
         f = self.filter
         th = self.ident.theta
+        sd = np.sqrt(np.maximum(np.diag(self.ident.covariance()), 0.0))
         out = {
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),
+            "est.A0_std": float(sd[1]), "est.A1_std": float(sd[2]), "est.A2_std": float(sd[3]),
             "est.sigma2": self.ident.sigma2(),
             "est.samples": self.ident.samples, "est.station_stops": self.station_stops,
         }
