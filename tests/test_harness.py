@@ -101,3 +101,28 @@ def test_cli_exit_code_2_on_invalid_scenario(tmp_path, capsys):
     p.write_text('name = "x"\n')
     assert main(["run", str(p)]) == 2
     assert "no driving script" in capsys.readouterr().err
+
+
+def test_time_table_driver_is_piecewise_linear_and_validated(tmp_path):
+    from harness.driver import parse_time_table
+    tt = parse_time_table({"time_s": [0.0, 10.0, 20.0], "traction_N": [0.0, 10e3, 10e3],
+                           "brake_N": [0.0, 0.0, 5e3]}, "x")
+    assert tt.at(5.0) == pytest.approx((5e3, 0.0), rel=1e-15)
+    assert tt.at(15.0) == pytest.approx((10e3, 2.5e3), rel=1e-15)
+    assert tt.at(99.0) == (10e3, 5e3)                      # held after the last row
+    f = tmp_path / "d.csv"
+    f.write_text("time_s,traction_N,brake_N\n0,0,0\n5,-1,0\n")
+    with pytest.raises(ScenarioError, match=r"row 2: demands must be >= 0"):
+        scenario_from_dict({"name": "t", "driver_table": {"file": str(f)}}, "s.toml", tmp_path)
+
+
+def test_time_table_scenario_runs_to_its_stop_time(built_fmus):
+    """An open-loop table: the run reaches duration_s exactly (no early end, no coarsening)."""
+    from harness.runner import FmuRunner
+    s = scenario_from_dict({"name": "table", "duration_s": 30.0, "step_s": 0.1, "driver_table": {
+        "time_s": [0.0, 15.0, 15.1, 30.0], "traction_N": [30e3, 30e3, 0.0, 0.0],
+        "brake_N": [0.0, 0.0, 20e3, 20e3]}}, "t.toml", ROOT)
+    with FmuRunner(built_fmus["RailCar"]) as runner:
+        r = runner.run(s)
+    assert r.time[-1] == pytest.approx(30.0, abs=1e-9)
+    assert r["car.speed"].max() > 10.0 and r["car.speed"][-1] == 0.0
