@@ -106,7 +106,7 @@ def test_cli_exit_code_2_on_invalid_scenario(tmp_path, capsys):
 def test_time_table_driver_is_piecewise_linear_and_validated(tmp_path):
     from harness.driver import parse_time_table
     tt = parse_time_table({"time_s": [0.0, 10.0, 20.0], "traction_N": [0.0, 10e3, 10e3],
-                           "brake_N": [0.0, 0.0, 5e3]}, "x")
+                           "brake_N": [0.0, 0.0, 5e3]}, "x", None)
     assert tt.at(5.0) == pytest.approx((5e3, 0.0), rel=1e-15)
     assert tt.at(15.0) == pytest.approx((10e3, 2.5e3), rel=1e-15)
     assert tt.at(99.0) == (10e3, 5e3)                      # held after the last row
@@ -121,7 +121,7 @@ def test_time_table_scenario_runs_to_its_stop_time(built_fmus):
     from harness.runner import FmuRunner
     s = scenario_from_dict({"name": "table", "duration_s": 30.0, "step_s": 0.1, "driver_table": {
         "time_s": [0.0, 15.0, 15.1, 30.0], "traction_N": [30e3, 30e3, 0.0, 0.0],
-        "brake_N": [0.0, 0.0, 20e3, 20e3]}}, "t.toml", ROOT)
+        "brake_N": [0.0, 0.0, 40e3, 40e3]}}, "t.toml", ROOT)
     with FmuRunner(built_fmus["RailCar"]) as runner:
         r = runner.run(s)
     assert r.time[-1] == pytest.approx(30.0, abs=1e-9)
