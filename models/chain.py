@@ -142,7 +142,8 @@ class RailCarChain:
         while True:
             t_sample = self.next_sample_time()
             if t_sample > t_end + eps:
-                self.plant.advance(t_end, traction_demand, brake_demand, wind_speed)
+                if self.plant.time < t_end - eps:
+                    self.plant.advance(t_end, traction_demand, brake_demand, wind_speed)
                 return
             self.plant.advance(t_sample, traction_demand, brake_demand, wind_speed)
             # forces applied over the last sample interval, then the new measurement

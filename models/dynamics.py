@@ -158,25 +158,66 @@ def rk4_step(v: float, x: float, h: float, traction_demand: float, brake_demand:
     A car that comes to rest inside the step stops there (linear interpolation of the instant)
     and stays at rest: speed never goes negative.
     """
-    def accel(vv, xx):
-        return _derivative(max(vv, 0.0), xx, traction_demand, brake_demand, wind, p, grade_profile)[0]
+    return _rk4(v, x, h, held_input_dynamics(p, grade_profile, traction_demand, brake_demand, wind)[1])
 
+
+def _rk4(v: float, x: float, h: float, accel) -> tuple[float, float]:
+    """``rk4_step`` with a prepared accel(v, x) (same arithmetic, fewer calls)."""
     if v <= 0.0 and accel(0.0, x) <= 0.0:
         return 0.0, x
-    k1v = accel(v, x)
-    k1x = v
-    k2v = accel(v + 0.5 * h * k1v, x + 0.5 * h * k1x)
-    k2x = v + 0.5 * h * k1v
-    k3v = accel(v + 0.5 * h * k2v, x + 0.5 * h * k2x)
-    k3x = v + 0.5 * h * k2v
-    k4v = accel(v + h * k3v, x + h * k3x)
-    k4x = v + h * k3v
+    k1v = accel(v if v > 0.0 else 0.0, x)
+    v2 = v + 0.5 * h * k1v
+    k2v = accel(v2 if v2 > 0.0 else 0.0, x + 0.5 * h * v)
+    v3 = v + 0.5 * h * k2v
+    k3v = accel(v3 if v3 > 0.0 else 0.0, x + 0.5 * h * v2)
+    v4 = v + h * k3v
+    k4v = accel(v4 if v4 > 0.0 else 0.0, x + h * v3)
     v_new = v + h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-    x_new = x + h / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x)
+    x_new = x + h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4)
     if v_new < 0.0:
         t_stop = h * v / (v - v_new)          # comes to rest inside the step
         return 0.0, x + 0.5 * v * t_stop
     return v_new, x_new
+
+
+def held_input_dynamics(p: VehicleParams, grade_profile: GradeProfile, traction_demand: float,
+                        brake_demand: float, wind: float):
+    """Fast closures for inputs held over a step: (forces(v) -> (F, B), accel(v, x) -> dV/dt).
+
+    The same physics as ``applied_forces`` and ``_derivative`` (tests check they agree),
+    with the parameters bound once instead of looked up at every evaluation.
+    """
+    k_adh = 1000.0 * p.mass * p.adhesion_mass_fraction * G * p.adhesion_factor   # [N] per unit psi
+    frac = p.adhesion_mass_fraction
+    f_max, p_max, b_max = p.traction_force_max, p.traction_power_max, p.brake_force_max
+    a0, a1, a2 = p.A0, p.A1, p.A2
+    inv_weight = 1.0 / (p.mass * G)
+    k_acc = G / 1000.0 / (1.0 + p.gamma)
+    length = p.length
+    average = grade_profile.average
+    braking = brake_demand > 0.0
+
+    def forces(v):
+        adh = k_adh * (0.161 + 7.5 / (abs(v) * 3.6 + 44.0))    # Curtius-Kniffler psi_k
+        if braking:
+            lim = adh / frac
+            return 0.0, (brake_demand if brake_demand < lim and brake_demand < b_max
+                         else (lim if lim < b_max else b_max))
+        lim = f_max
+        if v > 0.0 and p_max / v < lim:
+            lim = p_max / v
+        if adh < lim:
+            lim = adh
+        return (traction_demand if traction_demand < lim else lim), 0.0
+
+    def accel(v, x):
+        f, b = forces(v)
+        va = v + wind
+        spec = (f - b) * inv_weight - (a0 + a1 * v + a2 * va * abs(va)) - average(x, length)
+        a = k_acc * spec
+        return a if (v > 0.0 or a > 0.0) else 0.0
+
+    return forces, accel
 
 
 class CarPlant:
@@ -209,10 +250,13 @@ class CarPlant:
         self.brake_impulse = 0.0      # integral of the applied brake force [N s]
         self._update_outputs(0.0, 0.0, 0.0)
 
-    def _update_outputs(self, traction_demand, brake_demand, wind):
+    def _update_outputs(self, traction_demand, brake_demand, wind, dynamics=None):
         s = self.state
-        a, f, b, grade = _derivative(s.speed, s.position, traction_demand, brake_demand, wind,
-                                     self.p, self.grade_profile)
+        forces, accel = dynamics or held_input_dynamics(self.p, self.grade_profile, traction_demand,
+                                                        brake_demand, wind)
+        f, b = forces(s.speed)
+        a = accel(s.speed, s.position)
+        grade = self.grade_profile.average(s.position, self.p.length)
         s.acceleration, s.traction_force, s.brake_force, s.grade = a, f, b, grade
         if s.speed <= 0.0 and a <= 0.0:
             s.mode = STANDSTILL
@@ -238,6 +282,7 @@ class CarPlant:
         """
         s = self.state
         eps = 1e-9 * max(1.0, abs(t_end))
+        forces, accel = held_input_dynamics(self.p, self.grade_profile, traction_demand, brake_demand, wind)
         while self.time < t_end - eps:
             t_grid = self.next_grid_time()
             t_next = t_grid if t_grid <= t_end + eps else t_end
@@ -245,15 +290,12 @@ class CarPlant:
             was_still = s.speed <= 0.0
             if was_still and s.still_time >= self.station_dwell and s.position != 0.0:
                 # departure after a station stop: distance counts from this station
-                a0 = _derivative(0.0, s.position, traction_demand, brake_demand, wind,
-                                 self.p, self.grade_profile)[0]
-                if a0 > 0.0:
+                if accel(0.0, s.position) > 0.0:
                     s.position = 0.0
                     s.stops += 1
-            f0, b0 = applied_forces(s.speed, traction_demand, brake_demand, self.p)
-            s.speed, s.position = rk4_step(s.speed, s.position, h, traction_demand, brake_demand,
-                                           wind, self.p, self.grade_profile)
-            f1, b1 = applied_forces(s.speed, traction_demand, brake_demand, self.p)
+            f0, b0 = forces(s.speed)
+            s.speed, s.position = _rk4(s.speed, s.position, h, accel)
+            f1, b1 = forces(s.speed)
             self.traction_impulse += 0.5 * (f0 + f1) * h
             self.brake_impulse += 0.5 * (b0 + b1) * h
             self.time = t_next
@@ -266,4 +308,4 @@ class CarPlant:
                 s.still_time = s.still_time + h if was_still else 0.0
             else:
                 s.still_time = 0.0
-        self._update_outputs(traction_demand, brake_demand, wind)
+        self._update_outputs(traction_demand, brake_demand, wind, (forces, accel))

@@ -125,9 +125,9 @@ class OnlineEstimator:
         The model's prediction error over dt from an uncertain Theta is k phi^T cov(Theta) phi k,
         k = g dt / 1000 / (1 + gamma); adding it keeps the filter honest while Theta is learnt.
         """
-        phi = regressor(traction, brake, self.filter.speed)
+        v = self.filter.speed
         k = G * dt / 1000.0 / (1.0 + self.gamma)
-        q_param = k * k * float(phi @ self.ident.covariance() @ phi)
+        q_param = k * k * self.ident.variance_along((traction - brake, -1.0, -v, -v * v))
         return self.ident.sigma2() * dt / self.dt_nominal + q_param
 
     def outputs(self, predicted: bool = False) -> dict[str, float]:
@@ -135,7 +135,7 @@ class OnlineEstimator:
         ``predicted`` its one-step prediction (the estimate for the next sample's instant)."""
         f = self.filter
         th = self.ident.theta
-        sd = np.sqrt(np.maximum(np.diag(self.ident.covariance()), 0.0))
+        sd = self.ident.stds()
         out = {
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),

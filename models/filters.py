@@ -104,6 +104,8 @@ class MotionFilter:
     Call ``update`` with each measurement and ``predict`` with the forces applied until the
     next one. ``speed``/``position`` and their stds are the posterior after ``update``;
     ``predicted_speed``/``predicted_position`` the one-step prediction after ``predict``.
+    The per-sample path is scalar 2x2 algebra (numpy's overhead on 2x2 arrays dominated the
+    step); it computes what ``kf_update``/``kf_predict`` compute, which tests check.
     """
 
     def __init__(self, cfg: FilterConfig, grade_profile: GradeProfile,
@@ -113,23 +115,43 @@ class MotionFilter:
         self.grade_profile = grade_profile
         self.speed_profile = speed_profile
         self.kind = cfg.kind or (LINEARISED if speed_profile is not None else EKF)
-        self.Rm = np.diag([cfg.speed_std ** 2, cfg.position_std ** 2])
+        self._r0 = cfg.speed_std ** 2
+        self._r1 = cfg.position_std ** 2
         self.restart()
+
+    # state: x_bar = (xb0, xb1), M = [[m00, m01], [m01, m11]]; x_hat, P likewise
+    @property
+    def Rm(self) -> np.ndarray:
+        return np.diag([self._r0, self._r1])
+
+    @property
+    def x_bar(self) -> np.ndarray:
+        return np.array([self._xb0, self._xb1])
+
+    @property
+    def M(self) -> np.ndarray:
+        return np.array([[self._m00, self._m01], [self._m01, self._m11]])
+
+    @property
+    def x_hat(self) -> np.ndarray:
+        return np.array([self._xh0, self._xh1])
+
+    @property
+    def P(self) -> np.ndarray:
+        return np.array([[self._p00, self._p01], [self._p01, self._p11]])
 
     def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
         """A run that does not start at a station: state = first measurement, P = its noise."""
         self.restart()
         vzad = self._vzad(position_meas) if self.kind in (LINEARISED, PAPER) else 0.0
         self.vzad_hat = self.vzad_bar = vzad
-        self.x_hat = np.array([max(speed_meas, 0.0) - vzad, position_meas])
-        self.P = np.diag([self.cfg.speed_std ** 2, self.cfg.position_noise_std(position_meas) ** 2])
+        self._xh0, self._xh1 = max(speed_meas, 0.0) - vzad, position_meas
+        self._p00, self._p11 = self.cfg.speed_std ** 2, self.cfg.position_noise_std(position_meas) ** 2
 
     def restart(self) -> None:
         """The car stands at the station: V = 0, X = 0 known exactly (P~[0] = 0)."""
-        self.x_bar = np.zeros(2)
-        self.M = np.zeros((2, 2))
-        self.x_hat = np.zeros(2)
-        self.P = np.zeros((2, 2))
+        self._xb0 = self._xb1 = self._m00 = self._m01 = self._m11 = 0.0
+        self._xh0 = self._xh1 = self._p00 = self._p01 = self._p11 = 0.0
         # V_zad at the posterior's / the prediction's instant [m/s]; 0 for the EKF (absolute speed)
         self.vzad_hat = self.vzad_bar = self._vzad(0.0) if self.kind in (LINEARISED, PAPER) else 0.0
 
@@ -137,31 +159,47 @@ class MotionFilter:
         return self.speed_profile.at(x) if self.speed_profile is not None else 0.0
 
     def update(self, speed_meas: float, position_meas: float) -> None:
-        """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m]."""
+        """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m], H = I."""
         vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
-        z = np.array([speed_meas - vzad, position_meas])
-        if self.cfg.position_std_rel:
-            self.Rm[1, 1] = self.cfg.position_noise_std(position_meas) ** 2
-        self.x_hat, self.P, _ = kf_update(self.x_bar, self.M, z, self.Rm)
-        if self.x_hat[0] + vzad < 0.0:            # a car never moves backwards
-            self.x_hat[0] = -vzad
+        r0 = self._r0
+        r1 = self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
+        m00, m01, m11 = self._m00, self._m01, self._m11
+        s00, s11 = m00 + r0, m11 + r1                     # M + R and its inverse
+        det = s00 * s11 - m01 * m01
+        i00, i01, i11 = s11 / det, -m01 / det, s00 / det
+        a00 = m00 * i00 + m01 * i01                       # A = M (M + R)^-1
+        a01 = m00 * i01 + m01 * i11
+        a10 = m01 * i00 + m11 * i01
+        a11 = m01 * i01 + m11 * i11
+        p00 = m00 - (a00 * m00 + a01 * m01)               # (18) P = M - A M
+        p01 = m01 - 0.5 * ((a00 * m01 + a01 * m11) + (a10 * m00 + a11 * m01))
+        p11 = m11 - (a10 * m01 + a11 * m11)
+        e0, e1 = speed_meas - vzad - self._xb0, position_meas - self._xb1
+        k00, k01, k10, k11 = p00 / r0, p01 / r1, p01 / r0, p11 / r1   # (17) K = P R^-1
+        xh0 = self._xb0 + k00 * e0 + k01 * e1             # (15)
+        self._xh1 = self._xb1 + k10 * e0 + k11 * e1
+        self._xh0 = -vzad if xh0 + vzad < 0.0 else xh0   # a car never moves backwards
+        self._p00, self._p01, self._p11 = p00, p01, p11
         self.vzad_hat = vzad
 
-    def predict(self, traction: float, brake: float, theta: np.ndarray, q: float, dt: float) -> None:
+    def predict(self, traction: float, brake: float, theta, q: float, dt: float) -> None:
         """Eqs. (16), (19) (or the EKF's) over dt [s] with forces [N] held, process noise q [(m/s)^2]."""
         speed_hat = self.speed
-        x_pos = float(self.x_hat[1])
+        x_pos = self._xh1
         grade = self.grade_profile.average(x_pos, self.cfg.length)
+        p00, p01, p11 = self._p00, self._p01, self._p11
         if self.kind in (LINEARISED, PAPER):
             vzad = self.vzad_hat
             vzad_next = self._vzad(x_pos + speed_hat * dt)
             a, c, C = linearised_model(vzad, vzad_next, traction, brake, grade, theta, dt, self.cfg.gamma)
             self.vzad_bar = vzad_next
             if self.kind == PAPER:                          # eqs. (16), (19) verbatim
-                Phi = np.array([[a, 0.0], [dt, 1.0]])
-                self.x_bar, self.M = kf_predict(self.x_hat, self.P, Phi, np.array([c, C]), q)
-                if self.x_bar[0] + vzad_next < 0.0:
-                    self.x_bar[0] = -vzad_next
+                xb0 = c + a * self._xh0
+                self._xb0 = -vzad_next if xb0 + vzad_next < 0.0 else xb0
+                self._xb1 = C + dt * self._xh0 + x_pos
+                self._m00 = a * a * p00 + q
+                self._m01 = a * (dt * p00 + p01)
+                self._m11 = dt * dt * p00 + 2.0 * dt * p01 + p11
                 return
             dv, v_next_minus_dv_v = a, c + vzad_next - a * vzad     # V' = c + V_zad' + a (V - V_zad)
         else:
@@ -173,47 +211,51 @@ class MotionFilter:
         # lags under acceleration and makes the distance's covariance over-confident.
         vzad_hat = self.vzad_hat if self.kind == LINEARISED else 0.0
         vzad_bar = self.vzad_bar if self.kind == LINEARISED else 0.0
-        v_hat = float(self.x_hat[0]) + vzad_hat
+        v_hat = self._xh0 + vzad_hat
         v_pred = max(v_next_minus_dv_v + dv * v_hat, 0.0)
-        Phi = np.array([[dv, 0.0], [0.5 * dt * (1.0 + dv), 1.0]])
-        self.x_bar = np.array([v_pred - vzad_bar, float(self.x_hat[1]) + 0.5 * dt * (v_hat + v_pred)])
-        Q = q * np.array([[1.0, 0.5 * dt], [0.5 * dt, dt * dt / 3.0]])
-        self.M = Phi @ self.P @ Phi.T + Q
+        f10 = 0.5 * dt * (1.0 + dv)                       # Phi = [[dv, 0], [f10, 1]]
+        self._xb0 = v_pred - vzad_bar
+        self._xb1 = x_pos + 0.5 * dt * (v_hat + v_pred)
+        self._m00 = dv * dv * p00 + q
+        self._m01 = dv * (f10 * p00 + p01) + q * 0.5 * dt
+        self._m11 = f10 * f10 * p00 + 2.0 * f10 * p01 + p11 + q * dt * dt / 3.0
 
     @property
     def speed(self) -> float:
         """Filtered speed [m/s] at the last measurement."""
-        return max(float(self.x_hat[0]) + self.vzad_hat, 0.0)
+        v = self._xh0 + self.vzad_hat
+        return v if v > 0.0 else 0.0
 
     @property
     def position(self) -> float:
         """Filtered distance [m] at the last measurement."""
-        return float(self.x_hat[1])
+        return self._xh1
 
     @property
     def speed_std(self) -> float:
         """Std of the filtered speed [m/s]."""
-        return math.sqrt(max(self.P[0, 0], 0.0))
+        return math.sqrt(self._p00) if self._p00 > 0.0 else 0.0
 
     @property
     def position_std(self) -> float:
         """Std of the filtered distance [m]."""
-        return math.sqrt(max(self.P[1, 1], 0.0))
+        return math.sqrt(self._p11) if self._p11 > 0.0 else 0.0
 
     @property
     def predicted_speed(self) -> float:
         """One-step predicted speed [m/s]."""
-        return max(float(self.x_bar[0]) + self.vzad_bar, 0.0)
+        v = self._xb0 + self.vzad_bar
+        return v if v > 0.0 else 0.0
 
     @property
     def predicted_position(self) -> float:
         """One-step predicted distance [m]."""
-        return float(self.x_bar[1])
+        return self._xb1
 
     @property
     def predicted_speed_std(self) -> float:
-        return math.sqrt(max(self.M[0, 0], 0.0))
+        return math.sqrt(self._m00) if self._m00 > 0.0 else 0.0
 
     @property
     def predicted_position_std(self) -> float:
-        return math.sqrt(max(self.M[1, 1], 0.0))
+        return math.sqrt(self._m11) if self._m11 > 0.0 else 0.0

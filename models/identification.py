@@ -129,8 +129,47 @@ class IdentifierConfig:
             raise ValueError(f"est.gamma must be >= 0, got {self.gamma}")
 
 
+def _sandwich4(Ji: list, M: list) -> list:
+    """Ji M Ji for symmetric 4x4 matrices stored flat (row-major): symmetric result, unrolled."""
+    (j00, j01, j02, j03, _, j11, j12, j13, _, _, j22, j23, _, _, _, j33) = Ji
+    (m00, m01, m02, m03, _, m11, m12, m13, _, _, m22, m23, _, _, _, m33) = M
+    t00 = m00 * j00 + m01 * j01 + m02 * j02 + m03 * j03
+    t01 = m00 * j01 + m01 * j11 + m02 * j12 + m03 * j13
+    t02 = m00 * j02 + m01 * j12 + m02 * j22 + m03 * j23
+    t03 = m00 * j03 + m01 * j13 + m02 * j23 + m03 * j33
+    t10 = m01 * j00 + m11 * j01 + m12 * j02 + m13 * j03
+    t11 = m01 * j01 + m11 * j11 + m12 * j12 + m13 * j13
+    t12 = m01 * j02 + m11 * j12 + m12 * j22 + m13 * j23
+    t13 = m01 * j03 + m11 * j13 + m12 * j23 + m13 * j33
+    t20 = m02 * j00 + m12 * j01 + m22 * j02 + m23 * j03
+    t21 = m02 * j01 + m12 * j11 + m22 * j12 + m23 * j13
+    t22 = m02 * j02 + m12 * j12 + m22 * j22 + m23 * j23
+    t23 = m02 * j03 + m12 * j13 + m22 * j23 + m23 * j33
+    t30 = m03 * j00 + m13 * j01 + m23 * j02 + m33 * j03
+    t31 = m03 * j01 + m13 * j11 + m23 * j12 + m33 * j13
+    t32 = m03 * j02 + m13 * j12 + m23 * j22 + m33 * j23
+    t33 = m03 * j03 + m13 * j13 + m23 * j23 + m33 * j33
+    c00 = j00 * t00 + j01 * t10 + j02 * t20 + j03 * t30
+    c01 = j00 * t01 + j01 * t11 + j02 * t21 + j03 * t31
+    c02 = j00 * t02 + j01 * t12 + j02 * t22 + j03 * t32
+    c03 = j00 * t03 + j01 * t13 + j02 * t23 + j03 * t33
+    c11 = j01 * t01 + j11 * t11 + j12 * t21 + j13 * t31
+    c12 = j01 * t02 + j11 * t12 + j12 * t22 + j13 * t32
+    c13 = j01 * t03 + j11 * t13 + j12 * t23 + j13 * t33
+    c22 = j02 * t02 + j12 * t12 + j22 * t22 + j23 * t32
+    c23 = j02 * t03 + j12 * t13 + j22 * t23 + j23 * t33
+    c33 = j03 * t03 + j13 * t13 + j23 * t23 + j33 * t33
+    return [c00, c01, c02, c03, c01, c11, c12, c13, c02, c12, c22, c23, c03, c13, c23, c33]
+
+
 class ParameterIdentifier:
-    """Running identification of Theta and sigma^2 (thin stateful wrapper of the core above)."""
+    """Running identification of Theta and sigma^2 (thin stateful wrapper of the core above).
+
+    The per-sample path is scalar Python on flat 4x4 lists (numpy's per-call overhead on 4x4
+    arrays dominated the step); it computes eqs. (8), (9), (11) exactly as ``rls_step`` does,
+    which tests check. Rare events (the first batch, a mass restart, regularised forgetting)
+    use numpy.
+    """
 
     def __init__(self, cfg: IdentifierConfig):
         cfg.validate()
@@ -143,59 +182,108 @@ class ParameterIdentifier:
         theta1_std = cfg.mass_std_initial / (G * cfg.mass_initial ** 2)
         prior_std = np.array([theta1_std, cfg.A0_std_initial, cfg.A1_std_initial, cfg.A2_std_initial])
         self.J0 = np.diag(s2_ref / prior_std ** 2)    # prior information, in Phi^T Phi units
+        self._j0 = [float(x) for x in np.diag(self.J0)]
         self.s2_ref = s2_ref
         self.reset()
 
     def reset(self) -> None:
         """Back to the configured initial values (a new instance, in effect)."""
-        self.theta = self.theta0.copy()
-        self.S = None                 # R^-1 once the batch is done
+        self._theta = [float(x) for x in self.theta0]
+        self._S = None                # R^-1 (flat, row-major) once the batch is done
         self.n = 0                    # samples used
         self.q_e = 0.0                # residual sum of squares (mu = 1/n) [(N/kN)^2]
         self.s2 = self.s2_ref         # residual variance of e(n)
-        self._batch_phi: list[np.ndarray] = []
+        self._batch_phi: list = []
         self._batch_y: list[float] = []
         self._batch_contiguous: list[bool] = []
         self.mass_restarts = 0
-        # honest covariance (see covariance()): information J (with the prior), white-noise
-        # meat W, differenced-noise meat D (closed runs; the open run's end is _last_phi),
-        # lag-0/lag-1 autocovariance of the residuals
-        self.J = self.J0.copy()
-        self.W = np.zeros((4, 4))
-        self.D = np.zeros((4, 4))
+        # honest covariance (see covariance()): white-noise meat W, differenced-noise meat D
+        # (closed runs; the open run's end is _last_phi), lag-0/lag-1 residual autocovariance
+        self._W = [0.0] * 16
+        self._D = [0.0] * 16
         self._last_phi = None
         self._last_err = None
         self.c0 = self.s2_ref
         self.c1 = 0.0
         self._n_c1 = 0
+        self._cov = None              # cached covariance (flat), cleared by every change
+        self._sigma2 = None           # cached sigma2(), cleared with it
+        self._J = None                # information J, kept explicitly only with forgetting
+
+    # ------------------------------------------------------------ state views
+
+    @property
+    def theta(self) -> np.ndarray:
+        """Theta-hat = (1/(Pg), A0, A1, A2)."""
+        return np.array(self._theta)
+
+    @theta.setter
+    def theta(self, value) -> None:
+        self._theta = [float(x) for x in value]
+        self._cov = None
+
+    @property
+    def S(self) -> np.ndarray | None:
+        """S = R^-1 of eq. (11), or None before the first batch."""
+        return None if self._S is None else np.array(self._S).reshape(4, 4)
+
+    @property
+    def W(self) -> np.ndarray:
+        return np.array(self._W).reshape(4, 4)
+
+    @property
+    def D(self) -> np.ndarray:
+        return np.array(self._D).reshape(4, 4)
 
     @property
     def samples(self) -> int:
         """Sample pairs used so far (including those waiting for the first batch)."""
-        return self.n if self.S is not None else len(self._batch_y)
+        return self.n if self._S is not None else len(self._batch_y)
 
     @property
     def ready(self) -> bool:
         """True once the first batch has been solved."""
-        return self.S is not None
+        return self._S is not None
 
-    def _accumulate(self, phi: np.ndarray, contiguous: bool, lam: float) -> None:
-        """Add one regressor to J, W and D (weights of exponential forgetting lam = 1 - mu0)."""
-        outer = np.outer(phi, phi)
+    # ------------------------------------------------------------ updates
+
+    def _accumulate(self, phi, contiguous: bool, lam: float) -> None:
+        """Add one regressor to W and D (weights of exponential forgetting lam = 1 - mu0)."""
+        W, D = self._W, self._D
         if lam < 1.0:
-            self.J = lam * (self.J - self.J0) + self.J0
-            self.W *= lam * lam
-            self.D *= lam * lam
-        self.J += outer
-        self.W += outer
+            l2 = lam * lam
+            for i in range(16):
+                W[i] *= l2
+                D[i] *= l2
+        p0, p1, p2, p3 = phi
         last = self._last_phi
         if contiguous and last is not None:
-            d = phi - last
-            self.D += np.outer(d, d)
+            d0, d1, d2, d3 = p0 - last[0], p1 - last[1], p2 - last[2], p3 - last[3]
+            dd = (d0, d1, d2, d3)
+            for i in range(4):
+                di = dd[i]
+                r = 4 * i
+                D[r] += di * d0
+                D[r + 1] += di * d1
+                D[r + 2] += di * d2
+                D[r + 3] += di * d3
         else:
-            if last is not None:
-                self.D += np.outer(last, last)      # close the previous run
-            self.D += outer                         # open a new one
+            ends = (phi,) if last is None else (last, phi)   # close the previous run, open one
+            for e in ends:
+                for i in range(4):
+                    ei = e[i]
+                    r = 4 * i
+                    D[r] += ei * e[0]
+                    D[r + 1] += ei * e[1]
+                    D[r + 2] += ei * e[2]
+                    D[r + 3] += ei * e[3]
+        for i in range(4):
+            pi = phi[i]
+            r = 4 * i
+            W[r] += pi * p0
+            W[r + 1] += pi * p1
+            W[r + 2] += pi * p2
+            W[r + 3] += pi * p3
         self._last_phi = phi
 
     def _residual_stats(self, err: float, contiguous: bool, mu: float) -> None:
@@ -213,9 +301,10 @@ class ParameterIdentifier:
         ``contiguous``: this pair directly follows the last one used (they share a sample)."""
         if self.cfg.frozen:
             return
-        phi = regressor(traction, brake, speed)
-        y = regression_target(speed, speed_next, grade, dt or self.cfg.dt, self.cfg.gamma)
-        if self.S is None:
+        phi = (traction - brake, -1.0, -speed, -speed * speed)                       # (4)
+        y = 1000.0 * (1.0 + self.cfg.gamma) * (speed_next - speed) / (G * (dt or self.cfg.dt)) + grade
+        self._cov = self._sigma2 = None
+        if self._S is None:
             self._batch_phi.append(phi)
             self._batch_y.append(y)
             self._batch_contiguous.append(contiguous)
@@ -223,15 +312,30 @@ class ParameterIdentifier:
                 self._solve_batch()
             return
         n = self.n + 1
-        mu = self.cfg.forgetting if self.cfg.forgetting > 0.0 else 1.0 / n
-        pred_err = y - float(self.theta @ phi)
-        gain_den = 1.0 + mu / (1.0 - mu) * float(phi @ self.S @ phi)
-        self.theta, self.S = rls_step(self.theta, self.S, phi, y, mu)
-        self._accumulate(phi, contiguous, 1.0 - self.cfg.forgetting)
+        forgetting = self.cfg.forgetting
+        mu = forgetting if forgetting > 0.0 else 1.0 / n
+        S, th = self._S, self._theta
+        p0, p1, p2, p3 = phi
+        Sp = [S[0] * p0 + S[1] * p1 + S[2] * p2 + S[3] * p3,
+              S[4] * p0 + S[5] * p1 + S[6] * p2 + S[7] * p3,
+              S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
+              S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3]
+        pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3]
+        pred_err = y - (th[0] * p0 + th[1] * p1 + th[2] * p2 + th[3] * p3)
+        g = mu * pred_err / (1.0 + mu * (pSp - 1.0))                              # (8), (9)
+        self._theta = [th[0] + g * Sp[0], th[1] + g * Sp[1], th[2] + g * Sp[2], th[3] + g * Sp[3]]
+        c = 1.0 / ((1.0 - mu) / mu + pSp)                                          # (11)
+        inv = 1.0 / (1.0 - mu)
+        self._S = [(S[4 * i + j] - Sp[i] * Sp[j] * c) * inv for i in range(4) for j in range(4)]
+        gain_den = 1.0 + mu / (1.0 - mu) * pSp
+        self._accumulate(phi, contiguous, 1.0 - forgetting)
         self._residual_stats(pred_err / math.sqrt(gain_den), contiguous, mu)
-        if self.cfg.forgetting > 0.0:
+        if forgetting > 0.0:
             # regularised forgetting: keep the prior's information (anti-windup)
-            self.S = np.linalg.inv(np.linalg.inv(self.S) + mu * mu * self.J0)
+            lam = 1.0 - forgetting
+            self._J = lam * (self._J - self.J0) + self.J0 + np.outer(phi, phi)
+            S_new = np.linalg.inv(np.linalg.inv(self.S) + mu * mu * self.J0)
+            self._S = [float(x) for x in S_new.ravel()]
             self.s2 = (1.0 - mu) * self.s2 + mu * pred_err ** 2 / gain_den
         else:
             self.q_e += pred_err ** 2 / gain_den
@@ -243,13 +347,16 @@ class ParameterIdentifier:
         y = np.array(self._batch_y)
         n = len(y)
         info = phi.T @ phi + self.J0
-        self.theta = np.linalg.solve(info, phi.T @ y + self.J0 @ self.theta)
-        self.S = np.linalg.inv(info / n)
-        resid = y - phi @ self.theta
+        theta = np.linalg.solve(info, phi.T @ y + self.J0 @ self.theta)
+        self._theta = [float(x) for x in theta]
+        self._S = [float(x) for x in np.linalg.inv(info / n).ravel()]
+        if self.cfg.forgetting > 0.0:
+            self._J = info.copy()
+        resid = y - phi @ theta
         self.q_e = float(resid @ resid)
         self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
         for k in range(n):
-            self._accumulate(phi[k], self._batch_contiguous[k], 1.0)
+            self._accumulate(self._batch_phi[k], self._batch_contiguous[k], 1.0)
         self.c0 = self.q_e / max(n - 4, 1)
         lagged = [resid[k] * resid[k - 1] for k in range(1, n) if self._batch_contiguous[k]]
         self._n_c1 = len(lagged)
@@ -261,28 +368,35 @@ class ParameterIdentifier:
     def restart_mass(self) -> None:
         """New passengers: reopen 1/(Pg) with its prior; the A's keep what they learnt."""
         self.mass_restarts += 1
-        if self.S is None or self.cfg.frozen:
+        if self._S is None or self.cfg.frozen:
             return
         R = np.linalg.inv(self.S)
-        r00 = R[0, 0]
-        R[1:, 1:] -= np.outer(R[1:, 0], R[0, 1:]) / r00       # marginalise Theta1 out
+        R[1:, 1:] -= np.outer(R[1:, 0], R[0, 1:]) / R[0, 0]       # marginalise Theta1 out
         R[0, 1:] = 0.0
         R[1:, 0] = 0.0
-        R[0, 0] = self.J0[0, 0] / self._n_eff()
-        self.S = np.linalg.inv(R)
-        J = self.J
-        J[1:, 1:] -= np.outer(J[1:, 0], J[0, 1:]) / J[0, 0]
-        J[0, 1:] = J[1:, 0] = 0.0
-        J[0, 0] = self.J0[0, 0]
-        for meat in (self.W, self.D):
-            meat[0, :] = meat[:, 0] = 0.0
+        R[0, 0] = self._j0[0] / self._n_info()
+        self._S = [float(x) for x in np.linalg.inv(R).ravel()]
+        if self._J is not None:
+            J = self._J
+            J[1:, 1:] -= np.outer(J[1:, 0], J[0, 1:]) / J[0, 0]
+            J[0, 1:] = J[1:, 0] = 0.0
+            J[0, 0] = self._j0[0]
+        for meat in (self._W, self._D):
+            for i in range(4):
+                meat[i] = meat[4 * i] = 0.0
         self._last_phi = None
+        self._cov = None
 
     def _n_eff(self) -> float:
         mu0 = self.cfg.forgetting
         if mu0 > 0.0:
             return min(float(self.n), (2.0 - mu0) / mu0)
         return float(max(self.n, 1))
+
+    def _n_info(self) -> float:
+        """J = R * _n_info(): n for mu = 1/n, 1/mu0 with forgetting (R = mu0 J, eq. (10))."""
+        mu0 = self.cfg.forgetting
+        return 1.0 / mu0 if mu0 > 0.0 else float(max(self.n, 1))
 
     # ------------------------------------------------------------ outputs
 
@@ -294,6 +408,43 @@ class ParameterIdentifier:
         b = max(self.c0 - 2.0 * a, 1e-12 * self.c0)
         return a, b
 
+    def _covariance_flat(self) -> list[float]:
+        if self._cov is not None:
+            return self._cov
+        if self.cfg.frozen:
+            self._cov = [0.0] * 16
+            return self._cov
+        j0 = self._j0
+        if self._S is None:                      # the prior: s2_ref J0^-1
+            cov = [0.0] * 16
+            for i in range(4):
+                cov[5 * i] = self.s2_ref / j0[i]
+            self._cov = cov
+            return cov
+        a, b = self.noise_split()
+        if self._J is not None:                  # forgetting: J kept explicitly
+            Ji = [float(x) for x in np.linalg.inv(self._J).ravel()]
+        else:                                    # mu = 1/n: J = n R, so J^-1 = S / n exactly
+            k = 1.0 / self._n_info()
+            Ji = [x * k for x in self._S]
+        D, W, last = self._D, self._W, self._last_phi
+        M = [a * d + b * w for d, w in zip(D, W)]
+        if last is not None:                     # the open run's end
+            for i in range(4):
+                ali = a * last[i]
+                r = 4 * i
+                M[r] += ali * last[0]
+                M[r + 1] += ali * last[1]
+                M[r + 2] += ali * last[2]
+                M[r + 3] += ali * last[3]
+        s2 = self.s2_ref
+        M[0] += s2 * j0[0]
+        M[5] += s2 * j0[1]
+        M[10] += s2 * j0[2]
+        M[15] += s2 * j0[3]
+        self._cov = _sandwich4(Ji, M)
+        return self._cov
+
     def covariance(self) -> np.ndarray:
         """Covariance of Theta-hat [Theta units^2], a sandwich J^-1 M J^-1.
 
@@ -301,28 +452,35 @@ class ParameterIdentifier:
         the *difference* of two measurement errors (MA(1), lag-1 correlation -1/2), whose sum
         telescopes: the white formula overstates the mass's std tens of times. The meat is
         M = a D + b W + s2_ref J0, with D = sum over runs of consecutive samples of the
-        differenced regressors (plus the runs' ends), W = sum phi phi^T, and the prior's own.
+        differenced regressors (plus the runs' ends), W = sum phi phi^T, and the prior's own;
+        J^-1 = S / n (R = J / n by eq. (10)).
         """
-        if self.cfg.frozen:
-            return np.zeros((4, 4))
-        Jinv = np.linalg.inv(self.J)
-        if self.S is None:
-            return self.s2_ref * Jinv @ self.J0 @ Jinv
-        a, b = self.noise_split()
-        D = self.D if self._last_phi is None else self.D + np.outer(self._last_phi, self._last_phi)
-        meat = a * D + b * self.W + self.s2_ref * self.J0
-        cov = Jinv @ meat @ Jinv
-        return 0.5 * (cov + cov.T)
+        return np.array(self._covariance_flat()).reshape(4, 4)
+
+    def variance_along(self, phi) -> float:
+        """phi^T cov(Theta) phi for a regressor phi (the model's prediction variance)."""
+        c = self._covariance_flat()
+        p0, p1, p2, p3 = phi
+        return (p0 * (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3)
+                + p1 * (c[4] * p0 + c[5] * p1 + c[6] * p2 + c[7] * p3)
+                + p2 * (c[8] * p0 + c[9] * p1 + c[10] * p2 + c[11] * p3)
+                + p3 * (c[12] * p0 + c[13] * p1 + c[14] * p2 + c[15] * p3))
+
+    def stds(self) -> tuple[float, float, float, float]:
+        """Standard deviations of Theta-hat's four components."""
+        c = self._covariance_flat()
+        return tuple(math.sqrt(c[5 * i]) if c[5 * i] > 0.0 else 0.0 for i in range(4))
 
     @property
     def mass(self) -> float:
         """P-hat [t]."""
-        return mass_from_theta(self.theta[0]) if self.theta[0] > 0 else float("inf")
+        th1 = self._theta[0]
+        return mass_from_theta(th1) if th1 > 0 else float("inf")
 
     def mass_std(self) -> float:
         """Std of P-hat [t], delta method: std(Theta1) / (g Theta1^2)."""
-        var = self.covariance()[0, 0]
-        return math.sqrt(max(var, 0.0)) / (G * self.theta[0] ** 2)
+        var = self._covariance_flat()[0]
+        return math.sqrt(max(var, 0.0)) / (G * self._theta[0] ** 2)
 
     def sigma2(self) -> float:
         """Process-noise variance per step [(m/s)^2], eq. (12) applied to the process share b.
@@ -331,11 +489,13 @@ class ParameterIdentifier:
         measurement noise (see noise_split); only b is process noise. It is floored at one
         standard error of c0 (c0 sqrt(2/n)) so the filter never gets a zero process noise.
         """
-        if self.S is None:
+        if self._S is None:
             return self.cfg.sigma2_initial
-        a, b = self.noise_split()
-        b = max(b, self.c0 * math.sqrt(2.0 / self._n_eff()))
-        return sigma2_from_residual(b, self.cfg.dt, self.cfg.gamma)
+        if self._sigma2 is None:
+            a, b = self.noise_split()
+            b = max(b, self.c0 * math.sqrt(2.0 / self._n_eff()))
+            self._sigma2 = sigma2_from_residual(b, self.cfg.dt, self.cfg.gamma)
+        return self._sigma2
 
     def sigma2_paper(self) -> float:
         """sigma^2 exactly as eq. (12): g^2 dt^2 / 10^6 * Q_e / (n - 4) [(m/s)^2]."""
