@@ -49,6 +49,18 @@ class RunResult:
         return self.signals[name]
 
 
+def _finish(fmu: FMU2Slave) -> None:
+    """Terminate and free an instance that initialised (never one after fmi2Fatal)."""
+    try:
+        fmu.terminate()
+    except Exception:
+        pass
+    try:
+        fmu.freeInstance()
+    except Exception:
+        pass
+
+
 class FmuRunner:
     """One extracted FMU, reused for many runs (a new instance per run)."""
 
@@ -168,12 +180,8 @@ class FmuRunner:
                 except Exception as e:
                     raise RunError(f"{what}: doStep at t = {t[k]:.3f} s (row {k + 2}) failed: {e}", log) from None
                 rows.append(fmu.getReal(out_vr))
-            fmu.terminate()
         finally:
-            try:
-                fmu.freeInstance()
-            except Exception:
-                pass
+            _finish(fmu)
         arr = np.array(rows).reshape(len(rows), len(outputs))
         return {n: arr[:, j] for j, n in enumerate(outputs)}, log
 
@@ -220,12 +228,8 @@ class FmuRunner:
                     raise RunError(f"{scenario.name}: doStep at t = {t:.3f} s failed: {e}", log) from None
                 r = fmu.getReal(real_vr)
                 rows_t.append((k + 1) * h), rows_r.append(r), rows_i.append(fmu.getInteger(int_vr))
-            fmu.terminate()
         finally:
-            try:
-                fmu.freeInstance()
-            except Exception:
-                pass
+            _finish(fmu)
         time = np.array(rows_t)
         if not finished and not math.isclose(time[-1], n_max * h, rel_tol=1e-12, abs_tol=1e-9):
             raise RunError(f"{scenario.name}: run ended at {time[-1]} s, not at {n_max * h} s", log)

@@ -129,6 +129,18 @@ class IdentifierConfig:
             raise ValueError(f"est.gamma must be >= 0, got {self.gamma}")
 
 
+def _add_outer(M: list, u) -> None:
+    """M += u u^T for a flat row-major 4x4 M."""
+    u0, u1, u2, u3 = u
+    for i in range(4):
+        ui = u[i]
+        r = 4 * i
+        M[r] += ui * u0
+        M[r + 1] += ui * u1
+        M[r + 2] += ui * u2
+        M[r + 3] += ui * u3
+
+
 def _sandwich4(Ji: list, M: list) -> list:
     """Ji M Ji for symmetric 4x4 matrices stored flat (row-major): symmetric result, unrolled."""
     (j00, j01, j02, j03, _, j11, j12, j13, _, _, j22, j23, _, _, _, j33) = Ji
@@ -255,35 +267,14 @@ class ParameterIdentifier:
             for i in range(16):
                 W[i] *= l2
                 D[i] *= l2
-        p0, p1, p2, p3 = phi
         last = self._last_phi
         if contiguous and last is not None:
-            d0, d1, d2, d3 = p0 - last[0], p1 - last[1], p2 - last[2], p3 - last[3]
-            dd = (d0, d1, d2, d3)
-            for i in range(4):
-                di = dd[i]
-                r = 4 * i
-                D[r] += di * d0
-                D[r + 1] += di * d1
-                D[r + 2] += di * d2
-                D[r + 3] += di * d3
+            _add_outer(D, (phi[0] - last[0], phi[1] - last[1], phi[2] - last[2], phi[3] - last[3]))
         else:
-            ends = (phi,) if last is None else (last, phi)   # close the previous run, open one
-            for e in ends:
-                for i in range(4):
-                    ei = e[i]
-                    r = 4 * i
-                    D[r] += ei * e[0]
-                    D[r + 1] += ei * e[1]
-                    D[r + 2] += ei * e[2]
-                    D[r + 3] += ei * e[3]
-        for i in range(4):
-            pi = phi[i]
-            r = 4 * i
-            W[r] += pi * p0
-            W[r + 1] += pi * p1
-            W[r + 2] += pi * p2
-            W[r + 3] += pi * p3
+            if last is not None:
+                _add_outer(D, last)      # close the previous run
+            _add_outer(D, phi)           # open a new one
+        _add_outer(W, phi)
         self._last_phi = phi
 
     def _residual_stats(self, err: float, contiguous: bool, mu: float) -> None:
@@ -430,13 +421,8 @@ class ParameterIdentifier:
         D, W, last = self._D, self._W, self._last_phi
         M = [a * d + b * w for d, w in zip(D, W)]
         if last is not None:                     # the open run's end
-            for i in range(4):
-                ali = a * last[i]
-                r = 4 * i
-                M[r] += ali * last[0]
-                M[r + 1] += ali * last[1]
-                M[r + 2] += ali * last[2]
-                M[r + 3] += ali * last[3]
+            sa = math.sqrt(a)
+            _add_outer(M, (sa * last[0], sa * last[1], sa * last[2], sa * last[3]))
         s2 = self.s2_ref
         M[0] += s2 * j0[0]
         M[5] += s2 * j0[1]
