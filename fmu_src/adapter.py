@@ -126,5 +126,16 @@ def estimator_settings(v: dict) -> tuple[IdentifierConfig, FilterConfig, Station
         A2_std_initial=v["est.A2_std_initial"], sigma2_initial=v["est.sigma2_initial"])
     filt = FilterConfig(speed_std=v["sensor.speed_std"], position_std=v["sensor.position_std"],
                         position_std_rel=v["sensor.position_std_rel"], kind=int(v["filter.kind"]),
-                        length=v["car.length"])
+                        length=v["car.length"], singer_tau=v["filter.singer_tau"],
+                        singer_p0=v["filter.singer_p0"], singer_p_plus=v["filter.singer_p_plus"],
+                        singer_p_minus=v["filter.singer_p_minus"],
+                        singer_w_max_plus=v["filter.singer_w_max_plus"],
+                        singer_w_max_minus=v["filter.singer_w_max_minus"])
     return ident, filt, StationConfig(dwell=v["track.station_dwell"])
+
+
+def track_settings(v: dict):
+    """sensor.track_* parameters -> TrackSensorConfig (spacing only exists in RailCar)."""
+    from models.chain import TrackSensorConfig
+    return TrackSensorConfig(spacing=v.get("sensor.track_spacing", 0.0), base=v["sensor.track_base"],
+                             resolution=v["sensor.track_resolution"], jitter=v["sensor.track_jitter"])

@@ -1,7 +1,7 @@
 """RailCar FMU: car dynamics (plant), sensors, parameter identification and Kalman filter."""
 from pythonfmu import Fmi2Slave
 
-from fmu_src.adapter import estimator_settings, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.adapter import estimator_settings, track_settings, guarded_step, initialise, load_profiles, register_variables
 from fmu_src.variables import RAILCAR
 from models.chain import ChainConfig, RailCarChain
 from models.dynamics import VehicleParams
@@ -32,7 +32,7 @@ class RailCar(Fmi2Slave):
                           process_noise_psd=v["car.process_noise_psd"],
                           sample_period=v["sensor.sample_period"], seed=int(v["seed"]),
                           initial_speed=v["car.initial_speed"], initial_position=v["car.initial_position"],
-                          station=station, identifier=ident, filter=filt)
+                          station=station, identifier=ident, filter=filt, track=track_settings(v))
         grade, speed = load_profiles(v, self.resources)
         chain = RailCarChain(cfg, grade, speed, start_time=self.start_time)
         self.values.update(chain.outputs())

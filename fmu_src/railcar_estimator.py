@@ -1,7 +1,7 @@
 """RailCarEstimator FMU: identification and filter on measurements from anywhere."""
 from pythonfmu import Fmi2Slave
 
-from fmu_src.adapter import estimator_settings, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.adapter import estimator_settings, track_settings, guarded_step, initialise, load_profiles, register_variables
 from fmu_src.variables import ESTIMATOR
 from models.chain import EstimatorChain
 
@@ -19,7 +19,7 @@ class RailCarEstimator(Fmi2Slave):
         v = self.values
         ident, filt, station = estimator_settings(v)
         grade, speed = load_profiles(v, self.resources)
-        return EstimatorChain(ident, filt, station, grade, speed)
+        return EstimatorChain(ident, filt, station, grade, speed, track_settings(v))
 
     def exit_initialization_mode(self):
         self.chain = initialise(self, self._build)
@@ -29,6 +29,7 @@ class RailCarEstimator(Fmi2Slave):
 
         def step():
             self.chain.do_step(current_time, step_size, v["traction_force"], v["brake_force"],
-                               v["sensor.speed"], v["sensor.position"])
+                               v["sensor.speed"], v["sensor.position"], v["sensor.track_speed"],
+                               v["sensor.track_time"])
             v.update(self.chain.outputs())
         return guarded_step(self, step)

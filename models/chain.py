@@ -41,6 +41,52 @@ def check_step(current_time: float, step_size: float) -> None:
 
 
 @dataclass
+class TrackSensorConfig:
+    """Pairs of point track sensors (seed 002): speed = base / (t2 - t1) with a timer."""
+    spacing: float = 0.0        # a pair every `spacing` metres from each station [m]; 0 = none
+    base: float = 5.0           # distance between the two sensors of a pair [m]
+    resolution: float = 1e-3    # timer resolution [s]
+    jitter: float = 0.0         # detection-time noise std [s]
+
+    def validate(self) -> None:
+        for name in ("spacing", "jitter"):
+            v = getattr(self, name)
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"sensor.track_{name} must be >= 0, got {v}")
+        if not (self.base > 0 and math.isfinite(self.base)):
+            raise ValueError(f"sensor.track_base must be > 0, got {self.base}")
+        if not (self.resolution >= 0 and math.isfinite(self.resolution)):
+            raise ValueError(f"sensor.track_resolution must be >= 0, got {self.resolution}")
+        if self.spacing and self.spacing <= self.base:
+            raise ValueError(f"sensor.track_spacing ({self.spacing}) must exceed sensor.track_base "
+                             f"({self.base})")
+
+    def speed_std(self, v: float) -> float:
+        """Std of a measured speed [m/s] at speed v [m/s]: v^2/b sqrt(delta^2/6 + 2 jitter^2)."""
+        from .track_sensors import track_sensor_speed_std
+        return float(track_sensor_speed_std(v, self.base, self.resolution, self.jitter))
+
+
+def _hermite_crossing(t0, x0, v0, t1, x1, v1, d) -> float:
+    """Time in [t0, t1] [s] at which the cubic Hermite path through (x0, v0), (x1, v1)
+    reaches the distance d [m] (bisection; the path is monotonic for v >= 0)."""
+    h = t1 - t0
+
+    def x_at(s):
+        s2, s3 = s * s, s * s * s
+        return ((2 * s3 - 3 * s2 + 1) * x0 + (s3 - 2 * s2 + s) * h * v0
+                + (-2 * s3 + 3 * s2) * x1 + (s3 - s2) * h * v1)
+    lo, hi = 0.0, 1.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if x_at(mid) < d:
+            lo = mid
+        else:
+            hi = mid
+    return t0 + 0.5 * (lo + hi) * h
+
+
+@dataclass
 class ChainConfig:
     """Everything RailCar needs besides the profiles (names follow the FMU variables)."""
     vehicle: VehicleParams = field(default_factory=VehicleParams)
@@ -53,9 +99,11 @@ class ChainConfig:
     station: StationConfig = field(default_factory=StationConfig)
     identifier: IdentifierConfig = field(default_factory=IdentifierConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)   # sensor noise and filter kind
+    track: TrackSensorConfig = field(default_factory=TrackSensorConfig)
 
     def validate(self) -> None:
         self.vehicle.validate()
+        self.track.validate()
         if not 0 <= int(self.seed) < 2 ** 63:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         if not (self.sample_period > 0 and math.isfinite(self.sample_period)):
@@ -89,7 +137,11 @@ class RailCarChain:
             raise ValueError(f"start time must be finite, got {start_time}")
         self.cfg = cfg
         self.start_time = start_time    # the host's time of the chain's internal t = 0 [s]
-        streams = noise_streams(cfg.seed, ("process", "speed_sensor", "position_sensor"))
+        streams = noise_streams(cfg.seed, ("process", "speed_sensor", "position_sensor", "track_sensor"))
+        self._track_noise = streams["track_sensor"]
+        self.track_speed = 0.0       # last track-sensor speed [m/s]
+        self.track_time = 0.0        # its time stamp (second sensor, as the timer read it) [s]
+        self._track_t1 = None        # true passage time at the first sensor of the pair [s]
         self._speed_noise = streams["speed_sensor"]
         self._position_noise = streams["position_sensor"]
         self.base_mass = cfg.vehicle.mass
@@ -102,6 +154,7 @@ class RailCarChain:
         filt = replace(cfg.filter, length=cfg.vehicle.length)
         self.estimator = build_estimator(cfg.identifier, filt, cfg.station, grade_profile,
                                          speed_profile, cfg.sample_period)
+        self._pending_track = None
         self._sample_index = 0
         self.sensor_speed = 0.0
         self.sensor_position = 0.0
@@ -113,6 +166,43 @@ class RailCarChain:
         self.sensor_speed = s.speed + f.speed_std * self._speed_noise()
         self.sensor_position = s.position + f.position_noise_std(s.position) * self._position_noise()
         self.estimator.measure(self.sensor_speed, self.sensor_position)
+        if self._pending_track is not None:
+            v, age = self._pending_track
+            self.estimator.measure_track_speed(v, age, self.cfg.track.speed_std(v), self.cfg.track.base)
+            self._pending_track = None
+
+    def _track_passages(self, t0: float, x0: float, v0: float) -> None:
+        """Track sensors passed since (t0, x0, v0): a pair's second sensor yields a speed."""
+        s = self.plant.state
+        t1, x1, v1 = self.plant.time, s.position, s.speed
+        if x1 < x0:                          # the distance restarted at a station
+            self._track_t1 = None
+            return
+        tc = self.cfg.track
+        k = math.floor(x0 / tc.spacing)
+        while True:                          # sensors at k*spacing (first) and +base (second)
+            for d, second in ((k * tc.spacing, False), (k * tc.spacing + tc.base, True)):
+                if k >= 1 and x0 < d <= x1:
+                    t = _hermite_crossing(t0, x0, v0, t1, x1, v1, d)
+                    if not second:
+                        self._track_t1 = t
+                    elif self._track_t1 is not None:
+                        self._track_reading(self._track_t1, t)
+                        self._track_t1 = None
+            k += 1
+            if k * tc.spacing > x1:
+                return
+
+    def _track_reading(self, t_first: float, t_second: float) -> None:
+        from .track_sensors import quantise_time, speed_from_times
+        tc = self.cfg.track
+        j1, j2 = tc.jitter * self._track_noise(), tc.jitter * self._track_noise()
+        v = float(speed_from_times(t_first, t_second, tc.base, tc.resolution, 0.0, j1, j2))
+        stamp = float(quantise_time(t_second + j2, tc.resolution)) if tc.resolution else t_second + j2
+        if not math.isfinite(v):
+            return                           # both stamps on one tick: no reading
+        self.track_speed, self.track_time = v, stamp + self.start_time
+        self._pending_track = (v, self.plant.time - stamp)
 
     def next_sample_time(self) -> float:
         return (self._sample_index + 1) * self.cfg.sample_period
@@ -145,7 +235,10 @@ class RailCarChain:
                 if self.plant.time < t_end - eps:
                     self.plant.advance(t_end, traction_demand, brake_demand, wind_speed)
                 return
+            before = (self.plant.time, self.plant.state.position, self.plant.state.speed)
             self.plant.advance(t_sample, traction_demand, brake_demand, wind_speed)
+            if self.cfg.track.spacing:
+                self._track_passages(*before)
             # forces applied over the last sample interval, then the new measurement
             ts = self.cfg.sample_period
             self.estimator.propagate(self.plant.traction_impulse / ts, self.plant.brake_impulse / ts, ts)
@@ -161,6 +254,7 @@ class RailCarChain:
             "car.traction_force": s.traction_force, "car.brake_force": s.brake_force,
             "car.grade": s.grade, "car.mode": s.mode, "car.total_mass": self.plant.p.mass,
             "sensor.speed": self.sensor_speed, "sensor.position": self.sensor_position,
+            "sensor.track_speed": self.track_speed, "sensor.track_time": self.track_time,
         }
         out.update(self.estimator.outputs())
         return out
@@ -176,16 +270,27 @@ class EstimatorChain:
     """
 
     def __init__(self, identifier: IdentifierConfig, filt: FilterConfig, station: StationConfig,
-                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None):
+                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None,
+                 track: TrackSensorConfig | None = None):
+        self.track = track or TrackSensorConfig()
+        self.track.validate()
+        self._last_track_time = -math.inf
         self._args = (identifier, filt, station, grade_profile, speed_profile)
         build_estimator(*self._args, dt=1.0)   # validates every setting now, at initialisation
         self.estimator: OnlineEstimator | None = None
         self.time = None
 
     def do_step(self, current_time: float, step_size: float, traction: float, brake: float,
-                speed_meas: float, position_meas: float) -> None:
-        """Raises StepRejected (naming the variable) before changing anything on bad input."""
+                speed_meas: float, position_meas: float, track_speed: float = 0.0,
+                track_time: float = 0.0) -> None:
+        """Raises StepRejected (naming the variable) before changing anything on bad input.
+
+        A track-sensor speed [m/s] is taken when its time stamp ``track_time`` [s] is new
+        (later than the last one taken and not after ``current_time``).
+        """
         check_step(current_time, step_size)
+        check_finite("sensor.track_speed", track_speed, "m/s")
+        check_finite("sensor.track_time", track_time, "s")
         check_force("traction_force", traction)
         check_force("brake_force", brake)
         check_finite("sensor.speed", speed_meas, "m/s")
@@ -196,6 +301,10 @@ class EstimatorChain:
         if self.estimator is None:
             self.estimator = build_estimator(*self._args, dt=step_size)
         self.estimator.measure(speed_meas, position_meas)
+        if self._last_track_time < track_time <= current_time + 1e-9 and track_speed > 0.0:
+            self.estimator.measure_track_speed(track_speed, current_time - track_time,
+                                               self.track.speed_std(track_speed), self.track.base)
+            self._last_track_time = track_time
         self.estimator.propagate(traction, brake, step_size)
         self.time = current_time + step_size
 

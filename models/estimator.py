@@ -78,6 +78,7 @@ class OnlineEstimator:
         self.gamma = id_cfg.gamma
         self.dt_nominal = id_cfg.dt
         self.station_stops = 0
+        self.track_speeds = 0        # track-sensor speeds taken
         self._prev = None            # (V_meas, X_meas) of the previous sample
         self._pair_used = False      # the pair ending at the previous sample was identified
         self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
@@ -110,6 +111,32 @@ class OnlineEstimator:
             self.filter.restart()
         else:
             self.filter.update(speed_meas, position_meas)
+
+    ACCEL_STD = 0.1   # [m/s^2] uncertainty of the acceleration used to carry a speed over its age
+
+    def measure_track_speed(self, speed_meas: float, age: float, speed_std: float,
+                            base: float = 0.0) -> None:
+        """A track-sensor speed [m/s] stamped ``age`` [s] before the current sample, std [m/s].
+
+        b / (t2 - t1) is the mean speed over the base [m], i.e. the speed at the middle of the
+        passage, base / (2 v) before the stamp t2. It is carried to the current instant with
+        the acceleration over the last interval (the filter's own for Singer, the identified
+        model's otherwise) and its variance grows by (ACCEL_STD * age)^2.
+        """
+        if not (math.isfinite(speed_meas) and speed_meas > 0.0 and age >= 0.0):
+            return
+        age += 0.5 * base / speed_meas
+        accel = self.filter.acceleration
+        if accel is None:
+            traction, brake = self._forces
+            v = self.filter.speed
+            th = self.ident.theta
+            accel = G / 1000.0 / (1.0 + self.gamma) * (
+                th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
+                - self.grade_profile.average(self.filter.position, self.length))
+        var = speed_std ** 2 + (self.ACCEL_STD * age) ** 2
+        self.filter.update_speed(max(speed_meas + accel * age, 0.0), var)
+        self.track_speeds += 1
 
     def propagate(self, traction: float, brake: float, dt: float) -> None:
         """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""

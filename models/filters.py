@@ -18,11 +18,13 @@ import numpy as np
 from .track import GradeProfile, SpeedProfile
 from .units import G
 
-LINEARISED, EKF, PAPER = 1, 2, 3
+LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
 """Values of ``filter.kind``: 0 = automatic (LINEARISED when a speed profile is given, else EKF);
 LINEARISED = linearised around V_zad, eq. (13), with the trapezoid distance update and
 white-acceleration process noise; EKF = eq. (2) relinearised at the estimate, same distance
-update; PAPER = eqs. (13)-(19) verbatim (Euler distance, Q = diag(sigma^2, 0)), the baseline."""
+update; PAPER = eqs. (13)-(19) verbatim (Euler distance, Q = diag(sigma^2, 0)), the baseline;
+SINGER = seed 002's model-free filter on [acceleration, speed, distance] (models/singer.py),
+which uses neither the forces nor the identified parameters."""
 
 
 def specific_net_force(traction: float, brake: float, speed: float, grade: float,
@@ -73,9 +75,28 @@ class FilterConfig:
     speed_std: float = 0.05     # measurement noise of V [m/s]
     position_std: float = 1.0   # measurement noise of X [m]
     position_std_rel: float = 0.0  # plus this share of the distance [-] (odometry drift, ETCS)
+    # Singer filter (seed 002): acceleration correlation time and its mixed distribution
+    singer_tau: float = 10.0          # [s]
+    singer_p0: float = 0.3            # probability of zero acceleration [-]
+    singer_p_plus: float = 0.1        # probability of the maximum acceleration [-]
+    singer_p_minus: float = 0.1       # probability of the maximum deceleration [-]
+    singer_w_max_plus: float = 1.3    # maximum acceleration [m/s^2]
+    singer_w_max_minus: float = -1.5  # maximum deceleration, negative [m/s^2]
     gamma: float = 0.0          # rotating-mass factor assumed by the model [-]
     kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF
     length: float = 0.0         # car length for grade averaging [m]
+
+    def singer_params(self):
+        """SingerParams from the filter.singer_* settings (ValueError names the bad one)."""
+        from .singer import SingerParams
+        if not (self.singer_tau > 0 and math.isfinite(self.singer_tau)):
+            raise ValueError(f"filter.singer_tau must be > 0, got {self.singer_tau}")
+        try:
+            return SingerParams.from_mixture(self.singer_tau, self.singer_p0, self.singer_p_plus,
+                                             self.singer_p_minus, self.singer_w_max_plus,
+                                             self.singer_w_max_minus)
+        except ValueError as e:
+            raise ValueError(f"filter.singer_*: {e}") from None
 
     def position_noise_std(self, distance: float) -> float:
         """Std of the measured distance [m] at ``distance`` [m]: position_std + rel * |X|."""
@@ -90,9 +111,11 @@ class FilterConfig:
             v = getattr(self, name)
             if not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"sensor.{name} must be > 0 for the filter, got {v}")
-        if self.kind not in (0, LINEARISED, EKF, PAPER):
-            raise ValueError(f"filter.kind must be 0 (auto), 1 (linearised), 2 (EKF) or 3 "
-                             f"(paper verbatim), got {self.kind}")
+        if self.kind not in (0, LINEARISED, EKF, PAPER, SINGER):
+            raise ValueError(f"filter.kind must be 0 (auto), 1 (linearised), 2 (EKF), 3 "
+                             f"(paper verbatim) or 4 (Singer), got {self.kind}")
+        if self.kind == SINGER:
+            self.singer_params()      # validates the Singer settings
         if self.kind in (LINEARISED, PAPER) and not has_speed_profile:
             raise ValueError(f"filter.kind = {self.kind} (linearised around V_zad, eq. (13)) "
                              f"needs track.speed_profile")
@@ -117,6 +140,8 @@ class MotionFilter:
         self.kind = cfg.kind or (LINEARISED if speed_profile is not None else EKF)
         self._r0 = cfg.speed_std ** 2
         self._r1 = cfg.position_std ** 2
+        self._singer_params = cfg.singer_params() if self.kind == SINGER else None
+        self._singer = None
         self.restart()
 
     # state: x_bar = (xb0, xb1), M = [[m00, m01], [m01, m11]]; x_hat, P likewise
@@ -140,9 +165,29 @@ class MotionFilter:
     def P(self) -> np.ndarray:
         return np.array([[self._p00, self._p01], [self._p01, self._p11]])
 
+    def _singer_restart(self, speed: float = 0.0, position: float = 0.0, p_v: float = 0.0,
+                        p_x: float = 0.0) -> None:
+        from .singer import SingerFilter
+        sp = self._singer_params
+        self._singer = SingerFilter(sp, x0=[sp.m_w, speed, position],
+                                    P0=np.diag([sp.sigma_w ** 2, p_v, p_x]))
+        self._singer_copy(posterior=True)
+        self._singer_copy(posterior=False)
+
+    def _singer_copy(self, posterior: bool) -> None:
+        x, P = self._singer.x, self._singer.P
+        if posterior:
+            self._xh0, self._xh1, self._p00, self._p01, self._p11 = x[1], x[2], P[1, 1], P[1, 2], P[2, 2]
+        else:
+            self._xb0, self._xb1, self._m00, self._m01, self._m11 = x[1], x[2], P[1, 1], P[1, 2], P[2, 2]
+
     def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
         """A run that does not start at a station: state = first measurement, P = its noise."""
         self.restart()
+        if self.kind == SINGER:
+            self._singer_restart(max(speed_meas, 0.0), position_meas, self.cfg.speed_std ** 2,
+                                 self.cfg.position_noise_std(position_meas) ** 2)
+            return
         vzad = self._vzad(position_meas) if self.kind in (LINEARISED, PAPER) else 0.0
         self.vzad_hat = self.vzad_bar = vzad
         self._xh0, self._xh1 = max(speed_meas, 0.0) - vzad, position_meas
@@ -154,12 +199,19 @@ class MotionFilter:
         self._xh0 = self._xh1 = self._p00 = self._p01 = self._p11 = 0.0
         # V_zad at the posterior's / the prediction's instant [m/s]; 0 for the EKF (absolute speed)
         self.vzad_hat = self.vzad_bar = self._vzad(0.0) if self.kind in (LINEARISED, PAPER) else 0.0
+        if self.kind == SINGER:
+            self._singer_restart()
 
     def _vzad(self, x: float) -> float:
         return self.speed_profile.at(x) if self.speed_profile is not None else 0.0
 
     def update(self, speed_meas: float, position_meas: float) -> None:
         """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m], H = I."""
+        if self.kind == SINGER:
+            self._singer.update_speed_distance(speed_meas, position_meas, self.cfg.speed_std,
+                                               self.cfg.position_noise_std(position_meas))
+            self._singer_copy(posterior=True)
+            return
         vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
         r0 = self._r0
         r1 = self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
@@ -182,8 +234,33 @@ class MotionFilter:
         self._p00, self._p01, self._p11 = p00, p01, p11
         self.vzad_hat = vzad
 
+    def update_speed(self, speed_meas: float, variance: float) -> None:
+        """An extra speed-only measurement [m/s] of the current instant (e.g. two track
+        sensors, seed 002), noise variance [(m/s)^2]: H = [1 0]."""
+        if self.kind == SINGER:
+            self._singer.update_speed(speed_meas, math.sqrt(variance))
+            self._singer_copy(posterior=True)
+            return
+        p00, p01, p11 = self._p00, self._p01, self._p11
+        s = p00 + variance
+        k0, k1 = p00 / s, p01 / s
+        e = speed_meas - self.vzad_hat - self._xh0
+        xh0 = self._xh0 + k0 * e
+        self._xh0 = -self.vzad_hat if xh0 + self.vzad_hat < 0.0 else xh0
+        self._xh1 += k1 * e
+        self._p00, self._p01, self._p11 = p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
+
+    @property
+    def acceleration(self) -> float | None:
+        """The filter's own acceleration estimate [m/s^2] (Singer only), else None."""
+        return self._singer.acceleration if self.kind == SINGER else None
+
     def predict(self, traction: float, brake: float, theta, q: float, dt: float) -> None:
         """Eqs. (16), (19) (or the EKF's) over dt [s] with forces [N] held, process noise q [(m/s)^2]."""
+        if self.kind == SINGER:                  # model-free: forces and Theta are not used
+            self._singer.predict(dt)
+            self._singer_copy(posterior=False)
+            return
         speed_hat = self.speed
         x_pos = self._xh1
         grade = self.grade_profile.average(x_pos, self.cfg.length)
