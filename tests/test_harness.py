@@ -126,3 +126,18 @@ def test_time_table_scenario_runs_to_its_stop_time(built_fmus):
         r = runner.run(s)
     assert r.time[-1] == pytest.approx(30.0, abs=1e-9)
     assert r["car.speed"].max() > 10.0 and r["car.speed"][-1] == 0.0
+
+
+def test_filters_table_compares_every_kind(built_fmus):
+    """`harness filters`: the paper's Euler distance (kind 3) is over-confident, Singer is
+    model-free and worse than the model-based filters, all beat the raw sensor."""
+    from harness.filter_compare import compare_filters
+    from harness.runner import FmuRunner
+    s = load_scenario(ROOT / "scenarios" / "library" / "level_run.toml")
+    with FmuRunner(built_fmus["RailCar"]) as runner:
+        rows = {r["filter"]: r for r in compare_filters([s], runner)}
+    assert set(rows) == {"linearised", "EKF", "paper (13)-(19)", "Singer"}
+    for r in rows.values():
+        assert r["speed_rmse"] < r["speed_rmse_sensor"] and r["distance_rmse"] < r["distance_rmse_sensor"]
+    assert rows["paper (13)-(19)"]["distance_nees"] > 5 * rows["linearised"]["distance_nees"]
+    assert rows["Singer"]["speed_rmse"] > rows["EKF"]["speed_rmse"]
