@@ -43,10 +43,11 @@ def best_rate(fn, n: int, repeat: int) -> float:
     return n / best
 
 
-def bench_models(n: int) -> None:
+def bench_models(n: int, solver_step: float = 0.05) -> None:
     from models.chain import ChainConfig, RailCarChain
     from models.track import GradeProfile
-    chain = RailCarChain(ChainConfig(), GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
+    chain = RailCarChain(ChainConfig(solver_step=solver_step),
+                         GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
     for k in range(n):
         f, b = demands(k * STEP)
         chain.do_step(k * STEP, STEP, f, b, 0.0)
@@ -184,7 +185,8 @@ def main() -> None:
     fmus = ensure_built(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
         floor = build_floor(Path(tmp))
-        rows = [("models/ chain alone", best_rate(bench_models, n, rep), "steps/s", 100_000)]
+        rows = [("models/ chain alone", best_rate(bench_models, n, rep), "steps/s", 100_000),
+                ("  same, solver.step 0.1 s", best_rate(lambda k: bench_models(k, 0.1), n, rep), "steps/s", None)]
         railcar_fmpy = best_rate(fmpy_stepper(fmus["RailCar"]), n, rep)
         rows.append(("RailCar via fmpy", railcar_fmpy, "steps/s", 20_000))
         rows.append(("RailCar via libcosimpy", best_rate(libcosim_stepper(fmus["RailCar"]), n, rep), "steps/s", None))

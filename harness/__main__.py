@@ -4,6 +4,8 @@
     python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
     python -m harness regress [--update] [NAME ...]
     python -m harness report [--out DIR] [NAME ...]
+    python -m harness filters [NAME ...]
+    python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
 
 Exit codes: 0 success; 1 a run failed or a regression/target check failed; 2 bad usage or
@@ -152,6 +154,19 @@ def cmd_replay(args) -> int:
     return EXIT_OK
 
 
+def cmd_filters(args) -> int:
+    from .fmus import DIST, ensure_built
+    from .filter_compare import KINDS, compare_filters, format_rows
+    from .progress import Progress
+    from .runner import FmuRunner
+    scenarios = _library(args.names)
+    fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
+    with FmuRunner(fmus["RailCar"]) as runner:
+        rows = compare_filters(scenarios, runner, Progress(len(scenarios) * len(KINDS), "filters"))
+    print(format_rows(rows))
+    return EXIT_OK
+
+
 def cmd_plan(args) -> int:
     from .plan import plan_speed_profile, profile_csv_text
     scenario = load_scenario(args.scenario)
@@ -159,6 +174,11 @@ def cmd_plan(args) -> int:
     Path(args.out).write_text(profile_csv_text(xs, vs), encoding="utf-8")
     print(f"wrote {args.out}: {len(xs)} points up to {xs[-1]:.1f} m")
     return EXIT_OK
+
+
+def cmd_sweep(args) -> int:
+    from .sweep import cli_sweep
+    return cli_sweep(args)
 
 
 def main(argv=None) -> int:
@@ -191,10 +211,27 @@ def main(argv=None) -> int:
     p.add_argument("--dist")
     p.add_argument("--rebuild", action="store_true")
     p.set_defaults(func=cmd_report)
+    p = sub.add_parser("filters", help="each filter.kind on the library scenarios: speed/distance RMSE and NEES")
+    p.add_argument("names", nargs="*", help="library scenario names (default: all)")
+    p.add_argument("--dist")
+    p.add_argument("--rebuild", action="store_true")
+    p.set_defaults(func=cmd_filters)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
     p.add_argument("scenario")
     p.add_argument("--out", required=True, help="CSV file to write (distance_m,speed_mps)")
     p.set_defaults(func=cmd_plan)
+    p = sub.add_parser("sweep", help="run a parameter sweep (TOML) on dask worker processes: results.csv, summary, plots")
+    p.add_argument("sweep", help="sweep TOML file (base scenario + grid / zip / lhs / seeds)")
+    p.add_argument("--out", help="results folder (default: out/sweeps/<sweep name>)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this dask scheduler's workers "
+                   "(default: an embedded local cluster, one single-threaded worker process per core)")
+    p.add_argument("--workers", type=int, help="worker processes of the embedded cluster (default: cores)")
+    p.add_argument("--resume", action="store_true", help="skip the runs already in OUT/results.csv")
+    p.add_argument("--limit", type=int, metavar="K", help="run only the first K runs not done yet")
+    p.add_argument("--no-plots", action="store_true", help="write no plots")
+    p.add_argument("--dist", help="folder of the FMUs (default: dist/)")
+    p.add_argument("--rebuild", action="store_true")
+    p.set_defaults(func=cmd_sweep)
     args = ap.parse_args(argv)
     try:
         return args.func(args)
