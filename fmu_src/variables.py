@@ -96,6 +96,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("track.speed_profile", "parameter", "String", None, "", "CSV 'distance_m,speed_mps', reference speed V_zad(X), piecewise linear; needed by the linearised filter"),
     Var("track.station_dwell", "parameter", "Real", "s", 20.0, "a standstill at least this long is a station stop", BOTH, min=0.0),
     Var("est.batch_size", "parameter", "Integer", None, 50, "N, samples of the first batch least-squares solve (>= 4)", BOTH),
+    Var("est.method", "parameter", "Integer", None, 0, "0 the paper's recursive LS; 1 LS plus a filter-error refit of each run at the next station stop, the A's carried over between runs", BOTH),
     Var("est.forgetting", "parameter", "Real", "1", 0.0, "mu0 in [0, 1): 0 = mu(n) = 1/n (ordinary LS), else exponential forgetting 1 - mu0", BOTH, min=0.0, max=1.0),
     Var("est.gamma", "parameter", "Real", "1", 0.0, "rotating-mass factor the estimator assumes (0 = the paper's eq. (2))", BOTH, min=0.0),
     Var("est.mass_initial", "parameter", "Real", "t", 30.0, "initial (prior) mass", BOTH, min=0.0),

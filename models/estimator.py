@@ -79,6 +79,16 @@ class OnlineEstimator:
         self.dt_nominal = id_cfg.dt
         self.station_stops = 0
         self.track_speeds = 0        # track-sensor speeds taken
+        self.refit = None            # est.method 1: A's carried over by filter-error refits
+        if id_cfg.method == 1:
+            from .output_error import Prior, ResistanceCarryOver
+            c = id_cfg
+            self.refit = ResistanceCarryOver(Prior.from_std(
+                [1.0 / (G * c.mass_initial), c.A0_initial, c.A1_initial, c.A2_initial],
+                [None, c.A0_std_initial, c.A1_std_initial, c.A2_std_initial]))
+        self.refit_failures = 0
+        self._run = {"t": [], "v": [], "x": [], "f": [], "b": []}   # samples of the current run
+        self._t = 0.0                # time since the first sample [s]
         self._prev = None            # (V_meas, X_meas) of the previous sample
         self._pair_used = False      # the pair ending at the previous sample was identified
         self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
@@ -89,6 +99,13 @@ class OnlineEstimator:
         dt = self._dt
         moving_before = self.station.moving
         stop = self.station.observe(speed_meas, position_meas, dt)
+        if self.refit is not None:
+            run = self._run
+            if run["t"]:
+                self._t += dt
+            run["t"].append(self._t)
+            run["v"].append(speed_meas)
+            run["x"].append(position_meas)
         prev = self._prev
         if prev is None and not (abs(speed_meas) < self.station.v_thr
                                  and abs(position_meas) < self.station.x_thr):
@@ -107,6 +124,8 @@ class OnlineEstimator:
         self._prev = (speed_meas, position_meas)
         if stop:
             self.station_stops += 1
+            if self.refit is not None:
+                self._refit_run()
             self.ident.restart_mass()
             self.filter.restart()
         else:
@@ -142,9 +161,51 @@ class OnlineEstimator:
         """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""
         theta = self.ident.theta
         q = self.process_noise(traction, brake, dt)
+        if self.refit is not None:
+            theta = self.theta()
+            self._run["f"].append(traction)
+            self._run["b"].append(brake)
         self.filter.predict(traction, brake, theta, q, dt)
         self._forces = (traction, brake)
         self._dt = dt
+
+    def theta(self) -> np.ndarray:
+        """Theta the filter uses: the running LS's, with the refitted A's once there are any."""
+        th = self.ident.theta
+        if self.refit is not None and self.refit.runs:
+            th[1:] = self.refit.A
+        return th
+
+    MIN_REFIT_SAMPLES = 100   # a run shorter than this (moving samples) is not refitted
+
+    def _refit_run(self) -> None:
+        """est.method 1: fit the run that just ended by filter error (the mass fresh, the A's
+        with the weak base prior) and add its information on the A's to what earlier runs gave
+        (models/output_error.py, ResistanceCarryOver); the run's buffer is then cleared."""
+        run = self._run
+        v = np.asarray(run["v"])
+        moving = np.nonzero(np.abs(v) > self.station.v_thr)[0]
+        try:
+            if moving.size >= self.MIN_REFIT_SAMPLES:
+                a, b = max(moving[0] - 1, 0), min(moving[-1] + 2, len(v), len(run["f"]) + 1)
+                sl = slice(a, b)
+                q = self.ident.sigma2() / self.dt_nominal
+                self.refit.fit(np.asarray(run["t"][sl]), v[sl], np.asarray(run["f"][a:b - 1]),
+                               np.asarray(run["b"][a:b - 1]), distance=np.asarray(run["x"][sl]),
+                               grade_profile=self.grade_profile, length=self.length, gamma=self.gamma,
+                               fit_mass=True, mass=self.ident.mass, mass_std=None,
+                               speed_std=self.filter.cfg.speed_std,
+                               distance_std=self.filter.cfg.position_std,
+                               process_noise_psd=q, method="filter_error")
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            self.refit_failures += 1          # keep the A's learnt so far
+        last = (run["v"][-1], run["x"][-1])   # the current sample starts the next run
+        for k in run:
+            run[k].clear()
+        self._t = 0.0
+        run["t"].append(0.0)
+        run["v"].append(last[0])
+        run["x"].append(last[1])
 
     def process_noise(self, traction: float, brake: float, dt: float) -> float:
         """Filter's process noise per step [(m/s)^2]: identified sigma^2 plus parameter uncertainty.
@@ -161,8 +222,10 @@ class OnlineEstimator:
         """est.* and filter.* values: the filter's posterior at the last measurement, or with
         ``predicted`` its one-step prediction (the estimate for the next sample's instant)."""
         f = self.filter
-        th = self.ident.theta
+        th = self.theta()
         sd = self.ident.stds()
+        if self.refit is not None and self.refit.runs:
+            sd = (sd[0], *np.sqrt(np.maximum(np.diag(self.refit.cov_A), 0.0)))
         out = {
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),

@@ -107,11 +107,15 @@ class IdentifierConfig:
     sigma2_initial: float = 1e-4     # process-noise variance per step [(m/s)^2]
     speed_std: float = 0.0           # measurement noise of V [m/s]: scales the prior's weight
     frozen: bool = False             # keep the initial values (an oracle that knows the truth)
+    method: int = 0                  # est.method: 0 the paper's LS; 1 LS plus a filter-error
+                                     # refit of each run at the next station (models/output_error.py)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
         if int(self.batch_size) < 4:
             raise ValueError(f"est.batch_size must be >= 4 (4 parameters), got {self.batch_size}")
+        if int(self.method) not in (0, 1):
+            raise ValueError(f"est.method must be 0 (paper LS) or 1 (LS + filter-error refit), got {self.method}")
         if not 0.0 <= self.forgetting < 1.0:
             raise ValueError(f"est.forgetting must be in [0, 1), got {self.forgetting}")
         if not (self.dt > 0 and math.isfinite(self.dt)):
