@@ -140,3 +140,20 @@ def track_settings(v: dict):
     from models.chain import TrackSensorConfig
     return TrackSensorConfig(spacing=v.get("sensor.track_spacing", 0.0), base=v["sensor.track_base"],
                              resolution=v["sensor.track_resolution"], jitter=v["sensor.track_jitter"])
+
+
+def chain_config(v: dict):
+    """RailCar's parameter values -> models.chain.ChainConfig (also used by studies)."""
+    from models.chain import ChainConfig
+    from models.dynamics import VehicleParams
+    vehicle = VehicleParams(
+        mass=v["car.mass"], A0=v["car.A0"], A1=v["car.A1"], A2=v["car.A2"], gamma=v["car.gamma"],
+        length=v["car.length"], traction_force_max=v["car.traction_force_max"],
+        traction_power_max=v["car.traction_power_max"], brake_force_max=v["car.brake_force_max"],
+        adhesion_mass_fraction=v["car.adhesion_mass_fraction"], adhesion_factor=v["car.adhesion_factor"])
+    ident, filt, station = estimator_settings(v)
+    return ChainConfig(vehicle=vehicle, solver_step=v["solver.step"],
+                       process_noise_psd=v["car.process_noise_psd"],
+                       sample_period=v["sensor.sample_period"], seed=int(v["seed"]),
+                       initial_speed=v["car.initial_speed"], initial_position=v["car.initial_position"],
+                       station=station, identifier=ident, filter=filt, track=track_settings(v))

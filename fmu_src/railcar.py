@@ -1,10 +1,9 @@
 """RailCar FMU: car dynamics (plant), sensors, parameter identification and Kalman filter."""
 from pythonfmu import Fmi2Slave
 
-from fmu_src.adapter import estimator_settings, track_settings, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.adapter import chain_config, guarded_step, initialise, load_profiles, register_variables
 from fmu_src.variables import RAILCAR
-from models.chain import ChainConfig, RailCarChain
-from models.dynamics import VehicleParams
+from models.chain import RailCarChain
 
 
 class RailCar(Fmi2Slave):
@@ -22,17 +21,7 @@ class RailCar(Fmi2Slave):
 
     def _build(self):
         v = self.values
-        vehicle = VehicleParams(
-            mass=v["car.mass"], A0=v["car.A0"], A1=v["car.A1"], A2=v["car.A2"], gamma=v["car.gamma"],
-            length=v["car.length"], traction_force_max=v["car.traction_force_max"],
-            traction_power_max=v["car.traction_power_max"], brake_force_max=v["car.brake_force_max"],
-            adhesion_mass_fraction=v["car.adhesion_mass_fraction"], adhesion_factor=v["car.adhesion_factor"])
-        ident, filt, station = estimator_settings(v)
-        cfg = ChainConfig(vehicle=vehicle, solver_step=v["solver.step"],
-                          process_noise_psd=v["car.process_noise_psd"],
-                          sample_period=v["sensor.sample_period"], seed=int(v["seed"]),
-                          initial_speed=v["car.initial_speed"], initial_position=v["car.initial_position"],
-                          station=station, identifier=ident, filter=filt, track=track_settings(v))
+        cfg = chain_config(v)
         grade, speed = load_profiles(v, self.resources)
         chain = RailCarChain(cfg, grade, speed, start_time=self.start_time)
         self.values.update(chain.outputs())

@@ -145,7 +145,11 @@ class FmuRunner:
 
     def start(self, parameters: dict, stop_time: float, log: list[str], what: str) -> FMU2Slave:
         """A new instance, initialised with ``parameters``; RunError (with the log) if that fails."""
-        fmu = self._instantiate(log)
+        return self.initialise(self._instantiate(log), parameters, stop_time, log, what)
+
+    def initialise(self, fmu: FMU2Slave, parameters: dict, stop_time: float, log: list[str],
+                   what: str) -> FMU2Slave:
+        """Set up and initialise an instantiated (or reset) FMU; RunError if that fails."""
         try:
             fmu.setupExperiment(startTime=0.0, stopTime=stop_time)
             fmu.enterInitializationMode()

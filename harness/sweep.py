@@ -647,14 +647,11 @@ class ReusableRunner(FmuRunner):
         if fmu is None:
             fmu = self._instantiate(log)
         try:
-            fmu.setupExperiment(startTime=0.0, stopTime=stop_time)
-            fmu.enterInitializationMode()
-            self.set_parameters(fmu, parameters)
-            fmu.exitInitializationMode()
-        except Exception as e:
+            self.initialise(fmu, parameters, stop_time, log, what)
+        except RunError:
             _LEAKED.append(fmu)               # fmi2Fatal: never call this instance again
             self.counts["leaked"] += 1
-            raise RunError(f"{what}: initialisation failed: {e}", log) from None
+            raise
         return _Lease(fmu, self)
 
     def _give_back(self, fmu, fatal: bool) -> None:

@@ -59,14 +59,13 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from fmu_src.adapter import estimator_settings, load_profiles  # noqa: E402
+from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
 from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
 from harness.driver import PhaseDriver  # noqa: E402
 from harness.metrics import coast_segments, coast_time, w0_relative_rms_error  # noqa: E402
 from harness.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
-from models.chain import ChainConfig, RailCarChain  # noqa: E402
+from models.chain import RailCarChain  # noqa: E402
 from models.coast_ekf import CoastEKF, CoastEKFConfig  # noqa: E402
-from models.dynamics import VehicleParams  # noqa: E402
 from models.output_error import (Prior, ResistanceCarryOver, estimate_process_noise_psd,  # noqa: E402
                                  fit_initial_state, fit_segment, grade_per_interval,
                                  reference_track)
@@ -120,17 +119,7 @@ def run_scenario(scenario: Scenario, seed: int) -> Run:
     v["seed"] = int(seed)
     if abs(scenario.step_s - v["sensor.sample_period"]) > 1e-12:
         raise ValueError("the study needs step_s == sensor.sample_period (one sample per row)")
-    vehicle = VehicleParams(
-        mass=v["car.mass"], A0=v["car.A0"], A1=v["car.A1"], A2=v["car.A2"], gamma=v["car.gamma"],
-        length=v["car.length"], traction_force_max=v["car.traction_force_max"],
-        traction_power_max=v["car.traction_power_max"], brake_force_max=v["car.brake_force_max"],
-        adhesion_mass_fraction=v["car.adhesion_mass_fraction"], adhesion_factor=v["car.adhesion_factor"])
-    ident, filt, station = estimator_settings(v)
-    cfg = ChainConfig(vehicle=vehicle, solver_step=v["solver.step"],
-                      process_noise_psd=v["car.process_noise_psd"],
-                      sample_period=v["sensor.sample_period"], seed=int(seed),
-                      initial_speed=v["car.initial_speed"], initial_position=v["car.initial_position"],
-                      station=station, identifier=ident, filter=filt)
+    cfg = chain_config(v)
     grade, speed_profile = load_profiles(v, None)
     chain = RailCarChain(cfg, grade, speed_profile)
     forces: list = []
