@@ -117,15 +117,6 @@ def acceleration(v: float, f: float, b: float, grade: float, wind: float, p: Veh
     return G / 1000.0 / (1.0 + p.gamma) * specific
 
 
-def breakaway_acceleration(f: float, b: float, grade: float, wind: float, p: VehicleParams) -> float:
-    """Acceleration [m/s^2] of a car at rest; 0 unless the forces overcome resistance forwards.
-
-    A car at rest never rolls backwards (static friction / holding brake, MODEL.md section 3).
-    """
-    a = acceleration(0.0, f, b, grade, wind, p)
-    return a if a > 0.0 else 0.0
-
-
 @dataclass
 class PlantState:
     """Truth of the car at one instant."""
@@ -138,17 +129,6 @@ class PlantState:
     mode: int = STANDSTILL
     still_time: float = 0.0     # time at rest so far [s]
     stops: int = 0              # station stops completed (departures after a dwell)
-
-
-def _derivative(v, x, traction_demand, brake_demand, wind, p, grade_profile):
-    """(dV/dt, applied F, applied B, grade) of a car that moves or is at rest."""
-    f, b = applied_forces(v, traction_demand, brake_demand, p)
-    grade = grade_profile.average(x, p.length)
-    if v > 0.0:
-        a = acceleration(v, f, b, grade, wind, p)
-    else:
-        a = breakaway_acceleration(f, b, grade, wind, p)
-    return a, f, b, grade
 
 
 def rk4_step(v: float, x: float, h: float, traction_demand: float, brake_demand: float,
@@ -184,7 +164,7 @@ def held_input_dynamics(p: VehicleParams, grade_profile: GradeProfile, traction_
                         brake_demand: float, wind: float):
     """Fast closures for inputs held over a step: (forces(v) -> (F, B), accel(v, x) -> dV/dt).
 
-    The same physics as ``applied_forces`` and ``_derivative`` (tests check they agree),
+    The same physics as ``applied_forces`` and ``acceleration`` (tests check they agree),
     with the parameters bound once instead of looked up at every evaluation.
     """
     k_adh = 1000.0 * p.mass * p.adhesion_mass_fraction * G * p.adhesion_factor   # [N] per unit psi

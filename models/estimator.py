@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .filters import FilterConfig, MotionFilter
-from .identification import IdentifierConfig, ParameterIdentifier, regressor
+from .identification import IdentifierConfig, ParameterIdentifier
 from .track import GradeProfile, SpeedProfile
 from .units import G
 

@@ -324,3 +324,21 @@ def test_process_noise_variance_per_second_independent_of_step(h):
     # A step-size error in the scaling would be off by a factor ~10 (or 1/10).
     assert var == pytest.approx(psd * 1.0, rel=5.0 * math.sqrt(2.0 / n))
     assert abs(float(np.mean(inc))) <= 5.0 * math.sqrt(psd / n)  # zero mean, 5 sigma of the mean
+
+
+def test_fast_dynamics_closures_agree_with_the_reference_functions():
+    """The plant's bound closures (held_input_dynamics) compute what the readable functions
+    applied_forces / acceleration / main_resistance compute (same formulas; 1e-12 relative for
+    the reordered products)."""
+    from models.dynamics import VehicleParams, acceleration, applied_forces, held_input_dynamics
+    from models.track import GradeProfile
+    p = VehicleParams(mass=33.0, gamma=0.07, adhesion_factor=0.4, length=20.0)
+    grade = GradeProfile((0.0, 100.0, 250.0), (0.0, 12.0, -8.0))
+    for f_dem, b_dem, wind in ((40e3, 0.0, 0.0), (10e3, 0.0, 8.0), (0.0, 30e3, -5.0), (0.0, 0.0, 3.0)):
+        forces, accel = held_input_dynamics(p, grade, f_dem, b_dem, wind)
+        for v in (0.5, 3.0, 11.0, 25.0):
+            for x in (50.0, 180.0, 400.0):
+                f, b = applied_forces(v, f_dem, b_dem, p)
+                assert forces(v) == pytest.approx((f, b), rel=1e-12)
+                a_ref = acceleration(v, f, b, grade.average(x, p.length), wind, p)
+                assert accel(v, x) == pytest.approx(a_ref, rel=1e-12, abs=1e-15)
