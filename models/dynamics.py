@@ -195,7 +195,7 @@ def held_input_dynamics(p: VehicleParams, grade_profile: GradeProfile, traction_
         va = v + wind
         spec = (f - b) * inv_weight - (a0 + a1 * v + a2 * va * abs(va)) - average(x, length)
         a = k_acc * spec
-        return a if (v > 0.0 or a > 0.0) else 0.0
+        return a if (v > 0.0 or a > 0.0) else 0.0     # at rest: no backward roll (MODEL.md 3)
 
     return forces, accel
 
