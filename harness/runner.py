@@ -92,18 +92,21 @@ class FmuRunner:
             raise KeyError(f"{self.md.modelName} has no variable '{name}'") from None
 
     def _instantiate(self, log: list[str]) -> FMU2Slave:
+        self._runs += 1
+        return self._new_instance(lambda: log, f"{self.md.modelName}_{self._runs}")
+
+    def _new_instance(self, sink, instance_name: str) -> FMU2Slave:
+        """Instantiate with logging on; the FMU's messages go to the list ``sink()`` returns."""
         def logger(_env, instance, status, category, message):
-            log.append(f"[{status}] {category.decode(errors='replace') if category else ''}: "
-                       f"{message.decode(errors='replace') if message else ''}")
+            sink().append(f"[{status}] {category.decode(errors='replace') if category else ''}: "
+                          f"{message.decode(errors='replace') if message else ''}")
 
         callbacks = fmi2CallbackFunctions()
         callbacks.logger = fmi2CallbackLoggerTYPE(logger)
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._runs += 1
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                        modelIdentifier=self.md.coSimulation.modelIdentifier,
-                        instanceName=f"{self.md.modelName}_{self._runs}")
+                        modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
         fmu.instantiate(callbacks=callbacks, loggingOn=True)
         fmu._keep_callbacks = callbacks        # the C side holds pointers to them
         return fmu

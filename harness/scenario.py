@@ -151,15 +151,20 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
                     step_s=step, duration_s=duration, stop_after_last_phase=stop_after)
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file."""
-    path = Path(path)
+def read_toml(path: Path, error=None) -> dict:
+    """Parse a TOML file; ``error`` (default ScenarioError) names the file and the reason."""
+    error = error or ScenarioError
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
-        raise ScenarioError(f"{path}: cannot read: {e.strerror}") from None
+        raise error(f"{path}: cannot read: {e.strerror}") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(f"{path}: not valid TOML: {e}") from None
-    return scenario_from_dict(data, str(path), path.parent)
+        raise error(f"{path}: not valid TOML: {e}") from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file."""
+    path = Path(path)
+    return scenario_from_dict(read_toml(path), str(path), path.parent)

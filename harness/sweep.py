@@ -80,7 +80,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
 from fmu_src.variables import RAILCAR, variables_for
 
 from .runner import FmuRunner, RunError
-from .scenario import PATH_PARAMETERS, Scenario, ScenarioError, parse_parameters, scenario_from_dict
+from .scenario import PATH_PARAMETERS, Scenario, ScenarioError, parse_parameters, read_toml, scenario_from_dict
 
 PARAMETERS = {v.name: v for v in variables_for(RAILCAR) if v.causality == "parameter"}
 SCENARIO_FIELDS = {"step_s": "s", "duration_s": "s", "stop_after_last_phase": ""}
@@ -259,14 +259,7 @@ def _apply(data: dict, overrides: dict) -> dict:
 def load_sweep(path: str | Path) -> Sweep:
     """Read and validate a sweep file and build every run's scenario (or the reason it is invalid)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise SweepError(f"{path}: cannot read: {e.strerror}") from None
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise SweepError(f"{path}: not valid TOML: {e}") from None
+    raw = read_toml(path, SweepError)
     try:
         return sweep_from_dict(raw, path)
     except SweepError:
@@ -616,21 +609,9 @@ class ReusableRunner(FmuRunner):
         self.counts = Counter()           # instantiate / reset / leaked
 
     def _instantiate(self, log):
-        def logger(_env, instance, status, category, message):   # into the current run's log
-            self.sink.append(f"[{status}] {category.decode(errors='replace') if category else ''}: "
-                             f"{message.decode(errors='replace') if message else ''}")
-
-        callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
-        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self.counts["instantiate"] += 1
-        fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                        modelIdentifier=self.md.coSimulation.modelIdentifier,
-                        instanceName=f"{self.md.modelName}_{os.getpid()}_{self.counts['instantiate']}")
-        fmu.instantiate(callbacks=callbacks, loggingOn=True)
-        fmu._keep_callbacks = callbacks   # the C side holds pointers to them
-        return fmu
+        self.counts["instantiate"] += 1      # messages go into the current run's log
+        return self._new_instance(lambda: self.sink,
+                                  f"{self.md.modelName}_{os.getpid()}_{self.counts['instantiate']}")
 
     def start(self, parameters, stop_time, log, what):
         """The live instance reset (or a new one), initialised with ``parameters``; RunError if that fails."""
