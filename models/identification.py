@@ -197,7 +197,20 @@ class ParameterIdentifier:
         s2_ref = self._scale ** 2 * max(2.0 * cfg.speed_std ** 2 + cfg.sigma2_initial, 1e-12)
         theta1_std = cfg.mass_std_initial / (G * cfg.mass_initial ** 2)
         prior_std = np.array([theta1_std, cfg.A0_std_initial, cfg.A1_std_initial, cfg.A2_std_initial])
-        self.J0 = np.diag(s2_ref / prior_std ** 2)    # prior information, in Phi^T Phi units
+        # Prior weights, in Phi^T Phi units: the prior's variance times the noise variance
+        # its pseudo-observation stands for. F - B is known exactly and piecewise smooth, so
+        # in the 1/(Pg) direction the differenced measurement noise telescopes away and only
+        # process noise is left: weighting the mass prior with the white 2 sigma_v^2 + sigma^2
+        # gave it ~50x its due weight, which pulled each run's mass towards the previous
+        # run's (+0.23 % bias at station_day's 4th stop) and, through the sandwich's prior
+        # term, made est.mass_std ~1.8x too large (99.8 % coverage of +-2 sigma over 100
+        # seeds; 98 % with this weight, and 93 -> 98 seeds with every stop within 1 %). The
+        # A's regressors contain the measured V itself, so their prior keeps the white weight
+        # (the process-noise weight let them wander: filter speed RMSE +13 %).
+        s2p = np.full(4, s2_ref)
+        s2p[0] = self._scale ** 2 * max(cfg.sigma2_initial, 1e-12)
+        self.s2_prior = s2p
+        self.J0 = np.diag(s2p / prior_std ** 2)    # prior information, in Phi^T Phi units
         self._j0 = [float(x) for x in np.diag(self.J0)]
         self.s2_ref = s2_ref
         self.reset()
@@ -428,13 +441,14 @@ class ParameterIdentifier:
             self._cov = [0.0] * 16
             return self._cov
         j0 = self._j0
-        if self._S is None:                      # the prior: s2_ref J0^-1
+        if self._S is None:                      # the prior: s2_prior J0^-1
             cov = [0.0] * 16
             for i in range(4):
-                cov[5 * i] = self.s2_ref / j0[i]
+                cov[5 * i] = self.s2_prior[i] / j0[i]
             self._cov = cov
             return cov
         a, b = self.noise_split()
+        b = self._process_share(a, b)
         if self._J is not None:                  # forgetting: J kept explicitly
             Ji = [float(x) for x in np.linalg.inv(self._J).ravel()]
         else:                                    # mu = 1/n: J = n R, so J^-1 = S / n exactly
@@ -445,11 +459,11 @@ class ParameterIdentifier:
         if last is not None:                     # the open run's end
             sa = math.sqrt(a)
             _add_outer(M, (sa * last[0], sa * last[1], sa * last[2], sa * last[3]))
-        s2 = self.s2_ref
-        M[0] += s2 * j0[0]
-        M[5] += s2 * j0[1]
-        M[10] += s2 * j0[2]
-        M[15] += s2 * j0[3]
+        s2 = self.s2_prior
+        M[0] += s2[0] * j0[0]
+        M[5] += s2[1] * j0[1]
+        M[10] += s2[2] * j0[2]
+        M[15] += s2[3] * j0[3]
         self._cov = _sandwich4(Ji, M)
         return self._cov
 
@@ -459,7 +473,8 @@ class ParameterIdentifier:
         The paper's s^2 (Phi^T Phi)^-1 assumes white e(n); but V is measured, so e(n) carries
         the *difference* of two measurement errors (MA(1), lag-1 correlation -1/2), whose sum
         telescopes: the white formula overstates the mass's std tens of times. The meat is
-        M = a D + b W + s2_ref J0, with D = sum over runs of consecutive samples of the
+        M = a D + b W + diag(s2_prior) J0 (b from LAG-sample residual sums once there are
+        enough, see sigma2), with D = sum over runs of consecutive samples of the
         differenced regressors (plus the runs' ends), W = sum phi phi^T, and the prior's own;
         J^-1 = S / n (R = J / n by eq. (10)).
         """
@@ -505,16 +520,19 @@ class ParameterIdentifier:
         if self._S is None:
             return self.cfg.sigma2_initial
         if self._sigma2 is None:
-            if self.cL is not None and self._n_cL >= self.LAG:
-                # sums of LAG consecutive residuals telescope the measurement noise (variance
-                # 2a whatever LAG) while process noise and model error add up: cL = 2a + LAG b'
-                a, _ = self.noise_split()
-                b = max((self.cL - 2.0 * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
-            else:
-                a, b = self.noise_split()
+            a, b = self.noise_split()
+            if not (self.cL is not None and self._n_cL >= self.LAG):
                 b = max(b, self.c0 * math.sqrt(2.0 / self._n_eff()))
-            self._sigma2 = sigma2_from_residual(b, self.cfg.dt, self.cfg.gamma)
+            self._sigma2 = sigma2_from_residual(self._process_share(a, b), self.cfg.dt, self.cfg.gamma)
         return self._sigma2
+
+    def _process_share(self, a: float, b: float) -> float:
+        """b [(N/kN)^2], the process-noise (and model-error) share of var e(n): from LAG-sample
+        residual sums once there are LAG of them (cL = 2a + LAG b: the measurement part
+        telescopes), else the lag-0/lag-1 split's b as given."""
+        if self.cL is not None and self._n_cL >= self.LAG:
+            return max((self.cL - 2.0 * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
+        return b
 
     def sigma2_paper(self) -> float:
         """sigma^2 exactly as eq. (12): g^2 dt^2 / 10^6 * Q_e / (n - 4) [(m/s)^2]."""
