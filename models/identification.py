@@ -209,7 +209,7 @@ class ParameterIdentifier:
         # (the process-noise weight let them wander: filter speed RMSE +13 %).
         s2p = np.full(4, s2_ref)
         s2p[0] = self._scale ** 2 * max(cfg.sigma2_initial, 1e-12)
-        self.s2_prior = s2p
+        self.s2_prior = [float(x) for x in s2p]   # Python floats: read on the per-sample path
         self.J0 = np.diag(s2p / prior_std ** 2)    # prior information, in Phi^T Phi units
         self._j0 = [float(x) for x in np.diag(self.J0)]
         self.s2_ref = s2_ref
