@@ -199,6 +199,22 @@ def grade_per_interval(track: np.ndarray, grade_profile: GradeProfile | None,
     return out
 
 
+def _rk4_stages(v: float, k1: float, g: float, b1: float, b2: float, hh: float, h: float):
+    """Stages 2-4 of one RK4 step of dV/dt = g - b1 V - b2 V^2 from V = v [m/s] with the first
+    slope k1, half step hh and step h [s]; stage speeds are clamped at 0 (no backward roll).
+    Returns (w2, w3, w4, k2, k3, k4): stage speeds [m/s] and slopes [m/s^2]."""
+    w2 = v + hh * k1
+    c2 = w2 if w2 > 0.0 else 0.0
+    k2 = g - b1 * c2 - b2 * c2 * c2
+    w3 = v + hh * k2
+    c3 = w3 if w3 > 0.0 else 0.0
+    k3 = g - b1 * c3 - b2 * c3 * c3
+    w4 = v + h * k3
+    c4 = w4 if w4 > 0.0 else 0.0
+    k4 = g - b1 * c4 - b2 * c4 * c4
+    return w2, w3, w4, k2, k3, k4
+
+
 def _rk4_pass(theta, v0: float, h: np.ndarray, fnet: np.ndarray, grade: np.ndarray, k: float):
     """Deterministic RK4 of eq. (2), one step per interval. Returns (v (n,), stages (n-1, 4),
     rest (n-1,) bool: the car stood or came to rest in the interval).
@@ -227,15 +243,7 @@ def _rk4_pass(theta, v0: float, h: np.ndarray, fnet: np.ndarray, grade: np.ndarr
             v = 0.0
             v_out[j + 1] = 0.0
             continue
-        w2 = v + hh * k1
-        c2 = w2 if w2 > 0.0 else 0.0
-        k2 = gj - b1 * c2 - b2 * c2 * c2
-        w3 = v + hh * k2
-        c3 = w3 if w3 > 0.0 else 0.0
-        k3 = gj - b1 * c3 - b2 * c3 * c3
-        w4 = v + hj * k3
-        c4 = w4 if w4 > 0.0 else 0.0
-        k4 = gj - b1 * c4 - b2 * c4 * c4
+        w2, w3, w4, k2, k3, k4 = _rk4_stages(v, k1, gj, b1, b2, hh, hj)
         r = 4 * j
         w_out[r] = v
         w_out[r + 1] = w2
@@ -576,15 +584,7 @@ def _filter_pass(theta, v0: float, x0: float, seg: Segment, gains):
             rest[j] = True
             v = 0.0
             continue
-        w2 = v + hh * k1
-        c2 = w2 if w2 > 0.0 else 0.0
-        k2 = gj - b1 * c2 - b2 * c2 * c2
-        w3 = v + hh * k2
-        c3 = w3 if w3 > 0.0 else 0.0
-        k3 = gj - b1 * c3 - b2 * c3 * c3
-        w4 = v + hj * k3
-        c4 = w4 if w4 > 0.0 else 0.0
-        k4 = gj - b1 * c4 - b2 * c4 * c4
+        w2, w3, w4, k2, k3, k4 = _rk4_stages(v, k1, gj, b1, b2, hh, hj)
         w_out[r], w_out[r + 1], w_out[r + 2], w_out[r + 3] = v, w2, w3, w4
         x = x + hj / 6.0 * (v + 2.0 * w2 + 2.0 * w3 + w4)
         v = v + hj / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
