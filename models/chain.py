@@ -10,9 +10,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+from . import _fast
 from .dynamics import CarPlant, VehicleParams
 from .estimator import OnlineEstimator, StationConfig
-from .filters import FilterConfig
+from .filters import EKF, FilterConfig
 from .identification import IdentifierConfig
 from .noise import noise_streams
 from .track import GradeProfile, SpeedProfile
@@ -159,6 +160,9 @@ class RailCarChain:
         self.sensor_speed = 0.0
         self.sensor_position = 0.0
         self._take_sample()
+        # the configuration whose whole do_step models/_fastcore.c compiles (the FMU's default)
+        self._compiled_step = (self.estimator.filter.kind == EKF and not cfg.track.spacing
+                               and self.estimator.refit is None and cfg.identifier.forgetting == 0.0)
 
     def _take_sample(self) -> None:
         s = self.plant.state
@@ -214,6 +218,11 @@ class RailCarChain:
 
         Raises StepRejected (naming the variable) before changing anything on bad input.
         """
+        core = _fast.core
+        if (core is not None and self._compiled_step
+                and core.chain_step(self, current_time, step_size, traction_demand, brake_demand,
+                                    wind_speed, payload)):
+            return      # this method compiled; False (bad input, nothing changed): raise below
         check_step(current_time, step_size)
         current_time -= self.start_time          # internal time starts at 0
         check_force("traction_force_demand", traction_demand)
@@ -248,6 +257,9 @@ class RailCarChain:
 
     def outputs(self) -> dict[str, float]:
         """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*)."""
+        core = _fast.core
+        if core is not None and self.estimator.refit is None:
+            return core.chain_outputs(self)       # the same dict, compiled
         s = self.plant.state
         out = {
             "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+from . import _fast
 from .track import GradeProfile
 from .units import G, mps_to_kmh
 
@@ -260,6 +261,10 @@ class CarPlant:
 
         Steps are cut at the internal grid; noise is added at each grid point reached.
         """
+        core = _fast.core
+        if core is not None:                 # the same loop compiled (models/_fastcore.c)
+            core.plant_advance(self, t_end, traction_demand, brake_demand, wind)
+            return
         s = self.state
         eps = 1e-9 * max(1.0, abs(t_end))
         forces, accel = held_input_dynamics(self.p, self.grade_profile, traction_demand, brake_demand, wind)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _fast
 from .units import G
 
 
@@ -327,6 +328,10 @@ class ParameterIdentifier:
         ``contiguous``: this pair directly follows the last one used (they share a sample)."""
         if self.cfg.frozen:
             return
+        core = _fast.core
+        if core is not None and core.ident_update(self, traction, brake, speed, speed_next, grade,
+                                                  dt, contiguous):
+            return                           # the recursive step below, compiled
         phi = (traction - brake, -1.0, -speed, -speed * speed)                       # (4)
         y = 1000.0 * (1.0 + self.cfg.gamma) * (speed_next - speed) / (G * (dt or self.cfg.dt)) + grade
         self._cov = self._sigma2 = None
@@ -437,6 +442,11 @@ class ParameterIdentifier:
     def _covariance_flat(self) -> list[float]:
         if self._cov is not None:
             return self._cov
+        core = _fast.core
+        if core is not None:
+            cov = core.ident_covariance(self)    # the mu = 1/n sandwich below, compiled
+            if cov is not None:
+                return cov
         if self.cfg.frozen:
             self._cov = [0.0] * 16
             return self._cov
