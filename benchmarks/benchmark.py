@@ -3,13 +3,19 @@
     python benchmarks/benchmark.py [--steps 3000] [--repeat 3]
 
 Prints, measured in one run on one core (best of --repeat):
-  - the models/ chain alone (plant + sensors + identification + filter), outputs read each step;
+  - the models/ chain alone (plant + sensors + identification + filter), outputs read each step,
+    compiled (models/_fastcore.c) and pure Python (the reference), interleaved, and their ratio;
   - RailCar through fmpy (low-level FMU2Slave), all contract outputs read each step, step 0.1 s;
   - the same through libcosimpy;
   - the floor: a no-op pythonfmu FMU with RailCar's variables, built here, through fmpy,
     and RailCar's time per step as a multiple of it;
   - RailCarEstimator replaying a logged run: samples per second.
 Targets (issue 7): RailCar via fmpy >= 20,000 steps/s and <= 2x the floor; models >= 100,000.
+
+The host's speed varies between runs (seen here: the same code at 50k and 100k steps/s minutes
+apart), so compare the ratios, which are measured in one run: compiled / Python and RailCar /
+floor. BLAS is held to one thread: numpy's OpenBLAS workers otherwise spin on the second core
+after each small solve.
 """
 from __future__ import annotations
 
@@ -23,6 +29,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # one core: before numpy is imported
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import pythonfmu  # noqa: E402,F401  (before any FMU is loaded)
 
@@ -52,6 +61,24 @@ def bench_models(n: int, solver_step: float = 0.05) -> None:
         f, b = demands(k * STEP)
         chain.do_step(k * STEP, STEP, f, b, 0.0)
         chain.outputs()
+
+
+def models_rates(n: int, repeat: int) -> tuple[float, float]:
+    """(compiled, pure Python) steps/s of the models chain, runs interleaved so that both see
+    the same machine."""
+    from models import _fast
+    core = _fast.core
+    best_c = best_py = 0.0
+    try:
+        for _ in range(repeat):
+            if core is not None:
+                _fast.core = core
+                best_c = max(best_c, best_rate(bench_models, n, 1))
+            _fast.core = None
+            best_py = max(best_py, best_rate(bench_models, max(n // 4, 1), 1))
+    finally:
+        _fast.core = core
+    return best_c, best_py
 
 
 def contract_outputs(md) -> tuple[list[int], list[int]]:
@@ -178,14 +205,16 @@ def bench_replay(estimator_fmu: Path, n: int, repeat: int) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=3000)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     n, rep = args.steps, args.repeat
     from harness.fmus import ensure_built
     fmus = ensure_built(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
         floor = build_floor(Path(tmp))
-        rows = [("models/ chain alone", best_rate(bench_models, n, rep), "steps/s", 100_000),
+        compiled, python = models_rates(n, rep)
+        rows = [("models/ chain alone", compiled, "steps/s", 100_000),
+                ("  same, pure Python", python, "steps/s", None),
                 ("  same, solver.step 0.1 s", best_rate(lambda k: bench_models(k, 0.1), n, rep), "steps/s", None)]
         railcar_fmpy = best_rate(fmpy_stepper(fmus["RailCar"]), n, rep)
         rows.append(("RailCar via fmpy", railcar_fmpy, "steps/s", 20_000))
@@ -197,6 +226,11 @@ def main() -> None:
     for name, rate, unit, target in rows:
         t = f"target >= {target:,}: {'met' if rate >= target else 'MISSED'}" if target else ""
         print(f"  {name:<26} {rate:>10,.0f} {unit:<10} {1e6 / rate:8.1f} us/step  {t}")
+    from models import _fast
+    if _fast.core is None:
+        print("  (models/_fastcore.c is not compiled: the compiled rows above ran in Python)")
+    else:
+        print(f"  compiled / pure-Python models chain: {compiled / python:.1f}x")
     ratio = floor_rate / railcar_fmpy
     print(f"  RailCar time per step / floor's: {ratio:.2f}x  (target <= 2x: {'met' if ratio <= 2 else 'MISSED'})")
 

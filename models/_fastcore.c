@@ -68,9 +68,63 @@ static const char *ATTR_NAMES[A_count] = {
 };
 static PyObject *ATTR[A_count];
 
+/* Attribute access through the instance __dict__. Every attribute read or written here is a
+ * plain instance attribute (no property or other data descriptor of that name on the class),
+ * so o.__dict__[name] is what getattr/setattr would reach, minus the type lookup that took a
+ * third of the step. The dicts of the objects touched in one top-level call are cached (with
+ * references, so an address cannot be reused); names not in the dict (class attributes such as
+ * LAG), objects with their own __getattribute__, and writes to objects with their own __setattr__
+ * (frozen dataclasses) go through getattr/setattr. */
+#define DICT_CACHE 64                        /* direct-mapped by address; a power of two */
+static struct { PyObject *obj, *dict; int writable; } dcache[DICT_CACHE];
+static int call_depth = 0;
+
+/* The cached entry of o (borrowed dict), or NULL: use getattr/setattr. */
+static inline int dslot(PyObject *o) { return (int)(((uintptr_t)o >> 4) & (DICT_CACHE - 1)); }
+
+static PyObject *inst_dict(PyObject *o, int for_write)
+{
+    int k = dslot(o);
+    if (dcache[k].obj == o) return (for_write && !dcache[k].writable) ? NULL : dcache[k].dict;
+    PyTypeObject *tp = Py_TYPE(o);
+    if (dcache[k].obj != NULL || tp->tp_getattro != PyObject_GenericGetAttr) return NULL;
+    PyObject **dp = _PyObject_GetDictPtr(o);
+    if (!dp || !*dp || !PyDict_CheckExact(*dp)) { PyErr_Clear(); return NULL; }
+    dcache[k].obj = Py_NewRef(o);
+    dcache[k].dict = Py_NewRef(*dp);
+    dcache[k].writable = tp->tp_setattro == PyObject_GenericSetAttr;   /* not frozen dataclasses */
+    return (for_write && !dcache[k].writable) ? NULL : dcache[k].dict;
+}
+
+static void call_enter(void) { call_depth++; }
+
+static void call_leave(void)
+{
+    if (--call_depth > 0) return;
+    for (int i = 0; i < DICT_CACHE; i++)
+        if (dcache[i].obj) { Py_DECREF(dcache[i].obj); Py_DECREF(dcache[i].dict); dcache[i].obj = NULL; }
+}
+
+static PyObject *ga(PyObject *o, int a)       /* new reference */
+{
+    PyObject *d = inst_dict(o, 0);
+    if (d) {
+        PyObject *v = PyDict_GetItemWithError(d, ATTR[a]);
+        if (v) return Py_NewRef(v);
+        if (PyErr_Occurred()) return NULL;
+    }
+    return PyObject_GetAttr(o, ATTR[a]);
+}
+
+static int sa(PyObject *o, int a, PyObject *v)
+{
+    PyObject *d = inst_dict(o, 1);
+    return d ? PyDict_SetItem(d, ATTR[a], v) : PyObject_SetAttr(o, ATTR[a], v);
+}
+
 static int getd(PyObject *o, int a, double *out)
 {
-    PyObject *v = PyObject_GetAttr(o, ATTR[a]);
+    PyObject *v = ga(o, a);
     if (!v) return -1;
     *out = PyFloat_AsDouble(v);
     Py_DECREF(v);
@@ -79,7 +133,7 @@ static int getd(PyObject *o, int a, double *out)
 
 static int getl(PyObject *o, int a, long *out)
 {
-    PyObject *v = PyObject_GetAttr(o, ATTR[a]);
+    PyObject *v = ga(o, a);
     if (!v) return -1;
     *out = PyLong_AsLong(v);
     Py_DECREF(v);
@@ -90,7 +144,7 @@ static int setd(PyObject *o, int a, double x)
 {
     PyObject *v = PyFloat_FromDouble(x);
     if (!v) return -1;
-    int r = PyObject_SetAttr(o, ATTR[a], v);
+    int r = sa(o, a, v);
     Py_DECREF(v);
     return r;
 }
@@ -99,7 +153,7 @@ static int setl(PyObject *o, int a, long x)
 {
     PyObject *v = PyLong_FromLong(x);
     if (!v) return -1;
-    int r = PyObject_SetAttr(o, ATTR[a], v);
+    int r = sa(o, a, v);
     Py_DECREF(v);
     return r;
 }
@@ -203,9 +257,9 @@ static inline double grade_average(const Grade *g, double x, double length)
 
 static int grade_load(PyObject *profile, Grade *g)
 {
-    g->distances = PyObject_GetAttr(profile, ATTR[A_distances]);
-    g->grades = PyObject_GetAttr(profile, ATTR[A_grades]);
-    g->cum = PyObject_GetAttr(profile, ATTR[A_cum]);
+    g->distances = ga(profile, A_distances);
+    g->grades = ga(profile, A_grades);
+    g->cum = ga(profile, A_cum);
     if (!g->distances || !g->grades || !g->cum) goto fail;
     if (!PyTuple_Check(g->distances) || !PyTuple_Check(g->grades) || !PyTuple_Check(g->cum)) {
         PyErr_SetString(PyExc_TypeError, "GradeProfile: distances, grades and _cum must be tuples");
@@ -325,10 +379,10 @@ static int advance_impl(PyObject *plant, double t_end, double traction_demand, d
     double time, h, noise_std, dwell, ti, bi;
     double speed, position, still_time;
     long grid_index, stops;
-    p = PyObject_GetAttr(plant, ATTR[A_p]);
-    s = p ? PyObject_GetAttr(plant, ATTR[A_state]) : NULL;
-    normal = s ? PyObject_GetAttr(plant, ATTR[A_normal]) : NULL;
-    profile = normal ? PyObject_GetAttr(plant, ATTR[A_grade_profile]) : NULL;
+    p = ga(plant, A_p);
+    s = p ? ga(plant, A_state) : NULL;
+    normal = s ? ga(plant, A_normal) : NULL;
+    profile = normal ? ga(plant, A_grade_profile) : NULL;
     if (!profile) goto fail;
     if (getd(p, A_mass, &mass) || getd(p, A_adhesion_mass_fraction, &d.frac)
         || getd(p, A_adhesion_factor, &adh_factor) || getd(p, A_traction_force_max, &d.f_max)
@@ -398,7 +452,7 @@ fail:
 }
 
 /* plant_advance(plant, t_end, traction_demand, brake_demand, wind) -> None */
-static PyObject *plant_advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+static PyObject *plant_advance_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
     if (nargs != 5) { PyErr_SetString(PyExc_TypeError, "plant_advance takes 5 arguments"); return NULL; }
@@ -488,6 +542,55 @@ static int list16_write(PyObject *list, const double *buf)
  * The recursive step of ParameterIdentifier.update for mu = 1/n (no forgetting), after the
  * batch. Returns False without touching anything when that is not the case (the caller then
  * runs the Python code). */
+/* The residual statistics the covariance and sigma2 are computed from. */
+typedef struct { double c0, c1, cL; int have_cL; long n_cL, lag, n; } Resid;
+
+/* ParameterIdentifier._covariance_flat for mu = 1/n after the batch (J = n R), from the state;
+ * lp = the open run's last regressor or NULL. -1 with an exception where Python would raise. */
+static int cov_compute(const double *S, const double *W, const double *D, const double *lp,
+                       const Resid *r, const double *j0, const double *s2p, double *cov)
+{
+    double a = py_max(-r->c1, 0.0);                      /* noise_split */
+    double b = py_max(r->c0 - 2.0 * a, 1e-12 * r->c0);
+    if (r->have_cL && r->n_cL >= r->lag) {                /* _process_share */
+        if (r->lag == 0) return zero_division();
+        b = py_max((r->cL - 2.0 * a) / (double)r->lag, 1e-3 * r->c0 / (double)r->lag);
+    }
+    double k = 1.0 / (double)(r->n > 1 ? r->n : 1);      /* 1 / _n_info() */
+    double Ji[16], M[16];
+    for (int i = 0; i < 16; i++) Ji[i] = S[i] * k;
+    for (int i = 0; i < 16; i++) M[i] = a * D[i] + b * W[i];
+    if (lp) {
+        if (a < 0.0) { PyErr_SetString(PyExc_ValueError, "math domain error"); return -1; }
+        double sq = sqrt(a);
+        double u[4] = {sq * lp[0], sq * lp[1], sq * lp[2], sq * lp[3]};
+        add_outer(M, u);
+    }
+    M[0] += s2p[0] * j0[0];
+    M[5] += s2p[1] * j0[1];
+    M[10] += s2p[2] * j0[2];
+    M[15] += s2p[3] * j0[3];
+    sandwich4(Ji, M, cov);
+    return 0;
+}
+
+/* ParameterIdentifier.sigma2 for mu = 1/n after the batch, eq. (12) on the process share */
+static int sigma2_compute(const Resid *r, double dt, double gamma, double *out)
+{
+    double a = py_max(-r->c1, 0.0);                      /* noise_split */
+    double b = py_max(r->c0 - 2.0 * a, 1e-12 * r->c0);
+    if (!(r->have_cL && r->n_cL >= r->lag))
+        b = py_max(b, r->c0 * sqrt(2.0 / (double)(r->n > 1 ? r->n : 1)));
+    else {                                                /* _process_share */
+        if (r->lag == 0) return zero_division();
+        b = py_max((r->cL - 2.0 * a) / (double)r->lag, 1e-3 * r->c0 / (double)r->lag);
+    }
+    double den = py_square(1.0 + gamma);
+    if (den == 0.0) return zero_division();
+    *out = G_ACC * G_ACC * dt * dt / 1e6 * b / den;
+    return 0;
+}
+
 /* 1 done, 0 not this case (nothing touched), -1 error; dt 0 means cfg.dt */
 static int ident_update_impl(PyObject *id, double traction, double brake, double speed,
                              double speed_next, double grade, double dt, int contiguous)
@@ -496,11 +599,11 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     PyObject *win = NULL, *cLo = NULL, *lasterr = NULL, *frozen = NULL;
     int result = -1;
     double forgetting, gamma, cfg_dt;
-    cfg = PyObject_GetAttr(id, ATTR[A_cfg]);
+    cfg = ga(id, A_cfg);
     if (!cfg) return -1;
-    frozen = PyObject_GetAttr(cfg, ATTR[A_frozen]);
+    frozen = ga(cfg, A_frozen);
     if (!frozen || getd(cfg, A_forgetting, &forgetting)) goto done;
-    Sl = PyObject_GetAttr(id, ATTR[A_S]);
+    Sl = ga(id, A_S);
     if (!Sl) goto done;
     int is_frozen = PyObject_IsTrue(frozen);
     if (is_frozen < 0) goto done;
@@ -512,13 +615,13 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     double S[16], W[16], D[16], th[4], lp[4];
     long n0, lag, n_cL, n_c1;
     double window_sum, c0, c1, q_e, s2_ref, cL = 0.0, last_err = 0.0;
-    thl = PyObject_GetAttr(id, ATTR[A_theta]);
-    Wl = thl ? PyObject_GetAttr(id, ATTR[A_W]) : NULL;
-    Dl = Wl ? PyObject_GetAttr(id, ATTR[A_D]) : NULL;
-    last = Dl ? PyObject_GetAttr(id, ATTR[A_last_phi]) : NULL;
-    win = last ? PyObject_GetAttr(id, ATTR[A_window]) : NULL;
-    cLo = win ? PyObject_GetAttr(id, ATTR[A_cL]) : NULL;
-    lasterr = cLo ? PyObject_GetAttr(id, ATTR[A_last_err]) : NULL;
+    thl = ga(id, A_theta);
+    Wl = thl ? ga(id, A_W) : NULL;
+    Dl = Wl ? ga(id, A_D) : NULL;
+    last = Dl ? ga(id, A_last_phi) : NULL;
+    win = last ? ga(id, A_window) : NULL;
+    cLo = win ? ga(id, A_cL) : NULL;
+    lasterr = cLo ? ga(id, A_last_err) : NULL;
     if (!lasterr) goto done;
     if (!PyList_CheckExact(win)) { PyErr_SetString(PyExc_TypeError, "_window must be a list"); goto done; }
     if (list16_read(Sl, S) || list16_read(Wl, W) || list16_read(Dl, D)
@@ -532,6 +635,7 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     if (cLo != Py_None && (cL = PyFloat_AsDouble(cLo)) == -1.0 && PyErr_Occurred()) goto done;
     if (lasterr != Py_None && (last_err = PyFloat_AsDouble(lasterr)) == -1.0 && PyErr_Occurred()) goto done;
 
+    int bad;
     double phi[4] = {traction - brake, -1.0, -speed, -speed * speed};          /* (4) */
     double dtu = dt != 0.0 ? dt : cfg_dt;                                       /* dt or cfg.dt */
     if (G_ACC * dtu == 0.0) { zero_division(); goto done; }
@@ -603,19 +707,31 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     q_e += py_square(pred_err) / gain_den;
     double s2 = n > 4 ? q_e / (double)(n - 4) : s2_ref;
 
+    /* _covariance_flat() and sigma2() of the new state, which the next propagate asks for:
+     * the same functions of the same state, computed now from values already at hand */
+    double j0[4], s2p[4], cov[16], sigma2;
+    PyObject *j0l = ga(id, A_j0), *s2l = j0l ? ga(id, A_s2_prior) : NULL;
+    bad = !s2l || seq_to_doubles(j0l, j0, 4, "_j0") || seq_to_doubles(s2l, s2p, 4, "s2_prior");
+    Py_XDECREF(j0l); Py_XDECREF(s2l);
+    Resid rs = {c0, c1, cL, have_cL, n_cL, lag, n};
+    if (bad || cov_compute(S_new, W, D, phi, &rs, j0, s2p, cov) || sigma2_compute(&rs, cfg_dt, gamma, &sigma2))
+        goto done;
+    PyObject *new_cov = doubles_to_list(cov, 16);
+    if (!new_cov) goto done;
+    bad = sa(id, A_cov, new_cov);
+    Py_DECREF(new_cov);
+    if (bad || setd(id, A_sigma2, sigma2)) goto done;
     PyObject *new_theta = doubles_to_list(th_new, 4);
     PyObject *new_S = new_theta ? doubles_to_list(S_new, 16) : NULL;
     PyObject *new_last = new_S ? doubles_to_tuple(phi, 4) : NULL;
     if (!new_last) { Py_XDECREF(new_theta); Py_XDECREF(new_S); goto done; }
-    int bad = PyObject_SetAttr(id, ATTR[A_theta], new_theta) || PyObject_SetAttr(id, ATTR[A_S], new_S)
-              || PyObject_SetAttr(id, ATTR[A_last_phi], new_last);
+    bad = sa(id, A_theta, new_theta) || sa(id, A_S, new_S) || sa(id, A_last_phi, new_last);
     Py_DECREF(new_theta); Py_DECREF(new_S); Py_DECREF(new_last);
     if (bad || list16_write(Wl, W) || list16_write(Dl, D)
         || setd(id, A_window_sum, window_sum) || setl(id, A_n_cL, n_cL)
         || (have_cL && setd(id, A_cL, cL)) || setd(id, A_c0, c0) || setl(id, A_n_c1, n_c1)
         || setd(id, A_c1, c1) || setd(id, A_last_err, err) || setd(id, A_q_e, q_e)
-        || setd(id, A_s2, s2) || setl(id, A_n, n)
-        || PyObject_SetAttr(id, ATTR[A_cov], Py_None) || PyObject_SetAttr(id, ATTR[A_sigma2], Py_None))
+        || setd(id, A_s2, s2) || setl(id, A_n, n))
         goto done;
     result = 1;
 done:
@@ -624,7 +740,7 @@ done:
     return result;
 }
 
-static PyObject *ident_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+static PyObject *ident_update_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
     if (nargs != 8) { PyErr_SetString(PyExc_TypeError, "ident_update takes 8 arguments"); return NULL; }
@@ -642,19 +758,19 @@ static PyObject *ident_update(PyObject *self, PyObject *const *args, Py_ssize_t 
 /* ident_covariance(ident) -> list of 16 or None
  * _covariance_flat's sandwich for mu = 1/n after the batch (sets ident._cov); None when that
  * is not the case (frozen, before the batch, forgetting) and the Python code runs instead. */
-static PyObject *ident_covariance(PyObject *self, PyObject *id)
+static PyObject *ident_covariance_body(PyObject *self, PyObject *id)
 {
     (void)self;
-    PyObject *cached = PyObject_GetAttr(id, ATTR[A_cov]);
+    PyObject *cached = ga(id, A_cov);
     if (!cached) return NULL;
     if (cached != Py_None) return cached;
     Py_DECREF(cached);
     PyObject *cfg = NULL, *frozen = NULL, *Sl = NULL, *Jo = NULL, *Wl = NULL, *Dl = NULL;
     PyObject *last = NULL, *cLo = NULL, *j0l = NULL, *s2l = NULL, *result = NULL;
-    cfg = PyObject_GetAttr(id, ATTR[A_cfg]);
-    frozen = cfg ? PyObject_GetAttr(cfg, ATTR[A_frozen]) : NULL;
-    Sl = frozen ? PyObject_GetAttr(id, ATTR[A_S]) : NULL;
-    Jo = Sl ? PyObject_GetAttr(id, ATTR[A_J]) : NULL;
+    cfg = ga(id, A_cfg);
+    frozen = cfg ? ga(cfg, A_frozen) : NULL;
+    Sl = frozen ? ga(id, A_S) : NULL;
+    Jo = Sl ? ga(id, A_J) : NULL;
     if (!Jo) goto done;
     int is_frozen = PyObject_IsTrue(frozen);
     if (is_frozen < 0) goto done;
@@ -662,12 +778,12 @@ static PyObject *ident_covariance(PyObject *self, PyObject *id)
     double S[16], W[16], D[16], lp[4], j0[4], s2p[4];
     double c0, c1, cL = 0.0;
     long lag, n_cL, n;
-    Wl = PyObject_GetAttr(id, ATTR[A_W]);
-    Dl = Wl ? PyObject_GetAttr(id, ATTR[A_D]) : NULL;
-    last = Dl ? PyObject_GetAttr(id, ATTR[A_last_phi]) : NULL;
-    cLo = last ? PyObject_GetAttr(id, ATTR[A_cL]) : NULL;
-    j0l = cLo ? PyObject_GetAttr(id, ATTR[A_j0]) : NULL;
-    s2l = j0l ? PyObject_GetAttr(id, ATTR[A_s2_prior]) : NULL;
+    Wl = ga(id, A_W);
+    Dl = Wl ? ga(id, A_D) : NULL;
+    last = Dl ? ga(id, A_last_phi) : NULL;
+    cLo = last ? ga(id, A_cL) : NULL;
+    j0l = cLo ? ga(id, A_j0) : NULL;
+    s2l = j0l ? ga(id, A_s2_prior) : NULL;
     if (!s2l) goto done;
     if (list16_read(Sl, S) || list16_read(Wl, W) || list16_read(Dl, D)
         || (last != Py_None && seq_to_doubles(last, lp, 4, "_last_phi"))
@@ -676,31 +792,11 @@ static PyObject *ident_covariance(PyObject *self, PyObject *id)
         || getl(id, A_n_cL, &n_cL) || getl(id, A_n, &n))
         goto done;
     if (cLo != Py_None && (cL = PyFloat_AsDouble(cLo)) == -1.0 && PyErr_Occurred()) goto done;
-    /* noise_split */
-    double a = py_max(-c1, 0.0);
-    double b = py_max(c0 - 2.0 * a, 1e-12 * c0);
-    /* _process_share */
-    if (cLo != Py_None && n_cL >= lag) {
-        if (lag == 0) { zero_division(); goto done; }
-        b = py_max((cL - 2.0 * a) / (double)lag, 1e-3 * c0 / (double)lag);
-    }
-    double k = 1.0 / (double)(n > 1 ? n : 1);          /* 1 / _n_info() */
-    double Ji[16], M[16], cov[16];
-    for (int i = 0; i < 16; i++) Ji[i] = S[i] * k;
-    for (int i = 0; i < 16; i++) M[i] = a * D[i] + b * W[i];
-    if (last != Py_None) {
-        if (a < 0.0) { PyErr_SetString(PyExc_ValueError, "math domain error"); goto done; }
-        double sa = sqrt(a);
-        double u[4] = {sa * lp[0], sa * lp[1], sa * lp[2], sa * lp[3]};
-        add_outer(M, u);
-    }
-    M[0] += s2p[0] * j0[0];
-    M[5] += s2p[1] * j0[1];
-    M[10] += s2p[2] * j0[2];
-    M[15] += s2p[3] * j0[3];
-    sandwich4(Ji, M, cov);
+    Resid r = {c0, c1, cL, cLo != Py_None, n_cL, lag, n};
+    double cov[16];
+    if (cov_compute(S, W, D, last != Py_None ? lp : NULL, &r, j0, s2p, cov)) goto done;
     result = doubles_to_list(cov, 16);
-    if (result && PyObject_SetAttr(id, ATTR[A_cov], result)) Py_CLEAR(result);
+    if (result && sa(id, A_cov, result)) Py_CLEAR(result);
 done:
     Py_XDECREF(cfg); Py_XDECREF(frozen); Py_XDECREF(Sl); Py_XDECREF(Jo); Py_XDECREF(Wl);
     Py_XDECREF(Dl); Py_XDECREF(last); Py_XDECREF(cLo); Py_XDECREF(j0l); Py_XDECREF(s2l);
@@ -713,7 +809,7 @@ done:
 
 static int getb(PyObject *o, int a, int *out)
 {
-    PyObject *v = PyObject_GetAttr(o, ATTR[a]);
+    PyObject *v = ga(o, a);
     if (!v) return -1;
     *out = PyObject_IsTrue(v);
     Py_DECREF(v);
@@ -722,13 +818,13 @@ static int getb(PyObject *o, int a, int *out)
 
 static int setb(PyObject *o, int a, int x)
 {
-    return PyObject_SetAttr(o, ATTR[a], x ? Py_True : Py_False);
+    return sa(o, a, x ? Py_True : Py_False);
 }
 
 /* ParameterIdentifier._covariance_flat() into out: compiled, or the Python method's list */
 static int ident_cov(PyObject *id, double *out)
 {
-    PyObject *c = ident_covariance(NULL, id);
+    PyObject *c = ident_covariance_body(NULL, id);
     if (!c) return -1;
     if (c == Py_None) {
         Py_DECREF(c);
@@ -743,15 +839,15 @@ static int ident_cov(PyObject *id, double *out)
 /* ParameterIdentifier.sigma2() for mu = 1/n (else the Python method) */
 static int ident_sigma2(PyObject *id, double *out)
 {
-    PyObject *Sl = PyObject_GetAttr(id, ATTR[A_S]);
+    PyObject *Sl = ga(id, A_S);
     if (!Sl) return -1;
     int s_none = Sl == Py_None;
     Py_DECREF(Sl);
-    PyObject *cfg = PyObject_GetAttr(id, ATTR[A_cfg]);
+    PyObject *cfg = ga(id, A_cfg);
     if (!cfg) return -1;
     int r = -1;
     if (s_none) { r = getd(cfg, A_sigma2_initial, out); Py_DECREF(cfg); return r; }
-    PyObject *cached = PyObject_GetAttr(id, ATTR[A_sigma2]), *cLo = NULL;
+    PyObject *cached = ga(id, A_sigma2), *cLo = NULL;
     if (!cached) goto done;
     if (cached != Py_None) {
         *out = PyFloat_AsDouble(cached);
@@ -769,22 +865,13 @@ static int ident_sigma2(PyObject *id, double *out)
         r = (*out == -1.0 && PyErr_Occurred()) ? -1 : 0;
         goto done;
     }
-    cLo = PyObject_GetAttr(id, ATTR[A_cL]);
+    cLo = ga(id, A_cL);
     if (!cLo || getd(cfg, A_dt, &dt) || getd(cfg, A_gamma, &gamma) || getd(id, A_c0, &c0)
         || getd(id, A_c1, &c1) || getl(id, A_LAG, &lag) || getl(id, A_n_cL, &n_cL) || getl(id, A_n, &n))
         goto done;
     if (cLo != Py_None && (cL = PyFloat_AsDouble(cLo)) == -1.0 && PyErr_Occurred()) goto done;
-    double a = py_max(-c1, 0.0);                                   /* noise_split */
-    double b = py_max(c0 - 2.0 * a, 1e-12 * c0);
-    int have = cLo != Py_None && n_cL >= lag;
-    if (!have) b = py_max(b, c0 * sqrt(2.0 / (double)(n > 1 ? n : 1)));
-    else {
-        if (lag == 0) { zero_division(); goto done; }
-        b = py_max((cL - 2.0 * a) / (double)lag, 1e-3 * c0 / (double)lag);   /* _process_share */
-    }
-    double den = py_square(1.0 + gamma);
-    if (den == 0.0) { zero_division(); goto done; }
-    *out = G_ACC * G_ACC * dt * dt / 1e6 * b / den;                /* (12) */
+    Resid rs = {c0, c1, cL, cLo != Py_None, n_cL, lag, n};
+    if (sigma2_compute(&rs, dt, gamma, out)) goto done;
     r = setd(id, A_sigma2, *out);
 done:
     Py_XDECREF(cached); Py_XDECREF(cLo); Py_DECREF(cfg);
@@ -805,9 +892,9 @@ static int filter_speed(PyObject *f, double *out)
 static int filter_predict_ekf(PyObject *f, double traction, double brake, const double *theta,
                               double q, double dt)
 {
-    PyObject *cfg = PyObject_GetAttr(f, ATTR[A_cfg]);
+    PyObject *cfg = ga(f, A_cfg);
     if (!cfg) return -1;
-    PyObject *profile = PyObject_GetAttr(f, ATTR[A_grade_profile]);
+    PyObject *profile = ga(f, A_grade_profile);
     Grade gr = {NULL, NULL, NULL, 0};
     int r = -1;
     double speed_hat, x_pos, xh0, length, gamma, p00, p01, p11;
@@ -842,7 +929,7 @@ done:
 /* MotionFilter.update for the EKF (vzad = 0) */
 static int filter_update_ekf(PyObject *f, double speed_meas, double position_meas)
 {
-    PyObject *cfg = PyObject_GetAttr(f, ATTR[A_cfg]);
+    PyObject *cfg = ga(f, A_cfg);
     if (!cfg) return -1;
     int r = -1;
     double r0, r1, rel, m00, m01, m11, xb0, xb1;
@@ -923,12 +1010,12 @@ static int objs_load(PyObject *chain, ChainObjs *o)
 {
     memset(o, 0, sizeof *o);
     o->chain = chain;
-    if (!(o->cfg = PyObject_GetAttr(chain, ATTR[A_cfg])) || !(o->fcfg = PyObject_GetAttr(o->cfg, ATTR[A_filter]))
-        || !(o->plant = PyObject_GetAttr(chain, ATTR[A_plant]))
-        || !(o->est = PyObject_GetAttr(chain, ATTR[A_estimator]))
-        || !(o->ident = PyObject_GetAttr(o->est, ATTR[A_ident]))
-        || !(o->filt = PyObject_GetAttr(o->est, ATTR[A_filter]))
-        || !(o->station = PyObject_GetAttr(o->est, ATTR[A_station]))) {
+    if (!(o->cfg = ga(chain, A_cfg)) || !(o->fcfg = ga(o->cfg, A_filter))
+        || !(o->plant = ga(chain, A_plant))
+        || !(o->est = ga(chain, A_estimator))
+        || !(o->ident = ga(o->est, A_ident))
+        || !(o->filt = ga(o->est, A_filter))
+        || !(o->station = ga(o->est, A_station))) {
         objs_release(o);
         return -1;
     }
@@ -939,7 +1026,7 @@ static int objs_load(PyObject *chain, ChainObjs *o)
 static int estimator_propagate(ChainObjs *o, double traction, double brake, double dt)
 {
     double theta[4], cov[16], speed, gamma, dt_nominal, sigma2;
-    PyObject *thl = PyObject_GetAttr(o->ident, ATTR[A_theta]);
+    PyObject *thl = ga(o->ident, A_theta);
     if (!thl) return -1;
     int bad = seq_to_doubles(thl, theta, 4, "_theta");
     Py_DECREF(thl);
@@ -961,7 +1048,7 @@ static int estimator_propagate(ChainObjs *o, double traction, double brake, doub
     double forces[2] = {traction, brake};
     PyObject *ft = doubles_to_tuple(forces, 2);
     if (!ft) return -1;
-    bad = PyObject_SetAttr(o->est, ATTR[A_forces], ft);
+    bad = sa(o->est, A_forces, ft);
     Py_DECREF(ft);
     return bad ? -1 : setd(o->est, A_dt_private, dt);
 }
@@ -977,7 +1064,7 @@ static int call_method0(PyObject *obj, int name)
 /* OnlineEstimator.measure (EKF, no refit) */
 static int estimator_measure(ChainObjs *o, double speed_meas, double position_meas)
 {
-    PyObject *prev = PyObject_GetAttr(o->est, ATTR[A_prev]);
+    PyObject *prev = ga(o->est, A_prev);
     if (!prev) return -1;
     if (prev == Py_None) {                   /* the first sample: the Python method */
         Py_DECREF(prev);
@@ -995,7 +1082,7 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
         || getb(o->station, A_moving, &moving_after))
         return -1;
     double pstd;
-    PyObject *fcfg = PyObject_GetAttr(o->filt, ATTR[A_cfg]);
+    PyObject *fcfg = ga(o->filt, A_cfg);
     if (!fcfg) return -1;
     bad = getd(fcfg, A_position_std, &pstd);
     Py_DECREF(fcfg);
@@ -1004,12 +1091,12 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     if (used) {
         double forces[2], length;
         int contiguous;
-        PyObject *ft = PyObject_GetAttr(o->est, ATTR[A_forces]);
+        PyObject *ft = ga(o->est, A_forces);
         if (!ft) return -1;
         bad = seq_to_doubles(ft, forces, 2, "_forces");
         Py_DECREF(ft);
         if (bad || getd(o->est, A_length, &length) || getb(o->est, A_pair_used, &contiguous)) return -1;
-        PyObject *profile = PyObject_GetAttr(o->est, ATTR[A_grade_profile]);
+        PyObject *profile = ga(o->est, A_grade_profile);
         if (!profile) return -1;
         Grade gr;
         bad = grade_load(profile, &gr);
@@ -1022,7 +1109,7 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
         if (r == 0) {                        /* the batch phase: the Python method */
             PyObject *args = Py_BuildValue("(dddddd)", forces[0], forces[1], pv[0], speed_meas, grade, dt);
             PyObject *kw = args ? Py_BuildValue("{O:O}", ATTR[A_kw_contiguous], contiguous ? Py_True : Py_False) : NULL;
-            PyObject *meth = kw ? PyObject_GetAttr(o->ident, ATTR[A_m_update]) : NULL;
+            PyObject *meth = kw ? ga(o->ident, A_m_update) : NULL;
             PyObject *res = meth ? PyObject_Call(meth, args, kw) : NULL;
             Py_XDECREF(args); Py_XDECREF(kw); Py_XDECREF(meth);
             if (!res) return -1;
@@ -1033,7 +1120,7 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     double nv[2] = {speed_meas, position_meas};
     PyObject *nt = doubles_to_tuple(nv, 2);
     if (!nt) return -1;
-    bad = PyObject_SetAttr(o->est, ATTR[A_prev], nt);
+    bad = sa(o->est, A_prev, nt);
     Py_DECREF(nt);
     if (bad) return -1;
     if (stop) {
@@ -1049,9 +1136,9 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
 /* RailCarChain._take_sample (no track sensors) */
 static int take_sample(ChainObjs *o)
 {
-    PyObject *s = PyObject_GetAttr(o->plant, ATTR[A_state]);
-    PyObject *ns = s ? PyObject_GetAttr(o->chain, ATTR[A_speed_noise]) : NULL;
-    PyObject *np_ = ns ? PyObject_GetAttr(o->chain, ATTR[A_position_noise]) : NULL;
+    PyObject *s = ga(o->plant, A_state);
+    PyObject *ns = s ? ga(o->chain, A_speed_noise) : NULL;
+    PyObject *np_ = ns ? ga(o->chain, A_position_noise) : NULL;
     int r = -1;
     double speed, position, sstd, pstd, rel, z1, z2;
     if (!np_ || getd(s, A_speed, &speed) || getd(s, A_position, &position)
@@ -1074,7 +1161,7 @@ done:
  * RailCarChain.do_step for its compiled configuration (checked by the caller: EKF, no track
  * sensors, est.method 0, no forgetting). False, with nothing changed, when an input is bad:
  * the Python method then raises StepRejected with its message. */
-static PyObject *chain_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
     if (nargs != 7) { PyErr_SetString(PyExc_TypeError, "chain_step takes 7 arguments"); return NULL; }
@@ -1099,7 +1186,7 @@ static PyObject *chain_step(PyObject *self, PyObject *const *args, Py_ssize_t na
     double t_end = ct + step;
     double eps = 1e-9 * py_max(1.0, fabs(t_end));
     if (mass <= 0.0 || fabs(ct - plant_time) > eps) { result = Py_NewRef(Py_False); goto done; }
-    if (!(p = PyObject_GetAttr(o.plant, ATTR[A_p])) || setd(p, A_mass, mass)) goto done;
+    if (!(p = ga(o.plant, A_p)) || setd(p, A_mass, mass)) goto done;
     for (;;) {
         double t_sample = (double)(sample_index + 1) * ts;
         if (t_sample > t_end + eps) {
@@ -1134,7 +1221,7 @@ static const char *OUTPUT_KEYS[] = {
 static PyObject *OUT_KEY[N_OUT];
 
 /* chain_outputs(chain) -> dict: RailCarChain.outputs() (the caller checks: no refit) */
-static PyObject *chain_outputs(PyObject *self, PyObject *chain)
+static PyObject *chain_outputs_body(PyObject *self, PyObject *chain)
 {
     (void)self;
     ChainObjs o;
@@ -1142,10 +1229,10 @@ static PyObject *chain_outputs(PyObject *self, PyObject *chain)
     PyObject *vals[N_OUT] = {NULL};
     PyObject *s = NULL, *p = NULL, *thl = NULL, *Sl = NULL, *d = NULL;
     double th[4], cov[16], sigma2, p00, p11, fspeed;
-    s = PyObject_GetAttr(o.plant, ATTR[A_state]);
-    p = s ? PyObject_GetAttr(o.plant, ATTR[A_p]) : NULL;
-    thl = p ? PyObject_GetAttr(o.ident, ATTR[A_theta]) : NULL;
-    Sl = thl ? PyObject_GetAttr(o.ident, ATTR[A_S]) : NULL;
+    s = ga(o.plant, A_state);
+    p = s ? ga(o.plant, A_p) : NULL;
+    thl = p ? ga(o.ident, A_theta) : NULL;
+    Sl = thl ? ga(o.ident, A_S) : NULL;
     if (!Sl || seq_to_doubles(thl, th, 4, "_theta") || ident_cov(o.ident, cov)
         || ident_sigma2(o.ident, &sigma2) || filter_speed(o.filt, &fspeed)
         || getd(o.filt, A_p00, &p00) || getd(o.filt, A_p11, &p11))
@@ -1153,12 +1240,12 @@ static PyObject *chain_outputs(PyObject *self, PyObject *chain)
     static const int STATE_ATTRS[7] = {A_speed, A_position, A_acceleration, A_traction_force,
                                        A_brake_force, A_grade, A_mode};
     for (int i = 0; i < 7; i++)
-        if (!(vals[i] = PyObject_GetAttr(s, ATTR[STATE_ATTRS[i]]))) goto done;
-    if (!(vals[7] = PyObject_GetAttr(p, ATTR[A_mass]))
-        || !(vals[8] = PyObject_GetAttr(o.chain, ATTR[A_sensor_speed]))
-        || !(vals[9] = PyObject_GetAttr(o.chain, ATTR[A_sensor_position]))
-        || !(vals[10] = PyObject_GetAttr(o.chain, ATTR[A_track_speed]))
-        || !(vals[11] = PyObject_GetAttr(o.chain, ATTR[A_track_time])))
+        if (!(vals[i] = ga(s, STATE_ATTRS[i]))) goto done;
+    if (!(vals[7] = ga(p, A_mass))
+        || !(vals[8] = ga(o.chain, A_sensor_speed))
+        || !(vals[9] = ga(o.chain, A_sensor_position))
+        || !(vals[10] = ga(o.chain, A_track_speed))
+        || !(vals[11] = ga(o.chain, A_track_time)))
         goto done;
     double mass = th[0] > 0.0 ? 1.0 / (G_ACC * th[0]) : INFINITY;
     double den = G_ACC * py_square(th[0]);
@@ -1169,13 +1256,13 @@ static PyObject *chain_outputs(PyObject *self, PyObject *chain)
     double est[9] = {mass, mass_std, th[1], th[2], th[3], sd[1], sd[2], sd[3], sigma2};
     for (int i = 0; i < 9; i++)
         if (!(vals[12 + i] = PyFloat_FromDouble(est[i]))) goto done;
-    if (Sl != Py_None) vals[21] = PyObject_GetAttr(o.ident, ATTR[A_n]);
+    if (Sl != Py_None) vals[21] = ga(o.ident, A_n);
     else {
-        PyObject *by = PyObject_GetAttr(o.ident, ATTR[A_batch_y]);
+        PyObject *by = ga(o.ident, A_batch_y);
         if (by) { Py_ssize_t n = PyObject_Length(by); Py_DECREF(by); vals[21] = n < 0 ? NULL : PyLong_FromSsize_t(n); }
     }
-    if (!vals[21] || !(vals[22] = PyObject_GetAttr(o.est, ATTR[A_station_stops]))
-        || !(vals[23] = PyFloat_FromDouble(fspeed)) || !(vals[24] = PyObject_GetAttr(o.filt, ATTR[A_xh1]))
+    if (!vals[21] || !(vals[22] = ga(o.est, A_station_stops))
+        || !(vals[23] = PyFloat_FromDouble(fspeed)) || !(vals[24] = ga(o.filt, A_xh1))
         || !(vals[25] = PyFloat_FromDouble(p00 > 0.0 ? sqrt(p00) : 0.0))
         || !(vals[26] = PyFloat_FromDouble(p11 > 0.0 ? sqrt(p11) : 0.0)))
         goto done;
@@ -1190,6 +1277,46 @@ done:
     return d;
 }
 
+
+static PyObject *plant_advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    call_enter();
+    PyObject *r = plant_advance_body(self, args, nargs);
+    call_leave();
+    return r;
+}
+
+static PyObject *ident_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    call_enter();
+    PyObject *r = ident_update_body(self, args, nargs);
+    call_leave();
+    return r;
+}
+
+static PyObject *chain_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    call_enter();
+    PyObject *r = chain_step_body(self, args, nargs);
+    call_leave();
+    return r;
+}
+
+static PyObject *chain_outputs(PyObject *self, PyObject *chain)
+{
+    call_enter();
+    PyObject *r = chain_outputs_body(self, chain);
+    call_leave();
+    return r;
+}
+
+static PyObject *ident_covariance(PyObject *self, PyObject *id)
+{
+    call_enter();
+    PyObject *r = ident_covariance_body(self, id);
+    call_leave();
+    return r;
+}
 /* ------------------------------------------------------------------ module */
 
 static PyObject *set_constants(PyObject *self, PyObject *g)
