@@ -17,6 +17,12 @@
 #include <Python.h>
 #include <math.h>
 
+#if PY_VERSION_HEX >= 0x030D0000
+#define LOOKUP_ATTR PyObject_GetOptionalAttr        /* 3.13: public name */
+#else
+#define LOOKUP_ATTR _PyObject_LookupAttr
+#endif
+
 static double G_ACC = 9.81;   /* set from models.units.G by set_constants() */
 
 /* CPython's x ** 2 calls libm's pow(), which is not always x * x (last bit, ~0.1 % of values);
@@ -347,7 +353,7 @@ static void rk4(const Dyn *d, double v, double x, double h, double *v_out, doubl
 static int next_normal(PyObject *stream, double *out)
 {
     PyObject *buf = NULL;
-    if (_PyObject_LookupAttr(stream, ATTR[A_buf], &buf) < 0) return -1;
+    if (LOOKUP_ATTR(stream, ATTR[A_buf], &buf) < 0) return -1;
     if (!buf) buf = Py_NewRef(Py_None);             /* any other callable: call it */
     long i;
     if (PyList_CheckExact(buf) && getl(stream, A_i, &i) == 0 && i >= 0 && i < PyList_GET_SIZE(buf)) {
