@@ -49,8 +49,8 @@ enum {
     A_position_noise, A_speed_std, A_prev, A_pair_used, A_forces, A_dt_private, A_v_thr, A_x_thr,
     A_dwell, A_fast_run, A_moving, A_restarted, A_MOVING_RUN, A_station_stops, A_dt_nominal,
     A_sigma2_initial, A_track_speed, A_track_time, A_batch_y,
-    A_m_covariance_flat, A_m_sigma2, A_m_update, A_m_restart_mass, A_m_restart, A_m_measure,
-    A_kw_contiguous,
+    A_m_covariance_flat, A_m_sigma2, A_m_update, A_m_restart_mass, A_m_measure,
+    A_kw_contiguous, A_scale,
     A_count
 };
 static const char *ATTR_NAMES[A_count] = {
@@ -69,8 +69,8 @@ static const char *ATTR_NAMES[A_count] = {
     "_position_noise", "speed_std", "_prev", "_pair_used", "_forces", "_dt", "v_thr", "x_thr",
     "dwell", "_fast_run", "moving", "_restarted", "MOVING_RUN", "station_stops", "dt_nominal",
     "sigma2_initial", "track_speed", "track_time", "_batch_y",
-    "_covariance_flat", "sigma2", "update", "restart_mass", "restart", "measure",
-    "contiguous",
+    "_covariance_flat", "sigma2", "update", "restart_mass", "measure",
+    "contiguous", "_scale",
 };
 static PyObject *ATTR[A_count];
 
@@ -580,13 +580,14 @@ static int cov_compute(const double *S, const double *W, const double *D, const 
     return 0;
 }
 
-/* ParameterIdentifier.sigma2 for mu = 1/n after the batch, eq. (12) on the process share */
-static int sigma2_compute(const Resid *r, double dt, double gamma, double *out)
+/* ParameterIdentifier.sigma2 for mu = 1/n after the batch, eq. (12) on the process share;
+ * b_configured = _configured_noise()[1], used until the LAG sums are ready */
+static int sigma2_compute(const Resid *r, double dt, double gamma, double b_configured, double *out)
 {
     double a = py_max(-r->c1, 0.0);                      /* noise_split */
-    double b = py_max(r->c0 - 2.0 * a, 1e-12 * r->c0);
+    double b;
     if (!(r->have_cL && r->n_cL >= r->lag))
-        b = py_max(b, r->c0 * sqrt(2.0 / (double)(r->n > 1 ? r->n : 1)));
+        b = b_configured;
     else {                                                /* _process_share */
         if (r->lag == 0) return zero_division();
         b = py_max((r->cL - 2.0 * a) / (double)r->lag, 1e-3 * r->c0 / (double)r->lag);
@@ -594,6 +595,15 @@ static int sigma2_compute(const Resid *r, double dt, double gamma, double *out)
     double den = py_square(1.0 + gamma);
     if (den == 0.0) return zero_division();
     *out = G_ACC * G_ACC * dt * dt / 1e6 * b / den;
+    return 0;
+}
+
+/* ParameterIdentifier._configured_noise()[1]: _scale ** 2 * max(cfg.sigma2_initial, 1e-12) */
+static int configured_b(PyObject *id, PyObject *cfg, double *out)
+{
+    double scale, s2i;
+    if (getd(id, A_scale, &scale) || getd(cfg, A_sigma2_initial, &s2i)) return -1;
+    *out = py_square(scale) * py_max(s2i, 1e-12);
     return 0;
 }
 
@@ -720,7 +730,9 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     bad = !s2l || seq_to_doubles(j0l, j0, 4, "_j0") || seq_to_doubles(s2l, s2p, 4, "s2_prior");
     Py_XDECREF(j0l); Py_XDECREF(s2l);
     Resid rs = {c0, c1, cL, have_cL, n_cL, lag, n};
-    if (bad || cov_compute(S_new, W, D, phi, &rs, j0, s2p, cov) || sigma2_compute(&rs, cfg_dt, gamma, &sigma2))
+    double b_conf;
+    if (bad || configured_b(id, cfg, &b_conf) || cov_compute(S_new, W, D, phi, &rs, j0, s2p, cov)
+        || sigma2_compute(&rs, cfg_dt, gamma, b_conf, &sigma2))
         goto done;
     PyObject *new_cov = doubles_to_list(cov, 16);
     if (!new_cov) goto done;
@@ -863,7 +875,7 @@ static int ident_sigma2(PyObject *id, double *out)
     double forgetting, dt, gamma, c0, c1, cL = 0.0;
     long lag, n_cL, n;
     if (getd(cfg, A_forgetting, &forgetting)) goto done;
-    if (forgetting > 0.0) {                      /* _n_eff differs: the Python method */
+    if (forgetting > 0.0) {                      /* not compiled: the Python method */
         PyObject *v = PyObject_CallMethodNoArgs(id, ATTR[A_m_sigma2]);
         if (!v) goto done;
         *out = PyFloat_AsDouble(v);
@@ -877,7 +889,8 @@ static int ident_sigma2(PyObject *id, double *out)
         goto done;
     if (cLo != Py_None && (cL = PyFloat_AsDouble(cLo)) == -1.0 && PyErr_Occurred()) goto done;
     Resid rs = {c0, c1, cL, cLo != Py_None, n_cL, lag, n};
-    if (sigma2_compute(&rs, dt, gamma, out)) goto done;
+    double b_conf;
+    if (configured_b(id, cfg, &b_conf) || sigma2_compute(&rs, dt, gamma, b_conf, out)) goto done;
     r = setd(id, A_sigma2, *out);
 done:
     Py_XDECREF(cached); Py_XDECREF(cLo); Py_DECREF(cfg);
@@ -1132,8 +1145,11 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     if (stop) {
         long stops;
         if (getl(o->est, A_station_stops, &stops) || setl(o->est, A_station_stops, stops + 1)
-            || call_method0(o->ident, A_m_restart_mass) || call_method0(o->filt, A_m_restart))
+            || call_method0(o->ident, A_m_restart_mass))
             return -1;
+        PyObject *r = PyObject_CallMethod(o->est, "restart_filter", "dd", speed_meas, position_meas);
+        if (!r) return -1;
+        Py_DECREF(r);
         return 0;
     }
     return filter_update_ekf(o->filt, speed_meas, position_meas);

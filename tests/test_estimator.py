@@ -165,9 +165,43 @@ def test_online_estimator_station_stop_restarts_filter_and_mass():
     assert est.station.still_time >= DWELL - 1e-9
     assert est.station_stops == 1
     assert est.ident.mass_restarts == 1
-    assert (est.filter.speed, est.filter.position) == (0.0, 0.0)
-    assert (est.filter.speed_std, est.filter.position_std) == (0.0, 0.0)
+    # restarted at the previous sample (V = X = 0 exactly, at rest with no force), carried over
+    # one interval (process noise only) and updated with this sample: still at the station to
+    # well under the sensors' noise, with a small but non-zero std
+    assert abs(est.filter.speed) < 5e-3 and abs(est.filter.position) < 1e-3
+    assert 0.0 < est.filter.speed_std < 0.02 and 0.0 < est.filter.position_std < 0.01
     out = est.outputs()
     assert out["est.station_stops"] == 1
     # reopened: the mass std is back at the prior's order (10 t), not the learnt value
     assert out["est.mass_std"] >= 0.5 * id_cfg.mass_std_initial
+
+
+def test_station_stop_confirmed_after_departure_restarts_at_the_previous_sample():
+    """The stop is confirmed at the first sample whose measured distance has restarted, i.e. one
+    sample after the car left the station. The filter must not assert V = 0 there: it restarts at
+    the previous sample (at rest), carries the state over the interval with its traction, and
+    takes this sample -- within 3 sigma of the true speed. (Asserting V = 0 with P = 0 left a
+    filter with the true parameters 0.1 m/s behind for a second after every departure.)"""
+    id_cfg = IdentifierConfig(dt=DT, batch_size=20)
+    est = OnlineEstimator(id_cfg, FilterConfig(dt=DT, speed_std=0.05, position_std=1.0),
+                          StationConfig(dwell=DWELL), GradeProfile.level(), None)
+    rng = np.random.default_rng(8)
+    v, x = 0.0, 0.0
+    for k in range(500):                         # 25 s accelerating, 25 s braking to a stop
+        a = 0.5 if k < 250 else -0.5
+        v_next = max(v + a * DT, 0.0)
+        x += 0.5 * (v + v_next) * DT
+        v = v_next
+        est.measure(v + 0.05 * rng.standard_normal(), x + rng.standard_normal())
+        est.propagate(15e3 if k < 250 else 0.0, 0.0 if k < 250 else 15e3, DT)
+    n_dwell = round(DWELL / DT) + 5
+    for i in range(n_dwell):                     # the dwell; the distance still reads x
+        est.measure(0.05 * rng.standard_normal(), x + rng.standard_normal())
+        assert est.station_stops == 0
+        # the last interval is the departure: 15 kN, i.e. 0.5 m/s^2 in this test's kinematics
+        est.propagate(15e3 if i == n_dwell - 1 else 0.0, 0.0, DT)
+    v_true = 0.5 * DT                            # one interval after leaving; odometer restarted
+    est.measure(v_true + 0.05 * rng.standard_normal(), 0.5 * v_true * DT + rng.standard_normal())
+    assert est.station_stops == 1
+    assert abs(est.filter.speed - v_true) < 3.0 * est.filter.speed_std
+    assert est.filter.speed > 0.5 * v_true
