@@ -1041,9 +1041,20 @@ static int objs_load(PyObject *chain, ChainObjs *o)
     return 0;
 }
 
-/* OnlineEstimator.propagate (EKF, no refit) */
+/* OnlineEstimator.propagate (EKF, no refit); before the identifier's first batch the filter's
+ * model is the running estimate (ParameterIdentifier.model_theta): the Python method then */
 static int estimator_propagate(ChainObjs *o, double traction, double brake, double dt)
 {
+    PyObject *Sl = ga(o->ident, A_S);
+    if (!Sl) return -1;
+    int batch_phase = Sl == Py_None;
+    Py_DECREF(Sl);
+    if (batch_phase) {
+        PyObject *r = PyObject_CallMethod(o->est, "propagate", "ddd", traction, brake, dt);
+        if (!r) return -1;
+        Py_DECREF(r);
+        return 0;
+    }
     double theta[4], cov[16], speed, gamma, dt_nominal, sigma2;
     PyObject *thl = ga(o->ident, A_theta);
     if (!thl) return -1;

@@ -145,7 +145,7 @@ class OnlineEstimator:
         """
         self.filter.restart()
         traction, brake = self._forces
-        self.filter.predict(traction, brake, self.theta(), self.process_noise(traction, brake, self._dt),
+        self.filter.predict(traction, brake, self.model_theta(), self.process_noise(traction, brake, self._dt),
                             self._dt)
         self.filter.update(speed_meas, position_meas)
 
@@ -167,7 +167,7 @@ class OnlineEstimator:
         if accel is None:
             traction, brake = self._forces
             v = self.filter.speed
-            th = self.ident.theta
+            th = self.ident.model_theta
             accel = G / 1000.0 / (1.0 + self.gamma) * (
                 th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
                 - self.grade_profile.average(self.filter.position, self.length))
@@ -177,10 +177,9 @@ class OnlineEstimator:
 
     def propagate(self, traction: float, brake: float, dt: float) -> None:
         """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""
-        theta = self.ident.theta
+        theta = self.model_theta()
         q = self.process_noise(traction, brake, dt)
         if self.refit is not None:
-            theta = self.theta()
             self._run["f"].append(traction)
             self._run["b"].append(brake)
         self.filter.predict(traction, brake, theta, q, dt)
@@ -188,8 +187,16 @@ class OnlineEstimator:
         self._dt = dt
 
     def theta(self) -> np.ndarray:
-        """Theta the filter uses: the running LS's, with the refitted A's once there are any."""
+        """Theta reported (est.*): the running LS's, with the refitted A's once there are any."""
         th = self.ident.theta
+        if self.refit is not None and self.refit.runs:
+            th[1:] = self.refit.A
+        return th
+
+    def model_theta(self) -> np.ndarray:
+        """Theta the filter predicts with: as theta(), but before the first batch the running
+        estimate instead of the configured values (ParameterIdentifier.model_theta)."""
+        th = self.ident.model_theta
         if self.refit is not None and self.refit.runs:
             th[1:] = self.refit.A
         return th
@@ -233,7 +240,7 @@ class OnlineEstimator:
         """
         v = self.filter.speed
         k = G * dt / 1000.0 / (1.0 + self.gamma)
-        q_param = k * k * self.ident.variance_along((traction - brake, -1.0, -v, -v * v))
+        q_param = k * k * self.ident.model_variance_along((traction - brake, -1.0, -v, -v * v))
         return self.ident.sigma2() * dt / self.dt_nominal + q_param
 
     def outputs(self, predicted: bool = False) -> dict[str, float]:

@@ -149,6 +149,15 @@ def _add_outer(M: list, u) -> None:
         M[r + 3] += ui * u3
 
 
+def _quadratic4(c: list, phi) -> float:
+    """phi^T C phi for a flat row-major 4x4 C."""
+    p0, p1, p2, p3 = phi
+    return (p0 * (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3)
+            + p1 * (c[4] * p0 + c[5] * p1 + c[6] * p2 + c[7] * p3)
+            + p2 * (c[8] * p0 + c[9] * p1 + c[10] * p2 + c[11] * p3)
+            + p3 * (c[12] * p0 + c[13] * p1 + c[14] * p2 + c[15] * p3))
+
+
 def _sandwich4(Ji: list, M: list) -> list:
     """Ji M Ji for symmetric 4x4 matrices stored flat (row-major): symmetric result, unrolled."""
     (j00, j01, j02, j03, _, j11, j12, j13, _, _, j22, j23, _, _, _, j33) = Ji
@@ -223,8 +232,10 @@ class ParameterIdentifier:
         """Back to the configured initial values (a new instance, in effect)."""
         self._theta = [float(x) for x in self.theta0]
         self._prior_mean = list(self._theta)   # the prior's centre (the theta setter moves it)
+        self._running_theta = None    # the filter's model before the batch (_running_estimate)
         self._batch_info_inv = None   # (Phi^T Phi + J0)^-1 of the pairs so far, before the batch
-        self._batch_prior = None      # its prior (j0, s2_prior), see _running_estimate
+        self._batch_prior = None      # its prior (j0, s2_prior)
+        self._model_cov = None        # cached covariance of _running_theta
         self._S = None                # R^-1 (flat, row-major) once the batch is done
         self.n = 0                    # samples used
         self.q_e = 0.0                # residual sum of squares (mu = 1/n) [(N/kN)^2]
@@ -342,7 +353,7 @@ class ParameterIdentifier:
             return                           # the recursive step below, compiled
         phi = (traction - brake, -1.0, -speed, -speed * speed)                       # (4)
         y = 1000.0 * (1.0 + self.cfg.gamma) * (speed_next - speed) / (G * (dt or self.cfg.dt)) + grade
-        self._cov = self._sigma2 = None
+        self._cov = self._sigma2 = self._model_cov = None
         if self._S is None:
             self._batch_phi.append(phi)
             self._batch_y.append(y)
@@ -385,10 +396,12 @@ class ParameterIdentifier:
         self.n = n
 
     def _running_estimate(self) -> None:
-        """Before the batch is complete: Theta = the prior-regularised LS of the pairs so far,
-        (Phi^T Phi + J0)^-1 (Phi^T Y + J0 Theta0) -- what the batch solves at N, at every n < N.
-        The paper has no estimate before N; holding the prior instead left the filter predicting
-        with the configured mass (30 t for a 44 t car: 0.04 m/s per step) for the first 5 s."""
+        """Before the batch is complete, the model the *filter* uses (model_theta): the
+        prior-regularised LS of the pairs so far, (Phi^T Phi + J0)^-1 (Phi^T Y + J0 Theta0) --
+        what the batch solves at N, at every n < N. The paper has no estimate before N; the
+        filter used to predict with the configured mass (30 t for a 44 t car: 0.04 m/s per step)
+        for the first 5 s. The outputs (theta, est.*) keep the configured values until the batch,
+        as the FMU interface states."""
         phi = np.array(self._batch_phi)
         n = len(phi)
         # The mass prior's weight: over n pairs the differenced measurement noise telescopes to
@@ -405,7 +418,7 @@ class ParameterIdentifier:
         J0 = np.diag(j0)
         info = phi.T @ phi + J0
         rhs = phi.T @ np.array(self._batch_y) + J0 @ np.array(self._prior_mean)
-        self._theta = [float(x) for x in np.linalg.solve(info, rhs)]
+        self._running_theta = [float(x) for x in np.linalg.solve(info, rhs)]
         self._batch_info_inv = [float(x) for x in np.linalg.inv(info).ravel()]
         self._batch_prior = (j0, s2p)
 
@@ -428,7 +441,7 @@ class ParameterIdentifier:
         resid = y - phi @ theta
         self.q_e = float(resid @ resid)
         self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
-        self._batch_info_inv = None          # W and D already hold the batch (update)
+        self._running_theta = self._batch_info_inv = self._model_cov = None   # W, D hold the batch
         self.c0 = self.q_e / max(n - 4, 1)
         lagged = [resid[k] * resid[k - 1] for k in range(1, n) if self._batch_contiguous[k]]
         self._n_c1 = len(lagged)
@@ -486,27 +499,24 @@ class ParameterIdentifier:
             self._cov = [0.0] * 16
             return self._cov
         j0 = self._j0
-        if self._S is None and self._batch_info_inv is None:   # no data: s2_prior J0^-1
+        if self._S is None:                      # before the batch: the prior, s2_prior J0^-1
             cov = [0.0] * 16
             for i in range(4):
                 cov[5 * i] = self.s2_prior[i] / j0[i]
             self._cov = cov
             return cov
-        if self._S is None:
-            # before the batch: the same sandwich with the noise split the configuration states
-            # (no residual statistics yet) and the running estimate's prior (_running_estimate)
-            a, b = self._configured_noise()
-            Ji = self._batch_info_inv
-            j0, s2 = self._batch_prior
-        else:
-            a, b = self.noise_split()
-            b = self._process_share(a, b)
-            s2 = self.s2_prior
-            if self._J is not None:              # forgetting: J kept explicitly
-                Ji = [float(x) for x in np.linalg.inv(self._J).ravel()]
-            else:                                # mu = 1/n: J = n R, so J^-1 = S / n exactly
-                k = 1.0 / self._n_info()
-                Ji = [x * k for x in self._S]
+        a, b = self.noise_split()
+        b = self._process_share(a, b)
+        if self._J is not None:                  # forgetting: J kept explicitly
+            Ji = [float(x) for x in np.linalg.inv(self._J).ravel()]
+        else:                                    # mu = 1/n: J = n R, so J^-1 = S / n exactly
+            k = 1.0 / self._n_info()
+            Ji = [x * k for x in self._S]
+        self._cov = self._sandwich(Ji, a, b, j0, self.s2_prior)
+        return self._cov
+
+    def _sandwich(self, Ji: list, a: float, b: float, j0: list, s2: list) -> list[float]:
+        """J^-1 M J^-1 with M = a D + b W (+ the open run's end) + diag(s2) J0 (see covariance)."""
         D, W, last = self._D, self._W, self._last_phi
         M = [a * d + b * w for d, w in zip(D, W)]
         if last is not None:                     # the open run's end
@@ -516,8 +526,30 @@ class ParameterIdentifier:
         M[5] += s2[1] * j0[1]
         M[10] += s2[2] * j0[2]
         M[15] += s2[3] * j0[3]
-        self._cov = _sandwich4(Ji, M)
-        return self._cov
+        return _sandwich4(Ji, M)
+
+    def _model_covariance_flat(self) -> list[float]:
+        """Covariance of model_theta: before the batch, the running estimate's sandwich with the
+        noise split the configuration states (no residual statistics yet) and its prior; else
+        the covariance."""
+        if self._running_theta is None or self._S is not None or self.cfg.frozen:
+            return self._covariance_flat()
+        if self._model_cov is None:
+            a, b = self._configured_noise()
+            j0, s2 = self._batch_prior
+            self._model_cov = self._sandwich(self._batch_info_inv, a, b, j0, s2)
+        return self._model_cov
+
+    @property
+    def model_theta(self) -> np.ndarray:
+        """Theta the filter predicts with: theta, or before the batch the running estimate."""
+        if self._running_theta is not None and self._S is None and not self.cfg.frozen:
+            return np.array(self._running_theta)
+        return self.theta
+
+    def model_variance_along(self, phi) -> float:
+        """phi^T cov(model_theta) phi: the filter's model's prediction variance."""
+        return _quadratic4(self._model_covariance_flat(), phi)
 
     def covariance(self) -> np.ndarray:
         """Covariance of Theta-hat [Theta units^2], a sandwich J^-1 M J^-1.
@@ -534,12 +566,7 @@ class ParameterIdentifier:
 
     def variance_along(self, phi) -> float:
         """phi^T cov(Theta) phi for a regressor phi (the model's prediction variance)."""
-        c = self._covariance_flat()
-        p0, p1, p2, p3 = phi
-        return (p0 * (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3)
-                + p1 * (c[4] * p0 + c[5] * p1 + c[6] * p2 + c[7] * p3)
-                + p2 * (c[8] * p0 + c[9] * p1 + c[10] * p2 + c[11] * p3)
-                + p3 * (c[12] * p0 + c[13] * p1 + c[14] * p2 + c[15] * p3))
+        return _quadratic4(self._covariance_flat(), phi)
 
     def stds(self) -> tuple[float, float, float, float]:
         """Standard deviations of Theta-hat's four components."""

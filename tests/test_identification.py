@@ -248,29 +248,39 @@ def test_identifier_coasting_only_estimates_resistance_and_keeps_mass_prior(prio
     assert err_est <= 0.2 * err_prior
 
 
-def test_identifier_before_batch_coasting_keeps_mass_prior_and_learns_resistance():
-    """Before batch_size pairs: Theta is the prior-regularised LS of the pairs so far. Coasting
-    (F = B = 0) says nothing about 1/(Pg): the mass and its std stay exactly the prior's, while
-    the A's move from their prior towards the truth."""
+def _model_mass_and_std(ident) -> tuple[float, float]:
+    """Mass [t] and its std [t] of the filter's model (model_theta), delta method."""
+    th1 = float(ident.model_theta[0])
+    return 1.0 / (G * th1), math.sqrt(ident._model_covariance_flat()[0]) / (G * th1 * th1)
+
+
+def test_identifier_before_batch_reports_prior_and_models_with_the_running_estimate():
+    """Until batch_size pairs have arrived the outputs are the configured prior (the FMU
+    interface: est.* hold the initial values, est.mass_std the prior's), while the filter's model
+    (model_theta) is the prior-regularised LS of the pairs so far. Coasting (F = B = 0) says
+    nothing about 1/(Pg): the model keeps the prior mass and std; its A's move towards the truth."""
     cfg = IdentifierConfig(dt=DT, batch_size=50, mass_initial=28.0, mass_std_initial=6.0)
     ident = ParameterIdentifier(cfg)
     V = _coast(THETA, 15.0, 49)
     for k in range(49):
         ident.update(0.0, 0.0, V[k], V[k + 1], 0.0)
     assert not ident.ready and ident.samples == 49
-    assert ident.mass == pytest.approx(28.0, rel=1e-12)          # rounding only
-    assert ident.mass_std() == pytest.approx(6.0, rel=1e-9)
-    w0 = lambda th, v: th[1] + th[2] * v + th[3] * v * v     # noqa: E731
     prior = theta_from_params(28.0, 1.0, 0.03, 0.01)
+    np.testing.assert_array_equal(ident.theta, prior)
+    assert ident.mass_std() == pytest.approx(6.0, rel=1e-9)   # prior covariance; rounding only
+    mass, std = _model_mass_and_std(ident)
+    assert mass == pytest.approx(28.0, rel=1e-12) and std == pytest.approx(6.0, rel=1e-9)
+    w0 = lambda th, v: th[1] + th[2] * v + th[3] * v * v     # noqa: E731
     # noise-free coast over 15 -> 14 m/s: A0, A1, A2 are nearly collinear there, so the prior keeps
     # a say; w0 at 14 m/s moves from the prior's 0.029 N/kN off to 0.014 (bound: 60 %)
-    assert abs(w0(ident.theta, 14.0) - w0(THETA, 14.0)) < 0.6 * abs(w0(prior, 14.0) - w0(THETA, 14.0))
+    err = abs(w0(ident.model_theta, 14.0) - w0(THETA, 14.0))
+    assert err < 0.6 * abs(w0(prior, 14.0) - w0(THETA, 14.0))
 
 
 def test_running_estimate_before_batch_is_the_prior_regularised_ls():
-    """At every n < N: Theta = (Phi^T Phi + J0_n)^-1 (Phi^T Y + J0_n Theta0), where J0_n is J0
-    with the mass prior's weight (b + 2a/n)/prior variance (a, b: configured measurement and
-    process noise in y units); from the batch on, the batch's own J0 (unchanged)."""
+    """At every n < N: model_theta = (Phi^T Phi + J0_n)^-1 (Phi^T Y + J0_n Theta0), J0_n being
+    J0 with the mass prior's weight (b + 2a/n)/prior variance (a, b: configured measurement and
+    process noise in y units); at N the batch (its own J0, unchanged) takes over."""
     cfg = IdentifierConfig(dt=DT, batch_size=50, speed_std=0.05)
     ident = ParameterIdentifier(cfg)
     rng = np.random.default_rng(21)
@@ -280,18 +290,19 @@ def test_running_estimate_before_batch_is_the_prior_regularised_ls():
     scale2 = (1000.0 / (G * DT)) ** 2
     a, b = scale2 * 0.05 ** 2, scale2 * cfg.sigma2_initial
     prior_var0 = ident.s2_prior[0] / ident.J0[0, 0]
-    for n in range(1, 60):
+    for n in range(1, 51):
         ident.update(F[n - 1], B[n - 1], Vm[n - 1], Vm[n], I[n - 1])
         J0 = ident.J0.copy()
         if n < 50:
             J0[0, 0] = (b + 2.0 * a / n) / prior_var0
         expected = np.linalg.solve(phi[:n].T @ phi[:n] + J0, phi[:n].T @ y[:n] + J0 @ ident.theta0)
-        if n <= 50:
-            np.testing.assert_allclose(ident.theta, expected, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(ident.model_theta, expected, rtol=1e-9, atol=1e-12)
+    assert ident.ready
+    np.testing.assert_array_equal(ident.model_theta, ident.theta)
 
 
 def test_running_estimate_noise_free_traction_learns_mass_from_the_first_pairs():
-    """Noise-free traction pairs: the estimate leaves the 30 t prior (6.25 % off) at once --
+    """Noise-free traction pairs: the filter's model leaves the 30 t prior (6.25 % off) at once --
     after 5 pairs, a tenth of the batch, the mass error is below a quarter of the prior's
     (measured 1.1 %) -- and shrinks as pairs arrive. (What is left is the mass/A0 split at a
     nearly constant force, which only force variation resolves: 31.8 t at the batch.)"""
@@ -300,7 +311,7 @@ def test_running_estimate_noise_free_traction_learns_mass_from_the_first_pairs()
     errors = []
     for k in range(49):
         ident.update(F[k], B[k], V[k], V[k + 1], I[k])
-        errors.append(abs(ident.mass - 32.0) / 32.0)
+        errors.append(abs(_model_mass_and_std(ident)[0] - 32.0) / 32.0)
     assert not ident.ready
     assert errors[4] < 0.25 * (2.0 / 32.0)
     assert errors[48] < errors[4] < errors[0]
@@ -308,8 +319,8 @@ def test_running_estimate_noise_free_traction_learns_mass_from_the_first_pairs()
 
 def test_running_estimate_with_noisy_sensor_stays_physical_and_honest():
     """ETCS-grade speed noise (0.28 m/s), 10 pairs: the mass prior's n-dependent weight keeps
-    1/(Pg) > 0 in every seed (with the batch's weight, a few noisy pairs made it negative), and
-    the reported mass_std is not over-confident: |z| < 2 in at least 90 % of 200 seeds
+    the model's 1/(Pg) > 0 in every seed (with the batch's weight, a few noisy pairs made it
+    negative), and its mass std is not over-confident: |z| < 2 in at least 90 % of 200 seeds
     (measured 99.8 %: conservative while the prior still dominates)."""
     z = []
     for seed in range(200):
@@ -319,8 +330,9 @@ def test_running_estimate_with_noisy_sensor_stays_physical_and_honest():
         ident = ParameterIdentifier(IdentifierConfig(dt=DT, speed_std=0.28))
         for k in range(10):
             ident.update(F[k], B[k], Vm[k], Vm[k + 1], I[k])
-        assert ident.theta[0] > 0.0, f"seed {seed}: 1/(Pg) <= 0"
-        z.append((ident.mass - 32.0) / ident.mass_std())
+        assert ident.model_theta[0] > 0.0, f"seed {seed}: 1/(Pg) <= 0"
+        mass, std = _model_mass_and_std(ident)
+        z.append((mass - 32.0) / std)
     assert np.mean(np.abs(np.array(z)) < 2.0) >= 0.90
 
 
