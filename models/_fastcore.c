@@ -1190,10 +1190,38 @@ done:
     return r;
 }
 
+/* True when a method this step compiles was replaced on the instance (a study recording the
+ * forces by wrapping estimator.propagate, say): the Python step must run to honour it. */
+static const char *const EST_METHODS[] = {"propagate", "measure", "restart_filter", "process_noise",
+                                          "model_theta", "theta", NULL};
+static const char *const IDENT_METHODS[] = {"update", "sigma2", "_covariance_flat", NULL};
+static const char *const FILTER_METHODS[] = {"predict", "update", "restart", NULL};
+static const char *const PLANT_METHODS[] = {"advance", NULL};
+static const char *const CHAIN_METHODS[] = {"_take_sample", "outputs", NULL};
+static PyObject *EST_M[8], *IDENT_M[4], *FILTER_M[4], *PLANT_M[2], *CHAIN_M[3];   /* interned */
+
+static int intern_names(const char *const *names, PyObject **out)
+{
+    for (; *names; names++, out++)
+        if (!(*out = PyUnicode_InternFromString(*names))) return -1;
+    *out = NULL;
+    return 0;
+}
+
+static int overridden(PyObject *obj, PyObject *const *names)
+{
+    PyObject *d = inst_dict(obj, 0);
+    if (!d) return 1;                        /* cannot tell: take the Python step */
+    for (; *names; names++)
+        if (PyDict_GetItemWithError(d, *names) || PyErr_Occurred()) { PyErr_Clear(); return 1; }
+    return 0;
+}
+
 /* chain_step(chain, current_time, step_size, traction_demand, brake_demand, wind, payload) -> bool
  * RailCarChain.do_step for its compiled configuration (checked by the caller: EKF, no track
- * sensors, est.method 0, no forgetting). False, with nothing changed, when an input is bad:
- * the Python method then raises StepRejected with its message. */
+ * sensors, est.method 0, no forgetting). False, with nothing changed, when an input is bad (the
+ * Python method then raises StepRejected with its message) or a compiled method was replaced
+ * on the instance (the Python method then runs the step). */
 static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -1208,6 +1236,11 @@ static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize
     ChainObjs o;
     if (objs_load(args[0], &o)) return NULL;
     PyObject *p = NULL, *result = NULL;
+    if (overridden(o.est, EST_M) || overridden(o.ident, IDENT_M) || overridden(o.filt, FILTER_M)
+        || overridden(o.plant, PLANT_M) || overridden(o.chain, CHAIN_M)) {
+        result = Py_NewRef(Py_False);
+        goto done;
+    }
     double start, base_mass, plant_time, ts;
     long sample_index;
     if (getd(o.chain, A_start_time, &start) || getd(o.chain, A_base_mass, &base_mass)
@@ -1253,12 +1286,17 @@ static const char *OUTPUT_KEYS[] = {
 #define N_OUT ((int)(sizeof OUTPUT_KEYS / sizeof OUTPUT_KEYS[0]))
 static PyObject *OUT_KEY[N_OUT];
 
-/* chain_outputs(chain) -> dict: RailCarChain.outputs() (the caller checks: no refit) */
+/* chain_outputs(chain) -> dict: RailCarChain.outputs() (the caller checks: no refit); None
+ * when an estimator or identifier method was replaced on the instance */
 static PyObject *chain_outputs_body(PyObject *self, PyObject *chain)
 {
     (void)self;
     ChainObjs o;
     if (objs_load(chain, &o)) return NULL;
+    if (overridden(o.est, EST_M) || overridden(o.ident, IDENT_M)) {
+        objs_release(&o);
+        Py_RETURN_NONE;                      /* the Python method computes the outputs */
+    }
     PyObject *vals[N_OUT] = {NULL};
     PyObject *s = NULL, *p = NULL, *thl = NULL, *Sl = NULL, *d = NULL;
     double th[4], cov[16], sigma2, p00, p11, fspeed;
@@ -1389,5 +1427,9 @@ PyMODINIT_FUNC PyInit__fastcore(void)
         OUT_KEY[i] = PyUnicode_InternFromString(OUTPUT_KEYS[i]);
         if (!OUT_KEY[i]) return NULL;
     }
+    if (intern_names(EST_METHODS, EST_M) || intern_names(IDENT_METHODS, IDENT_M)
+        || intern_names(FILTER_METHODS, FILTER_M) || intern_names(PLANT_METHODS, PLANT_M)
+        || intern_names(CHAIN_METHODS, CHAIN_M))
+        return NULL;
     return PyModule_Create(&MODULE);
 }

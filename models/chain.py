@@ -222,7 +222,8 @@ class RailCarChain:
         if (core is not None and self._compiled_step
                 and core.chain_step(self, current_time, step_size, traction_demand, brake_demand,
                                     wind_speed, payload)):
-            return      # this method compiled; False (bad input, nothing changed): raise below
+            return      # compiled; False (bad input, or a method replaced on an instance,
+                        # nothing changed): the Python step below raises or runs
         check_step(current_time, step_size)
         current_time -= self.start_time          # internal time starts at 0
         check_force("traction_force_demand", traction_demand)
@@ -259,7 +260,9 @@ class RailCarChain:
         """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*)."""
         core = _fast.core
         if core is not None and self.estimator.refit is None:
-            return core.chain_outputs(self)       # the same dict, compiled
+            out = core.chain_outputs(self)        # the same dict, compiled
+            if out is not None:
+                return out
         s = self.plant.state
         out = {
             "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,

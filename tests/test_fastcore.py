@@ -172,3 +172,24 @@ def test_built_fmu_bundles_the_compiled_core(built_fmus):
     assert any(n.startswith("resources/models/_fastcore") and n.endswith(".so") for n in names), \
         "RailCar.fmu lacks the compiled core"
     assert "resources/models/_fastcore.c" in names       # the source travels with it
+
+
+def test_method_replaced_on_an_instance_is_honoured():
+    """A study wraps estimator.propagate on the instance to record the forces: the compiled step
+    must then leave the step to Python (same results), or the wrapper would never be called."""
+    from models.chain import ChainConfig
+    from models.track import GradeProfile
+    plain = RailCarChain(ChainConfig(), GradeProfile.level())
+    wrapped = RailCarChain(ChainConfig(), GradeProfile.level())
+    recorded = []
+    propagate = wrapped.estimator.propagate
+
+    def recording(traction, brake, dt):
+        recorded.append((traction, brake))
+        propagate(traction, brake, dt)
+    wrapped.estimator.propagate = recording
+    for k in range(200):
+        for c in (plain, wrapped):
+            c.do_step(k * 0.1, 0.1, 30e3 if k < 120 else 0.0, 0.0, 0.0)
+    assert len(recorded) == 200 and recorded[0][0] > 0.0 and recorded[-1] == (0.0, 0.0)
+    assert _same(plain.outputs(), wrapped.outputs())
