@@ -227,3 +227,26 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
         if k and cols[0][k] <= cols[0][k - 1]:
             raise error(f"{where}: row {k + 1}: time_s must increase")
     return TimeTable(tuple(cols[0]), tuple(cols[1]), tuple(cols[2]))
+
+
+def drive_chain(chain, scenario, max_steps: int | None = None) -> list[dict]:
+    """Run a models chain (``models.chain.RailCarChain``, no FMI) through the scenario's scripted
+    phases, one communication step of ``scenario.step_s`` [s] at a time, as
+    ``harness.runner.FmuRunner.run`` drives the FMU; returns ``chain.outputs()`` at t = 0 and
+    after every step (at most ``max_steps`` steps)."""
+    driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
+                         scenario.parameter("car.traction_force_max"),
+                         scenario.parameter("car.brake_force_max"))
+    h, payload = scenario.step_s, 0.0
+    rows = [chain.outputs()]
+    steps = int(round(scenario.duration_s / h))
+    for k in range(steps if max_steps is None else min(steps, max_steps)):
+        t = k * h
+        s = chain.plant.state
+        traction, brake, dm = driver.demands(t, s.speed, s.position)
+        payload += dm
+        if driver.finished and scenario.stop_after_last_phase:
+            break
+        chain.do_step(t, h, traction, brake, scenario.wind_at(t), payload)
+        rows.append(chain.outputs())
+    return rows

@@ -183,29 +183,21 @@ static int seq_to_doubles(PyObject *seq, double *buf, Py_ssize_t n, const char *
     return 0;
 }
 
-static PyObject *doubles_to_list(const double *buf, Py_ssize_t n)
+/* A new list (or tuple) of n floats */
+static PyObject *doubles_to_seq(const double *buf, Py_ssize_t n, int tuple)
 {
-    PyObject *list = PyList_New(n);
-    if (!list) return NULL;
+    PyObject *seq = tuple ? PyTuple_New(n) : PyList_New(n);
+    if (!seq) return NULL;
     for (Py_ssize_t i = 0; i < n; i++) {
         PyObject *f = PyFloat_FromDouble(buf[i]);
-        if (!f) { Py_DECREF(list); return NULL; }
-        PyList_SET_ITEM(list, i, f);
+        if (!f) { Py_DECREF(seq); return NULL; }
+        if (tuple) PyTuple_SET_ITEM(seq, i, f); else PyList_SET_ITEM(seq, i, f);
     }
-    return list;
+    return seq;
 }
 
-static PyObject *doubles_to_tuple(const double *buf, Py_ssize_t n)
-{
-    PyObject *t = PyTuple_New(n);
-    if (!t) return NULL;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *f = PyFloat_FromDouble(buf[i]);
-        if (!f) { Py_DECREF(t); return NULL; }
-        PyTuple_SET_ITEM(t, i, f);
-    }
-    return t;
-}
+static inline PyObject *doubles_to_list(const double *buf, Py_ssize_t n) { return doubles_to_seq(buf, n, 0); }
+static inline PyObject *doubles_to_tuple(const double *buf, Py_ssize_t n) { return doubles_to_seq(buf, n, 1); }
 
 static int zero_division(void)
 {
@@ -1349,45 +1341,29 @@ done:
 }
 
 
-static PyObject *plant_advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
-{
-    call_enter();
-    PyObject *r = plant_advance_body(self, args, nargs);
-    call_leave();
-    return r;
-}
+/* The exported functions: each body runs between call_enter and call_leave (the dict cache). */
+#define EXPORT_FASTCALL(name)                                                              \
+    static PyObject *name(PyObject *self, PyObject *const *args, Py_ssize_t nargs)         \
+    {                                                                                      \
+        call_enter();                                                                      \
+        PyObject *r = name##_body(self, args, nargs);                                      \
+        call_leave();                                                                      \
+        return r;                                                                          \
+    }
+#define EXPORT_O(name)                                                                     \
+    static PyObject *name(PyObject *self, PyObject *arg)                                   \
+    {                                                                                      \
+        call_enter();                                                                      \
+        PyObject *r = name##_body(self, arg);                                              \
+        call_leave();                                                                      \
+        return r;                                                                          \
+    }
+EXPORT_FASTCALL(plant_advance)
+EXPORT_FASTCALL(ident_update)
+EXPORT_FASTCALL(chain_step)
+EXPORT_O(chain_outputs)
+EXPORT_O(ident_covariance)
 
-static PyObject *ident_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
-{
-    call_enter();
-    PyObject *r = ident_update_body(self, args, nargs);
-    call_leave();
-    return r;
-}
-
-static PyObject *chain_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
-{
-    call_enter();
-    PyObject *r = chain_step_body(self, args, nargs);
-    call_leave();
-    return r;
-}
-
-static PyObject *chain_outputs(PyObject *self, PyObject *chain)
-{
-    call_enter();
-    PyObject *r = chain_outputs_body(self, chain);
-    call_leave();
-    return r;
-}
-
-static PyObject *ident_covariance(PyObject *self, PyObject *id)
-{
-    call_enter();
-    PyObject *r = ident_covariance_body(self, id);
-    call_leave();
-    return r;
-}
 /* ------------------------------------------------------------------ module */
 
 static PyObject *set_constants(PyObject *self, PyObject *g)

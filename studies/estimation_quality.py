@@ -61,7 +61,7 @@ import numpy as np  # noqa: E402
 
 from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
 from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
-from harness.driver import PhaseDriver  # noqa: E402
+from harness.driver import drive_chain  # noqa: E402
 from harness.metrics import coast_segments, coast_time, w0_relative_rms_error  # noqa: E402
 from harness.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
 from models.chain import RailCarChain  # noqa: E402
@@ -132,19 +132,7 @@ def run_scenario(scenario: Scenario, seed: int) -> Run:
 
     est.propagate = recording_propagate
     h = scenario.step_s
-    driver = PhaseDriver(scenario.phases, v["car.mass"], v["car.traction_force_max"],
-                         v["car.brake_force_max"])
-    payload = 0.0
-    rows = [chain.outputs()]
-    for k in range(int(round(scenario.duration_s / h))):
-        t = k * h
-        s = chain.plant.state
-        traction, brake, dm = driver.demands(t, s.speed, s.position)
-        payload += dm
-        if driver.finished and scenario.stop_after_last_phase:
-            break
-        chain.do_step(t, h, traction, brake, scenario.wind_at(t), payload)
-        rows.append(chain.outputs())
+    rows = drive_chain(chain, scenario)
     sig = {name: np.array([r[name] for r in rows]) for name in SIGNALS}
     return Run(scenario, seed, np.arange(len(rows)) * h, sig, np.array(forces).reshape(-1, 2),
                grade, est.ident.theta.copy(), est.ident.covariance().copy())

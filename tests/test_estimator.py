@@ -135,6 +135,21 @@ def test_station_config_rejects_bad_dwell(dwell):
         StationDetector(StationConfig(dwell=dwell), 0.05, 1.0)
 
 
+def _drive_to_a_stop(est, rng, n_accel: int, n_brake: int) -> float:
+    """Accelerate at 0.5 m/s^2 under 15 kN for n_accel samples, then brake at 0.5 m/s^2 under
+    15 kN for n_brake samples (to rest), measuring with 0.05 m/s and 1 m noise; returns the
+    true distance [m]."""
+    v, x = 0.0, 0.0
+    for k in range(n_accel + n_brake):
+        a = 0.5 if k < n_accel else -0.5
+        v_next = max(v + a * DT, 0.0)
+        x += 0.5 * (v + v_next) * DT
+        v = v_next
+        est.measure(v + 0.05 * rng.standard_normal(), x + rng.standard_normal())
+        est.propagate(15e3 if k < n_accel else 0.0, 0.0 if k < n_accel else 15e3, DT)
+    return x
+
+
 def test_online_estimator_station_stop_restarts_filter_and_mass():
     """Driving off, stopping at the next station and standing the dwell with the distance
     restarted: one station stop is counted, the identifier's mass is reopened and the filter
@@ -143,14 +158,7 @@ def test_online_estimator_station_stop_restarts_filter_and_mass():
     est = OnlineEstimator(id_cfg, FilterConfig(dt=DT, speed_std=0.05, position_std=1.0),
                           StationConfig(dwell=DWELL), GradeProfile.level(), None)
     rng = np.random.default_rng(6)
-    v, x = 0.0, 0.0
-    for k in range(600):                         # 30 s accelerating, 30 s braking, 2 s crawl
-        a = 0.5 if k < 300 else -0.5
-        v_next = max(v + a * DT, 0.0)
-        x += 0.5 * (v + v_next) * DT
-        v = v_next
-        est.measure(v + 0.05 * rng.standard_normal(), x + rng.standard_normal())
-        est.propagate(15e3 if k < 300 else 0.0, 0.0 if k < 300 else 15e3, DT)
+    _drive_to_a_stop(est, rng, 300, 300)         # 30 s accelerating, 30 s braking, 2 s crawl
     assert est.ident.ready and est.station_stops == 0
     std_learnt = est.ident.mass_std()
     assert std_learnt < 0.2 * id_cfg.mass_std_initial   # 30 s of traction did teach the mass
@@ -186,14 +194,7 @@ def test_station_stop_confirmed_after_departure_restarts_at_the_previous_sample(
     est = OnlineEstimator(id_cfg, FilterConfig(dt=DT, speed_std=0.05, position_std=1.0),
                           StationConfig(dwell=DWELL), GradeProfile.level(), None)
     rng = np.random.default_rng(8)
-    v, x = 0.0, 0.0
-    for k in range(500):                         # 25 s accelerating, 25 s braking to a stop
-        a = 0.5 if k < 250 else -0.5
-        v_next = max(v + a * DT, 0.0)
-        x += 0.5 * (v + v_next) * DT
-        v = v_next
-        est.measure(v + 0.05 * rng.standard_normal(), x + rng.standard_normal())
-        est.propagate(15e3 if k < 250 else 0.0, 0.0 if k < 250 else 15e3, DT)
+    x = _drive_to_a_stop(est, rng, 250, 250)     # 25 s accelerating, 25 s braking to a stop
     n_dwell = round(DWELL / DT) + 5
     for i in range(n_dwell):                     # the dwell; the distance still reads x
         est.measure(0.05 * rng.standard_normal(), x + rng.standard_normal())

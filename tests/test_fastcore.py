@@ -18,7 +18,7 @@ import pytest
 
 from fmu_src.adapter import chain_config, load_profiles
 from fmu_src.variables import RAILCAR, variables_for
-from harness.driver import PhaseDriver
+from harness.driver import drive_chain
 from harness.scenario import load_scenario
 from models import _fast
 from models.chain import RailCarChain, StepRejected
@@ -43,18 +43,7 @@ def _run(path: Path, core, overrides: dict, max_steps: int | None = None):
         sc = replace(sc, parameters={**sc.parameters, **overrides})
         v = {n: sc.parameter(n) for n in PARAMETERS}
         chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)))
-        drv = PhaseDriver(sc.phases, v["car.mass"], v["car.traction_force_max"], v["car.brake_force_max"])
-        h, payload, rows = sc.step_s, 0.0, [chain.outputs()]
-        steps = int(round(sc.duration_s / h))
-        for k in range(steps if max_steps is None else min(steps, max_steps)):
-            t = k * h
-            s = chain.plant.state
-            f, b, dm = drv.demands(t, s.speed, s.position)
-            payload += dm
-            if drv.finished and sc.stop_after_last_phase:
-                break
-            chain.do_step(t, h, f, b, sc.wind_at(t), payload)
-            rows.append(chain.outputs())
+        rows = drive_chain(chain, sc, max_steps)
         return rows, _internal_state(chain)
     finally:
         _fast.core = CORE
