@@ -230,7 +230,9 @@ def main() -> None:
     if _fast.core is None:
         print("  (models/_fastcore.c is not compiled: the compiled rows above ran in Python)")
     else:
-        print(f"  compiled / pure-Python models chain: {compiled / python:.1f}x")
+        done, declined = _fast.core.step_counts()
+        print(f"  compiled / pure-Python models chain: {compiled / python:.1f}x "
+              f"({done:,} steps compiled, {declined:,} left to Python)")
     ratio = floor_rate / railcar_fmpy
     print(f"  RailCar time per step / floor's: {ratio:.2f}x  (target <= 2x: {'met' if ratio <= 2 else 'MISSED'})")
 

@@ -24,6 +24,7 @@
 #endif
 
 static double G_ACC = 9.81;   /* set from models.units.G by set_constants() */
+static unsigned long long steps_compiled = 0, steps_declined = 0;   /* chain_step's answers */
 
 /* CPython's x ** 2 calls libm's pow(), which is not always x * x (last bit, ~0.1 % of values);
  * GCC folds pow(x, 2.0) into x * x, so it is called through a pointer it cannot see through. */
@@ -93,13 +94,17 @@ static PyObject *inst_dict(PyObject *o, int for_write)
     int k = dslot(o);
     if (dcache[k].obj == o) return (for_write && !dcache[k].writable) ? NULL : dcache[k].dict;
     PyTypeObject *tp = Py_TYPE(o);
-    if (dcache[k].obj != NULL || tp->tp_getattro != PyObject_GenericGetAttr) return NULL;
+    if (tp->tp_getattro != PyObject_GenericGetAttr) return NULL;
+    int writable = tp->tp_setattro == PyObject_GenericSetAttr;   /* not frozen dataclasses */
     PyObject **dp = _PyObject_GetDictPtr(o);
     if (!dp || !*dp || !PyDict_CheckExact(*dp)) { PyErr_Clear(); return NULL; }
-    dcache[k].obj = Py_NewRef(o);
-    dcache[k].dict = Py_NewRef(*dp);
-    dcache[k].writable = tp->tp_setattro == PyObject_GenericSetAttr;   /* not frozen dataclasses */
-    return (for_write && !dcache[k].writable) ? NULL : dcache[k].dict;
+    if (dcache[k].obj == NULL) {            /* a free slot: cache it; taken: just use it */
+        dcache[k].obj = Py_NewRef(o);
+        dcache[k].dict = Py_NewRef(*dp);
+        dcache[k].writable = writable;
+    }
+    /* borrowed: every object passed here is held by the caller for the whole call */
+    return (for_write && !writable) ? NULL : *dp;
 }
 
 static void call_enter(void) { call_depth++; }
@@ -118,6 +123,8 @@ static PyObject *ga(PyObject *o, int a)       /* new reference */
         PyObject *v = PyDict_GetItemWithError(d, ATTR[a]);
         if (v) return Py_NewRef(v);
         if (PyErr_Occurred()) return NULL;
+        v = _PyType_Lookup(Py_TYPE(o), ATTR[a]);       /* a class attribute such as LAG */
+        if (v && Py_TYPE(v)->tp_descr_get == NULL) return Py_NewRef(v);
     }
     return PyObject_GetAttr(o, ATTR[a]);
 }
@@ -253,7 +260,28 @@ static inline double grade_average(const Grade *g, double x, double length)
     return (grade_integral(g, x) - grade_integral(g, x - length)) / length;
 }
 
+/* GradeProfile is a frozen dataclass (its tuples are set once, in __init__): the last one
+ * loaded is kept, with a reference, and reused while the same object comes back. */
+static PyObject *grade_cache_obj = NULL;
+static Grade grade_cache = {NULL, NULL, NULL, 0};
+
+static int grade_load_uncached(PyObject *profile, Grade *g);
+
 static int grade_load(PyObject *profile, Grade *g)
+{
+    if (profile != grade_cache_obj) {
+        Grade fresh;
+        if (grade_load_uncached(profile, &fresh)) return -1;
+        Py_XDECREF(grade_cache.distances); Py_XDECREF(grade_cache.grades); Py_XDECREF(grade_cache.cum);
+        Py_XSETREF(grade_cache_obj, Py_NewRef(profile));
+        grade_cache = fresh;
+    }
+    *g = grade_cache;
+    Py_INCREF(g->distances); Py_INCREF(g->grades); Py_INCREF(g->cum);
+    return 0;
+}
+
+static int grade_load_uncached(PyObject *profile, Grade *g)
 {
     g->distances = ga(profile, A_distances);
     g->grades = ga(profile, A_grades);
@@ -526,14 +554,46 @@ static int list16_read(PyObject *list, double *buf)
     return 0;
 }
 
+/* No allocation per sample where nobody can tell: a float referenced by its list alone is
+ * overwritten in place (no one else holds it, so no one sees it change), any other item is
+ * replaced by a new float. Boxing ~65 floats per sample into the identifier's lists was a tenth
+ * of the compiled step. */
+static int list_store(PyObject *list, Py_ssize_t i, double v)
+{
+    PyObject *old = PyList_GET_ITEM(list, i);
+    if (old && PyFloat_CheckExact(old) && Py_REFCNT(old) == 1) {
+        ((PyFloatObject *)old)->ob_fval = v;
+        return 0;
+    }
+    PyObject *f = PyFloat_FromDouble(v);
+    if (!f) return -1;
+    return PyList_SetItem(list, i, f);               /* steals f */
+}
+
 static int list16_write(PyObject *list, const double *buf)
 {
-    for (int i = 0; i < 16; i++) {
-        PyObject *f = PyFloat_FromDouble(buf[i]);
-        if (!f) return -1;
-        if (PyList_SetItem(list, i, f)) return -1;   /* steals f */
-    }
+    for (int i = 0; i < 16; i++)
+        if (list_store(list, i, buf[i])) return -1;
     return 0;
+}
+
+/* Set attribute a of o to a list of the n doubles: the list already there, written in place,
+ * when o's __dict__ and our `held` references are its only holders (the Python code would have
+ * bound a new list; with no other holder nobody can tell), else a new list. */
+static int set_list_attr(PyObject *o, int a, PyObject *current, Py_ssize_t held, const double *buf,
+                         Py_ssize_t n)
+{
+    if (current && PyList_CheckExact(current) && PyList_GET_SIZE(current) == n
+        && Py_REFCNT(current) == 1 + held) {
+        for (Py_ssize_t i = 0; i < n; i++)
+            if (list_store(current, i, buf[i])) return -1;
+        return 0;
+    }
+    PyObject *fresh = doubles_to_list(buf, n);
+    if (!fresh) return -1;
+    int r = sa(o, a, fresh);
+    Py_DECREF(fresh);
+    return r;
 }
 
 /* ident_update(ident, traction, brake, speed, speed_next, grade, dt, contiguous) -> bool
@@ -726,18 +786,17 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     if (bad || configured_b(id, cfg, &b_conf) || cov_compute(S_new, W, D, phi, &rs, j0, s2p, cov)
         || sigma2_compute(&rs, cfg_dt, gamma, b_conf, &sigma2))
         goto done;
-    PyObject *new_cov = doubles_to_list(cov, 16);
-    if (!new_cov) goto done;
-    bad = sa(id, A_cov, new_cov);
-    Py_DECREF(new_cov);
+    PyObject *cur_cov = ga(id, A_cov);               /* None here (cleared), or a stale list */
+    if (!cur_cov) goto done;
+    bad = set_list_attr(id, A_cov, cur_cov, 1, cov, 16);
+    Py_DECREF(cur_cov);
     if (bad || setd(id, A_sigma2, sigma2)) goto done;
-    PyObject *new_theta = doubles_to_list(th_new, 4);
-    PyObject *new_S = new_theta ? doubles_to_list(S_new, 16) : NULL;
-    PyObject *new_last = new_S ? doubles_to_tuple(phi, 4) : NULL;
-    if (!new_last) { Py_XDECREF(new_theta); Py_XDECREF(new_S); goto done; }
-    bad = sa(id, A_theta, new_theta) || sa(id, A_S, new_S) || sa(id, A_last_phi, new_last);
-    Py_DECREF(new_theta); Py_DECREF(new_S); Py_DECREF(new_last);
-    if (bad || list16_write(Wl, W) || list16_write(Dl, D)
+    PyObject *new_last = doubles_to_tuple(phi, 4);
+    if (!new_last) goto done;
+    bad = sa(id, A_last_phi, new_last);
+    Py_DECREF(new_last);
+    if (bad || set_list_attr(id, A_theta, thl, 1, th_new, 4) || set_list_attr(id, A_S, Sl, 1, S_new, 16)
+        || list16_write(Wl, W) || list16_write(Dl, D)
         || setd(id, A_window_sum, window_sum) || setl(id, A_n_cL, n_cL)
         || (have_cL && setd(id, A_cL, cL)) || setd(id, A_c0, c0) || setl(id, A_n_c1, n_c1)
         || setd(id, A_c1, c1) || setd(id, A_last_err, err) || setd(id, A_q_e, q_e)
@@ -829,6 +888,29 @@ static int getb(PyObject *o, int a, int *out)
 static int setb(PyObject *o, int a, int x)
 {
     return sa(o, a, x ? Py_True : Py_False);
+}
+
+/* The diagonal of ParameterIdentifier._covariance_flat() into out[4] */
+static int ident_cov_diag(PyObject *id, double *out)
+{
+    PyObject *c = ident_covariance_body(NULL, id);
+    if (!c) return -1;
+    if (c == Py_None) {
+        Py_DECREF(c);
+        c = PyObject_CallMethodNoArgs(id, ATTR[A_m_covariance_flat]);
+        if (!c) return -1;
+    }
+    int r = 0;
+    if (!PyList_CheckExact(c) || PyList_GET_SIZE(c) != 16) {
+        PyErr_SetString(PyExc_TypeError, "_cov: expected a flat list of 16 floats");
+        r = -1;
+    }
+    for (int i = 0; r == 0 && i < 4; i++) {
+        out[i] = PyFloat_AsDouble(PyList_GET_ITEM(c, 5 * i));
+        if (out[i] == -1.0 && PyErr_Occurred()) r = -1;
+    }
+    Py_DECREF(c);
+    return r;
 }
 
 /* ParameterIdentifier._covariance_flat() into out: compiled, or the Python method's list */
@@ -1184,13 +1266,13 @@ done:
 
 /* True when a method this step compiles was replaced on the instance (a study recording the
  * forces by wrapping estimator.propagate, say): the Python step must run to honour it. */
-static const char *const EST_METHODS[] = {"propagate", "measure", "restart_filter", "process_noise",
-                                          "model_theta", "theta", NULL};
-static const char *const IDENT_METHODS[] = {"update", "sigma2", "_covariance_flat", NULL};
-static const char *const FILTER_METHODS[] = {"predict", "update", "restart", NULL};
+static const char *const EST_METHODS[] = {"propagate", "measure", "restart_filter", NULL};
+static const char *const IDENT_METHODS[] = {"update", NULL};
+static const char *const FILTER_METHODS[] = {"predict", "update", NULL};
 static const char *const PLANT_METHODS[] = {"advance", NULL};
-static const char *const CHAIN_METHODS[] = {"_take_sample", "outputs", NULL};
-static PyObject *EST_M[8], *IDENT_M[4], *FILTER_M[4], *PLANT_M[2], *CHAIN_M[3];   /* interned */
+static const char *const CHAIN_METHODS[] = {"_take_sample", NULL};
+static const char *const OUT_METHODS[] = {"outputs", NULL};     /* of the estimator */
+static PyObject *EST_M[4], *IDENT_M[2], *FILTER_M[3], *PLANT_M[2], *CHAIN_M[2], *OUT_M[2];
 
 static int intern_names(const char *const *names, PyObject **out)
 {
@@ -1223,13 +1305,16 @@ static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize
     double wind = PyFloat_AsDouble(args[5]), payload = PyFloat_AsDouble(args[6]);
     if (PyErr_Occurred()) return NULL;
     if (!(isfinite(step) && step > 0.0) || !isfinite(ct) || !isfinite(td) || td < 0.0
-        || !isfinite(bd) || bd < 0.0 || !isfinite(wind) || !isfinite(payload))
+        || !isfinite(bd) || bd < 0.0 || !isfinite(wind) || !isfinite(payload)) {
+        steps_declined++;
         Py_RETURN_FALSE;
+    }
     ChainObjs o;
     if (objs_load(args[0], &o)) return NULL;
     PyObject *p = NULL, *result = NULL;
     if (overridden(o.est, EST_M) || overridden(o.ident, IDENT_M) || overridden(o.filt, FILTER_M)
         || overridden(o.plant, PLANT_M) || overridden(o.chain, CHAIN_M)) {
+        steps_declined++;
         result = Py_NewRef(Py_False);
         goto done;
     }
@@ -1243,7 +1328,11 @@ static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize
     double mass = base_mass + payload;
     double t_end = ct + step;
     double eps = 1e-9 * py_max(1.0, fabs(t_end));
-    if (mass <= 0.0 || fabs(ct - plant_time) > eps) { result = Py_NewRef(Py_False); goto done; }
+    if (mass <= 0.0 || fabs(ct - plant_time) > eps) {
+        steps_declined++;
+        result = Py_NewRef(Py_False);
+        goto done;
+    }
     if (!(p = ga(o.plant, A_p)) || setd(p, A_mass, mass)) goto done;
     for (;;) {
         double t_sample = (double)(sample_index + 1) * ts;
@@ -1260,6 +1349,7 @@ static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize
         sample_index += 1;
         if (setl(o.chain, A_sample_index, sample_index) || take_sample(&o)) goto done;
     }
+    steps_compiled++;
     result = Py_NewRef(Py_True);
 done:
     Py_XDECREF(p);
@@ -1285,18 +1375,18 @@ static PyObject *chain_outputs_body(PyObject *self, PyObject *chain)
     (void)self;
     ChainObjs o;
     if (objs_load(chain, &o)) return NULL;
-    if (overridden(o.est, EST_M) || overridden(o.ident, IDENT_M)) {
+    if (overridden(o.est, OUT_M)) {
         objs_release(&o);
         Py_RETURN_NONE;                      /* the Python method computes the outputs */
     }
     PyObject *vals[N_OUT] = {NULL};
     PyObject *s = NULL, *p = NULL, *thl = NULL, *Sl = NULL, *d = NULL;
-    double th[4], cov[16], sigma2, p00, p11, fspeed;
+    double th[4], cov[4], sigma2, p00, p11, fspeed;      /* cov: the diagonal */
     s = ga(o.plant, A_state);
     p = s ? ga(o.plant, A_p) : NULL;
     thl = p ? ga(o.ident, A_theta) : NULL;
     Sl = thl ? ga(o.ident, A_S) : NULL;
-    if (!Sl || seq_to_doubles(thl, th, 4, "_theta") || ident_cov(o.ident, cov)
+    if (!Sl || seq_to_doubles(thl, th, 4, "_theta") || ident_cov_diag(o.ident, cov)
         || ident_sigma2(o.ident, &sigma2) || filter_speed(o.filt, &fspeed)
         || getd(o.filt, A_p00, &p00) || getd(o.filt, A_p11, &p11))
         goto done;
@@ -1315,7 +1405,7 @@ static PyObject *chain_outputs_body(PyObject *self, PyObject *chain)
     if (den == 0.0) { zero_division(); goto done; }
     double mass_std = sqrt(py_max(cov[0], 0.0)) / den;
     double sd[4];
-    for (int i = 0; i < 4; i++) sd[i] = cov[5 * i] > 0.0 ? sqrt(cov[5 * i]) : 0.0;
+    for (int i = 0; i < 4; i++) sd[i] = cov[i] > 0.0 ? sqrt(cov[i]) : 0.0;
     double est[9] = {mass, mass_std, th[1], th[2], th[3], sd[1], sd[2], sd[3], sigma2};
     for (int i = 0; i < 9; i++)
         if (!(vals[12 + i] = PyFloat_FromDouble(est[i]))) goto done;
@@ -1375,7 +1465,15 @@ static PyObject *set_constants(PyObject *self, PyObject *g)
     Py_RETURN_NONE;
 }
 
+static PyObject *step_counts(PyObject *self, PyObject *unused)
+{
+    (void)self; (void)unused;
+    return Py_BuildValue("(KK)", steps_compiled, steps_declined);
+}
+
 static PyMethodDef METHODS[] = {
+    {"step_counts", (PyCFunction)step_counts, METH_NOARGS,
+     "step_counts() -> (compiled, declined): chain_step calls since import"},
     {"set_constants", (PyCFunction)set_constants, METH_O, "set_constants(G): gravity [m/s^2]"},
     {"plant_advance", (PyCFunction)(void (*)(void))plant_advance, METH_FASTCALL,
      "plant_advance(plant, t_end, traction_demand, brake_demand, wind): CarPlant.advance"},
@@ -1405,7 +1503,7 @@ PyMODINIT_FUNC PyInit__fastcore(void)
     }
     if (intern_names(EST_METHODS, EST_M) || intern_names(IDENT_METHODS, IDENT_M)
         || intern_names(FILTER_METHODS, FILTER_M) || intern_names(PLANT_METHODS, PLANT_M)
-        || intern_names(CHAIN_METHODS, CHAIN_M))
+        || intern_names(CHAIN_METHODS, CHAIN_M) || intern_names(OUT_METHODS, OUT_M))
         return NULL;
     return PyModule_Create(&MODULE);
 }

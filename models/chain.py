@@ -160,9 +160,13 @@ class RailCarChain:
         self.sensor_speed = 0.0
         self.sensor_position = 0.0
         self._take_sample()
-        # the configuration whose whole do_step models/_fastcore.c compiles (the FMU's default)
-        self._compiled_step = (self.estimator.filter.kind == EKF and not cfg.track.spacing
-                               and self.estimator.refit is None and cfg.identifier.forgetting == 0.0)
+        # models/_fastcore.c's do_step and outputs, bound now: the whole step for the FMU's
+        # default configuration (EKF, no track sensors, est.method 0, no forgetting)
+        core = _fast.core
+        compiled = (self.estimator.filter.kind == EKF and not cfg.track.spacing
+                    and self.estimator.refit is None and cfg.identifier.forgetting == 0.0)
+        self._core_step = core.chain_step if core is not None and compiled else None
+        self._core_outputs = core.chain_outputs if core is not None and self.estimator.refit is None else None
 
     def _take_sample(self) -> None:
         s = self.plant.state
@@ -218,10 +222,9 @@ class RailCarChain:
 
         Raises StepRejected (naming the variable) before changing anything on bad input.
         """
-        core = _fast.core
-        if (core is not None and self._compiled_step
-                and core.chain_step(self, current_time, step_size, traction_demand, brake_demand,
-                                    wind_speed, payload)):
+        step = self._core_step
+        if step is not None and step(self, current_time, step_size, traction_demand, brake_demand,
+                                     wind_speed, payload):
             return      # compiled; False (bad input, or a method replaced on an instance,
                         # nothing changed): the Python step below raises or runs
         check_step(current_time, step_size)
@@ -258,9 +261,8 @@ class RailCarChain:
 
     def outputs(self) -> dict[str, float]:
         """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*)."""
-        core = _fast.core
-        if core is not None and self.estimator.refit is None:
-            out = core.chain_outputs(self)        # the same dict, compiled
+        if self._core_outputs is not None:
+            out = self._core_outputs(self)        # the same dict, compiled
             if out is not None:
                 return out
         s = self.plant.state

@@ -182,3 +182,36 @@ def test_method_replaced_on_an_instance_is_honoured():
             c.do_step(k * 0.1, 0.1, 30e3 if k < 120 else 0.0, 0.0, 0.0)
     assert len(recorded) == 200 and recorded[0][0] > 0.0 and recorded[-1] == (0.0, 0.0)
     assert _same(plain.outputs(), wrapped.outputs())
+
+
+def test_the_compiled_step_runs_for_the_default_configuration():
+    """Bit-identity cannot tell whether the compiled step ran at all (the Python step gives the
+    same numbers): a dict-cache collision once made it decline silently. 3000 steps of the
+    default chain (several chains alive, so addresses vary) must all be compiled."""
+    from models.chain import ChainConfig
+    from models.track import GradeProfile
+    chains = [RailCarChain(ChainConfig(seed=s), GradeProfile((0.0, 300.0), (0.0, 10.0))) for s in range(3)]
+    before = CORE.step_counts()
+    for k in range(1000):
+        for c in chains:
+            c.do_step(k * 0.1, 0.1, 30e3 if k < 300 else 0.0, 20e3 if 700 < k < 900 else 0.0, 0.0)
+            c.outputs()
+    compiled, declined = (a - b for a, b in zip(CORE.step_counts(), before))
+    assert (compiled, declined) == (3000, 0)
+
+
+def test_in_place_writes_never_change_what_someone_else_holds():
+    """The compiled update overwrites the identifier's lists and their floats in place only when
+    nothing else references them: a list or a float held by the caller keeps its value (the
+    identifier gets new objects instead), exactly as with the Python code's new lists."""
+    from models.chain import ChainConfig
+    from models.track import GradeProfile
+    chain = RailCarChain(ChainConfig(), GradeProfile.level())
+    for k in range(100):
+        chain.do_step(k * 0.1, 0.1, 30e3, 0.0, 0.0)
+    ident = chain.estimator.ident
+    held_S, held_W0, held_cov = ident._S, ident._W[0], ident._covariance_flat()
+    values = (list(held_S), float(held_W0), list(held_cov))
+    chain.do_step(10.0, 0.1, 30e3, 0.0, 0.0)
+    assert (list(held_S), float(held_W0), list(held_cov)) == values
+    assert ident._S is not held_S and ident._S != values[0] and ident._W[0] != values[1]
