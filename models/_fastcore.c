@@ -659,12 +659,50 @@ static int configured_b(PyObject *id, PyObject *cfg, double *out)
     return 0;
 }
 
+/* What the identifier's covariance is computed from (ParameterIdentifier._covariance_flat), read
+ * once: S, W, D (the lists kept for writing back), the open run's last regressor, the residual
+ * statistics and the prior. */
+typedef struct {
+    PyObject *Wl, *Dl, *last, *cLo;              /* new references */
+    double S[16], W[16], D[16], lp[4], j0[4], s2p[4];
+    Resid r;
+} Sandwich;
+
+static void sandwich_release(Sandwich *st)
+{
+    Py_XDECREF(st->Wl); Py_XDECREF(st->Dl); Py_XDECREF(st->last); Py_XDECREF(st->cLo);
+}
+
+/* Sl: the identifier's _S (a list, borrowed). -1 with an exception (st released) */
+static int sandwich_load(PyObject *id, PyObject *Sl, Sandwich *st)
+{
+    st->Wl = ga(id, A_W);
+    st->Dl = st->Wl ? ga(id, A_D) : NULL;
+    st->last = st->Dl ? ga(id, A_last_phi) : NULL;
+    st->cLo = st->last ? ga(id, A_cL) : NULL;
+    PyObject *j0l = st->cLo ? ga(id, A_j0) : NULL;
+    PyObject *s2l = j0l ? ga(id, A_s2_prior) : NULL;
+    int bad = !s2l || list16_read(Sl, st->S) || list16_read(st->Wl, st->W) || list16_read(st->Dl, st->D)
+              || (st->last != Py_None && seq_to_doubles(st->last, st->lp, 4, "_last_phi"))
+              || seq_to_doubles(j0l, st->j0, 4, "_j0") || seq_to_doubles(s2l, st->s2p, 4, "s2_prior")
+              || getd(id, A_c0, &st->r.c0) || getd(id, A_c1, &st->r.c1) || getl(id, A_LAG, &st->r.lag)
+              || getl(id, A_n_cL, &st->r.n_cL) || getl(id, A_n, &st->r.n);
+    Py_XDECREF(j0l); Py_XDECREF(s2l);
+    if (!bad) {
+        st->r.have_cL = st->cLo != Py_None;
+        st->r.cL = st->r.have_cL ? PyFloat_AsDouble(st->cLo) : 0.0;
+        bad = st->r.cL == -1.0 && PyErr_Occurred();
+    }
+    if (bad) { sandwich_release(st); memset(st, 0, sizeof *st); return -1; }
+    return 0;
+}
+
 /* 1 done, 0 not this case (nothing touched), -1 error; dt 0 means cfg.dt */
 static int ident_update_impl(PyObject *id, double traction, double brake, double speed,
                              double speed_next, double grade, double dt, int contiguous)
 {
-    PyObject *cfg = NULL, *Sl = NULL, *thl = NULL, *Wl = NULL, *Dl = NULL, *last = NULL;
-    PyObject *win = NULL, *cLo = NULL, *lasterr = NULL, *frozen = NULL;
+    PyObject *cfg = NULL, *Sl = NULL, *thl = NULL, *win = NULL, *lasterr = NULL, *frozen = NULL;
+    Sandwich st = {0};
     int result = -1;
     double forgetting, gamma, cfg_dt;
     cfg = ga(id, A_cfg);
@@ -679,36 +717,29 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
         result = 0;
         goto done;
     }
-    if (getd(cfg, A_gamma, &gamma) || getd(cfg, A_dt, &cfg_dt)) goto done;
-    double S[16], W[16], D[16], th[4], lp[4];
-    long n0, lag, n_cL, n_c1;
-    double window_sum, c0, c1, q_e, s2_ref, cL = 0.0, last_err = 0.0;
+    if (getd(cfg, A_gamma, &gamma) || getd(cfg, A_dt, &cfg_dt) || sandwich_load(id, Sl, &st)) goto done;
+    double *S = st.S, *W = st.W, *D = st.D, *lp = st.lp, th[4];
+    int has_last = st.last != Py_None;
+    long n_c1;
+    double window_sum, q_e, s2_ref, last_err = 0.0;
     thl = ga(id, A_theta);
-    Wl = thl ? ga(id, A_W) : NULL;
-    Dl = Wl ? ga(id, A_D) : NULL;
-    last = Dl ? ga(id, A_last_phi) : NULL;
-    win = last ? ga(id, A_window) : NULL;
-    cLo = win ? ga(id, A_cL) : NULL;
-    lasterr = cLo ? ga(id, A_last_err) : NULL;
+    win = thl ? ga(id, A_window) : NULL;
+    lasterr = win ? ga(id, A_last_err) : NULL;
     if (!lasterr) goto done;
     if (!PyList_CheckExact(win)) { PyErr_SetString(PyExc_TypeError, "_window must be a list"); goto done; }
-    if (list16_read(Sl, S) || list16_read(Wl, W) || list16_read(Dl, D)
-        || seq_to_doubles(thl, th, 4, "_theta")
-        || (last != Py_None && seq_to_doubles(last, lp, 4, "_last_phi"))
-        || getl(id, A_n, &n0) || getl(id, A_LAG, &lag) || getl(id, A_n_cL, &n_cL)
-        || getl(id, A_n_c1, &n_c1) || getd(id, A_window_sum, &window_sum)
-        || getd(id, A_c0, &c0) || getd(id, A_c1, &c1) || getd(id, A_q_e, &q_e)
-        || getd(id, A_s2_ref, &s2_ref))
+    if (seq_to_doubles(thl, th, 4, "_theta") || getl(id, A_n_c1, &n_c1)
+        || getd(id, A_window_sum, &window_sum) || getd(id, A_q_e, &q_e) || getd(id, A_s2_ref, &s2_ref))
         goto done;
-    if (cLo != Py_None && (cL = PyFloat_AsDouble(cLo)) == -1.0 && PyErr_Occurred()) goto done;
     if (lasterr != Py_None && (last_err = PyFloat_AsDouble(lasterr)) == -1.0 && PyErr_Occurred()) goto done;
+    long lag = st.r.lag, n_cL = st.r.n_cL;
+    double c0 = st.r.c0, c1 = st.r.c1, cL = st.r.cL;
 
     int bad;
     double phi[4] = {traction - brake, -1.0, -speed, -speed * speed};          /* (4) */
     double dtu = dt != 0.0 ? dt : cfg_dt;                                       /* dt or cfg.dt */
     if (G_ACC * dtu == 0.0) { zero_division(); goto done; }
     double y = 1000.0 * (1.0 + gamma) * (speed_next - speed) / (G_ACC * dtu) + grade;
-    long n = n0 + 1;
+    long n = st.r.n + 1;
     double mu = 1.0 / (double)n;
     double p0 = phi[0], p1 = phi[1], p2 = phi[2], p3 = phi[3];
     double Sp[4] = {S[0] * p0 + S[1] * p1 + S[2] * p2 + S[3] * p3,
@@ -731,11 +762,11 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
             S_new[4 * i + j] = (S[4 * i + j] - Sp[i] * Sp[j] * c) * inv;
     double gain_den = 1.0 + mu / (1.0 - mu) * pSp;
     /* _accumulate(phi, contiguous, 1.0): lam = 1, no decay */
-    if (contiguous && last != Py_None) {
+    if (contiguous && has_last) {
         double dphi[4] = {phi[0] - lp[0], phi[1] - lp[1], phi[2] - lp[2], phi[3] - lp[3]};
         add_outer(D, dphi);
     } else {
-        if (last != Py_None) add_outer(D, lp);
+        if (has_last) add_outer(D, lp);
         add_outer(D, phi);
     }
     add_outer(W, phi);
@@ -759,7 +790,7 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
         if (PyList_SetSlice(win, 0, 1, NULL)) goto done;
         window_sum -= first;
     }
-    int have_cL = cLo != Py_None;
+    int have_cL = st.r.have_cL;
     if (PyList_GET_SIZE(win) == lag) {
         n_cL += 1;
         double sq = window_sum * window_sum;
@@ -777,13 +808,10 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
 
     /* _covariance_flat() and sigma2() of the new state, which the next propagate asks for:
      * the same functions of the same state, computed now from values already at hand */
-    double j0[4], s2p[4], cov[16], sigma2;
-    PyObject *j0l = ga(id, A_j0), *s2l = j0l ? ga(id, A_s2_prior) : NULL;
-    bad = !s2l || seq_to_doubles(j0l, j0, 4, "_j0") || seq_to_doubles(s2l, s2p, 4, "s2_prior");
-    Py_XDECREF(j0l); Py_XDECREF(s2l);
+    double cov[16], sigma2;
     Resid rs = {c0, c1, cL, have_cL, n_cL, lag, n};
     double b_conf;
-    if (bad || configured_b(id, cfg, &b_conf) || cov_compute(S_new, W, D, phi, &rs, j0, s2p, cov)
+    if (configured_b(id, cfg, &b_conf) || cov_compute(S_new, W, D, phi, &rs, st.j0, st.s2p, cov)
         || sigma2_compute(&rs, cfg_dt, gamma, b_conf, &sigma2))
         goto done;
     PyObject *cur_cov = ga(id, A_cov);               /* None here (cleared), or a stale list */
@@ -796,7 +824,7 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
     bad = sa(id, A_last_phi, new_last);
     Py_DECREF(new_last);
     if (bad || set_list_attr(id, A_theta, thl, 1, th_new, 4) || set_list_attr(id, A_S, Sl, 1, S_new, 16)
-        || list16_write(Wl, W) || list16_write(Dl, D)
+        || list16_write(st.Wl, W) || list16_write(st.Dl, D)
         || setd(id, A_window_sum, window_sum) || setl(id, A_n_cL, n_cL)
         || (have_cL && setd(id, A_cL, cL)) || setd(id, A_c0, c0) || setl(id, A_n_c1, n_c1)
         || setd(id, A_c1, c1) || setd(id, A_last_err, err) || setd(id, A_q_e, q_e)
@@ -804,8 +832,9 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
         goto done;
     result = 1;
 done:
-    Py_XDECREF(cfg); Py_XDECREF(frozen); Py_XDECREF(Sl); Py_XDECREF(thl); Py_XDECREF(Wl);
-    Py_XDECREF(Dl); Py_XDECREF(last); Py_XDECREF(win); Py_XDECREF(cLo); Py_XDECREF(lasterr);
+    sandwich_release(&st);
+    Py_XDECREF(cfg); Py_XDECREF(frozen); Py_XDECREF(Sl); Py_XDECREF(thl); Py_XDECREF(win);
+    Py_XDECREF(lasterr);
     return result;
 }
 
@@ -834,8 +863,8 @@ static PyObject *ident_covariance_body(PyObject *self, PyObject *id)
     if (!cached) return NULL;
     if (cached != Py_None) return cached;
     Py_DECREF(cached);
-    PyObject *cfg = NULL, *frozen = NULL, *Sl = NULL, *Jo = NULL, *Wl = NULL, *Dl = NULL;
-    PyObject *last = NULL, *cLo = NULL, *j0l = NULL, *s2l = NULL, *result = NULL;
+    PyObject *cfg = NULL, *frozen = NULL, *Sl = NULL, *Jo = NULL, *result = NULL;
+    Sandwich st = {0};
     cfg = ga(id, A_cfg);
     frozen = cfg ? ga(cfg, A_frozen) : NULL;
     Sl = frozen ? ga(id, A_S) : NULL;
@@ -844,31 +873,15 @@ static PyObject *ident_covariance_body(PyObject *self, PyObject *id)
     int is_frozen = PyObject_IsTrue(frozen);
     if (is_frozen < 0) goto done;
     if (is_frozen || Sl == Py_None || Jo != Py_None) { result = Py_NewRef(Py_None); goto done; }
-    double S[16], W[16], D[16], lp[4], j0[4], s2p[4];
-    double c0, c1, cL = 0.0;
-    long lag, n_cL, n;
-    Wl = ga(id, A_W);
-    Dl = Wl ? ga(id, A_D) : NULL;
-    last = Dl ? ga(id, A_last_phi) : NULL;
-    cLo = last ? ga(id, A_cL) : NULL;
-    j0l = cLo ? ga(id, A_j0) : NULL;
-    s2l = j0l ? ga(id, A_s2_prior) : NULL;
-    if (!s2l) goto done;
-    if (list16_read(Sl, S) || list16_read(Wl, W) || list16_read(Dl, D)
-        || (last != Py_None && seq_to_doubles(last, lp, 4, "_last_phi"))
-        || seq_to_doubles(j0l, j0, 4, "_j0") || seq_to_doubles(s2l, s2p, 4, "s2_prior")
-        || getd(id, A_c0, &c0) || getd(id, A_c1, &c1) || getl(id, A_LAG, &lag)
-        || getl(id, A_n_cL, &n_cL) || getl(id, A_n, &n))
-        goto done;
-    if (cLo != Py_None && (cL = PyFloat_AsDouble(cLo)) == -1.0 && PyErr_Occurred()) goto done;
-    Resid r = {c0, c1, cL, cLo != Py_None, n_cL, lag, n};
     double cov[16];
-    if (cov_compute(S, W, D, last != Py_None ? lp : NULL, &r, j0, s2p, cov)) goto done;
+    if (sandwich_load(id, Sl, &st)
+        || cov_compute(st.S, st.W, st.D, st.last != Py_None ? st.lp : NULL, &st.r, st.j0, st.s2p, cov))
+        goto done;
     result = doubles_to_list(cov, 16);
     if (result && sa(id, A_cov, result)) Py_CLEAR(result);
 done:
-    Py_XDECREF(cfg); Py_XDECREF(frozen); Py_XDECREF(Sl); Py_XDECREF(Jo); Py_XDECREF(Wl);
-    Py_XDECREF(Dl); Py_XDECREF(last); Py_XDECREF(cLo); Py_XDECREF(j0l); Py_XDECREF(s2l);
+    sandwich_release(&st);
+    Py_XDECREF(cfg); Py_XDECREF(frozen); Py_XDECREF(Sl); Py_XDECREF(Jo);
     return result;
 }
 
@@ -890,40 +903,42 @@ static int setb(PyObject *o, int a, int x)
     return sa(o, a, x ? Py_True : Py_False);
 }
 
-/* The diagonal of ParameterIdentifier._covariance_flat() into out[4] */
-static int ident_cov_diag(PyObject *id, double *out)
+/* ParameterIdentifier._covariance_flat(): the compiled one, or the Python method's list (new
+ * reference, a flat list of 16 floats) */
+static PyObject *ident_cov_list(PyObject *id)
 {
     PyObject *c = ident_covariance_body(NULL, id);
-    if (!c) return -1;
     if (c == Py_None) {
         Py_DECREF(c);
         c = PyObject_CallMethodNoArgs(id, ATTR[A_m_covariance_flat]);
-        if (!c) return -1;
     }
-    int r = 0;
-    if (!PyList_CheckExact(c) || PyList_GET_SIZE(c) != 16) {
+    if (c && (!PyList_CheckExact(c) || PyList_GET_SIZE(c) != 16)) {
         PyErr_SetString(PyExc_TypeError, "_cov: expected a flat list of 16 floats");
-        r = -1;
+        Py_CLEAR(c);
     }
-    for (int i = 0; r == 0 && i < 4; i++) {
-        out[i] = PyFloat_AsDouble(PyList_GET_ITEM(c, 5 * i));
-        if (out[i] == -1.0 && PyErr_Occurred()) r = -1;
-    }
+    return c;
+}
+
+/* The whole covariance into out[16] */
+static int ident_cov(PyObject *id, double *out)
+{
+    PyObject *c = ident_cov_list(id);
+    if (!c) return -1;
+    int r = list16_read(c, out);
     Py_DECREF(c);
     return r;
 }
 
-/* ParameterIdentifier._covariance_flat() into out: compiled, or the Python method's list */
-static int ident_cov(PyObject *id, double *out)
+/* Its diagonal into out[4] (the outputs need no more) */
+static int ident_cov_diag(PyObject *id, double *out)
 {
-    PyObject *c = ident_covariance_body(NULL, id);
+    PyObject *c = ident_cov_list(id);
     if (!c) return -1;
-    if (c == Py_None) {
-        Py_DECREF(c);
-        c = PyObject_CallMethodNoArgs(id, ATTR[A_m_covariance_flat]);
-        if (!c) return -1;
+    int r = 0;
+    for (int i = 0; r == 0 && i < 4; i++) {
+        out[i] = PyFloat_AsDouble(PyList_GET_ITEM(c, 5 * i));
+        if (out[i] == -1.0 && PyErr_Occurred()) r = -1;
     }
-    int r = seq_to_doubles(c, out, 16, "_cov");
     Py_DECREF(c);
     return r;
 }
