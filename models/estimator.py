@@ -188,15 +188,14 @@ class OnlineEstimator:
 
     def theta(self) -> np.ndarray:
         """Theta reported (est.*): the running LS's, with the refitted A's once there are any."""
-        th = self.ident.theta
-        if self.refit is not None and self.refit.runs:
-            th[1:] = self.refit.A
-        return th
+        return self._with_refitted_resistance(self.ident.theta)
 
     def model_theta(self) -> np.ndarray:
         """Theta the filter predicts with: as theta(), but before the first batch the running
         estimate instead of the configured values (ParameterIdentifier.model_theta)."""
-        th = self.ident.model_theta
+        return self._with_refitted_resistance(self.ident.model_theta)
+
+    def _with_refitted_resistance(self, th: np.ndarray) -> np.ndarray:
         if self.refit is not None and self.refit.runs:
             th[1:] = self.refit.A
         return th
