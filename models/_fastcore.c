@@ -112,8 +112,16 @@ static void call_enter(void) { call_depth++; }
 static void call_leave(void)
 {
     if (--call_depth > 0) return;
+    /* Detach the table before releasing: a release can run a __del__ that calls back in. */
+    PyObject *held[2 * DICT_CACHE];
+    int n = 0;
     for (int i = 0; i < DICT_CACHE; i++)
-        if (dcache[i].obj) { Py_DECREF(dcache[i].obj); Py_DECREF(dcache[i].dict); dcache[i].obj = NULL; }
+        if (dcache[i].obj) {
+            held[n++] = dcache[i].obj;
+            held[n++] = dcache[i].dict;
+            dcache[i].obj = dcache[i].dict = NULL;
+        }
+    while (n > 0) Py_DECREF(held[--n]);
 }
 
 static PyObject *ga(PyObject *o, int a)       /* new reference */
