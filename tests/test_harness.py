@@ -141,3 +141,29 @@ def test_filters_table_compares_every_kind(built_fmus):
         assert r["speed_rmse"] < r["speed_rmse_sensor"] and r["distance_rmse"] < r["distance_rmse_sensor"]
     assert rows["paper (13)-(19)"]["distance_nees"] > 5 * rows["linearised"]["distance_nees"]
     assert rows["Singer"]["speed_rmse"] > rows["EKF"]["speed_rmse"]
+
+
+def test_oracle_gets_each_intervals_force_not_the_trapezoid_of_the_outputs():
+    """The force output at t_k was applied with the previous interval's demand; the oracle must
+    use the interval's own demand (through the plant's force law). A traction cut at t = 0.1 s
+    belongs wholly to [0.1, 0.2]: forces (40, 0, 0) kN, where the trapezoid of the outputs gave
+    (40, 20, 0) kN -- 0.07 m/s of prediction error for a 30 t car."""
+    from harness.metrics import _interval_forces
+
+    class Recorded:                      # what the oracle reads of a RunResult
+        def __init__(self, inputs):
+            self.scenario, self.inputs, self.time = sc, inputs, np.arange(4) * 0.1
+
+        def __getitem__(self, name):
+            return signals[name]
+
+    sc = scenario_from_dict({"name": "cut", "step_s": 0.1, "duration_s": 0.3,
+                             "driver": [{"action": "coast", "until_time_s": 1.0}]}, "test")
+    signals = {"car.traction_force": np.array([40e3, 40e3, 0.0, 0.0]), "car.brake_force": np.zeros(4),
+               "car.speed": np.full(4, 10.0), "car.total_mass": np.full(4, 30.0)}
+    demands = {"traction_force_demand": np.array([40e3, 0.0, 0.0, 0.0]), "brake_force_demand": np.zeros(4)}
+    F, B = _interval_forces(Recorded(demands))
+    np.testing.assert_array_equal(F, [40e3, 0.0, 0.0])      # 40 kN is within every limit at 10 m/s
+    np.testing.assert_array_equal(B, [0.0, 0.0, 0.0])
+    F, _ = _interval_forces(Recorded({}))                    # no recorded demands: the trapezoid
+    np.testing.assert_array_equal(F, [40e3, 20e3, 0.0])
