@@ -28,11 +28,6 @@ def stop_indices(speed: np.ndarray) -> list[int]:
     return [k for k in range(1, len(v)) if v[k] <= 0.0 < v[k - 1]]
 
 
-def relative_error(estimate: float, truth: float) -> float:
-    """(estimate - truth) / truth [-]."""
-    return (estimate - truth) / truth
-
-
 def time_to_stay_within(time: np.ndarray, rel_err: np.ndarray, bound: float,
                         start: int = 0, end: int | None = None) -> float:
     """First time [s] from which |rel_err| <= bound until ``end``; nan if never."""

@@ -564,10 +564,6 @@ class ParameterIdentifier:
         """
         return np.array(self._covariance_flat()).reshape(4, 4)
 
-    def variance_along(self, phi) -> float:
-        """phi^T cov(Theta) phi for a regressor phi (the model's prediction variance)."""
-        return _quadratic4(self._covariance_flat(), phi)
-
     def stds(self) -> tuple[float, float, float, float]:
         """Standard deviations of Theta-hat's four components."""
         c = self._covariance_flat()
@@ -615,7 +611,3 @@ class ParameterIdentifier:
         if self.cL is not None and self._n_cL >= self.LAG:
             return max((self.cL - 2.0 * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
         return b
-
-    def sigma2_paper(self) -> float:
-        """sigma^2 exactly as eq. (12): g^2 dt^2 / 10^6 * Q_e / (n - 4) [(m/s)^2]."""
-        return sigma2_from_residual(self.s2, self.cfg.dt, self.cfg.gamma)

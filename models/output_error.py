@@ -453,6 +453,20 @@ class OutputErrorFit:
         return self.diagnostics["A_info_data"].copy(), self.diagnostics["A_h_data"].copy()
 
 
+def _remember_last(fn):
+    """fn(p) for a parameter vector p, kept for the last p only: least_squares asks for the
+    residuals and the Jacobian at the same p, and both need the same trajectory."""
+    last: dict = {}
+
+    def remembered(p):
+        key = p.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = fn(p)
+        return last[key]
+    return remembered
+
+
 def _theta_start(prior: Prior | None, theta0, mass: float | None) -> np.ndarray:
     th = DEFAULT_THETA.copy()
     if prior is not None:
@@ -724,15 +738,7 @@ def fit_segment(time, speed, traction=None, brake=None, *, distance=None,
         return Jp
 
     # ---- output error
-    cache = {}
-
-    def traj(p):
-        key = p.tobytes()
-        if key not in cache:
-            cache.clear()
-            th, v0, x0 = unpack(p)
-            cache[key] = simulate(th, v0, x0, t, fnet, grade_iv, gamma)
-        return cache[key]
+    traj = _remember_last(lambda p: simulate(*unpack(p), t, fnet, grade_iv, gamma))
 
     def residuals(p):
         tr = traj(p)
@@ -773,15 +779,10 @@ def fit_segment(time, speed, traction=None, brake=None, *, distance=None,
         # ---- filter error, starting from the output-error solution
         q = float(process_noise_psd)
         gains, _ = _riccati(seg, tr.a, tr.cx, q)
-        fcache = {}
-
-        def fpass(pp):
-            key = pp.tobytes()
-            if key not in fcache:
-                fcache.clear()
-                thp, v0p, x0p = unpack(pp)
-                fcache[key] = _filter_pass(thp, v0p, x0p if use_x else 0.0, seg, gains)
-            return fcache[key]
+        def _fpass(pp):
+            thp, v0p, x0p = unpack(pp)
+            return _filter_pass(thp, v0p, x0p if use_x else 0.0, seg, gains)
+        fpass = _remember_last(_fpass)
 
         def f_residuals(pp):
             e = fpass(pp)[0]
