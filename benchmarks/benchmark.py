@@ -232,7 +232,8 @@ def main() -> None:
     else:
         done, declined = _fast.core.step_counts()
         print(f"  compiled / pure-Python models chain: {compiled / python:.1f}x "
-              f"({done:,} steps compiled, {declined:,} left to Python)")
+              f"({done:,} steps compiled, {declined:,} left to Python; "
+              f"{_fast.core.guard_walks():,} dict walks looking for replaced methods)")
     ratio = floor_rate / railcar_fmpy
     print(f"  RailCar time per step / floor's: {ratio:.2f}x  (target <= 2x: {'met' if ratio <= 2 else 'MISSED'})")
 

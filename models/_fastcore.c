@@ -25,6 +25,7 @@
 
 static double G_ACC = 9.81;   /* set from models.units.G by set_constants() */
 static unsigned long long steps_compiled = 0, steps_declined = 0;   /* chain_step's answers */
+static unsigned long long full_checks = 0;                          /* guard_ok's dict walks */
 
 /* CPython's x ** 2 calls libm's pow(), which is not always x * x (last bit, ~0.1 % of values);
  * GCC folds pow(x, 2.0) into x * x, so it is called through a pointer it cannot see through. */
@@ -51,7 +52,7 @@ enum {
     A_dwell, A_fast_run, A_moving, A_restarted, A_MOVING_RUN, A_station_stops, A_dt_nominal,
     A_sigma2_initial, A_track_speed, A_track_time, A_batch_y,
     A_m_covariance_flat, A_m_sigma2, A_m_update, A_m_restart_mass, A_m_measure,
-    A_kw_contiguous, A_scale,
+    A_kw_contiguous, A_scale, A_core_guard,
     A_count
 };
 static const char *ATTR_NAMES[A_count] = {
@@ -71,7 +72,7 @@ static const char *ATTR_NAMES[A_count] = {
     "dwell", "_fast_run", "moving", "_restarted", "MOVING_RUN", "station_stops", "dt_nominal",
     "sigma2_initial", "track_speed", "track_time", "_batch_y",
     "_covariance_flat", "sigma2", "update", "restart_mass", "measure",
-    "contiguous", "_scale",
+    "contiguous", "_scale", "_core_guard",
 };
 static PyObject *ATTR[A_count];
 
@@ -82,12 +83,19 @@ static PyObject *ATTR[A_count];
  * references, so an address cannot be reused); names not in the dict (class attributes such as
  * LAG), objects with their own __getattribute__, and writes to objects with their own __setattr__
  * (frozen dataclasses) go through getattr/setattr. */
-#define DICT_CACHE 64                        /* direct-mapped by address; a power of two */
+#define DICT_CACHE_BITS 6
+#define DICT_CACHE (1 << DICT_CACHE_BITS)    /* direct-mapped by address */
 static struct { PyObject *obj, *dict; int writable; } dcache[DICT_CACHE];
 static int call_depth = 0;
 
 /* The cached entry of o (borrowed dict), or NULL: use getattr/setattr. */
-static inline int dslot(PyObject *o) { return (int)(((uintptr_t)o >> 4) & (DICT_CACHE - 1)); }
+/* Fibonacci hashing of an address to `bits` bits: objects and dicts of one chain come from
+ * the same allocator pools, and the low address bits alone sent three dicts to one slot. */
+static inline int addr_slot(const void *p, int bits)
+{
+    return (int)(((uint64_t)(uintptr_t)p * 0x9E3779B97F4A7C15ull) >> (64 - bits));
+}
+static inline int dslot(PyObject *o) { return addr_slot(o, DICT_CACHE_BITS); }
 
 static PyObject *inst_dict(PyObject *o, int for_write)
 {
@@ -124,6 +132,7 @@ static void call_leave(void)
     while (n > 0) Py_DECREF(held[--n]);
 }
 
+
 static PyObject *ga(PyObject *o, int a)       /* new reference */
 {
     PyObject *d = inst_dict(o, 0);
@@ -141,6 +150,120 @@ static int sa(PyObject *o, int a, PyObject *v)
 {
     PyObject *d = inst_dict(o, 1);
     return d ? PyDict_SetItem(d, ATTR[a], v) : PyObject_SetAttr(o, ATTR[a], v);
+}
+
+/* The compiled functions replicate the bodies of these objects' methods (and of the methods
+ * those call). A method replaced on an instance (a study recording the forces by wrapping
+ * estimator.propagate, a test pinning ident.sigma2) must be honoured: the Python code then runs.
+ * guard_ok(owner, objs, n) is false when an object's instance dict holds a name that its type
+ * defines as a descriptor (a function, property, classmethod...) or when a class whose methods
+ * are compiled was changed since import (remember_classes, called as each module is imported:
+ * its version tag). The dict walk is remembered in the owner's own bytearray _core_guard (set
+ * empty by its __init__): each object's dict size and its type's version tag when last walked; the
+ * walk is re-run when either changes (a replaced method adds a key; deleting an attribute and
+ * adding a method in one go is not seen). A patched module-level function is checked in Python
+ * when an object is built (models/_fast.py). */
+#define MAX_CLASSES 32
+static struct { PyTypeObject *type; unsigned int tag; PyObject *dict; } classes[MAX_CLASSES];
+static int n_classes = 0;
+
+static unsigned int class_tag(PyTypeObject *tp)      /* its tag now (0: none) */
+{
+    if (!(tp->tp_flags & Py_TPFLAGS_VALID_VERSION_TAG)) {
+        (void)_PyType_Lookup(tp, ATTR[0]);           /* assigns one when it can */
+    }
+    return (tp->tp_flags & Py_TPFLAGS_VALID_VERSION_TAG) ? tp->tp_version_tag : 0;
+}
+
+/* The class's namespace holds the same objects as when remembered (a patch undone) */
+static int same_namespace(PyObject *now, PyObject *then)
+{
+    if (PyDict_GET_SIZE(now) != PyDict_GET_SIZE(then)) return 0;
+    PyObject *key, *val;
+    Py_ssize_t pos = 0;
+    while (PyDict_Next(then, &pos, &key, &val)) {
+        PyObject *cur = PyDict_GetItemWithError(now, key);
+        if (cur != val) { PyErr_Clear(); return 0; }
+    }
+    return 1;
+}
+
+static int class_unchanged(PyTypeObject *tp)
+{
+    for (int i = 0; i < n_classes; i++) {
+        if (classes[i].type != tp) continue;
+        unsigned int tag = class_tag(tp);
+        if (tag && tag == classes[i].tag) return 1;
+        /* modified since: unchanged only if every attribute is back (monkeypatch undone) */
+        if (!tag || !same_namespace(tp->tp_dict, classes[i].dict)) return 0;
+        classes[i].tag = tag;
+        return 1;
+    }
+    return 1;                                /* not a class whose methods are compiled */
+}
+
+/* The object's dict shadows no method of its type (walks it) */
+static int no_method_shadowed(PyObject *d, PyTypeObject *tp)
+{
+    full_checks++;
+    PyObject *key, *val;
+    Py_ssize_t pos = 0;
+    while (PyDict_Next(d, &pos, &key, &val)) {
+        if (!PyUnicode_Check(key)) continue;
+        PyObject *attr = _PyType_Lookup(tp, key);           /* borrowed, no exception */
+        if (attr && Py_TYPE(attr)->tp_descr_get) return 0;
+    }
+    return 1;
+}
+
+static int guard_ok(PyObject *owner, PyObject *const *objs, int n)
+{
+    PyObject *g = ga(owner, A_core_guard);
+    if (!g) { PyErr_Clear(); return 0; }     /* cannot tell: take the Python step */
+    int ok = 1;
+    Py_ssize_t need = 2 * n * (Py_ssize_t)sizeof(Py_ssize_t);
+    if (!PyByteArray_CheckExact(g)
+        || (PyByteArray_GET_SIZE(g) != need && PyByteArray_Resize(g, need))) {   /* zeros: walk */
+        PyErr_Clear();
+        ok = 0;
+        goto done;
+    }
+    Py_ssize_t *rec = (Py_ssize_t *)PyByteArray_AS_STRING(g);   /* size, tag per object */
+    for (int i = 0; i < n; i++) {
+        PyObject *d = inst_dict(objs[i], 0);
+        if (!d) { PyErr_Clear(); ok = 0; break; }
+        PyTypeObject *tp = Py_TYPE(objs[i]);
+        Py_ssize_t size = PyDict_GET_SIZE(d);
+        Py_ssize_t tag = (tp->tp_flags & Py_TPFLAGS_VALID_VERSION_TAG) ? (Py_ssize_t)tp->tp_version_tag : 0;
+        if (tag && rec[2 * i] == size && rec[2 * i + 1] == tag) continue;
+        if (!class_unchanged(tp) || !no_method_shadowed(d, tp)) { ok = 0; break; }
+        rec[2 * i] = size;
+        rec[2 * i + 1] = (Py_ssize_t)class_tag(tp);   /* 0 (none): walk again next time */
+    }
+done:
+    Py_DECREF(g);
+    return ok;
+}
+
+/* remember_classes(*classes): their namespaces and version tags as first seen, see guard_ok */
+static PyObject *remember_classes(PyObject *self, PyObject *args)
+{
+    (void)self;
+    for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(args); i++) {
+        PyObject *c = PyTuple_GET_ITEM(args, i);
+        if (!PyType_Check(c)) { PyErr_SetString(PyExc_TypeError, "remember_classes takes classes"); return NULL; }
+        PyTypeObject *tp = (PyTypeObject *)c;
+        int j = 0;
+        while (j < n_classes && classes[j].type != tp) j++;
+        if (j < n_classes) continue;          /* the first state seen is the original */
+        if (n_classes == MAX_CLASSES) { PyErr_SetString(PyExc_ValueError, "too many classes"); return NULL; }
+        PyObject *copy = PyDict_Copy(tp->tp_dict);
+        if (!copy) return NULL;
+        classes[n_classes].type = (PyTypeObject *)Py_NewRef(c);
+        classes[n_classes].dict = copy;
+        classes[n_classes++].tag = class_tag(tp);
+    }
+    Py_RETURN_NONE;
 }
 
 static int getd(PyObject *o, int a, double *out)
@@ -485,7 +608,8 @@ fail:
     return -1;
 }
 
-/* plant_advance(plant, t_end, traction_demand, brake_demand, wind) -> None */
+/* plant_advance(plant, t_end, traction_demand, brake_demand, wind) -> bool: False, with nothing
+ * changed, when a method was replaced (the Python loop then runs) */
 static PyObject *plant_advance_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -493,8 +617,14 @@ static PyObject *plant_advance_body(PyObject *self, PyObject *const *args, Py_ss
     double t_end = PyFloat_AsDouble(args[1]), td = PyFloat_AsDouble(args[2]);
     double bd = PyFloat_AsDouble(args[3]), wind = PyFloat_AsDouble(args[4]);
     if (PyErr_Occurred()) return NULL;
-    if (advance_impl(args[0], t_end, td, bd, wind)) return NULL;
-    Py_RETURN_NONE;
+    PyObject *plant = args[0], *p = ga(plant, A_p), *gp = p ? ga(plant, A_grade_profile) : NULL;
+    if (!gp) { Py_XDECREF(p); return NULL; }
+    PyObject *const objs[3] = {plant, p, gp};
+    int ok = guard_ok(plant, objs, 3);
+    Py_DECREF(p); Py_DECREF(gp);
+    if (!ok) Py_RETURN_FALSE;                /* a replaced method: the Python loop runs */
+    if (advance_impl(plant, t_end, td, bd, wind)) return NULL;
+    Py_RETURN_TRUE;
 }
 
 /* ------------------------------------------------------------------ identification */
@@ -856,6 +986,7 @@ static PyObject *ident_update_body(PyObject *self, PyObject *const *args, Py_ssi
     double dt = args[6] == Py_None ? 0.0 : PyFloat_AsDouble(args[6]);
     int contiguous = PyObject_IsTrue(args[7]);
     if (PyErr_Occurred() || contiguous < 0) return NULL;
+    if (!guard_ok(args[0], args, 1)) Py_RETURN_FALSE;
     int r = ident_update_impl(args[0], traction, brake, speed, speed_next, grade, dt, contiguous);
     if (r < 0) return NULL;
     return Py_NewRef(r ? Py_True : Py_False);
@@ -867,6 +998,7 @@ static PyObject *ident_update_body(PyObject *self, PyObject *const *args, Py_ssi
 static PyObject *ident_covariance_body(PyObject *self, PyObject *id)
 {
     (void)self;
+    if (!guard_ok(id, &id, 1)) Py_RETURN_NONE;
     PyObject *cached = ga(id, A_cov);
     if (!cached) return NULL;
     if (cached != Py_None) return cached;
@@ -1113,13 +1245,22 @@ static int station_observe(PyObject *st, double speed_meas, double position_meas
 }
 
 typedef struct {      /* the objects one chain step works on (new references) */
-    PyObject *chain, *cfg, *fcfg, *plant, *est, *ident, *filt, *station;
+    PyObject *chain, *cfg, *fcfg, *plant, *est, *ident, *filt, *station, *vehicle, *pgrade, *egrade;
 } ChainObjs;
 
 static void objs_release(ChainObjs *o)
 {
     Py_XDECREF(o->cfg); Py_XDECREF(o->fcfg); Py_XDECREF(o->plant); Py_XDECREF(o->est);
-    Py_XDECREF(o->ident); Py_XDECREF(o->filt); Py_XDECREF(o->station);
+    Py_XDECREF(o->ident); Py_XDECREF(o->filt); Py_XDECREF(o->station); Py_XDECREF(o->vehicle);
+    Py_XDECREF(o->pgrade); Py_XDECREF(o->egrade);
+}
+
+/* No method of any of them replaced (see guard_ok; the record is the chain's) */
+static int objs_pristine(const ChainObjs *o)
+{
+    PyObject *const all[] = {o->chain, o->cfg, o->fcfg, o->plant, o->est, o->ident, o->filt,
+                             o->station, o->vehicle, o->pgrade, o->egrade};
+    return guard_ok(o->chain, all, (int)(sizeof all / sizeof all[0]));
 }
 
 static int objs_load(PyObject *chain, ChainObjs *o)
@@ -1131,7 +1272,10 @@ static int objs_load(PyObject *chain, ChainObjs *o)
         || !(o->est = ga(chain, A_estimator))
         || !(o->ident = ga(o->est, A_ident))
         || !(o->filt = ga(o->est, A_filter))
-        || !(o->station = ga(o->est, A_station))) {
+        || !(o->station = ga(o->est, A_station))
+        || !(o->vehicle = ga(o->plant, A_p))
+        || !(o->pgrade = ga(o->plant, A_grade_profile))
+        || !(o->egrade = ga(o->est, A_grade_profile))) {
         objs_release(o);
         return -1;
     }
@@ -1287,33 +1431,6 @@ done:
     return r;
 }
 
-/* True when a method this step compiles was replaced on the instance (a study recording the
- * forces by wrapping estimator.propagate, say): the Python step must run to honour it. */
-static const char *const EST_METHODS[] = {"propagate", "measure", "restart_filter", NULL};
-static const char *const IDENT_METHODS[] = {"update", NULL};
-static const char *const FILTER_METHODS[] = {"predict", "update", NULL};
-static const char *const PLANT_METHODS[] = {"advance", NULL};
-static const char *const CHAIN_METHODS[] = {"_take_sample", NULL};
-static const char *const OUT_METHODS[] = {"outputs", NULL};     /* of the estimator */
-static PyObject *EST_M[4], *IDENT_M[2], *FILTER_M[3], *PLANT_M[2], *CHAIN_M[2], *OUT_M[2];
-
-static int intern_names(const char *const *names, PyObject **out)
-{
-    for (; *names; names++, out++)
-        if (!(*out = PyUnicode_InternFromString(*names))) return -1;
-    *out = NULL;
-    return 0;
-}
-
-static int overridden(PyObject *obj, PyObject *const *names)
-{
-    PyObject *d = inst_dict(obj, 0);
-    if (!d) return 1;                        /* cannot tell: take the Python step */
-    for (; *names; names++)
-        if (PyDict_GetItemWithError(d, *names) || PyErr_Occurred()) { PyErr_Clear(); return 1; }
-    return 0;
-}
-
 /* chain_step(chain, current_time, step_size, traction_demand, brake_demand, wind, payload) -> bool
  * RailCarChain.do_step for its compiled configuration (checked by the caller: EKF, no track
  * sensors, est.method 0, no forgetting). False, with nothing changed, when an input is bad (the
@@ -1335,8 +1452,7 @@ static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize
     ChainObjs o;
     if (objs_load(args[0], &o)) return NULL;
     PyObject *p = NULL, *result = NULL;
-    if (overridden(o.est, EST_M) || overridden(o.ident, IDENT_M) || overridden(o.filt, FILTER_M)
-        || overridden(o.plant, PLANT_M) || overridden(o.chain, CHAIN_M)) {
+    if (!objs_pristine(&o)) {
         steps_declined++;
         result = Py_NewRef(Py_False);
         goto done;
@@ -1398,7 +1514,7 @@ static PyObject *chain_outputs_body(PyObject *self, PyObject *chain)
     (void)self;
     ChainObjs o;
     if (objs_load(chain, &o)) return NULL;
-    if (overridden(o.est, OUT_M)) {
+    if (!objs_pristine(&o)) {
         objs_release(&o);
         Py_RETURN_NONE;                      /* the Python method computes the outputs */
     }
@@ -1494,12 +1610,20 @@ static PyObject *step_counts(PyObject *self, PyObject *unused)
     return Py_BuildValue("(KK)", steps_compiled, steps_declined);
 }
 
+static PyObject *guard_walks(PyObject *self, PyObject *unused)
+{
+    (void)self; (void)unused;
+    return PyLong_FromUnsignedLongLong(full_checks);
+}
+
 static PyMethodDef METHODS[] = {
+    {"guard_walks", (PyCFunction)guard_walks, METH_NOARGS,
+     "guard_walks() -> int: instance dicts walked looking for replaced methods, since import"},
     {"step_counts", (PyCFunction)step_counts, METH_NOARGS,
      "step_counts() -> (compiled, declined): chain_step calls since import"},
     {"set_constants", (PyCFunction)set_constants, METH_O, "set_constants(G): gravity [m/s^2]"},
     {"plant_advance", (PyCFunction)(void (*)(void))plant_advance, METH_FASTCALL,
-     "plant_advance(plant, t_end, traction_demand, brake_demand, wind): CarPlant.advance"},
+     "plant_advance(plant, t_end, traction_demand, brake_demand, wind) -> bool: CarPlant.advance"},
     {"ident_update", (PyCFunction)(void (*)(void))ident_update, METH_FASTCALL,
      "ident_update(ident, F, B, V, V_next, grade, dt, contiguous) -> bool: recursive LS step"},
     {"ident_covariance", (PyCFunction)ident_covariance, METH_O,
@@ -1507,6 +1631,8 @@ static PyMethodDef METHODS[] = {
     {"chain_step", (PyCFunction)(void (*)(void))chain_step, METH_FASTCALL,
      "chain_step(chain, t, h, F, B, wind, payload) -> bool: RailCarChain.do_step (EKF path)"},
     {"chain_outputs", (PyCFunction)chain_outputs, METH_O, "chain_outputs(chain) -> dict: RailCarChain.outputs()"},
+    {"remember_classes", remember_classes, METH_VARARGS,
+     "remember_classes(*classes): their state (first call wins); a later change of one sends its objects to Python"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1524,9 +1650,5 @@ PyMODINIT_FUNC PyInit__fastcore(void)
         OUT_KEY[i] = PyUnicode_InternFromString(OUTPUT_KEYS[i]);
         if (!OUT_KEY[i]) return NULL;
     }
-    if (intern_names(EST_METHODS, EST_M) || intern_names(IDENT_METHODS, IDENT_M)
-        || intern_names(FILTER_METHODS, FILTER_M) || intern_names(PLANT_METHODS, PLANT_M)
-        || intern_names(CHAIN_METHODS, CHAIN_M) || intern_names(OUT_METHODS, OUT_M))
-        return NULL;
     return PyModule_Create(&MODULE);
 }

@@ -162,7 +162,8 @@ class RailCarChain:
         self._take_sample()
         # models/_fastcore.c's do_step and outputs, bound now: the whole step for the FMU's
         # default configuration (EKF, no track sensors, est.method 0, no forgetting)
-        core = _fast.core
+        core = _fast.core_for_new_object()
+        self._core_guard = bytearray()   # the core's record of replaced methods (_fastcore.c)
         compiled = (self.estimator.filter.kind == EKF and not cfg.track.spacing
                     and self.estimator.refit is None and cfg.identifier.forgetting == 0.0)
         self._core_step = core.chain_step if core is not None and compiled else None
@@ -329,3 +330,6 @@ class EstimatorChain:
         if self.estimator is None:
             return {}
         return self.estimator.outputs(predicted=True)
+
+
+_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

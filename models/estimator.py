@@ -14,6 +14,7 @@ import numpy as np
 from .filters import FilterConfig, MotionFilter
 from .identification import IdentifierConfig, ParameterIdentifier
 from .track import GradeProfile, SpeedProfile
+from . import _fast
 from .units import G
 
 
@@ -265,3 +266,6 @@ class OnlineEstimator:
             out.update({"filter.speed": f.speed, "filter.position": f.position,
                         "filter.speed_std": f.speed_std, "filter.position_std": f.position_std})
         return out
+
+
+_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

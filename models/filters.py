@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .track import GradeProfile, SpeedProfile
+from . import _fast
 from .units import G
 
 LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
@@ -336,3 +337,6 @@ class MotionFilter:
     @property
     def predicted_position_std(self) -> float:
         return math.sqrt(self._m11) if self._m11 > 0.0 else 0.0
+
+
+_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

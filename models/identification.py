@@ -203,6 +203,8 @@ class ParameterIdentifier:
     def __init__(self, cfg: IdentifierConfig):
         cfg.validate()
         self.cfg = cfg
+        self._core = _fast.core_for_new_object()   # the compiled update, unless patched
+        self._core_guard = bytearray()             # its record of replaced methods (_fastcore.c)
         self.theta0 = theta_from_params(cfg.mass_initial, cfg.A0_initial, cfg.A1_initial,
                                         cfg.A2_initial)
         self._scale = 1000.0 * (1.0 + cfg.gamma) / (G * cfg.dt)   # y per (m/s) of speed change
@@ -347,7 +349,7 @@ class ParameterIdentifier:
         ``contiguous``: this pair directly follows the last one used (they share a sample)."""
         if self.cfg.frozen:
             return
-        core = _fast.core
+        core = self._core
         if core is not None and core.ident_update(self, traction, brake, speed, speed_next, grade,
                                                   dt, contiguous):
             return                           # the recursive step below, compiled
@@ -490,7 +492,7 @@ class ParameterIdentifier:
     def _covariance_flat(self) -> list[float]:
         if self._cov is not None:
             return self._cov
-        core = _fast.core
+        core = self._core
         if core is not None:
             cov = core.ident_covariance(self)    # the mu = 1/n sandwich below, compiled
             if cov is not None:
@@ -611,3 +613,6 @@ class ParameterIdentifier:
         if self.cL is not None and self._n_cL >= self.LAG:
             return max((self.cL - 2.0 * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
         return b
+
+
+_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

@@ -14,6 +14,7 @@ import zipfile
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fmu_src.adapter import chain_config, load_profiles
@@ -182,6 +183,87 @@ def test_method_replaced_on_an_instance_is_honoured():
             c.do_step(k * 0.1, 0.1, 30e3 if k < 120 else 0.0, 0.0, 0.0)
     assert len(recorded) == 200 and recorded[0][0] > 0.0 and recorded[-1] == (0.0, 0.0)
     assert _same(plain.outputs(), wrapped.outputs())
+
+
+def _drive(chain, steps=400):
+    for k in range(steps):
+        chain.do_step(k * 0.1, 0.1, 30e3 if k < 150 else 0.0, 20e3 if 300 < k < 380 else 0.0, 0.0)
+    return chain.outputs()
+
+
+def _patched_run(patch, core):
+    """Outputs after 400 steps of a default chain with ``patch(chain)`` applied after it was built."""
+    from models.chain import ChainConfig
+    from models.track import GradeProfile
+    _fast.core = core
+    try:
+        chain = RailCarChain(ChainConfig(), GradeProfile.level())
+        patch(chain)
+        return _drive(chain)
+    finally:
+        _fast.core = CORE
+
+
+# Methods the compiled step inlines (it replicates their bodies, not only the ones it is bound
+# to): pinning each on the instance must change the result exactly as in Python. Found by
+# handing the filter the true sigma^2 this way in a study: the compiled step ignored it.
+INLINED = {
+    "ident.sigma2": lambda c: setattr(c.estimator.ident, "sigma2", lambda: 1e-6),
+    "est.model_theta": lambda c: setattr(c.estimator, "model_theta",
+                                         lambda: np.array([1.0 / (9.81 * 30.0), 1.0, 0.03, 0.01])),
+    "est.process_noise": lambda c: setattr(c.estimator, "process_noise", lambda f, b, dt: 1e-3),
+    "station.observe": lambda c: setattr(c.estimator.station, "observe", lambda v, x, dt: False),
+    "ident._process_share": lambda c: setattr(c.estimator.ident, "_process_share", lambda a, b: 10.0 * b),
+    "plant.next_grid_time": lambda c: setattr(c.plant, "next_grid_time",
+                                              lambda: (c.plant._grid_index + 1) * c.plant.h * 0.5),
+}
+
+
+@pytest.mark.parametrize("name", sorted(INLINED))
+def test_an_inlined_method_replaced_on_an_instance_is_honoured(name):
+    patch = INLINED[name]
+    plain = _patched_run(lambda c: None, CORE)
+    python, compiled = _patched_run(patch, None), _patched_run(patch, CORE)
+    assert not _same(python, plain), f"the replacement of {name} changes nothing: a useless test"
+    assert _same(compiled, python), f"{name} replaced on the instance was ignored by the compiled step"
+
+
+def test_a_method_replaced_on_the_class_is_honoured(monkeypatch):
+    """A class patched after the chain was built (the core remembers the classes' state at
+    import); once the patch is undone, the compiled step runs again."""
+    from models.identification import ParameterIdentifier
+    from models.chain import ChainConfig
+    from models.track import GradeProfile
+    results = {}
+    for label, core in (("python", None), ("compiled", CORE)):
+        _fast.core = core
+        try:
+            chain = RailCarChain(ChainConfig(), GradeProfile.level())
+            with monkeypatch.context() as m:
+                m.setattr(ParameterIdentifier, "sigma2", lambda self: 1e-6)
+                results[label] = _drive(chain)
+        finally:
+            _fast.core = CORE
+    assert not _same(results["python"], _patched_run(lambda c: None, CORE))
+    assert _same(results["compiled"], results["python"])
+    before = CORE.step_counts()                       # the class restored: compiled again
+    _drive(RailCarChain(ChainConfig(), GradeProfile.level()), 10)
+    assert tuple(a - b for a, b in zip(CORE.step_counts(), before)) == (10, 0)
+
+
+def test_a_module_function_replaced_before_the_chain_is_built_is_honoured(monkeypatch):
+    """models.dynamics.held_input_dynamics is replicated by the compiled plant: replaced in its
+    module, the chain must not bind the compiled step."""
+    import models.dynamics as dynamics
+    original = dynamics.held_input_dynamics
+
+    def weaker_traction(p, grade_profile, traction, brake, wind):
+        return original(p, grade_profile, 0.5 * traction, brake, wind)
+    monkeypatch.setattr(dynamics, "held_input_dynamics", weaker_traction)
+    python, compiled = _patched_run(lambda c: None, None), _patched_run(lambda c: None, CORE)
+    monkeypatch.undo()
+    assert not _same(python, _patched_run(lambda c: None, CORE))
+    assert _same(compiled, python)
 
 
 def test_the_compiled_step_runs_for_the_default_configuration():
