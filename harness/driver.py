@@ -229,11 +229,13 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
     return TimeTable(tuple(cols[0]), tuple(cols[1]), tuple(cols[2]))
 
 
-def drive_chain(chain, scenario, max_steps: int | None = None) -> list[dict]:
+def drive_chain(chain, scenario, max_steps: int | None = None,
+                demands: list | None = None) -> list[dict]:
     """Run a models chain (``models.chain.RailCarChain``, no FMI) through the scenario's scripted
     phases, one communication step of ``scenario.step_s`` [s] at a time, as
     ``harness.runner.FmuRunner.run`` drives the FMU; returns ``chain.outputs()`` at t = 0 and
-    after every step (at most ``max_steps`` steps)."""
+    after every step (at most ``max_steps`` steps). ``demands``, when given, receives each
+    step's (traction, brake) demand [N]."""
     driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
                          scenario.parameter("car.traction_force_max"),
                          scenario.parameter("car.brake_force_max"))
@@ -249,4 +251,6 @@ def drive_chain(chain, scenario, max_steps: int | None = None) -> list[dict]:
             break
         chain.do_step(t, h, traction, brake, scenario.wind_at(t), payload)
         rows.append(chain.outputs())
+        if demands is not None:
+            demands.append((traction, brake))
     return rows
