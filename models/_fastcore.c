@@ -167,12 +167,19 @@ static int sa(PyObject *o, int a, PyObject *v)
 static struct { PyTypeObject *type; unsigned int tag; PyObject *dict; } classes[MAX_CLASSES];
 static int n_classes = 0;
 
-static unsigned int class_tag(PyTypeObject *tp)      /* its tag now (0: none) */
+/* A type's version tag now, assigned if it has none (0: none can be). A change of the class
+ * (PyType_Modified) sets it to 0 and a new one is assigned later: 3.11-3.13 alike; 3.12 and
+ * later no longer keep Py_TPFLAGS_VALID_VERSION_TAG. */
+static unsigned int class_tag(PyTypeObject *tp)
 {
-    if (!(tp->tp_flags & Py_TPFLAGS_VALID_VERSION_TAG)) {
+    if (!tp->tp_version_tag) {
+#if PY_VERSION_HEX >= 0x030C0000
+        (void)PyUnstable_Type_AssignVersionTag(tp);
+#else
         (void)_PyType_Lookup(tp, ATTR[0]);           /* assigns one when it can */
+#endif
     }
-    return (tp->tp_flags & Py_TPFLAGS_VALID_VERSION_TAG) ? tp->tp_version_tag : 0;
+    return tp->tp_version_tag;
 }
 
 /* The class's namespace holds the same objects as when remembered (a patch undone) */
@@ -234,7 +241,7 @@ static int guard_ok(PyObject *owner, PyObject *const *objs, int n)
         if (!d) { PyErr_Clear(); ok = 0; break; }
         PyTypeObject *tp = Py_TYPE(objs[i]);
         Py_ssize_t size = PyDict_GET_SIZE(d);
-        Py_ssize_t tag = (tp->tp_flags & Py_TPFLAGS_VALID_VERSION_TAG) ? (Py_ssize_t)tp->tp_version_tag : 0;
+        Py_ssize_t tag = (Py_ssize_t)tp->tp_version_tag;
         if (tag && rec[2 * i] == size && rec[2 * i + 1] == tag) continue;
         if (!class_unchanged(tp) || !no_method_shadowed(d, tp)) { ok = 0; break; }
         rec[2 * i] = size;
