@@ -7,7 +7,7 @@ each kernel is the body of one method, computing the same expressions in the sam
 Set the environment variable ``RAILCAR_PURE_PYTHON=1`` to run the Python code only.
 
 A method replaced on an instance or a class is honoured (the Python code then runs: the core
-checks, see ``pristine`` in the C source); so is a module-level function of these modules
+checks, see ``guard_ok`` in the C source); so is a module-level function of these modules
 replaced before the object using it is built (``core_for_new_object``: objects bind the core
 when they are built; replacing a module function later is not seen).
 """

@@ -1441,8 +1441,8 @@ done:
 /* chain_step(chain, current_time, step_size, traction_demand, brake_demand, wind, payload) -> bool
  * RailCarChain.do_step for its compiled configuration (checked by the caller: EKF, no track
  * sensors, est.method 0, no forgetting). False, with nothing changed, when an input is bad (the
- * Python method then raises StepRejected with its message) or a compiled method was replaced
- * on the instance (the Python method then runs the step). */
+ * Python method then raises StepRejected with its message) or a method it replicates was
+ * replaced (guard_ok; the Python method then runs the step). */
 static PyObject *chain_step_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -1515,7 +1515,7 @@ static const char *OUTPUT_KEYS[] = {
 static PyObject *OUT_KEY[N_OUT];
 
 /* chain_outputs(chain) -> dict: RailCarChain.outputs() (the caller checks: no refit); None
- * when an estimator or identifier method was replaced on the instance */
+ * when a method it replicates was replaced (guard_ok) */
 static PyObject *chain_outputs_body(PyObject *self, PyObject *chain)
 {
     (void)self;
