@@ -231,19 +231,14 @@ def test_an_inlined_method_replaced_on_an_instance_is_honoured(name):
 def test_a_method_replaced_on_the_class_is_honoured(monkeypatch):
     """A class patched after the chain was built (the core remembers the classes' state at
     import); once the patch is undone, the compiled step runs again."""
-    from models.identification import ParameterIdentifier
     from models.chain import ChainConfig
+    from models.identification import ParameterIdentifier
     from models.track import GradeProfile
     results = {}
     for label, core in (("python", None), ("compiled", CORE)):
-        _fast.core = core
-        try:
-            chain = RailCarChain(ChainConfig(), GradeProfile.level())
-            with monkeypatch.context() as m:
-                m.setattr(ParameterIdentifier, "sigma2", lambda self: 1e-6)
-                results[label] = _drive(chain)
-        finally:
-            _fast.core = CORE
+        with monkeypatch.context() as m:          # patched once the chain is built, undone after
+            results[label] = _patched_run(lambda c: m.setattr(ParameterIdentifier, "sigma2",
+                                                              lambda self: 1e-6), core)
     assert not _same(results["python"], _patched_run(lambda c: None, CORE))
     assert _same(results["compiled"], results["python"])
     before = CORE.step_counts()                       # the class restored: compiled again
