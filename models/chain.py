@@ -164,10 +164,11 @@ class RailCarChain:
         # default configuration (EKF, no track sensors, est.method 0, no forgetting)
         core = _fast.core_for_new_object()
         self._core_guard = bytearray()   # the core's record of replaced methods (_fastcore.c)
+        paper = cfg.identifier.method == 0        # the core knows the paper's estimator only
         compiled = (self.estimator.filter.kind == EKF and not cfg.track.spacing
-                    and self.estimator.refit is None and cfg.identifier.forgetting == 0.0)
+                    and paper and cfg.identifier.forgetting == 0.0)
         self._core_step = core.chain_step if core is not None and compiled else None
-        self._core_outputs = core.chain_outputs if core is not None and self.estimator.refit is None else None
+        self._core_outputs = core.chain_outputs if core is not None and paper else None
 
     def _take_sample(self) -> None:
         s = self.plant.state

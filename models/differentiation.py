@@ -90,6 +90,36 @@ def ls_noise_std(t, order: int, noise_std: float, t_eval: float | None = None) -
     return noise_std * np.sqrt(np.sum(W * W, axis=1))
 
 
+def centred_slope_weights(dts: Sequence[float]) -> tuple[list[float], list[float]]:
+    """Seed 004's first-order fit over the samples that close the intervals ``dts`` [s], at the
+    window's mean time: (w, c) with slope = sum_k w[k] x[k] [u/s] over the len(dts) + 1 samples,
+    and c[j] = dt_j sum_{i>j} w[i] (sum c = 1) the weight the slope gives interval j's mean
+    derivative: slope = sum_j c[j] (x[j+1] - x[j]) / dt_j exactly.
+
+    At the mean time the fitted value (the samples' mean) and the slope are uncorrelated for
+    white noise on x, which is what takes the errors-in-variables bias out of a regression whose
+    regressor is the value and whose target is the slope (models.estimator, est.method 2).
+    The measurement noise of a sum of consecutive slopes telescopes to its two ends:
+    var = 2 sum_j c[j]^2 sigma^2 (0.42 sigma^2 for six equally spaced samples, against the
+    2 sigma^2 of a sum of plain differences). Pure Python: it runs once per sample.
+    """
+    t = [0.0]
+    for d in dts:
+        if not (d > 0.0 and math.isfinite(d)):
+            raise ValueError(f"sample spacing must be > 0, got {d}")
+        t.append(t[-1] + d)
+    mean = sum(t) / len(t)
+    tau = [x - mean for x in t]
+    ss = sum(x * x for x in tau)
+    w = [x / ss for x in tau]
+    c, tail = [], 0.0
+    for j in range(len(dts) - 1, -1, -1):
+        tail += w[j + 1]
+        c.append(dts[j] * tail)
+    c.reverse()
+    return w, c
+
+
 class LSDifferentiator:
     """Streaming seed-004 differentiator over the last ``window`` samples (default M + 1 = 6).
 

@@ -7,10 +7,12 @@ sample n+1 (the filter's prediction). Forces [N], speeds [m/s], distances [m], d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .coast_ekf import CoastEKF, CoastEKFConfig
+from .differentiation import centred_slope_weights
 from .filters import FilterConfig, MotionFilter
 from .identification import IdentifierConfig, ParameterIdentifier
 from .track import GradeProfile, SpeedProfile
@@ -69,10 +71,39 @@ class StationDetector:
 
 
 class OnlineEstimator:
-    """Identification (eqs. (3)-(12)) feeding the filter ((13)-(19) or EKF), sample by sample."""
+    """Identification (eqs. (3)-(12)) feeding the filter ((13)-(19) or EKF), sample by sample.
+
+    ``est.method`` (IdentifierConfig.method) chooses what identifies the resistance:
+      0  the paper's recursive LS on differenced measured speed, eqs. (3)-(12), exactly;
+      1  as 0, plus a filter-error refit of each finished run at the next station, the A's
+         carried over between runs (models/output_error.py);
+      2  the same LS fed with seed 004's speed and acceleration (first-order least-squares
+         fit over the last est.slope_window samples, MODEL.md section 8; the seed's M + 1 = 6
+         at a sampling period it does not state, 10 by default: at 0.1 s, w0 after ten runs
+         2.13 % -> 1.90 % RMS over 100 days, README) at the window's mean time, with
+         the forces and grade weighted as the slope weights the intervals
+         (differentiation.centred_slope_weights): the value and the slope of that fit are
+         uncorrelated, so the errors-in-variables bias of V in phi and in y goes away;
+      3  LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], MODEL.md section 7)
+         for the A's: it runs over every coasting interval (F = B = 0) and carries its A's and
+         their covariance from coast to coast and run to run.
+    """
 
     def __init__(self, id_cfg: IdentifierConfig, filt_cfg: FilterConfig, station_cfg: StationConfig,
                  grade_profile: GradeProfile, speed_profile: SpeedProfile | None):
+        self.slopes = None           # est.method 2: the window of (V, F, B, grade, dt)
+        if id_cfg.method == 2:
+            _, c = centred_slope_weights([id_cfg.dt] * (int(id_cfg.slope_window) - 1))
+            id_cfg = replace(id_cfg, slope_end_factor=2.0 * sum(x * x for x in c))
+            self.slopes = {"v": [], "i": [], "contiguous": False, "size": int(id_cfg.slope_window)}
+        self.coast = None            # est.method 3: seed 003's EKF of the A's
+        if id_cfg.method == 3:
+            self.coast = CoastEKF(CoastEKFConfig(
+                A0=id_cfg.A0_initial, A1=id_cfg.A1_initial, A2=id_cfg.A2_initial,
+                A0_std=id_cfg.A0_std_initial, A1_std=id_cfg.A1_std_initial,
+                A2_std=id_cfg.A2_std_initial, speed_std=max(filt_cfg.speed_std, 1e-6),
+                process_noise_psd=id_cfg.sigma2_initial / id_cfg.dt, gamma=id_cfg.gamma))
+        self._coasting = False       # the last pair used was a coasting one (method 3)
         self.ident = ParameterIdentifier(id_cfg)
         self.filter = MotionFilter(filt_cfg, grade_profile, speed_profile)
         self.station = StationDetector(station_cfg, filt_cfg.speed_std, filt_cfg.position_std)
@@ -121,8 +152,15 @@ class OnlineEstimator:
         if used:
             traction, brake = self._forces
             grade = self.grade_profile.average(prev[1], self.length)
-            self.ident.update(traction, brake, prev[0], speed_meas, grade, dt,
-                              contiguous=self._pair_used)
+            if self.slopes is None:
+                self.ident.update(traction, brake, prev[0], speed_meas, grade, dt,
+                                  contiguous=self._pair_used)
+            else:
+                self._update_from_slopes(traction, brake, prev[0], speed_meas, grade, dt)
+            if self.coast is not None:
+                self._coast_step(traction, brake, prev[0], speed_meas, grade, dt)
+        elif self.coast is not None:
+            self._coasting = False
         self._pair_used = used
         self._prev = (speed_meas, position_meas)
         if stop:
@@ -133,6 +171,50 @@ class OnlineEstimator:
             self.restart_filter(speed_meas, position_meas)
         else:
             self.filter.update(speed_meas, position_meas)
+
+    def _update_from_slopes(self, traction: float, brake: float, speed: float, speed_next: float,
+                            grade: float, dt: float) -> None:
+        """est.method 2: one regression row per new sample, from seed 004's first-order fit
+        over the last est.slope_window contiguous samples, at their mean time: phi's V is the fit's
+        value V_c, y the slope a_c (passed as the pair V_c, V_c + a_c dt_nominal), forces [N]
+        and grade [permille] the slope's weighted means over the window's intervals."""
+        w = self.slopes
+        if not self._pair_used:               # a new contiguous stretch starts at the previous sample
+            w["v"] = [speed]
+            w["i"] = []
+            w["contiguous"] = False
+        w["v"].append(speed_next)
+        w["i"].append((traction, brake, grade, dt))
+        if len(w["v"]) > w["size"]:
+            del w["v"][0], w["i"][0]
+        if len(w["v"]) < w["size"]:
+            return
+        slope_w, c = centred_slope_weights([x[3] for x in w["i"]])
+        v_c = sum(w["v"]) / w["size"]
+        a_c = sum(k * v for k, v in zip(slope_w, w["v"]))
+        f = sum(cj * x[0] for cj, x in zip(c, w["i"]))
+        b = sum(cj * x[1] for cj, x in zip(c, w["i"]))
+        g = sum(cj * x[2] for cj, x in zip(c, w["i"]))
+        step = self.dt_nominal
+        self.ident.update(f, b, v_c, v_c + a_c * step, g, step, contiguous=w["contiguous"])
+        w["contiguous"] = True
+
+    MIN_COAST_SAMPLES = 50   # est.method 3: coasting samples before the EKF's A's are reported
+
+    def _coast_step(self, traction: float, brake: float, speed: float, speed_next: float,
+                    grade: float, dt: float) -> None:
+        """est.method 3: a coasting interval (no force applied) goes to seed 003's EKF. A new
+        coast restarts its speed from the measurement and keeps the A's and their covariance
+        (CoastEKF.carry_over); its process noise is the identified sigma^2 per second."""
+        if traction != 0.0 or brake != 0.0:
+            self._coasting = False
+            return
+        ekf = self.coast
+        ekf.cfg.process_noise_psd = self.ident.sigma2() / self.dt_nominal
+        if not self._coasting:
+            ekf.carry_over(speed)
+            self._coasting = True
+        ekf.step(dt, speed_next, grade)
 
     def restart_filter(self, speed_meas: float, position_meas: float) -> None:
         """Restart the filter at a confirmed station stop, then take this sample.
@@ -199,7 +281,13 @@ class OnlineEstimator:
     def _with_refitted_resistance(self, th: np.ndarray) -> np.ndarray:
         if self.refit is not None and self.refit.runs:
             th[1:] = self.refit.A
+        elif self._coast_ready():
+            th[1:] = self.coast.A
         return th
+
+    def _coast_ready(self) -> bool:
+        """est.method 3 and the EKF has seen MIN_COAST_SAMPLES coasting samples."""
+        return self.coast is not None and self.coast.samples >= self.MIN_COAST_SAMPLES
 
     MIN_REFIT_SAMPLES = 100   # a run shorter than this (moving samples) is not refitted
 
@@ -240,8 +328,14 @@ class OnlineEstimator:
         """
         v = self.filter.speed
         k = G * dt / 1000.0 / (1.0 + self.gamma)
-        q_param = k * k * self.ident.model_variance_along((traction - brake, -1.0, -v, -v * v))
-        return self.ident.sigma2() * dt / self.dt_nominal + q_param
+        phi = (traction - brake, -1.0, -v, -v * v)
+        if self._coast_ready():   # est.method 3: the mass's variance from LS, the A's from the EKF
+            c = self.coast.P
+            var = self.ident.model_variance_along((phi[0], 0.0, 0.0, 0.0)) + sum(
+                phi[i + 1] * c[i + 1, j + 1] * phi[j + 1] for i in range(3) for j in range(3))
+        else:
+            var = self.ident.model_variance_along(phi)
+        return self.ident.sigma2() * dt / self.dt_nominal + k * k * var
 
     def outputs(self, predicted: bool = False) -> dict[str, float]:
         """est.* and filter.* values: the filter's posterior at the last measurement, or with
@@ -251,6 +345,8 @@ class OnlineEstimator:
         sd = self.ident.stds()
         if self.refit is not None and self.refit.runs:
             sd = (sd[0], *np.sqrt(np.maximum(np.diag(self.refit.cov_A), 0.0)))
+        elif self._coast_ready():
+            sd = (sd[0], *np.sqrt(np.maximum(np.diag(self.coast.cov_A), 0.0)))
         out = {
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),

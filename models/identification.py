@@ -93,6 +93,10 @@ def theta_from_params(mass: float, a0: float, a1: float, a2: float) -> np.ndarra
 
 # ---------------------------------------------------------------- stateful wrapper
 
+METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on seed 004 slopes",
+           3: "LS mass + seed 003 coasting EKF"}
+"""est.method values and their short names (models.estimator implements 1-3)."""
+
 @dataclass
 class IdentifierConfig:
     """Settings of the running identification (names follow the FMU parameters est.*)."""
@@ -112,14 +116,23 @@ class IdentifierConfig:
     speed_std: float = 0.0           # measurement noise of V [m/s]: scales the prior's weight
     frozen: bool = False             # keep the initial values (an oracle that knows the truth)
     method: int = 0                  # est.method: 0 the paper's LS; 1 LS plus a filter-error
-                                     # refit of each run at the next station (models/output_error.py)
+                                     # refit of each run at the next station (models/output_error.py);
+                                     # 2 LS on seed 004's centred slopes (slope_end_factor);
+                                     # 3 LS for the mass, seed 003's coasting EKF for the A's
+    slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
+    slope_end_factor: float = 0.0    # est.method 2: var of a sum of consecutive rows' measurement
+                                     # noise in units of a (2 sum c_j^2, differentiation.
+                                     # centred_slope_weights); 0 = the paper's differences (2)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
         if int(self.batch_size) < 4:
             raise ValueError(f"est.batch_size must be >= 4 (4 parameters), got {self.batch_size}")
-        if int(self.method) not in (0, 1):
-            raise ValueError(f"est.method must be 0 (paper LS) or 1 (LS + filter-error refit), got {self.method}")
+        if int(self.method) not in METHODS:
+            raise ValueError("est.method must be " + ", ".join(f"{k} ({v})" for k, v in METHODS.items())
+                             + f", got {self.method}")
+        if int(self.slope_window) < 2:
+            raise ValueError(f"est.slope_window must be >= 2 (a first-order fit), got {self.slope_window}")
         if not 0.0 <= self.forgetting < 1.0:
             raise ValueError(f"est.forgetting must be in [0, 1), got {self.forgetting}")
         if not (self.dt > 0 and math.isfinite(self.dt)):
@@ -203,7 +216,8 @@ class ParameterIdentifier:
     def __init__(self, cfg: IdentifierConfig):
         cfg.validate()
         self.cfg = cfg
-        self._core = _fast.core_for_new_object()   # the compiled update, unless patched
+        # the compiled update, unless patched; it knows the paper's differenced rows only
+        self._core = _fast.core_for_new_object() if not cfg.slope_end_factor else None
         self._core_guard = bytearray()             # its record of replaced methods (_fastcore.c)
         self.theta0 = theta_from_params(cfg.mass_initial, cfg.A0_initial, cfg.A1_initial,
                                         cfg.A2_initial)
@@ -415,7 +429,7 @@ class ParameterIdentifier:
         s2p = list(self.s2_prior)
         j0 = list(self._j0)
         prior_var0 = s2p[0] / j0[0]
-        s2p[0] = b + 2.0 * a / n
+        s2p[0] = b + (self.cfg.slope_end_factor or 2.0) * a / n
         j0[0] = s2p[0] / prior_var0
         J0 = np.diag(j0)
         info = phi.T @ phi + J0
@@ -484,7 +498,13 @@ class ParameterIdentifier:
     def noise_split(self) -> tuple[float, float]:
         """(a, b) [(N/kN)^2]: e(n) = u(n+1) - u(n) + p(n) with var(u) = a (the differenced
         speed measurement) and var(p) = b (process noise), from the residuals' lag-0 and lag-1
-        autocovariance c0 = 2a + b, c1 = -a. Needs no knowledge of the sensor's noise."""
+        autocovariance c0 = 2a + b, c1 = -a. Needs no knowledge of the sensor's noise.
+
+        est.method 2's rows are smoothed slopes, whose residuals are correlated over the window
+        (c1 > 0): there a is the configured sensor's and b the configured sigma^2 until the
+        LAG sums give it (_process_share)."""
+        if self.cfg.slope_end_factor:
+            return self._configured_noise()
         a = max(-self.c1, 0.0)
         b = max(self.c0 - 2.0 * a, 1e-12 * self.c0)
         return a, b
@@ -611,6 +631,8 @@ class ParameterIdentifier:
         residual sums once there are LAG of them (cL = 2a + LAG b: the measurement part
         telescopes), else the lag-0/lag-1 split's b as given."""
         if self.cL is not None and self._n_cL >= self.LAG:
+            if self.cfg.slope_end_factor:    # est.method 2: the ends of smoothed slopes
+                return max((self.cL - self.cfg.slope_end_factor * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
             return max((self.cL - 2.0 * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
         return b
 

@@ -55,4 +55,6 @@ def test_refit_brings_the_resistance_within_a_few_percent():
 
 def test_est_method_is_validated():
     with pytest.raises(ValueError, match="est.method"):
-        IdentifierConfig(method=2).validate()
+        IdentifierConfig(method=4).validate()
+    with pytest.raises(ValueError, match="est.slope_window"):
+        IdentifierConfig(method=2, slope_window=1).validate()
