@@ -6,6 +6,8 @@ Compares, on runs of the models chain (plant -> sensors -> online estimator, no 
 
   paper LS   models.identification.ParameterIdentifier with default settings, as
              models.estimator.OnlineEstimator feeds it (read from est.* of models.chain.RailCarChain)
+  LS slopes  the same chain with est.method 2: the LS fed with seed 004's centred least-squares
+             slopes of the measured speed (est.slope_window 10), online as in the FMU
   OE         models.output_error.fit_segment, output error (deterministic simulation of eq. (2)),
              covariance the process-noise sandwich
   FE         fit_segment(method="filter_error"): output error refined by the filter-error method
@@ -80,7 +82,8 @@ PRIOR_MEAN = np.array([1.0, 0.03, 0.01])              # physical_prior's A's
 PRIOR_STD = np.array([1.0, 0.03, 0.01])
 MASS_PRIOR = (30.0, 10.0)                             # [t] the estimator's default est.mass_initial
 DAY_MASS_CHANGES = (4.0, -3.0, 6.0, -5.0, 2.0, -4.0, 3.0, 5.0, -6.0)   # [t] at the nine stops
-METHODS = ("paper LS", "OE", "FE", "EKF", "oracle")
+METHODS = ("paper LS", "LS slopes", "OE", "FE", "EKF", "oracle")
+SLOPES = {"est.method": 2}                            # the FMU parameter of "LS slopes"
 
 _PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 
@@ -109,6 +112,15 @@ class Run:
 
 SIGNALS = ("car.speed", "car.position", "car.mode", "car.total_mass", "sensor.speed",
            "sensor.position", "est.A0", "est.A1", "est.A2")
+
+
+def with_parameters(scenario: Scenario, extra: dict) -> Scenario:
+    return replace(scenario, parameters={**scenario.parameters, **extra})
+
+
+def est_A(run: Run, row: int) -> np.ndarray:
+    """est.A0..A2 [N/kN, N/kN/(m/s), N/kN/(m/s)^2] of a run at a row."""
+    return np.array([run.sig["est.A0"][row], run.sig["est.A1"][row], run.sig["est.A2"][row]])
 
 
 def run_scenario(scenario: Scenario, seed: int) -> Run:
@@ -214,9 +226,10 @@ class Coast:
     prior: Prior
     common: dict
     oe0: object
+    slopes: Run | None = None        # the same seed with est.method 2
 
 
-def coast_prepare(run: Run, rng: np.random.Generator | None) -> Coast:
+def coast_prepare(run: Run, rng: np.random.Generator | None, slopes: Run | None = None) -> Coast:
     """The coast (car.mode == 2 rows), the prior and an output-error fit without q (for q-hat)."""
     p = run.p
     s = run.sig
@@ -227,7 +240,7 @@ def coast_prepare(run: Run, rng: np.random.Generator | None) -> Coast:
                   length=p("car.length"), gamma=p("car.gamma"), speed_std=p("sensor.speed_std"),
                   distance_std=p("sensor.position_std"))
     oe0 = fit_segment(run.time[sl], s["sensor.speed"][sl], prior=prior, **common)
-    return Coast(run, first, last, prior_mean, prior, common, oe0)
+    return Coast(run, first, last, prior_mean, prior, common, oe0, slopes)
 
 
 def coast_study(c: Coast, q: float) -> CoastResult:
@@ -256,6 +269,9 @@ def coast_study(c: Coast, q: float) -> CoastResult:
     cand = {"paper LS": (ls_A, run.ls_cov[1:, 1:] if last == len(run.time) - 1 else None),
             "OE": (oe.A, oe.cov_A), "FE": (fe.A, fe.cov_A), "EKF": (ekf.A, ekf.cov_A),
             "oracle": (A_true, None)}
+    if c.slopes is not None:
+        cand["LS slopes"] = (est_A(c.slopes, last),
+                             c.slopes.ls_cov[1:, 1:] if last == len(c.slopes.time) - 1 else None)
     mass = p("car.mass")
     res = CoastResult({}, {}, {}, {}, q)
     for name, (A, cov) in cand.items():
@@ -282,7 +298,7 @@ class DayResult:
     mass_err_pct: float  # largest |mass error| of the per-run OE fits [%]
 
 
-def day_study(run: Run, rng: np.random.Generator | None, speeds) -> DayResult:
+def day_study(run: Run, rng: np.random.Generator | None, speeds, slopes: Run | None = None) -> DayResult:
     p = run.p
     s = run.sig
     A_true = run.A_true
@@ -328,6 +344,15 @@ def day_study(run: Run, rng: np.random.Generator | None, speeds) -> DayResult:
     out.w0_err["paper LS"] = w0_relative_rms_error(speeds_run, tuple(ls_A), tuple(A_true))
     out.z["paper LS"] = z_scores(ls_A, run.ls_cov[1:, 1:], A_true, speeds)
     out.w0_err["oracle"] = 0.0
+    if slopes is not None:         # est.method 2 online, the same seed (same truth and noise)
+        sA = est_A(slopes, -1)
+        out.w0_err_by_run["LS slopes"] = [w0_relative_rms_error(speeds_run, tuple(est_A(slopes, b)), tuple(A_true))
+                                          for _, b in segs]
+        out.w0_err["LS slopes"] = w0_relative_rms_error(speeds_run, tuple(sA), tuple(A_true))
+        out.z["LS slopes"] = z_scores(sA, slopes.ls_cov[1:, 1:], A_true, speeds)
+        out.w0_std["LS slopes"] = np.sqrt(np.einsum("ij,jk,ik->i", ph, slopes.ls_cov[1:, 1:], ph))
+        out.w0_err_pred["LS slopes"] = float(np.sqrt(np.mean(
+            np.einsum("ij,jk,ik->i", phi, slopes.ls_cov[1:, 1:], phi)))) / w0_rms
     return out
 
 
@@ -368,8 +393,11 @@ def main(argv=None) -> int:
     coast_z = {m: [] for m in METHODS}
     for r in (1, 2, 3, 4):
         scn = load_scenario(LIBRARY / f"coasting_rusich_row{r}.toml")
-        lib_c = coast_prepare(run_scenario(scn, int(scn.parameter("seed"))), None)
-        mc_c = [coast_prepare(run_scenario(scn, 1000 + seed), np.random.default_rng([r, seed]))
+        scn_slopes = with_parameters(scn, SLOPES)
+        lib_seed = int(scn.parameter("seed"))
+        lib_c = coast_prepare(run_scenario(scn, lib_seed), None, run_scenario(scn_slopes, lib_seed))
+        mc_c = [coast_prepare(run_scenario(scn, 1000 + seed), np.random.default_rng([r, seed]),
+                              run_scenario(scn_slopes, 1000 + seed))
                 for seed in range(1, n_rows + 1)]
         # q calibrated over the row's coasts (same train and line): one 33-120 s coast cannot
         # estimate it (row 3: REML collapses towards 0 in ~1 coast of 8, coverage falls to 87 %)
@@ -400,8 +428,10 @@ def main(argv=None) -> int:
     speeds = np.array([2.0, 5.0, 10.0, 15.0])
     lib_run = run_scenario(day, int(day.parameter("seed")))
     A_true_day = lib_run.A_true
-    lib = day_study(lib_run, None, speeds)
-    days = [day_study(run_scenario(day, 2000 + seed), np.random.default_rng([9, seed]), speeds)
+    day_slopes = with_parameters(day, SLOPES)
+    lib = day_study(lib_run, None, speeds, run_scenario(day_slopes, int(day.parameter("seed"))))
+    days = [day_study(run_scenario(day, 2000 + seed), np.random.default_rng([9, seed]), speeds,
+                      run_scenario(day_slopes, 2000 + seed))
             for seed in range(1, n_day + 1)]
     print(f"    runs found: {lib.runs}; q-hat (pooled, REML) median {np.median([d.q for d in days]):.2e} "
           f"m2/s3 (plant {day.parameter('car.process_noise_psd'):.0e}); largest per-run mass error (OE) "
@@ -410,27 +440,28 @@ def main(argv=None) -> int:
           f"{'share<=2%':>9s} {'predicted':>9s}   (w0 relative RMS error after 10 runs, %; predicted = RMS error")
     print(f"    {'':9s} {'':12s}   {'':8s} {'':9s} {'':7s} {'':9s} {'':9s}    its own covariance expects)")
     day_summary = {}
-    for m in ("paper LS", "OE", "FE", "oracle"):
+    for m in ("paper LS", "LS slopes", "OE", "FE", "oracle"):
         e = np.array([d.w0_err[m] for d in days])
         day_summary[m] = (e.mean(), np.mean(e <= W0_TARGET), lib.w0_err[m])
         pred = np.mean([d.w0_err_pred[m] for d in days]) if m in days[0].w0_err_pred else float("nan")
         print(f"    {m:9s} {100 * lib.w0_err[m]:12.2f} | {100 * e.mean():8.2f} {100 * np.median(e):9.2f} "
               f"{100 * e.max():7.2f} {np.mean(e <= W0_TARGET):9.0%} {fmt(100 * pred, '{:9.2f}'):>9s}")
     print("    mean w0 error [%] after k runs, k = 1..10:")
-    for m in ("paper LS", "OE", "FE"):
+    for m in ("paper LS", "LS slopes", "OE", "FE"):
         by = np.array([d.w0_err_by_run[m] for d in days if len(d.w0_err_by_run[m]) == 10])
         print(f"      {m:9s} " + " ".join(f"{100 * x:5.1f}" for x in by.mean(axis=0)))
     w0t = A_true_day[0] + A_true_day[1] * speeds + A_true_day[2] * speeds ** 2
     print("    where the uncertainty sits after 10 runs: std of w0 [N/kN] at " + ", ".join(f"{v:g}" for v in speeds)
           + " m/s (true w0 " + ", ".join(f"{w:.2f}" for w in w0t) + "):")
-    for m in ("OE", "FE"):
+    for m in ("LS slopes", "OE", "FE"):
         print(f"      {m:9s} " + " ".join(f"{x:6.3f}" for x in np.mean([d.w0_std[m] for d in days], axis=0)))
     # the same day with ten times less process noise: is the 2 % target information-limited?
     low = replace(day, parameters={**day.parameters, "car.process_noise_psd": 1e-5})
-    lows = [day_study(run_scenario(low, 3000 + seed), np.random.default_rng([10, seed]), speeds)
+    lows = [day_study(run_scenario(low, 3000 + seed), np.random.default_rng([10, seed]), speeds,
+                      run_scenario(with_parameters(low, SLOPES), 3000 + seed))
             for seed in range(1, n_low + 1)]
     print(f"    sensitivity, plant process noise 1e-05 m2/s3 ({n_low} days): mean w0 error after 10 runs "
-          + ", ".join(f"{m} {100 * np.mean([d.w0_err[m] for d in lows]):.2f} %" for m in ("paper LS", "OE", "FE"))
+          + ", ".join(f"{m} {100 * np.mean([d.w0_err[m] for d in lows]):.2f} %" for m in ("paper LS", "LS slopes", "OE", "FE"))
           + f" (share <= 2 %: FE {np.mean([d.w0_err['FE'] <= W0_TARGET for d in lows]):.0%})")
     print()
 
@@ -440,21 +471,21 @@ def main(argv=None) -> int:
     print(f"    coasting rows (all four, w0 at the coast's min / mid / max speed), {4 * n_rows} runs:")
     print(f"      {'method':9s} " + " ".join(f"{x:>6s}" for x in labels))
     cov_summary = {}
-    for m in ("paper LS", "OE", "FE", "EKF"):
+    for m in ("paper LS", "LS slopes", "OE", "FE", "EKF"):
         c = coverage(coast_z[m])
         cov_summary[("coast", m)] = c
         print(f"      {m:9s} " + " ".join(f"{x:6.0%}" for x in c))
     labels_d = ["A0", "A1", "A2"] + [f"w0@{v:g}" for v in speeds]
     print(f"    ten-run days (after the ten runs), {n_day} days:")
     print(f"      {'method':9s} " + " ".join(f"{x:>6s}" for x in labels_d))
-    for m in ("paper LS", "OE", "FE"):
+    for m in ("paper LS", "LS slopes", "OE", "FE"):
         c = coverage([d.z[m] for d in days])
         cov_summary[("day", m)] = c
         print(f"      {m:9s} " + " ".join(f"{x:6.0%}" for x in c))
     print()
 
     # ---------------------------------------------------------------- comparison
-    names = ("paper LS", "OE", "FE", "EKF", "oracle")
+    names = METHODS
     print("Comparison with the targets. Coast rows: |dT| from the true initial speed (harness convention);")
     print("'MC' = mean over the seeds (share within the bound), met when the mean is within the bound.")
     print("Coverage: the lowest and highest over the quantities of (c); met when every one lies in 90-98 %,")
