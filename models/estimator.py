@@ -7,7 +7,7 @@ sample n+1 (the filter's prediction). Forces [N], speeds [m/s], distances [m], d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -80,7 +80,8 @@ class OnlineEstimator:
       2  the same LS fed with seed 004's speed and acceleration (first-order least-squares
          fit over the last est.slope_window samples, MODEL.md section 8; the seed's M + 1 = 6
          at a sampling period it does not state, 10 by default: at 0.1 s, w0 after ten runs
-         2.13 % -> 1.90 % RMS over 100 days, README) at the window's mean time, with
+         2.13 % -> 1.90 % RMS over 100 days, measured with the A's prior white-weighted, before
+         it took the process-noise weight; README) at the window's mean time, with
          the forces and grade weighted as the slope weights the intervals
          (differentiation.centred_slope_weights): the value and the slope of that fit are
          uncorrelated, so the errors-in-variables bias of V in phi and in y goes away;
@@ -93,9 +94,8 @@ class OnlineEstimator:
                  grade_profile: GradeProfile, speed_profile: SpeedProfile | None):
         self.slopes = None           # est.method 2: the window of (V, F, B, grade, dt)
         if id_cfg.method == 2:
-            _, c = centred_slope_weights([id_cfg.dt] * (int(id_cfg.slope_window) - 1))
-            id_cfg = replace(id_cfg, slope_end_factor=2.0 * sum(x * x for x in c))
-            self.slopes = {"v": [], "i": [], "contiguous": False, "size": int(id_cfg.slope_window)}
+            self.slopes = {"v": [], "i": [], "contiguous": False, "size": int(id_cfg.slope_window),
+                           "dts": None, "weights": None}
         self.coast = None            # est.method 3: seed 003's EKF of the A's
         if id_cfg.method == 3:
             self.coast = CoastEKF(CoastEKFConfig(
@@ -189,7 +189,10 @@ class OnlineEstimator:
             del w["v"][0], w["i"][0]
         if len(w["v"]) < w["size"]:
             return
-        slope_w, c = centred_slope_weights([x[3] for x in w["i"]])
+        dts = [x[3] for x in w["i"]]
+        if dts != w["dts"]:                   # constant at a fixed sampling period: computed once
+            w["dts"], w["weights"] = dts, centred_slope_weights(dts)
+        slope_w, c = w["weights"]
         v_c = sum(w["v"]) / w["size"]
         a_c = sum(k * v for k, v in zip(slope_w, w["v"]))
         f = sum(cj * x[0] for cj, x in zip(c, w["i"]))

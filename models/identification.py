@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _fast
+from .differentiation import centred_slope_weights
 from .units import G
 
 
@@ -117,12 +118,10 @@ class IdentifierConfig:
     frozen: bool = False             # keep the initial values (an oracle that knows the truth)
     method: int = 0                  # est.method: 0 the paper's LS; 1 LS plus a filter-error
                                      # refit of each run at the next station (models/output_error.py);
-                                     # 2 LS on seed 004's centred slopes (slope_end_factor);
-                                     # 3 LS for the mass, seed 003's coasting EKF for the A's
+                                     # 2 LS on seed 004's centred slopes (the rows come from
+                                     # models.estimator); 3 LS for the mass, seed 003's coasting
+                                     # EKF for the A's
     slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
-    slope_end_factor: float = 0.0    # est.method 2: var of a sum of consecutive rows' measurement
-                                     # noise in units of a (2 sum c_j^2, differentiation.
-                                     # centred_slope_weights); 0 = the paper's differences (2)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
@@ -216,8 +215,14 @@ class ParameterIdentifier:
     def __init__(self, cfg: IdentifierConfig):
         cfg.validate()
         self.cfg = cfg
+        # est.method 2 feeds centred slopes: a sum of consecutive rows' measurement noise is
+        # end_factor * a, 2 sum c_j^2 (differentiation.centred_slope_weights), not the 2 a of the
+        # paper's differences; and a is the configured sensor's (noise_split)
+        self._slope_rows = cfg.method == 2
+        self._end_factor = (2.0 * sum(x * x for x in centred_slope_weights([cfg.dt] * (int(cfg.slope_window) - 1))[1])
+                            if self._slope_rows else 2.0)
         # the compiled update, unless patched; it knows the paper's differenced rows only
-        self._core = _fast.core_for_new_object() if not cfg.slope_end_factor else None
+        self._core = _fast.core_for_new_object() if not self._slope_rows else None
         self._core_guard = bytearray()             # its record of replaced methods (_fastcore.c)
         self.theta0 = theta_from_params(cfg.mass_initial, cfg.A0_initial, cfg.A1_initial,
                                         cfg.A2_initial)
@@ -238,7 +243,7 @@ class ParameterIdentifier:
         # (the process-noise weight let them wander: filter speed RMSE +13 %).
         s2p = np.full(4, s2_ref)
         s2p[0] = self._scale ** 2 * max(cfg.sigma2_initial, 1e-12)
-        if cfg.slope_end_factor:
+        if self._slope_rows:
             # est.method 2: no errors in variables left, and the A's regressors are as smooth as
             # F - B, so their prior takes the process-noise weight too. With the white weight a
             # +-5 N/kN prior acted like +-0.2 against ten runs of data: w0 after ten runs went
@@ -435,7 +440,7 @@ class ParameterIdentifier:
         s2p = list(self.s2_prior)
         j0 = list(self._j0)
         prior_var0 = s2p[0] / j0[0]
-        s2p[0] = b + (self.cfg.slope_end_factor or 2.0) * a / n
+        s2p[0] = b + self._end_factor * a / n
         j0[0] = s2p[0] / prior_var0
         J0 = np.diag(j0)
         info = phi.T @ phi + J0
@@ -509,7 +514,7 @@ class ParameterIdentifier:
         est.method 2's rows are smoothed slopes, whose residuals are correlated over the window
         (c1 > 0): there a is the configured sensor's and b the configured sigma^2 until the
         LAG sums give it (_process_share)."""
-        if self.cfg.slope_end_factor:
+        if self._slope_rows:
             return self._configured_noise()
         a = max(-self.c1, 0.0)
         b = max(self.c0 - 2.0 * a, 1e-12 * self.c0)
@@ -637,9 +642,7 @@ class ParameterIdentifier:
         residual sums once there are LAG of them (cL = 2a + LAG b: the measurement part
         telescopes), else the lag-0/lag-1 split's b as given."""
         if self.cL is not None and self._n_cL >= self.LAG:
-            if self.cfg.slope_end_factor:    # est.method 2: the ends of smoothed slopes
-                return max((self.cL - self.cfg.slope_end_factor * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
-            return max((self.cL - 2.0 * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
+            return max((self.cL - self._end_factor * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
         return b
 
 
