@@ -24,6 +24,8 @@ from bisect import bisect_right
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from models.units import kmh_to_mps
 
 ACTIONS = ("traction", "coast", "cruise", "brake", "brake_to_stop", "hold")
@@ -227,6 +229,20 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
         if k and cols[0][k] <= cols[0][k - 1]:
             raise error(f"{where}: row {k + 1}: time_s must increase")
     return TimeTable(tuple(cols[0]), tuple(cols[1]), tuple(cols[2]))
+
+
+def chain_result(chain, scenario):
+    """Drive a models chain through the scenario (``drive_chain``) and return a
+    ``harness.runner.RunResult`` of its outputs, with the demands [N] as its inputs (what
+    ``harness.metrics.oracle_filter`` needs), as the FMU runner's would be."""
+    from .runner import RunResult
+    demands: list = []
+    rows = drive_chain(chain, scenario, demands=demands)
+    demands.append(demands[-1])
+    d = np.array(demands)
+    return RunResult(scenario, np.arange(len(rows)) * scenario.step_s,
+                     {k: np.array([r[k] for r in rows]) for k in rows[0]}, {},
+                     inputs={"traction_force_demand": d[:, 0], "brake_force_demand": d[:, 1]})
 
 
 def drive_chain(chain, scenario, max_steps: int | None = None,

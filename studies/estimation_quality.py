@@ -115,6 +115,7 @@ SIGNALS = ("car.speed", "car.position", "car.mode", "car.total_mass", "sensor.sp
 
 
 def with_parameters(scenario: Scenario, extra: dict) -> Scenario:
+    """The scenario with some parameters set (by their FMU names)."""
     return replace(scenario, parameters={**scenario.parameters, **extra})
 
 
@@ -456,7 +457,7 @@ def main(argv=None) -> int:
     for m in ("LS slopes", "OE", "FE"):
         print(f"      {m:9s} " + " ".join(f"{x:6.3f}" for x in np.mean([d.w0_std[m] for d in days], axis=0)))
     # the same day with ten times less process noise: is the 2 % target information-limited?
-    low = replace(day, parameters={**day.parameters, "car.process_noise_psd": 1e-5})
+    low = with_parameters(day, {"car.process_noise_psd": 1e-5})
     lows = [day_study(run_scenario(low, 3000 + seed), np.random.default_rng([10, seed]), speeds,
                       run_scenario(with_parameters(low, SLOPES), 3000 + seed))
             for seed in range(1, n_low + 1)]

@@ -39,9 +39,8 @@ import numpy as np  # noqa: E402
 
 from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
 from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
-from harness.driver import drive_chain  # noqa: E402
+from harness.driver import chain_result  # noqa: E402
 from harness.metrics import summarise  # noqa: E402
-from harness.runner import RunResult  # noqa: E402
 from harness.scenario import load_scenario  # noqa: E402
 from models.chain import RailCarChain  # noqa: E402
 from models.units import G  # noqa: E402
@@ -137,13 +136,7 @@ def run(job) -> tuple[str, str, float, float, float]:
     v = {n: scenario.parameter(n) for n in PARAMETERS}
     chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)))
     _hand_over(chain, variant, v, scenario.step_s)
-    demands: list = []
-    rows = drive_chain(chain, scenario, demands=demands)
-    demands.append(demands[-1])
-    d = np.array(demands)
-    result = RunResult(scenario, np.arange(len(rows)) * scenario.step_s,
-                       {k: np.array([r[k] for r in rows]) for k in rows[0]}, {},
-                       inputs={"traction_force_demand": d[:, 0], "brake_force_demand": d[:, 1]})
+    result = chain_result(chain, scenario)
     s = summarise(result)
     return (scenario.name, variant, s.speed_rmse_filter / s.speed_rmse_oracle,
             float(result["est.sigma2"][-1]), v["car.process_noise_psd"] * scenario.step_s)

@@ -64,18 +64,17 @@ import numpy as np  # noqa: E402
 
 from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
 from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
-from harness.driver import drive_chain  # noqa: E402
-from harness.metrics import _segments, coast_segments, coast_time, summarise  # noqa: E402
+from harness.driver import chain_result  # noqa: E402
+from harness.metrics import _segments, coast_time_errors, summarise  # noqa: E402
 from harness.runner import RunResult  # noqa: E402
 from harness.scenario import load_scenario  # noqa: E402
 from models.chain import RailCarChain  # noqa: E402
-from models.track import GradeProfile  # noqa: E402
+from models.identification import METHODS as ID_METHODS  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
 OUT = ROOT / "out" / "methods"
 PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 METHODS = (0, 1, 2, 3)
-NAMES = {0: "paper LS", 1: "LS + FE refit", 2: "LS + poly diff", 3: "LS + coast EKF"}
 ORACLE = "oracle"
 LOW_NOISE = 0.05          # [m/s] the summary's scenarios: sensor.speed_std at most this
 RATIO_TARGET = 1.10       # speed RMSE filter / oracle
@@ -118,7 +117,7 @@ class Row:
 
 
 def method_label(method: int) -> str:
-    return f"{method} {NAMES.get(method, '?')}"
+    return f"{method} {ID_METHODS.get(method, '?')}"
 
 
 # ------------------------------------------------------------------------------ computing
@@ -129,14 +128,7 @@ def _run(path: Path, method: int) -> RunResult:
     scenario = load_scenario(path)
     v = {n: scenario.parameter(n) for n in PARAMETERS}
     v["est.method"] = method
-    chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)))
-    demands: list = []
-    rows = drive_chain(chain, scenario, demands=demands)
-    demands.append(demands[-1])
-    d = np.array(demands)
-    return RunResult(scenario, np.arange(len(rows)) * scenario.step_s,
-                     {k: np.array([r[k] for r in rows]) for k in rows[0]}, {},
-                     inputs={"traction_force_demand": d[:, 0], "brake_force_demand": d[:, 1]})
+    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), scenario)
 
 
 def _coverage(estimate, truth, std, mask) -> float:
@@ -148,20 +140,8 @@ def _coverage(estimate, truth, std, mask) -> float:
 def _true_coast_errors(result: RunResult) -> list[float]:
     """summarise's coast run-time errors [s] with the true still-air A's (and the wind then
     blowing) in place of the identified ones."""
-    s = result.scenario
-    t, v, mass = result.time, result["car.speed"], result["car.total_mass"]
-    A = tuple(s.parameter(n) for n in ("car.A0", "car.A1", "car.A2"))
-    grade = GradeProfile.level()
-    if s.parameter("track.grade_profile"):
-        with open(s.parameter("track.grade_profile"), encoding="utf-8") as f:
-            grade = GradeProfile.from_csv_text(f.read(), s.parameter("track.grade_profile"))
-    out = []
-    for first, last in coast_segments(result["car.mode"], int(round(10.0 / s.step_s))):
-        x0, x1 = float(result["car.position"][first]), float(result["car.position"][last])
-        predicted = coast_time(float(v[first]), x0, x1, A, float(mass[first]), s.parameter("car.gamma"),
-                               s.parameter("car.length"), grade, s.wind_at(float(t[first])))
-        out.append(predicted - float(t[last] - t[first]))
-    return out
+    A = tuple(result.scenario.parameter(n) for n in ("car.A0", "car.A1", "car.A2"))
+    return coast_time_errors(result, lambda last: A)
 
 
 def run_job(job: tuple[Path, int, bool]) -> list[Row]:
