@@ -282,10 +282,16 @@ def coast_segments(mode: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
     return out
 
 
-def coast_time_errors(result, A_at) -> list[float]:
+def coast_time_errors(result, A_at, still_air: bool = False) -> list[float]:
     """Predicted - actual time [s] of each coast of at least 10 s in a RailCar ``RunResult``,
     re-run with the resistance ``A_at(last)`` gives for the coast ending at row ``last`` (seed
-    003's measure; the wind blowing at the coast's start)."""
+    003's measure).
+
+    Identified A's are the coefficients of eq. (2) as the car met them, the wind included
+    (A0' = A0 + A2 Vw^2, ...): the coast is re-run in still air. With ``still_air`` the A's are
+    the car's own (the truth) and the coast is re-run in the scenario's wind as it blows over
+    the coast, changes included.
+    """
     s = result.scenario
     t, v, mass = result.time, result["car.speed"], result["car.total_mass"]
     out, grade = [], None
@@ -297,23 +303,28 @@ def coast_time_errors(result, A_at) -> list[float]:
                 with open(s.parameter("track.grade_profile"), encoding="utf-8") as f:
                     grade = GradeProfile.from_csv_text(f.read(), s.parameter("track.grade_profile"))
         x0, x1 = float(result["car.position"][first]), float(result["car.position"][last])
+        t0 = float(t[first])
+        wind = (lambda tc, t0=t0: s.wind_at(t0 + tc)) if still_air else 0.0
         predicted = coast_time(float(v[first]), x0, x1, A_at(last), float(mass[first]), s.parameter("car.gamma"),
-                               s.parameter("car.length"), grade, s.wind_at(float(t[first])))
+                               s.parameter("car.length"), grade, wind)
         out.append(predicted - float(t[last] - t[first]))
     return out
 
 
 def coast_time(v0: float, x0: float, x1: float, A: tuple, mass_t: float, gamma: float, length: float,
-               grade_profile, wind: float = 0.0, h: float = 0.05, t_max: float = 3600.0) -> float:
+               grade_profile, wind=0.0, h: float = 0.05, t_max: float = 3600.0) -> float:
     """Time [s] to coast from x0 to x1 [m] starting at v0 [m/s] with resistance A (eq. (1)).
 
     seed 003's measure of identified resistance: re-run the coast with it and compare times.
+    ``wind`` [m/s] is a constant or a function of the time since the coast's start [s] (held
+    over each RK4 step of h [s]).
     """
+    wind_at = wind if callable(wind) else (lambda _t, w=float(wind): w)
     from models.dynamics import VehicleParams, rk4_step
     p = VehicleParams(mass=mass_t, A0=A[0], A1=A[1], A2=A[2], gamma=gamma, length=length)
     v, x, t = v0, x0, 0.0
     while x < x1 and t < t_max:
-        v_new, x_new = rk4_step(v, x, h, 0.0, 0.0, wind, p, grade_profile)
+        v_new, x_new = rk4_step(v, x, h, 0.0, 0.0, wind_at(t), p, grade_profile)
         if x_new >= x1:
             return t + h * (x1 - x) / (x_new - x)
         if v_new <= 0.0:

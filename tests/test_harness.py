@@ -167,3 +167,32 @@ def test_oracle_gets_each_intervals_force_not_the_trapezoid_of_the_outputs():
     np.testing.assert_array_equal(B, [0.0, 0.0, 0.0])
     F, _ = _interval_forces(Recorded({}))                    # no recorded demands: the trapezoid
     np.testing.assert_array_equal(F, [40e3, 20e3, 0.0])
+
+
+def test_coast_time_follows_a_wind_that_changes_mid_coast():
+    """A headwind rising 20 s into a coast: the coast takes longer than in still air and less
+    than with the headwind throughout; a constant function equals the constant."""
+    from harness.metrics import coast_time
+    from models.track import GradeProfile
+    args = (20.0, 0.0, 1500.0, (1.0, 0.03, 0.01), 40.0, 0.0, 20.0, GradeProfile.level())
+    still, windy = coast_time(*args, wind=0.0), coast_time(*args, wind=12.0)
+    rising = coast_time(*args, wind=lambda t: 12.0 if t >= 20.0 else 0.0)
+    assert coast_time(*args, wind=lambda t: 12.0) == windy      # same arithmetic, exactly
+    assert still + 1.0 < rising < windy - 1.0                    # [s]; the gap is ~10 s each side
+
+
+def test_true_resistance_predicts_headwind_change_coast_within_process_noise():
+    """The truth, re-run in the wind as it blows over the coast, predicts the coast's time to
+    within the process noise's spread (about 1 s; the wind at the coast's start alone: -17 s)."""
+    from fmu_src.adapter import chain_config, load_profiles
+    from fmu_src.variables import RAILCAR, variables_for
+    from harness.driver import chain_result
+    from harness.metrics import coast_time_errors
+    from models.chain import RailCarChain
+    path = ROOT / "scenarios" / "library" / "headwind_change.toml"
+    s = load_scenario(path)
+    v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
+    result = chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), s)
+    A = (v["car.A0"], v["car.A1"], v["car.A2"])
+    errors = coast_time_errors(result, lambda last: A, still_air=True)
+    assert errors and max(abs(e) for e in errors) < 2.0    # [s]
