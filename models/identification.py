@@ -221,6 +221,7 @@ class ParameterIdentifier:
         self._slope_rows = cfg.method == 2
         self._end_factor = (2.0 * sum(x * x for x in centred_slope_weights([cfg.dt] * (int(cfg.slope_window) - 1))[1])
                             if self._slope_rows else 2.0)
+        self._end_weight = math.sqrt(0.5 * self._end_factor)   # scales a run's end row in D
         # the compiled update, unless patched; it knows the paper's differenced rows only
         self._core = _fast.core_for_new_object() if not self._slope_rows else None
         self._core_guard = bytearray()             # its record of replaced methods (_fastcore.c)
@@ -339,9 +340,13 @@ class ParameterIdentifier:
         if contiguous and last is not None:
             _add_outer(D, (phi[0] - last[0], phi[1] - last[1], phi[2] - last[2], phi[3] - last[3]))
         else:
+            # a run's ends: its first and last rows carry one sample's measurement noise alone
+            # (the paper's differences: weight 1; seed 004's slopes spread it over the window,
+            # weight sum c_j^2 = end_factor / 2)
+            e = self._end_weight
             if last is not None:
-                _add_outer(D, last)      # close the previous run
-            _add_outer(D, phi)           # open a new one
+                _add_outer(D, last if e == 1.0 else [e * x for x in last])   # close the previous run
+            _add_outer(D, phi if e == 1.0 else [e * x for x in phi])         # open a new one
         _add_outer(W, phi)
         self._last_phi = phi
 
@@ -553,7 +558,7 @@ class ParameterIdentifier:
         D, W, last = self._D, self._W, self._last_phi
         M = [a * d + b * w for d, w in zip(D, W)]
         if last is not None:                     # the open run's end
-            sa = math.sqrt(a)
+            sa = math.sqrt(a) * self._end_weight
             _add_outer(M, (sa * last[0], sa * last[1], sa * last[2], sa * last[3]))
         M[0] += s2[0] * j0[0]
         M[5] += s2[1] * j0[1]
@@ -579,6 +584,10 @@ class ParameterIdentifier:
         if self._running_theta is not None and self._S is None and not self.cfg.frozen:
             return np.array(self._running_theta)
         return self.theta
+
+    def model_covariance(self) -> np.ndarray:
+        """cov(model_theta) [Theta units^2], 4x4."""
+        return np.array(self._model_covariance_flat()).reshape(4, 4)
 
     def model_variance_along(self, phi) -> float:
         """phi^T cov(model_theta) phi: the filter's model's prediction variance."""
