@@ -164,7 +164,8 @@ class RailCarChain:
         # default configuration (EKF, no track sensors, est.method 0, no forgetting)
         core = _fast.core_for_new_object()
         self._core_guard = bytearray()   # the core's record of replaced methods (_fastcore.c)
-        paper = cfg.identifier.method == 0        # the core knows the paper's estimator only
+        # the core knows the paper's estimator only (and reports Theta-hat as identified)
+        paper = cfg.identifier.method == 0 and not cfg.identifier.physical
         compiled = (self.estimator.filter.kind == EKF and not cfg.track.spacing
                     and paper and cfg.identifier.forgetting == 0.0)
         self._core_step = core.chain_step if core is not None and compiled else None

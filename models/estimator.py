@@ -14,7 +14,7 @@ import numpy as np
 from .coast_ekf import CoastEKF, CoastEKFConfig
 from .differentiation import centred_slope_weights
 from .filters import FilterConfig, MotionFilter
-from .identification import IdentifierConfig, ParameterIdentifier
+from .identification import IdentifierConfig, ParameterIdentifier, project_physical
 from .track import GradeProfile, SpeedProfile
 from . import _fast
 from .units import G
@@ -105,6 +105,7 @@ class OnlineEstimator:
                 process_noise_psd=id_cfg.sigma2_initial / id_cfg.dt, gamma=id_cfg.gamma))
         self._coasting = False       # the last pair used was a coasting one (method 3)
         self.ident = ParameterIdentifier(id_cfg)
+        self.physical = bool(id_cfg.physical)
         self.filter = MotionFilter(filt_cfg, grade_profile, speed_profile)
         self.station = StationDetector(station_cfg, filt_cfg.speed_std, filt_cfg.position_std)
         self.grade_profile = grade_profile
@@ -273,13 +274,35 @@ class OnlineEstimator:
         self._dt = dt
 
     def theta(self) -> np.ndarray:
-        """Theta reported (est.*): the running LS's, with the refitted A's once there are any."""
-        return self._with_refitted_resistance(self.ident.theta)
+        """Theta reported (est.*): the running LS's, with the refitted A's once there are any;
+        with est.physical, projected onto A0, A2 >= 0 (identification.project_physical)."""
+        th = self._with_refitted_resistance(self.ident.theta)
+        if self.physical and (th[1] < 0.0 or th[3] < 0.0):
+            th = project_physical(th, self._with_resistance_covariance(self.ident.covariance()))
+        return th
 
     def model_theta(self) -> np.ndarray:
         """Theta the filter predicts with: as theta(), but before the first batch the running
         estimate instead of the configured values (ParameterIdentifier.model_theta)."""
-        return self._with_refitted_resistance(self.ident.model_theta)
+        th = self._with_refitted_resistance(self.ident.model_theta)
+        if self.physical and (th[1] < 0.0 or th[3] < 0.0):
+            th = project_physical(th, self._with_resistance_covariance(self.ident.model_covariance()))
+        return th
+
+    def _with_resistance_covariance(self, c: np.ndarray) -> np.ndarray:
+        """The LS's covariance c with the A's block of the refit (method 1) or the coasting EKF
+        (method 3) when their A's are used (cross terms with the mass then 0)."""
+        if self.refit is not None and self.refit.runs:
+            A_cov = self.refit.cov_A
+        elif self._coast_ready():
+            A_cov = self.coast.cov_A
+        else:
+            return c
+        c = c.copy()
+        c[1:, :] = 0.0
+        c[:, 1:] = 0.0
+        c[1:, 1:] = A_cov
+        return c
 
     def _with_refitted_resistance(self, th: np.ndarray) -> np.ndarray:
         if self.refit is not None and self.refit.runs:

@@ -92,6 +92,49 @@ def theta_from_params(mass: float, a0: float, a1: float, a2: float) -> np.ndarra
     return np.array([1.0 / (G * mass), a0, a1, a2])
 
 
+PHYSICAL = (1, 3)
+"""Components of Theta kept >= 0 by ``project_physical``: A0 and A2. A1 is not: a tailwind Vw < 0
+makes A1' = A1 + 2 A2 Vw negative on a real car (MODEL.md section 2)."""
+
+
+def project_physical(theta, cov, components=PHYSICAL) -> np.ndarray:
+    """Theta-hat moved to the nearest point with theta[i] >= 0 for i in ``components``, nearest
+    in the metric of its covariance: argmin (t - theta)^T cov^-1 (t - theta) subject to the
+    bounds, the maximum of the Gaussian posterior truncated to the physical set (estimate
+    projection; D. Simon, "Kalman filtering with state constraints: a survey of linear and
+    nonlinear algorithms", IET Control Theory Appl. 4(8), 2010, sec. 2.3). A clipped A0 moves
+    A1 and A2 along their correlation with it, so w0 over the speeds the data covered changes
+    as little as the data allow. Exact: every set of active bounds is tried (at most 4 for
+    two bounds) and the feasible one whose KKT multipliers are all >= 0 kept. Returns a copy."""
+    theta = np.asarray(theta, dtype=float)
+    out = theta.copy()
+    violated = [i for i in components if theta[i] < 0.0]
+    if not violated:
+        return out
+    C = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+    comps = list(components)
+    best, best_cost = None, math.inf
+    for mask in range(1, 1 << len(comps)):
+        active = [comps[j] for j in range(len(comps)) if mask >> j & 1]
+        Caa = C[np.ix_(active, active)]
+        try:
+            lam = np.linalg.solve(Caa, theta[active])        # minus half the KKT multipliers
+        except np.linalg.LinAlgError:
+            continue
+        t = theta - C[:, active] @ lam
+        t[active] = 0.0
+        if np.any(lam > 1e-12) or any(t[i] < -1e-12 for i in comps):   # multipliers >= 0, feasible
+            continue
+        cost = float(theta[active] @ lam)                   # (t - theta)^T C^-1 (t - theta)
+        if cost < best_cost:
+            best, best_cost = t, cost
+    if best is None:                                         # a singular cov: clip
+        for i in violated:
+            out[i] = 0.0
+        return out
+    return best
+
+
 # ---------------------------------------------------------------- stateful wrapper
 
 METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on seed 004 slopes",
@@ -122,6 +165,7 @@ class IdentifierConfig:
                                      # models.estimator); 3 LS for the mass, seed 003's coasting
                                      # EKF for the A's
     slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
+    physical: int = 0                # est.physical: 1 keeps the reported A0, A2 >= 0 (project_physical)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
@@ -130,6 +174,8 @@ class IdentifierConfig:
         if int(self.method) not in METHODS:
             raise ValueError("est.method must be " + ", ".join(f"{k} ({v})" for k, v in METHODS.items())
                              + f", got {self.method}")
+        if int(self.physical) not in (0, 1):
+            raise ValueError(f"est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got {self.physical}")
         if int(self.slope_window) < 2:
             raise ValueError(f"est.slope_window must be >= 2 (a first-order fit), got {self.slope_window}")
         if not 0.0 <= self.forgetting < 1.0:
@@ -584,6 +630,10 @@ class ParameterIdentifier:
         if self._running_theta is not None and self._S is None and not self.cfg.frozen:
             return np.array(self._running_theta)
         return self.theta
+
+    def model_covariance(self) -> np.ndarray:
+        """cov(model_theta) [Theta units^2], 4x4."""
+        return np.array(self._model_covariance_flat()).reshape(4, 4)
 
     def model_covariance(self) -> np.ndarray:
         """cov(model_theta) [Theta units^2], 4x4."""

@@ -58,3 +58,5 @@ def test_est_method_is_validated():
         IdentifierConfig(method=4).validate()
     with pytest.raises(ValueError, match="est.slope_window"):
         IdentifierConfig(method=2, slope_window=1).validate()
+    with pytest.raises(ValueError, match="est.physical"):
+        IdentifierConfig(physical=2).validate()
