@@ -99,6 +99,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.method", "parameter", "Integer", None, 0, "0 the paper's recursive LS; 1 LS plus a filter-error refit of each run at the next station stop, the A's carried over between runs; 2 LS on speed and acceleration from seed 004's least-squares differentiation (est.slope_window); 3 LS for the mass, seed 003's coasting EKF for the A's", BOTH),
     Var("est.slope_window", "parameter", "Integer", None, 10, "est.method 2: samples of seed 004's least-squares line through the measured speed (>= 2; the seed's M + 1 = 6)", BOTH),
     Var("est.physical", "parameter", "Integer", None, 0, "1: est.A0, est.A2 and the filter's model kept >= 0, Theta-hat projected onto A0, A2 >= 0 in its covariance's metric (A1 may be < 0: a tailwind); 0: as identified", BOTH),
+    Var("est.sigma2_method", "parameter", "Integer", None, 0, "where est.sigma2 (the filter's process noise) comes from: 0 eq. (12) on sums of 50 LS residuals; 1 the innovation likelihood of a bank of 13 speed filters over a log grid around est.sigma2_initial (Magill 1965)", BOTH),
     Var("est.forgetting", "parameter", "Real", "1", 0.0, "mu0 in [0, 1): 0 = mu(n) = 1/n (ordinary LS), else exponential forgetting 1 - mu0", BOTH, min=0.0, max=1.0),
     Var("est.gamma", "parameter", "Real", "1", 0.0, "rotating-mass factor the estimator assumes (0 = the paper's eq. (2))", BOTH, min=0.0),
     Var("est.mass_initial", "parameter", "Real", "t", 30.0, "initial (prior) mass", BOTH, min=0.0),

@@ -165,7 +165,8 @@ class RailCarChain:
         core = _fast.core_for_new_object()
         self._core_guard = bytearray()   # the core's record of replaced methods (_fastcore.c)
         # the core knows the paper's estimator only (and reports Theta-hat as identified)
-        paper = cfg.identifier.method == 0 and not cfg.identifier.physical
+        paper = (cfg.identifier.method == 0 and not cfg.identifier.physical
+                 and cfg.identifier.sigma2_method == 0)
         compiled = (self.estimator.filter.kind == EKF and not cfg.track.spacing
                     and paper and cfg.identifier.forgetting == 0.0)
         self._core_step = core.chain_step if core is not None and compiled else None

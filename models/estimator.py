@@ -13,7 +13,7 @@ import numpy as np
 
 from .coast_ekf import CoastEKF, CoastEKFConfig
 from .differentiation import centred_slope_weights
-from .filters import FilterConfig, MotionFilter
+from .filters import FilterConfig, MotionFilter, ProcessNoiseBank
 from .identification import IdentifierConfig, ParameterIdentifier, project_physical
 from .track import GradeProfile, SpeedProfile
 from . import _fast
@@ -106,6 +106,9 @@ class OnlineEstimator:
         self._coasting = False       # the last pair used was a coasting one (method 3)
         self.ident = ParameterIdentifier(id_cfg)
         self.physical = bool(id_cfg.physical)
+        # est.sigma2_method 1: sigma^2 from the filter's innovations, not the LS's residuals
+        self.noise_bank = (ProcessNoiseBank(id_cfg.sigma2_initial, filt_cfg.speed_std ** 2)
+                           if id_cfg.sigma2_method == 1 else None)
         self.filter = MotionFilter(filt_cfg, grade_profile, speed_profile)
         self.station = StationDetector(station_cfg, filt_cfg.speed_std, filt_cfg.position_std)
         self.grade_profile = grade_profile
@@ -164,6 +167,11 @@ class OnlineEstimator:
             self._coasting = False
         self._pair_used = used
         self._prev = (speed_meas, position_meas)
+        if self.noise_bank is not None:
+            if self.station.moving:
+                self.noise_bank.update(speed_meas)
+            else:
+                self.noise_bank.stand()
         if stop:
             self.station_stops += 1
             if self.refit is not None:
@@ -214,7 +222,7 @@ class OnlineEstimator:
             self._coasting = False
             return
         ekf = self.coast
-        ekf.cfg.process_noise_psd = self.ident.sigma2() / self.dt_nominal
+        ekf.cfg.process_noise_psd = self.sigma2() / self.dt_nominal
         if not self._coasting:
             ekf.carry_over(speed)
             self._coasting = True
@@ -262,6 +270,11 @@ class OnlineEstimator:
         self.filter.update_speed(max(speed_meas + accel * age, 0.0), var)
         self.track_speeds += 1
 
+    def sigma2(self) -> float:
+        """Process-noise variance per sample [(m/s)^2] the filter uses and est.sigma2 reports:
+        the LS's (eq. (12) on LAG sums) or, with est.sigma2_method 1, the likelihood bank's."""
+        return self.ident.sigma2() if self.noise_bank is None else self.noise_bank.estimate()
+
     def propagate(self, traction: float, brake: float, dt: float) -> None:
         """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""
         theta = self.model_theta()
@@ -269,7 +282,11 @@ class OnlineEstimator:
         if self.refit is not None:
             self._run["f"].append(traction)
             self._run["b"].append(brake)
+        before = self.filter.speed
         self.filter.predict(traction, brake, theta, q, dt)
+        bank = self.noise_bank
+        if bank is not None and self.station.moving:
+            bank.predict(self.filter.predicted_speed - before, q - self.sigma2() * dt / self.dt_nominal)
         self._forces = (traction, brake)
         self._dt = dt
 
@@ -328,7 +345,7 @@ class OnlineEstimator:
             if moving.size >= self.MIN_REFIT_SAMPLES:
                 a, b = max(moving[0] - 1, 0), min(moving[-1] + 2, len(v), len(run["f"]) + 1)
                 sl = slice(a, b)
-                q = self.ident.sigma2() / self.dt_nominal
+                q = self.sigma2() / self.dt_nominal
                 self.refit.fit(np.asarray(run["t"][sl]), v[sl], np.asarray(run["f"][a:b - 1]),
                                np.asarray(run["b"][a:b - 1]), distance=np.asarray(run["x"][sl]),
                                grade_profile=self.grade_profile, length=self.length, gamma=self.gamma,
@@ -361,7 +378,7 @@ class OnlineEstimator:
                 phi[i + 1] * c[i + 1, j + 1] * phi[j + 1] for i in range(3) for j in range(3))
         else:
             var = self.ident.model_variance_along(phi)
-        return self.ident.sigma2() * dt / self.dt_nominal + k * k * var
+        return self.sigma2() * dt / self.dt_nominal + k * k * var
 
     def outputs(self, predicted: bool = False) -> dict[str, float]:
         """est.* and filter.* values: the filter's posterior at the last measurement, or with
@@ -377,7 +394,7 @@ class OnlineEstimator:
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),
             "est.A0_std": float(sd[1]), "est.A1_std": float(sd[2]), "est.A2_std": float(sd[3]),
-            "est.sigma2": self.ident.sigma2(),
+            "est.sigma2": self.sigma2(),
             "est.samples": self.ident.samples, "est.station_stops": self.station_stops,
         }
         if predicted:

@@ -339,4 +339,62 @@ class MotionFilter:
         return math.sqrt(self._m11) if self._m11 > 0.0 else 0.0
 
 
+class ProcessNoiseBank:
+    """sigma^2, the process-noise variance per sample [(m/s)^2], from the innovation likelihood of
+    a bank of scalar speed filters (est.sigma2_method = 1): multiple-model adaptive estimation
+    (D. T. Magill, "Optimal adaptive estimation of sampled stochastic processes", IEEE Trans.
+    Automatic Control 10(4), 1965), one filter per candidate q_j on a log grid.
+
+    Each member predicts with the learning filter's own speed increment, adds q_j and the
+    parameter-uncertainty term the learning filter adds, and takes the measured speed (variance
+    R [(m/s)^2]); its innovations' log-likelihood accumulates while the car moves. The estimate
+    is the posterior's geometric mean over the grid (prior: log-normal, ``prior_decades`` wide,
+    centred on q0 = est.sigma2_initial). Why: the LS's LAG sums give sigma^2 as a small
+    difference of two noisy sums (studies/filter_gap.py: 0.00-1.75x the truth at the end of the
+    library's runs); the likelihood uses the innovations' whole correlation structure.
+    """
+
+    def __init__(self, q0: float, R: float, decades=(-2.0, 1.0), n: int = 13, prior_decades: float = 1.0):
+        if not (q0 > 0 and math.isfinite(q0) and R > 0 and math.isfinite(R)):
+            raise ValueError(f"ProcessNoiseBank needs q0 > 0 and R > 0, got {q0}, {R}")
+        self.log_q = math.log(q0) + math.log(10.0) * np.linspace(*decades, n)
+        self.q = np.exp(self.log_q)
+        self.log_prior = -0.5 * ((self.log_q - math.log(q0)) / (prior_decades * math.log(10.0))) ** 2
+        self.log_lik = np.zeros(n)
+        self.R = R
+        self.x = None                 # members' speeds [m/s]; None while the car stands
+        self.P = np.zeros(n)
+        self._estimate = q0
+
+    def predict(self, dv: float, q_param: float) -> None:
+        """Speed increment dv [m/s] of the learning filter's prediction, its parameter term
+        q_param [(m/s)^2]."""
+        if self.x is not None:
+            self.x = self.x + dv
+            self.P = self.P + self.q + q_param
+
+    def update(self, z: float) -> None:
+        """A measured speed z [m/s] of a moving car (the first one starts the members)."""
+        if self.x is None:
+            self.x, self.P = np.full(len(self.q), z), np.full(len(self.q), self.R)
+            return
+        S = self.P + self.R
+        nu = z - self.x
+        self.log_lik += -0.5 * (np.log(S) + nu * nu / S)
+        K = self.P / S
+        self.x = self.x + K * nu
+        self.P = self.P * (1.0 - K)
+        w = self.log_lik + self.log_prior
+        w = np.exp(w - w.max())
+        self._estimate = float(np.exp(np.sum(w * self.log_q) / w.sum()))
+
+    def stand(self) -> None:
+        """The car stands: the members stop (the model (2) does not hold at rest)."""
+        self.x = None
+
+    def estimate(self) -> float:
+        """sigma^2 [(m/s)^2]: q0 until the first moving pair."""
+        return self._estimate
+
+
 _fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

@@ -166,6 +166,8 @@ class IdentifierConfig:
                                      # EKF for the A's
     slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
     physical: int = 0                # est.physical: 1 keeps the reported A0, A2 >= 0 (project_physical)
+    sigma2_method: int = 0           # est.sigma2_method: 0 LAG sums of the LS residuals (sigma2()),
+                                     # 1 innovation likelihood (models.filters.ProcessNoiseBank)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
@@ -174,6 +176,9 @@ class IdentifierConfig:
         if int(self.method) not in METHODS:
             raise ValueError("est.method must be " + ", ".join(f"{k} ({v})" for k, v in METHODS.items())
                              + f", got {self.method}")
+        if int(self.sigma2_method) not in (0, 1):
+            raise ValueError(f"est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
+                             f"(innovation likelihood), got {self.sigma2_method}")
         if int(self.physical) not in (0, 1):
             raise ValueError(f"est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got {self.physical}")
         if int(self.slope_window) < 2:
@@ -630,10 +635,6 @@ class ParameterIdentifier:
         if self._running_theta is not None and self._S is None and not self.cfg.frozen:
             return np.array(self._running_theta)
         return self.theta
-
-    def model_covariance(self) -> np.ndarray:
-        """cov(model_theta) [Theta units^2], 4x4."""
-        return np.array(self._model_covariance_flat()).reshape(4, 4)
 
     def model_covariance(self) -> np.ndarray:
         """cov(model_theta) [Theta units^2], 4x4."""

@@ -16,17 +16,16 @@ instance (the compiled core then stands aside and the Python code runs):
   true theta     both
   theta+sigma2   both, and the true sigma2
   = oracle       all of it and no parameter-uncertainty term in the process noise: must be 1.000
-  sigma2 by ML   a prototype, not in the FMU: sigma2 from the innovation likelihood of a bank of
+  sigma2 by ML   est.sigma2_method = 1: sigma2 from the innovation likelihood of a bank of
                  13 scalar speed filters, q on a log grid over three decades around
                  est.sigma2_initial, log-normal prior of one decade; the posterior's geometric
-                 mean (multiple-model adaptive estimation, Magill 1965)
+                 mean (multiple-model adaptive estimation, Magill 1965; models.filters.ProcessNoiseBank)
 
 Prints the filter/oracle speed RMSE ratio per scenario and variant and the LAG estimate of
 sigma2 against the truth. Seeded (the scenarios' seeds); ~1 min on 2 cores.
 """
 from __future__ import annotations
 
-import math
 import sys
 from multiprocessing import Pool
 from pathlib import Path
@@ -51,42 +50,6 @@ VARIANTS = ("as built", "true sigma2", "true mass", "true A's", "true theta", "t
             "= oracle", "sigma2 by ML")
 
 
-class LikelihoodBank:
-    """sigma^2 per sample [(m/s)^2] by the innovation likelihood of scalar speed filters, one per
-    candidate q_j: each predicts with the learning filter's own speed increment, adds q_j and
-    the parameter-uncertainty term, and takes the measured speed (variance R [(m/s)^2])."""
-
-    def __init__(self, q0: float, R: float, decades=(-2.0, 1.0), n: int = 13, prior_decades: float = 1.0):
-        self.log_q = math.log(q0) + math.log(10.0) * np.linspace(*decades, n)
-        self.q = np.exp(self.log_q)
-        self.log_prior = -0.5 * ((self.log_q - math.log(q0)) / (prior_decades * math.log(10.0))) ** 2
-        self.log_lik = np.zeros(n)
-        self.R = R
-        self.x = None                 # speeds [m/s]; None while the car stands
-        self.P = np.zeros(n)
-
-    def predict(self, dv: float, q_param: float) -> None:
-        if self.x is not None:
-            self.x = self.x + dv
-            self.P = self.P + self.q + q_param
-
-    def update(self, z: float) -> None:
-        if self.x is None:
-            self.x, self.P = np.full(len(self.q), z), np.zeros(len(self.q))
-            return
-        S = self.P + self.R
-        nu = z - self.x
-        self.log_lik += -0.5 * (np.log(S) + nu * nu / S)
-        K = self.P / S
-        self.x = self.x + K * nu
-        self.P = self.P * (1.0 - K)
-
-    def estimate(self) -> float:
-        w = self.log_lik + self.log_prior
-        w = np.exp(w - w.max())
-        return float(np.exp(np.sum(w * self.log_q) / w.sum()))
-
-
 def _hand_over(chain: RailCarChain, variant: str, v: dict, dt: float) -> None:
     """Replace the estimator's methods on the instance to give it the variant's truth."""
     est, ident = chain.estimator, chain.estimator.ident
@@ -108,25 +71,6 @@ def _hand_over(chain: RailCarChain, variant: str, v: dict, dt: float) -> None:
         ident.sigma2 = lambda: sigma2
     if variant == "= oracle":
         est.process_noise = lambda traction, brake, step: sigma2 * step / est.dt_nominal
-    if variant == "sigma2 by ML":
-        bank = LikelihoodBank(v["est.sigma2_initial"], v["sensor.speed_std"] ** 2)
-        propagate, measure = est.propagate, est.measure
-
-        def propagate_and_bank(traction, brake, step):
-            before = est.filter.speed
-            q_param = est.process_noise(traction, brake, step) - ident.sigma2() * step / est.dt_nominal
-            propagate(traction, brake, step)
-            if est.station.moving:
-                bank.predict(est.filter.predicted_speed - before, q_param)
-
-        def measure_and_bank(speed, position):
-            measure(speed, position)
-            if est.station.moving:
-                bank.update(speed)
-            else:
-                bank.x = None
-        est.propagate, est.measure = propagate_and_bank, measure_and_bank
-        ident.sigma2 = bank.estimate
 
 
 def run(job) -> tuple[str, str, float, float, float]:
@@ -134,6 +78,8 @@ def run(job) -> tuple[str, str, float, float, float]:
     path, variant = job
     scenario = load_scenario(path)
     v = {n: scenario.parameter(n) for n in PARAMETERS}
+    if variant == "sigma2 by ML":
+        v["est.sigma2_method"] = 1
     chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)))
     _hand_over(chain, variant, v, scenario.step_s)
     result = chain_result(chain, scenario)
