@@ -42,7 +42,8 @@ Conventions (decided here, printed with the results):
   0.01 (models.output_error.physical_prior) and a mass prior of 30 +- 10 t. In the Monte Carlo
   its mean is drawn per seed from N(truth, prior std) (simulation-based calibration, Cook, Gelman
   & Rubin 2006): a prior centred on the truth would make the coverage of prior-dominated
-  directions meaninglessly 100 %. The library-seed rows use the nominal prior.
+  directions meaninglessly 100 %. The library-seed rows use the nominal prior. LS slopes gets
+  the same prior (the same draw) through est.A*_initial and est.A*_std_initial (slopes_run).
 
 Seeded and reproducible; prints tables only, writes nothing. --quick keeps it under a minute.
 """
@@ -200,6 +201,18 @@ def prior_for(rng: np.random.Generator | None, A_true) -> tuple[np.ndarray, Prio
     """The physical prior, its A-mean drawn from N(A_true, prior std) when rng is given."""
     mean = PRIOR_MEAN.copy() if rng is None else np.asarray(A_true) + PRIOR_STD * rng.standard_normal(3)
     return mean, Prior.from_A(mean, np.diag(PRIOR_STD ** 2), *MASS_PRIOR)
+
+
+def slopes_run(scenario: Scenario, seed: int, rng_seed) -> "Run":
+    """The scenario with est.method 2 ("LS slopes") and the study's physical prior on the A's,
+    the same one OE, FE and the EKF get (prior_for with a generator seeded ``rng_seed``, so the
+    same draw; None: PRIOR_MEAN), as est.A*_initial and est.A*_std_initial."""
+    A_true = [scenario.parameter(f"car.A{i}") for i in range(3)]
+    mean, _ = prior_for(None if rng_seed is None else np.random.default_rng(rng_seed), A_true)
+    extra = dict(SLOPES)
+    extra.update({f"est.A{i}_initial": float(mean[i]) for i in range(3)})
+    extra.update({f"est.A{i}_std_initial": float(PRIOR_STD[i]) for i in range(3)})
+    return run_scenario(with_parameters(scenario, extra), seed)
 
 
 def fmt(x, f="{:+.2f}"):
@@ -394,11 +407,10 @@ def main(argv=None) -> int:
     coast_z = {m: [] for m in METHODS}
     for r in (1, 2, 3, 4):
         scn = load_scenario(LIBRARY / f"coasting_rusich_row{r}.toml")
-        scn_slopes = with_parameters(scn, SLOPES)
         lib_seed = int(scn.parameter("seed"))
-        lib_c = coast_prepare(run_scenario(scn, lib_seed), None, run_scenario(scn_slopes, lib_seed))
+        lib_c = coast_prepare(run_scenario(scn, lib_seed), None, slopes_run(scn, lib_seed, None))
         mc_c = [coast_prepare(run_scenario(scn, 1000 + seed), np.random.default_rng([r, seed]),
-                              run_scenario(scn_slopes, 1000 + seed))
+                              slopes_run(scn, 1000 + seed, [r, seed]))
                 for seed in range(1, n_rows + 1)]
         # q calibrated over the row's coasts (same train and line): one 33-120 s coast cannot
         # estimate it (row 3: REML collapses towards 0 in ~1 coast of 8, coverage falls to 87 %)
@@ -429,10 +441,9 @@ def main(argv=None) -> int:
     speeds = np.array([2.0, 5.0, 10.0, 15.0])
     lib_run = run_scenario(day, int(day.parameter("seed")))
     A_true_day = lib_run.A_true
-    day_slopes = with_parameters(day, SLOPES)
-    lib = day_study(lib_run, None, speeds, run_scenario(day_slopes, int(day.parameter("seed"))))
+    lib = day_study(lib_run, None, speeds, slopes_run(day, int(day.parameter("seed")), None))
     days = [day_study(run_scenario(day, 2000 + seed), np.random.default_rng([9, seed]), speeds,
-                      run_scenario(day_slopes, 2000 + seed))
+                      slopes_run(day, 2000 + seed, [9, seed]))
             for seed in range(1, n_day + 1)]
     print(f"    runs found: {lib.runs}; q-hat (pooled, REML) median {np.median([d.q for d in days]):.2e} "
           f"m2/s3 (plant {day.parameter('car.process_noise_psd'):.0e}); largest per-run mass error (OE) "
@@ -459,7 +470,7 @@ def main(argv=None) -> int:
     # the same day with ten times less process noise: is the 2 % target information-limited?
     low = with_parameters(day, {"car.process_noise_psd": 1e-5})
     lows = [day_study(run_scenario(low, 3000 + seed), np.random.default_rng([10, seed]), speeds,
-                      run_scenario(with_parameters(low, SLOPES), 3000 + seed))
+                      slopes_run(low, 3000 + seed, [10, seed]))
             for seed in range(1, n_low + 1)]
     print(f"    sensitivity, plant process noise 1e-05 m2/s3 ({n_low} days): mean w0 error after 10 runs "
           + ", ".join(f"{m} {100 * np.mean([d.w0_err[m] for d in lows]):.2f} %" for m in ("paper LS", "LS slopes", "OE", "FE"))
