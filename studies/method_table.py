@@ -1,7 +1,7 @@
 """Which identification method to ship: paper LS vs each est.method vs the oracle, per metric
 (a study, not a test).
 
-    python studies/method_table.py [NAME ...] [--methods K ...] [--physical]
+    python studies/method_table.py [NAME ...] [--methods K ...] [--with NAME=VALUE ...]
 
 The FMU parameter est.method selects how the estimator identifies the mass and the resistance
 coefficients (models.identification.IdentifierConfig):
@@ -12,8 +12,9 @@ coefficients (models.identification.IdentifierConfig):
   3  LS + coast EKF    seed 003's coasting EKF for A0, A1, A2; LS for the mass
 
 This runs every library scenario (scenarios/library/*.toml; NAME restricts them) with each
-method (--methods restricts them, default 0 1 2 3; --physical adds each with est.physical = 1,
-the identified Theta projected onto A0, A2 >= 0) on the models chain (no FMI), as
+method (--methods restricts them, default 0 1 2 3; each --with NAME=VALUE adds every method
+again with that FMU parameter set, e.g. --with est.physical=1 --with est.sigma2_method=1) on the
+models chain (no FMI), as
 studies/filter_gap.py does, and summarises each run with harness.metrics.summarise. A method the
 configuration rejects (ValueError when the chain is built) is a row "n/a (rejected: ...)".
 Per row:
@@ -117,19 +118,19 @@ class Row:
         return self.dist_rmse_filter / self.dist_rmse_oracle
 
 
-def method_label(method: int, physical: bool = False) -> str:
-    return f"{method} {ID_METHODS.get(method, '?')}" + (" + physical" if physical else "")
+def method_label(method: int, extra: dict | None = None) -> str:
+    return f"{method} {ID_METHODS.get(method, '?')}" + "".join(f" + {k}={v:g}" for k, v in (extra or {}).items())
 
 
 # ------------------------------------------------------------------------------ computing
 
-def _run(path: Path, method: int, physical: bool = False) -> RunResult:
-    """The scenario on the models chain with est.method = method (and est.physical), demands
-    recorded as inputs. Raises ValueError if the configuration rejects the method."""
+def _run(path: Path, method: int, extra: dict | None = None) -> RunResult:
+    """The scenario on the models chain with est.method = method and the ``extra`` parameters,
+    demands recorded as inputs. Raises ValueError if the configuration rejects them."""
     scenario = load_scenario(path)
     v = {n: scenario.parameter(n) for n in PARAMETERS}
     v["est.method"] = method
-    v["est.physical"] = int(physical)
+    v.update(extra or {})
     return chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), scenario)
 
 
@@ -147,15 +148,15 @@ def _true_coast_errors(result: RunResult) -> list[float]:
 
 
 def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[Row]:
-    """The row of (scenario, method[, est.physical]), and the scenario's oracle row if asked
+    """The row of (scenario, method[, extra parameters]), and the scenario's oracle row if asked
     (from this run, or from a method-0 run if the method is rejected)."""
-    path, method, with_oracle, physical = (tuple(job) + (False,))[:4]
+    path, method, with_oracle, extra = (tuple(job) + (None,))[:4]
     scenario = load_scenario(path)
     noise = float(scenario.parameter("sensor.speed_std"))
     try:
-        result = _run(path, method, physical)
+        result = _run(path, method, extra)
     except ValueError as e:
-        rows = [Row(scenario.name, method_label(method, physical), noise, rejected=str(e))]
+        rows = [Row(scenario.name, method_label(method, extra), noise, rejected=str(e))]
         if with_oracle:
             rows += [r for r in run_job((path, 0, True)) if r.method == ORACLE]
         return rows
@@ -167,7 +168,7 @@ def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[
     mass_ok = [abs(result["est.mass"][k] - result["car.total_mass"][k]) <= 2.0 * result["est.mass_std"][k]
                for k in arrivals]
     row = Row(
-        scenario.name, method_label(method, physical), noise, stops=len(arrivals),
+        scenario.name, method_label(method, extra), noise, stops=len(arrivals),
         mass_err_max_pct=max(errs) if errs else NAN,
         mass_within_1pct=all(e <= 1.0 for e in errs) if errs else None,
         mass_coverage=float(np.mean(mass_ok)) if mass_ok else NAN,
@@ -193,11 +194,11 @@ def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[
 
 
 def compute_rows(names: list[str] | None = None, methods=METHODS, processes: int = 2,
-                 physical: tuple[bool, ...] = (False,)) -> list[Row]:
+                 extras: tuple[dict, ...] = ({},)) -> list[Row]:
     """Rows grouped by scenario (library order), methods in the order given (each with every
-    est.physical setting of ``physical``), then the oracle."""
+    parameter set of ``extras``, {} = as the scenario says), then the oracle."""
     paths = [LIBRARY / f"{n}.toml" for n in names] if names else sorted(LIBRARY.glob("*.toml"))
-    variants = [(int(m), bool(ph)) for m in methods for ph in physical]
+    variants = [(int(m), dict(x)) for m in methods for x in extras]
     jobs = [(p, m, i == 0, ph) for p in paths for i, (m, ph) in enumerate(variants)]
     cost = {p: (lambda s: s.duration_s / s.step_s)(load_scenario(p)) for p in paths}
     order = sorted(range(len(jobs)), key=lambda i: -cost[jobs[i][0]])      # longest first
@@ -355,11 +356,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("names", nargs="*", metavar="NAME", help="library scenarios (default: all)")
     ap.add_argument("--methods", nargs="+", type=int, default=list(METHODS), metavar="K",
                     help="est.method values (default: 0 1 2 3)")
-    ap.add_argument("--physical", action="store_true",
-                    help="each method also with est.physical = 1 (A0, A2 kept >= 0)")
+    ap.add_argument("--with", dest="extra", action="append", default=[], metavar="NAME=VALUE",
+                    help="each method again with this FMU parameter set (repeatable)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    rows = compute_rows(args.names, args.methods, physical=(False, True) if args.physical else (False,))
+    extras = [{}]
+    for item in args.extra:
+        name, _, value = item.partition("=")
+        if name not in PARAMETERS or not value:
+            ap.error(f"--with {item!r}: expected NAME=VALUE with a RailCar parameter NAME")
+        extras.append({name: float(value)})
+    rows = compute_rows(args.names, args.methods, extras=tuple(extras))
     text = report(rows, time.perf_counter() - t0)
     print(text)
     OUT.mkdir(parents=True, exist_ok=True)
