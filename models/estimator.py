@@ -88,6 +88,11 @@ class OnlineEstimator:
       3  LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], MODEL.md section 7)
          for the A's: it runs over every coasting interval (F = B = 0) and carries its A's and
          their covariance from coast to coast and run to run.
+
+    Independent of the method: ``est.physical`` 1 reports (and predicts with) Theta-hat projected
+    onto A0, A2 >= 0 (identification.project_physical); ``est.sigma2_method`` 1 takes the
+    filter's process noise from the innovation likelihood of a bank of speed filters
+    (filters.ProcessNoiseBank) instead of the LS's residuals.
     """
 
     def __init__(self, id_cfg: IdentifierConfig, filt_cfg: FilterConfig, station_cfg: StationConfig,

@@ -105,6 +105,20 @@ def test_scripted_run_accelerates_coasts_and_brakes_to_standstill(scripted_run):
     assert r["est.mass"][-1] == pytest.approx(PARAMS["car.mass"], rel=0.05)   # identified
 
 
+def test_likelihood_noise_and_physical_coefficients_run_through_the_fmu(railcar, scripted_run):
+    """est.sigma2_method 1 and est.physical 1 set through fmpy reach the estimator: est.sigma2
+    leaves est.sigma2_initial once the car moves and differs from the LAG estimate, A0 and A2
+    stay >= 0 at every step, and the mass (the LS's, untouched by both) is the same."""
+    r = simulate(railcar, start_values={**PARAMS, "est.sigma2_method": 1, "est.physical": 1},
+                 outputs=RAILCAR_OUT + ["est.A2"])
+    s2 = r["est.sigma2"]
+    assert np.all(np.isfinite(s2)) and np.all(s2 > 0.0)
+    assert s2[-1] != pytest.approx(1e-4, rel=1e-3)              # moved off est.sigma2_initial
+    assert s2[-1] != pytest.approx(scripted_run["est.sigma2"][-1], rel=1e-3)
+    assert r["est.A0"].min() >= 0.0 and r["est.A2"].min() >= 0.0
+    assert np.array_equal(r["est.mass"], scripted_run["est.mass"])
+
+
 def test_scripted_run_has_sensor_noise_of_the_configured_size(scripted_run):
     r = scripted_run
     # output interval == sensor.sample_period: every row is a fresh sample of the truth there
@@ -368,7 +382,9 @@ MORE_BAD = [("seed", -1, ("RailCar",)),
             ("sensor.sample_period", 0.0, ("RailCar",)),
             ("solver.step", 0.2, ("RailCar",)),           # longer than sensor.sample_period
             ("track.station_dwell", math.nan, ("RailCar", "RailCarEstimator")),
-            ("filter.kind", 7, ("RailCar", "RailCarEstimator"))]
+            ("filter.kind", 7, ("RailCar", "RailCarEstimator")),
+            ("est.sigma2_method", 2, ("RailCar", "RailCarEstimator")),
+            ("est.physical", 3, ("RailCar", "RailCarEstimator"))]
 
 
 def _bad_parameter_cases():
