@@ -100,6 +100,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.slope_window", "parameter", "Integer", None, 10, "est.method 2: samples of seed 004's least-squares line through the measured speed (>= 2; the seed's M + 1 = 6)", BOTH),
     Var("est.physical", "parameter", "Integer", None, 0, "1: est.A0, est.A2 and the filter's model kept >= 0, Theta-hat projected onto A0, A2 >= 0 in its covariance's metric (A1 may be < 0: a tailwind); 0: as identified", BOTH),
     Var("est.sigma2_method", "parameter", "Integer", None, 0, "where est.sigma2 (the filter's process noise) comes from: 0 eq. (12) on sums of 50 LS residuals; 1 the innovation likelihood of a bank of 13 speed filters over a log grid around est.sigma2_initial (Magill 1965)", BOTH),
+    Var("est.run_forgetting", "parameter", "Real", "1", 0.0, "share of the A's data information forgotten at each station stop, in [0, 1): the A's carry over from run to run with slow forgetting (0 = none; the prior is never forgotten)", BOTH, min=0.0, max=1.0),
     Var("est.forgetting", "parameter", "Real", "1", 0.0, "mu0 in [0, 1): 0 = mu(n) = 1/n (ordinary LS), else exponential forgetting 1 - mu0", BOTH, min=0.0, max=1.0),
     Var("est.gamma", "parameter", "Real", "1", 0.0, "rotating-mass factor the estimator assumes (0 = the paper's eq. (2))", BOTH, min=0.0),
     Var("est.mass_initial", "parameter", "Real", "t", 30.0, "initial (prior) mass", BOTH, min=0.0),

@@ -128,7 +128,8 @@ class OnlineEstimator:
             c = id_cfg
             self.refit = ResistanceCarryOver(Prior.from_std(
                 [1.0 / (G * c.mass_initial), c.A0_initial, c.A1_initial, c.A2_initial],
-                [None, c.A0_std_initial, c.A1_std_initial, c.A2_std_initial]))
+                [None, c.A0_std_initial, c.A1_std_initial, c.A2_std_initial]),
+                forgetting=c.run_forgetting)
         self.refit_failures = 0
         self._run = {"t": [], "v": [], "x": [], "f": [], "b": []}   # samples of the current run
         self._t = 0.0                # time since the first sample [s]
@@ -182,6 +183,10 @@ class OnlineEstimator:
             if self.refit is not None:
                 self._refit_run()
             self.ident.restart_mass()
+            if self.coast is not None and self.ident.cfg.run_forgetting > 0.0 and self.coast.x is not None:
+                # est.method 3: the EKF's A covariance grows by 1 / (1 - f) per stop (it keeps
+                # no separate prior, so the whole of it is forgotten alike)
+                self.coast.P[1:, 1:] /= 1.0 - self.ident.cfg.run_forgetting
             self.restart_filter(speed_meas, position_meas)
         else:
             self.filter.update(speed_meas, position_meas)

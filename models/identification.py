@@ -166,6 +166,8 @@ class IdentifierConfig:
                                      # EKF for the A's
     slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
     physical: int = 0                # est.physical: 1 keeps the reported A0, A2 >= 0 (project_physical)
+    run_forgetting: float = 0.0      # est.run_forgetting: share of the A's data information
+                                     # forgotten at each station stop, in [0, 1)
     sigma2_method: int = 0           # est.sigma2_method: 0 LAG sums of the LS residuals (sigma2()),
                                      # 1 innovation likelihood (models.filters.ProcessNoiseBank)
 
@@ -183,6 +185,8 @@ class IdentifierConfig:
             raise ValueError(f"est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got {self.physical}")
         if int(self.slope_window) < 2:
             raise ValueError(f"est.slope_window must be >= 2 (a first-order fit), got {self.slope_window}")
+        if not 0.0 <= self.run_forgetting < 1.0:
+            raise ValueError(f"est.run_forgetting must be in [0, 1), got {self.run_forgetting}")
         if not 0.0 <= self.forgetting < 1.0:
             raise ValueError(f"est.forgetting must be in [0, 1), got {self.forgetting}")
         if not (self.dt > 0 and math.isfinite(self.dt)):
@@ -556,6 +560,20 @@ class ParameterIdentifier:
             M[0, :] = M[:, 0] = 0.0
             meat[:] = [float(x) for x in M.ravel()]
         R[1:, 1:] -= np.outer(R[1:, 0], R[0, 1:]) / R[0, 0]       # marginalise Theta1 out
+        lam = 1.0 - self.cfg.run_forgetting
+        if lam < 1.0:
+            # run-to-run forgetting of the A's (the issue's "slow forgetting"; seed 001's constant
+            # mu0 forgetting, applied per run): the data's information on the A's times lam, the
+            # prior's kept, Theta-hat unchanged. The meat takes lam too, not the lam^2 of a
+            # weighted sum (which would leave the data's covariance as it was): forgetting says
+            # the A's may have moved, so their covariance grows by 1 / lam, as in
+            # ResistanceCarryOver's information form (est.method 1)
+            j0 = np.diag(self._j0[1:]) / self._n_info()
+            R[1:, 1:] = lam * (R[1:, 1:] - j0) + j0
+            for meat in (self._W, self._D):
+                for i in range(1, 4):
+                    for j in range(1, 4):
+                        meat[4 * i + j] *= lam
         R[0, 1:] = 0.0
         R[1:, 0] = 0.0
         R[0, 0] = self._j0[0] / self._n_info()
@@ -563,6 +581,9 @@ class ParameterIdentifier:
         if self._J is not None:
             J = self._J
             J[1:, 1:] -= np.outer(J[1:, 0], J[0, 1:]) / J[0, 0]
+            if lam < 1.0:
+                j0 = np.diag(self._j0[1:])
+                J[1:, 1:] = lam * (J[1:, 1:] - j0) + j0
             J[0, 1:] = J[1:, 0] = 0.0
             J[0, 0] = self._j0[0]
         self._last_phi = None

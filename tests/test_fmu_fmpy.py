@@ -384,7 +384,8 @@ MORE_BAD = [("seed", -1, ("RailCar",)),
             ("track.station_dwell", math.nan, ("RailCar", "RailCarEstimator")),
             ("filter.kind", 7, ("RailCar", "RailCarEstimator")),
             ("est.sigma2_method", 2, ("RailCar", "RailCarEstimator")),
-            ("est.physical", 3, ("RailCar", "RailCarEstimator"))]
+            ("est.physical", 3, ("RailCar", "RailCarEstimator")),
+            ("est.run_forgetting", 1.0, ("RailCar", "RailCarEstimator"))]
 
 
 def _bad_parameter_cases():

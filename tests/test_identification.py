@@ -424,3 +424,30 @@ def test_mass_prior_weighted_by_process_noise_does_not_pull_next_run():
             ident.update(F[k], B[k], V[k], V[k + 1], I[k])
         assert ident.mass == pytest.approx(mass, rel=5e-4)
         ident.restart_mass()
+
+
+def test_run_forgetting_scales_the_as_data_information_and_keeps_the_prior():
+    """est.run_forgetting f at a mass restart: the A's information less the prior's is (1 - f)
+    times what it is without forgetting, the prior's own part is kept, Theta-hat is unchanged;
+    the A's data covariance grows by 1 / (1 - f) (their stds by up to 1/sqrt(1 - f), less where
+    the prior holds them). Exact algebra: 1e-9 relative."""
+    V, F, B, I = _trajectory(THETA, 1500, sigma=1e-3, rng=np.random.default_rng(8))
+    idents = {}
+    for f in (0.0, 0.5):
+        ident = ParameterIdentifier(IdentifierConfig(dt=DT, run_forgetting=f))
+        ident.update(F[0], B[0], V[0], V[1], I[0])     # Python path: compare the same code
+        for k in range(1, len(F)):
+            ident.update(F[k], B[k], V[k], V[k + 1], I[k])
+        idents[f] = (ident, ident.theta.copy())
+        ident.restart_mass()
+    (keep, th_keep), (forget, th_forget) = idents[0.0], idents[0.5]
+    np.testing.assert_array_equal(th_keep, th_forget)
+    np.testing.assert_array_equal(forget.theta, th_forget)
+    j0 = np.diag(keep._j0[1:])
+    info = {f: np.linalg.inv(i.S)[1:, 1:] * i._n_info() for f, (i, _) in idents.items()}
+    np.testing.assert_allclose(info[0.5] - j0, 0.5 * (info[0.0] - j0), rtol=1e-9, atol=0)
+    for k in range(1, 4):
+        assert keep.stds()[k] < forget.stds()[k] <= keep.stds()[k] / math.sqrt(0.5) * (1 + 1e-9)
+    assert forget.stds()[1] > 1.2 * keep.stds()[1]      # A0, data-held here: 0.44 -> 0.54
+    with pytest.raises(ValueError, match="est.run_forgetting"):
+        IdentifierConfig(run_forgetting=1.0).validate()
