@@ -141,7 +141,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.A0_std", "output", "Real", "N/kN", 5.0, "standard deviation of est.A0"),
     Var("est.A1_std", "output", "Real", "N/kN/(m/s)", 0.1, "standard deviation of est.A1"),
     Var("est.A2_std", "output", "Real", "N/kN/(m/s)2", 0.02, "standard deviation of est.A2"),
-    Var("est.sigma2", "output", "Real", "m2/s2", 1e-4, "identified process-noise variance per sample, eq. (12) less the speed sensor's share"),
+    Var("est.sigma2", "output", "Real", "m2/s2", 1e-4, "identified process-noise variance per sample: eq. (12) less the speed sensor's share (est.sigma2_method 0), or the likelihood bank's (1)"),
     Var("est.samples", "output", "Integer", None, 0, "samples used by the identification so far"),
     Var("est.station_stops", "output", "Integer", None, 0, "station stops recognised (mass identification restarts)"),
     Var("filter.speed", "output", "Real", "m/s", 0.0, "filtered speed"),
