@@ -233,16 +233,17 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
 
 def chain_result(chain, scenario):
     """Drive a models chain through the scenario (``drive_chain``) and return a
-    ``harness.runner.RunResult`` of its outputs, with the demands [N] as its inputs (what
-    ``harness.metrics.oracle_filter`` needs), as the FMU runner's would be."""
-    from .runner import RunResult
+    ``harness.runner.RunResult`` of its outputs, with the inputs applied over each step as its
+    inputs (the demands [N] are what ``harness.metrics.oracle_filter`` needs; wind [m/s] and
+    payload [t] complete harness.runner.INPUTS), as the FMU runner's would be."""
+    from .runner import INPUTS, RunResult
     demands: list = []
     rows = drive_chain(chain, scenario, demands=demands)
     demands.append(demands[-1])
     d = np.array(demands)
     return RunResult(scenario, np.arange(len(rows)) * scenario.step_s,
                      {k: np.array([r[k] for r in rows]) for k in rows[0]}, {},
-                     inputs={"traction_force_demand": d[:, 0], "brake_force_demand": d[:, 1]})
+                     inputs={name: d[:, j] for j, name in enumerate(INPUTS)})
 
 
 def drive_chain(chain, scenario, max_steps: int | None = None,
@@ -251,7 +252,8 @@ def drive_chain(chain, scenario, max_steps: int | None = None,
     phases, one communication step of ``scenario.step_s`` [s] at a time, as
     ``harness.runner.FmuRunner.run`` drives the FMU; returns ``chain.outputs()`` at t = 0 and
     after every step (at most ``max_steps`` steps). ``demands``, when given, receives each
-    step's (traction, brake) demand [N]."""
+    step's inputs in harness.runner.INPUTS order: traction and brake demand [N], wind [m/s],
+    payload [t]."""
     driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
                          scenario.parameter("car.traction_force_max"),
                          scenario.parameter("car.brake_force_max"))
@@ -265,8 +267,9 @@ def drive_chain(chain, scenario, max_steps: int | None = None,
         payload += dm
         if driver.finished and scenario.stop_after_last_phase:
             break
-        chain.do_step(t, h, traction, brake, scenario.wind_at(t), payload)
+        wind = scenario.wind_at(t)
+        chain.do_step(t, h, traction, brake, wind, payload)
         rows.append(chain.outputs())
         if demands is not None:
-            demands.append((traction, brake))
+            demands.append((traction, brake, wind, payload))
     return rows

@@ -1,0 +1,53 @@
+"""The estimator options beyond the FMU's defaults, pinned to stored references (FMI cross-check
+layout, tests/regression/variants/): station_day with every issue-5 option on at once, run on
+the models chain (the FMU runs the same code; tests/test_fmu_fmpy.py checks the options reach
+it). The defaults run the compiled core and are pinned by the library's references
+(test_regression.py); these options run the Python path, which nothing else pins number by
+number. Tolerances: harness.regress.KEY_SIGNALS.
+
+To rewrite the references after a deliberate change:
+    RAILCAR_UPDATE_VARIANTS=1 python -m pytest tests/test_regression_variants.py
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from fmu_src.adapter import chain_config, load_profiles
+from fmu_src.variables import RAILCAR, variables_for
+from harness.driver import chain_result
+from harness.regress import REFERENCES, compare, write_reference
+from harness.scenario import load_scenario
+from models.chain import RailCarChain
+
+ROOT = Path(__file__).resolve().parent.parent
+FOLDER = REFERENCES / "variants"
+VARIANTS = {
+    # LS on seed 004's slopes, A0 and A2 kept physical, sigma^2 by likelihood, slow forgetting
+    "station_day_all_options": ("station_day", {"est.method": 2, "est.physical": 1,
+                                                "est.sigma2_method": 1, "est.run_forgetting": 0.1}),
+    # the coasting EKF for the A's with the same options
+    "station_day_coast_ekf": ("station_day", {"est.method": 3, "est.physical": 1,
+                                              "est.sigma2_method": 1, "est.run_forgetting": 0.1}),
+}
+
+
+def _run(name: str):
+    base, params = VARIANTS[name]
+    path = ROOT / "scenarios" / "library" / f"{base}.toml"
+    s = load_scenario(path)
+    s = replace(s, name=name, parameters={**s.parameters, **params})
+    v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
+    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), s)
+
+
+@pytest.mark.parametrize("name", sorted(VARIANTS))
+def test_variant_matches_its_reference(name):
+    result = _run(name)
+    if os.environ.get("RAILCAR_UPDATE_VARIANTS"):
+        write_reference(result, FOLDER)
+    c = compare(result, FOLDER)
+    assert c.ok, "\n".join(c.problems)
