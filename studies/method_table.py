@@ -100,6 +100,7 @@ class Row:
     speed_rmse_sensor: float = NAN     # [m/s]
     speed_rmse_filter: float = NAN     # [m/s] (the oracle's, on the oracle row)
     speed_rmse_oracle: float = NAN     # [m/s]
+    dist_rmse_sensor: float = NAN      # [m]
     dist_rmse_filter: float = NAN      # [m]
     dist_rmse_oracle: float = NAN      # [m]
     speed_coverage: float = NAN        # share of moving rows within 2 filter.speed_std
@@ -112,6 +113,10 @@ class Row:
     @property
     def speed_vs_sensor(self) -> float:
         return self.speed_rmse_filter / self.speed_rmse_sensor
+
+    @property
+    def dist_vs_sensor(self) -> float:
+        return self.dist_rmse_filter / self.dist_rmse_sensor
 
     @property
     def dist_ratio(self) -> float:
@@ -176,6 +181,7 @@ def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[
         coast_errors_s=list(s.coast_time_errors_s),
         speed_rmse_sensor=s.speed_rmse_sensor, speed_rmse_filter=s.speed_rmse_filter,
         speed_rmse_oracle=s.speed_rmse_oracle,
+        dist_rmse_sensor=s.position_rmse_sensor,
         dist_rmse_filter=s.position_rmse_filter, dist_rmse_oracle=s.position_rmse_oracle,
         speed_coverage=_coverage(result["filter.speed"], v, result["filter.speed_std"], moving),
         dist_coverage=_coverage(result["filter.position"], result["car.position"],

@@ -86,3 +86,18 @@ def test_run_forgetting_follows_a_resistance_that_changes_between_runs():
     wind_time = dr._wind_from(eq.ten_run_day(), seeds[0])
     err = {f: [dr.run_day(("drift", f, s, wind_time))[2] for s in seeds] for f in (0.0, 0.5)}
     assert sum(err[0.5]) * 2.0 < sum(err[0.0])
+
+
+def test_online_section_matches_the_library_run_of_station_day():
+    """estimation_quality's section (d) on station_day's own seed (17): the paper's LS gives the
+    library table's largest mass error at the stops, 0.300 % (the same chain the FMU runs),
+    every stop inside +-2 sigma; the summary over two seeds has a share per configuration."""
+    import estimation_quality as eq
+    day = eq.station_day_run(("paper LS", 17))
+    assert day.mass_err_max == pytest.approx(0.00300, abs=5e-6)
+    assert len(day.mass_inside) == 4 and all(day.mass_inside)
+    assert 0.8 < day.speed_inside <= 1.0 and 0.7 < day.dist_inside <= 1.0
+    summary = eq.online_study(2, processes=1)
+    assert set(summary) == set(eq.ONLINE)
+    assert all(0.0 <= x <= 1.0 for row in summary.values() for x in row[:4])
+    assert all(row[4] == 8 for row in summary.values())        # 4 stops x 2 seeds
