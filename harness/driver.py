@@ -231,6 +231,18 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
     return TimeTable(tuple(cols[0]), tuple(cols[1]), tuple(cols[2]))
 
 
+def run_on_chain(scenario, overrides: dict | None = None):
+    """The scenario on a models chain built as the RailCar FMU builds it (its parameters, with
+    ``overrides`` by FMU name, e.g. {"est.method": 2, "seed": 5}): ``chain_result``. Raises
+    ValueError, naming the parameter, if the configuration rejects one."""
+    from fmu_src.adapter import chain_config, load_profiles
+    from fmu_src.variables import RAILCAR, variables_for
+    from models.chain import RailCarChain
+    v = {x.name: scenario.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
+    v.update(overrides or {})
+    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, None)), scenario)
+
+
 def chain_result(chain, scenario):
     """Drive a models chain through the scenario (``drive_chain``) and return a
     ``harness.runner.RunResult`` of its outputs, with the inputs applied over each step as its

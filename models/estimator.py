@@ -292,10 +292,10 @@ class OnlineEstimator:
         if self.refit is not None:
             self._run["f"].append(traction)
             self._run["b"].append(brake)
-        before = self.filter.speed
+        bank = self.noise_bank if self.station.moving else None
+        before = self.filter.speed if bank is not None else 0.0
         self.filter.predict(traction, brake, theta, q, dt)
-        bank = self.noise_bank
-        if bank is not None and self.station.moving:
+        if bank is not None:
             bank.predict(self.filter.predicted_speed - before, q - self.sigma2() * dt / self.dt_nominal)
         self._forces = (traction, brake)
         self._dt = dt
@@ -316,26 +316,31 @@ class OnlineEstimator:
             th = project_physical(th, self._with_resistance_covariance(self.ident.model_covariance()))
         return th
 
-    def _with_resistance_covariance(self, c: np.ndarray) -> np.ndarray:
-        """The LS's covariance c with the A's block of the refit (method 1) or the coasting EKF
-        (method 3) when their A's are used (cross terms with the mass then 0)."""
+    def _carried_resistance(self):
+        """(A's, their 3x3 covariance) of the refit (method 1, once it has a run) or the coasting
+        EKF (method 3, once it is ready), which replace the LS's A's; else None."""
         if self.refit is not None and self.refit.runs:
-            A_cov = self.refit.cov_A
-        elif self._coast_ready():
-            A_cov = self.coast.cov_A
-        else:
+            return self.refit.A, self.refit.cov_A
+        if self._coast_ready():
+            return self.coast.A, self.coast.cov_A
+        return None
+
+    def _with_resistance_covariance(self, c: np.ndarray) -> np.ndarray:
+        """The LS's covariance c with the A's block of _carried_resistance when its A's are
+        used (cross terms with the mass then 0)."""
+        carried = self._carried_resistance()
+        if carried is None:
             return c
         c = c.copy()
         c[1:, :] = 0.0
         c[:, 1:] = 0.0
-        c[1:, 1:] = A_cov
+        c[1:, 1:] = carried[1]
         return c
 
     def _with_refitted_resistance(self, th: np.ndarray) -> np.ndarray:
-        if self.refit is not None and self.refit.runs:
-            th[1:] = self.refit.A
-        elif self._coast_ready():
-            th[1:] = self.coast.A
+        carried = self._carried_resistance()
+        if carried is not None:
+            th[1:] = carried[0]
         return th
 
     def _coast_ready(self) -> bool:
@@ -383,9 +388,8 @@ class OnlineEstimator:
         k = G * dt / 1000.0 / (1.0 + self.gamma)
         phi = (traction - brake, -1.0, -v, -v * v)
         if self._coast_ready():   # est.method 3: the mass's variance from LS, the A's from the EKF
-            c = self.coast.P
-            var = self.ident.model_variance_along((phi[0], 0.0, 0.0, 0.0)) + sum(
-                phi[i + 1] * c[i + 1, j + 1] * phi[j + 1] for i in range(3) for j in range(3))
+            c = self._with_resistance_covariance(self.ident.model_covariance())
+            var = float(np.dot(phi, c @ phi))
         else:
             var = self.ident.model_variance_along(phi)
         return self.sigma2() * dt / self.dt_nominal + k * k * var
@@ -396,10 +400,9 @@ class OnlineEstimator:
         f = self.filter
         th = self.theta()
         sd = self.ident.stds()
-        if self.refit is not None and self.refit.runs:
-            sd = (sd[0], *np.sqrt(np.maximum(np.diag(self.refit.cov_A), 0.0)))
-        elif self._coast_ready():
-            sd = (sd[0], *np.sqrt(np.maximum(np.diag(self.coast.cov_A), 0.0)))
+        carried = self._carried_resistance()
+        if carried is not None:
+            sd = (sd[0], *np.sqrt(np.maximum(np.diag(carried[1]), 0.0)))
         out = {
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),

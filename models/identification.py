@@ -398,12 +398,16 @@ class ParameterIdentifier:
             # a run's ends: its first and last rows carry one sample's measurement noise alone
             # (the paper's differences: weight 1; seed 004's slopes spread it over the window,
             # weight sum c_j^2 = end_factor / 2)
-            e = self._end_weight
             if last is not None:
-                _add_outer(D, last if e == 1.0 else [e * x for x in last])   # close the previous run
-            _add_outer(D, phi if e == 1.0 else [e * x for x in phi])         # open a new one
+                _add_outer(D, self._end_row(last))   # close the previous run
+            _add_outer(D, self._end_row(phi))        # open a new one
         _add_outer(W, phi)
         self._last_phi = phi
+
+    def _end_row(self, phi):
+        """A run's first or last regressor as it enters D: phi times _end_weight."""
+        e = self._end_weight
+        return phi if e == 1.0 else [e * x for x in phi]
 
     LAG = 50   # samples summed for the process-noise estimate (see sigma2)
 
@@ -549,31 +553,26 @@ class ParameterIdentifier:
         # estimator A - t (1/(Pg)), t = J_A0 / J_00, whose meat is T M T^T, T = [-t, I] (M's A
         # block kept as it was is not the meat of that estimator). The open run's end closes
         # first (D's end row); the old mass prior's own share is ~1e-4 of J_00 and dropped.
+        # Run-to-run forgetting of the A's (est.run_forgetting; the issue's "slow forgetting",
+        # seed 001's constant mu0 forgetting applied per run): the data's information on the A's
+        # times lam, the prior's kept, Theta-hat unchanged. The meat takes lam too, not the lam^2
+        # of a weighted sum (which would leave the data's covariance as it was): forgetting says
+        # the A's may have moved, so their covariance grows by 1 / lam, as in
+        # ResistanceCarryOver's information form (est.method 1).
+        lam = 1.0 - self.cfg.run_forgetting
         if self._last_phi is not None:
-            e = self._end_weight
-            _add_outer(self._D, [e * x for x in self._last_phi])
+            _add_outer(self._D, self._end_row(self._last_phi))
         t = R[1:, 0] / R[0, 0]
         for meat in (self._W, self._D):
             M = np.array(meat).reshape(4, 4)
             M_AA = (M[1:, 1:] - np.outer(t, M[0, 1:]) - np.outer(M[1:, 0], t) + np.outer(t, t) * M[0, 0])
-            M[1:, 1:] = 0.5 * (M_AA + M_AA.T)
+            M[1:, 1:] = 0.5 * (M_AA + M_AA.T) * lam
             M[0, :] = M[:, 0] = 0.0
             meat[:] = [float(x) for x in M.ravel()]
         R[1:, 1:] -= np.outer(R[1:, 0], R[0, 1:]) / R[0, 0]       # marginalise Theta1 out
-        lam = 1.0 - self.cfg.run_forgetting
         if lam < 1.0:
-            # run-to-run forgetting of the A's (the issue's "slow forgetting"; seed 001's constant
-            # mu0 forgetting, applied per run): the data's information on the A's times lam, the
-            # prior's kept, Theta-hat unchanged. The meat takes lam too, not the lam^2 of a
-            # weighted sum (which would leave the data's covariance as it was): forgetting says
-            # the A's may have moved, so their covariance grows by 1 / lam, as in
-            # ResistanceCarryOver's information form (est.method 1)
             j0 = np.diag(self._j0[1:]) / self._n_info()
             R[1:, 1:] = lam * (R[1:, 1:] - j0) + j0
-            for meat in (self._W, self._D):
-                for i in range(1, 4):
-                    for j in range(1, 4):
-                        meat[4 * i + j] *= lam
         R[0, 1:] = 0.0
         R[1:, 0] = 0.0
         R[0, 0] = self._j0[0] / self._n_info()

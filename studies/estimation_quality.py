@@ -395,14 +395,10 @@ class StationDay:
 def station_day_run(job) -> StationDay:
     """(configuration, seed): station_day on the models chain, the mass at each arrival (the
     run's last row before the stop is confirmed) and the filter's coverage while moving."""
-    from harness.driver import chain_result
+    from harness.driver import run_on_chain
     from harness.metrics import _segments
     config, seed = job
-    path = LIBRARY / "station_day.toml"
-    scenario = load_scenario(path)
-    v = {n: scenario.parameter(n) for n in _PARAMETERS}
-    v.update({"seed": int(seed), **ONLINE[config]})
-    r = chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), scenario)
+    r = run_on_chain(load_scenario(LIBRARY / "station_day.toml"), {"seed": int(seed), **ONLINE[config]})
     m, est, sd = r["car.total_mass"], r["est.mass"], r["est.mass_std"]
     stops = [k for _, k in _segments(r["car.speed"])]
     moving = r["car.speed"] > 0.0

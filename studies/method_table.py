@@ -64,13 +64,11 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
 from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
-from harness.driver import chain_result  # noqa: E402
+from harness.driver import run_on_chain  # noqa: E402
 from harness.metrics import _segments, coast_time_errors, summarise  # noqa: E402
 from harness.runner import RunResult  # noqa: E402
 from harness.scenario import load_scenario  # noqa: E402
-from models.chain import RailCarChain  # noqa: E402
 from models.identification import METHODS as ID_METHODS  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
@@ -132,11 +130,7 @@ def method_label(method: int, extra: dict | None = None) -> str:
 def _run(path: Path, method: int, extra: dict | None = None) -> RunResult:
     """The scenario on the models chain with est.method = method and the ``extra`` parameters,
     demands recorded as inputs. Raises ValueError if the configuration rejects them."""
-    scenario = load_scenario(path)
-    v = {n: scenario.parameter(n) for n in PARAMETERS}
-    v["est.method"] = method
-    v.update(extra or {})
-    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), scenario)
+    return run_on_chain(load_scenario(path), {"est.method": method, **(extra or {})})
 
 
 def _coverage(estimate, truth, std, mask) -> float:

@@ -167,19 +167,13 @@ def _mass_z_at_stops(method: int, seeds) -> np.ndarray:
     """(est.mass - mass) / est.mass_std at every stop of station_day [-], one run per seed."""
     from pathlib import Path
 
-    from fmu_src.adapter import chain_config, load_profiles
-    from fmu_src.variables import RAILCAR, variables_for
-    from harness.driver import chain_result
+    from harness.driver import run_on_chain
     from harness.metrics import _segments
     from harness.scenario import load_scenario
-    from models.chain import RailCarChain
-    path = Path(__file__).resolve().parents[1] / "scenarios" / "library" / "station_day.toml"
-    s = load_scenario(path)
+    s = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "library" / "station_day.toml")
     z = []
     for seed in seeds:
-        v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-        v.update({"seed": seed, "est.method": method})
-        r = chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), s)
+        r = run_on_chain(s, {"seed": seed, "est.method": method})
         m, est, sd = r["car.total_mass"], r["est.mass"], r["est.mass_std"]
         z += [(est[k] - m[k]) / sd[k] for _, k in _segments(r["car.speed"])]
     return np.array(z)
@@ -226,18 +220,13 @@ def test_projection_onto_physical_coefficients_is_the_constrained_optimum():
 
 
 def _library_run(name: str, **params):
+    """(RunResult, the scenario's parameter function) of a library scenario on the models chain."""
     from pathlib import Path
 
-    from fmu_src.adapter import chain_config, load_profiles
-    from fmu_src.variables import RAILCAR, variables_for
-    from harness.driver import chain_result
+    from harness.driver import run_on_chain
     from harness.scenario import load_scenario
-    from models.chain import RailCarChain
-    path = Path(__file__).resolve().parents[1] / "scenarios" / "library" / f"{name}.toml"
-    s = load_scenario(path)
-    v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    v.update(params)
-    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), s), v
+    s = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "library" / f"{name}.toml")
+    return run_on_chain(s, params), s.parameter
 
 
 def test_physical_keeps_a0_and_a2_non_negative_where_the_ls_goes_negative():
@@ -246,10 +235,10 @@ def test_physical_keeps_a0_and_a2_non_negative_where_the_ls_goes_negative():
     the coast's speeds is no worse (measured 7.7 -> 7.4 %); the mass is untouched (the
     projection moves the A's only here: their prior decouples them from 1/(Pg))."""
     raw, _ = _library_run("coasting_rusich_row3", **{"est.method": 0})
-    phys, v = _library_run("coasting_rusich_row3", **{"est.method": 0, "est.physical": 1})
+    phys, p = _library_run("coasting_rusich_row3", **{"est.method": 0, "est.physical": 1})
     assert raw["est.A0"][-1] < -0.3                             # the failure this fixes
     assert phys["est.A0"].min() >= 0.0 and phys["est.A2"].min() >= 0.0
-    true_A = (v["car.A0"], v["car.A1"], v["car.A2"])
+    true_A = (p("car.A0"), p("car.A1"), p("car.A2"))
     err = {k: w0_relative_rms_error(r["car.speed"], tuple(r[f"est.A{i}"][-1] for i in range(3)), true_A)
            for k, r in (("raw", raw), ("phys", phys))}
     assert err["phys"] <= err["raw"] + 1e-9

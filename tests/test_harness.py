@@ -184,15 +184,10 @@ def test_coast_time_follows_a_wind_that_changes_mid_coast():
 def test_true_resistance_predicts_headwind_change_coast_within_process_noise():
     """The truth, re-run in the wind as it blows over the coast, predicts the coast's time to
     within the process noise's spread (about 1 s; the wind at the coast's start alone: -17 s)."""
-    from fmu_src.adapter import chain_config, load_profiles
-    from fmu_src.variables import RAILCAR, variables_for
-    from harness.driver import chain_result
+    from harness.driver import run_on_chain
     from harness.metrics import coast_time_errors
-    from models.chain import RailCarChain
-    path = ROOT / "scenarios" / "library" / "headwind_change.toml"
-    s = load_scenario(path)
-    v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    result = chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), s)
-    A = (v["car.A0"], v["car.A1"], v["car.A2"])
+    s = load_scenario(ROOT / "scenarios" / "library" / "headwind_change.toml")
+    result = run_on_chain(s)
+    A = (s.parameter("car.A0"), s.parameter("car.A1"), s.parameter("car.A2"))
     errors = coast_time_errors(result, lambda last: A, still_air=True)
     assert errors and max(abs(e) for e in errors) < 2.0    # [s]

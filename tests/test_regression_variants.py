@@ -16,12 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from fmu_src.adapter import chain_config, load_profiles
-from fmu_src.variables import RAILCAR, variables_for
-from harness.driver import chain_result
+from harness.driver import run_on_chain
 from harness.regress import REFERENCES, compare, write_reference
 from harness.scenario import load_scenario
-from models.chain import RailCarChain
 
 ROOT = Path(__file__).resolve().parent.parent
 FOLDER = REFERENCES / "variants"
@@ -37,11 +34,8 @@ VARIANTS = {
 
 def _run(name: str):
     base, params = VARIANTS[name]
-    path = ROOT / "scenarios" / "library" / f"{base}.toml"
-    s = load_scenario(path)
-    s = replace(s, name=name, parameters={**s.parameters, **params})
-    v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, str(path.parent))), s)
+    s = load_scenario(ROOT / "scenarios" / "library" / f"{base}.toml")
+    return run_on_chain(replace(s, name=name), params)
 
 
 @pytest.mark.parametrize("name", sorted(VARIANTS))
