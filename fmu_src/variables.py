@@ -144,10 +144,12 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.sigma2", "output", "Real", "m2/s2", 1e-4, "identified process-noise variance per sample: eq. (12) less the speed sensor's share (est.sigma2_method 0), or the likelihood bank's (1)"),
     Var("est.samples", "output", "Integer", None, 0, "samples used by the identification so far"),
     Var("est.station_stops", "output", "Integer", None, 0, "station stops recognised (mass identification restarts)"),
+    Var("est.status", "output", "Integer", None, 0, "0 prior only (no data used yet), 1 identifying (the last sample pair was used), 2 holding (the last pair carried no information: standing, a steady state held over 20 s, a refused measurement), 3 degraded (est.mass left [est.mass_initial / 5, 5 est.mass_initial]: its last good value with at least est.mass_std_initial)"),
     Var("filter.speed", "output", "Real", "m/s", 0.0, "filtered speed"),
     Var("filter.position", "output", "Real", "m", 0.0, "filtered distance"),
     Var("filter.speed_std", "output", "Real", "m/s", 0.0, "standard deviation of filter.speed"),
     Var("filter.position_std", "output", "Real", "m", 0.0, "standard deviation of filter.position"),
+    Var("filter.rejected", "output", "Integer", None, 0, "measurements refused by the innovation gate (chi^2, 2 dof, P = 1e-9 for a good one): spikes, dropouts"),
 )
 
 

@@ -53,6 +53,10 @@ enum {
     A_sigma2_initial, A_track_speed, A_track_time, A_batch_y,
     A_m_covariance_flat, A_m_sigma2, A_m_update, A_m_restart_mass, A_m_measure,
     A_kw_contiguous, A_scale, A_core_guard,
+    /* the innovation gate (MotionFilter.gate) and the information cap (OnlineEstimator._excited) */
+    A_rejected, A_rejected_run, A_reacquire, A_GATE_CHI2, A_REACQUIRE, A_prev_rejected,
+    A_net_force, A_steady_speed, A_steady_force, A_steady_time, A_force_band, A_STEADY_SPEED,
+    A_STEADY_TIME, A_FORCE_SMOOTHING,
     A_count
 };
 static const char *ATTR_NAMES[A_count] = {
@@ -73,6 +77,9 @@ static const char *ATTR_NAMES[A_count] = {
     "sigma2_initial", "track_speed", "track_time", "_batch_y",
     "_covariance_flat", "sigma2", "update", "restart_mass", "measure",
     "contiguous", "_scale", "_core_guard",
+    "rejected", "rejected_run", "_reacquire", "GATE_CHI2", "REACQUIRE", "_prev_rejected",
+    "_net_force", "_steady_speed", "_steady_force", "_steady_time", "_force_band", "STEADY_SPEED",
+    "STEADY_TIME", "FORCE_SMOOTHING",
 };
 static PyObject *ATTR[A_count];
 
@@ -1222,6 +1229,94 @@ done:
     return r;
 }
 
+/* MotionFilter.gate for the EKF (vzad = 0): *accept = 0 refuses the measurement */
+static int filter_gate_ekf(PyObject *f, double speed_meas, double position_meas, int *accept)
+{
+    PyObject *cfg = ga(f, A_cfg);
+    if (!cfg) return -1;
+    int r = -1;
+    double r0, r1, rel, m00, m01, m11, xb0, xb1, chi2;
+    long run, limit, rejected;
+    if (getd(f, A_r0, &r0) || getd(cfg, A_position_std_rel, &rel) || getd(f, A_m00, &m00)
+        || getd(f, A_m01, &m01) || getd(f, A_m11, &m11) || getd(f, A_xb0, &xb0) || getd(f, A_xb1, &xb1)
+        || getd(f, A_GATE_CHI2, &chi2) || getl(f, A_rejected_run, &run) || getl(f, A_REACQUIRE, &limit))
+        goto done;
+    if (rel != 0.0) {
+        double pstd;
+        if (getd(cfg, A_position_std, &pstd)) goto done;
+        r1 = py_square(pstd + rel * fabs(position_meas));
+    } else if (getd(f, A_r1, &r1)) goto done;
+    double s00 = m00 + r0, s01 = m01, s11 = m11 + r1;       /* innovation_distance */
+    double e0 = speed_meas - 0.0 - xb0, e1 = position_meas - xb1;
+    double det = s00 * s11 - s01 * s01;
+    if (det == 0.0) { zero_division(); goto done; }
+    double d2 = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / det;
+    if (d2 <= chi2) {
+        *accept = 1;
+        r = setl(f, A_rejected_run, 0);
+        goto done;
+    }
+    run += 1;
+    if (run < limit) {
+        *accept = 0;
+        if (setl(f, A_rejected_run, run) || getl(f, A_rejected, &rejected)
+            || setl(f, A_rejected, rejected + 1))
+            goto done;
+        r = 0;
+        goto done;
+    }
+    *accept = 1;
+    r = (setl(f, A_rejected_run, 0) || setb(f, A_reacquire, 1)) ? -1 : 0;
+done:
+    Py_DECREF(cfg);
+    return r;
+}
+
+/* MotionFilter.hold for the EKF: the posterior is the prediction */
+static int filter_hold_ekf(PyObject *f)
+{
+    PyObject *vals[5] = {NULL};
+    static const int FROM[5] = {A_xb0, A_xb1, A_m00, A_m01, A_m11};
+    static const int TO[5] = {A_xh0, A_xh1, A_p00, A_p01, A_p11};
+    int r = -1;
+    for (int i = 0; i < 5; i++)
+        if (!(vals[i] = ga(f, FROM[i]))) goto done;
+    for (int i = 0; i < 5; i++)
+        if (sa(f, TO[i], vals[i])) goto done;
+    r = setd(f, A_vzad_hat, 0.0);
+done:
+    for (int i = 0; i < 5; i++) Py_XDECREF(vals[i]);
+    return r;
+}
+
+/* OnlineEstimator._excited(dt): *excited = 0 once a steady state has lasted STEADY_TIME */
+static int estimator_excited(PyObject *est, PyObject *filt, PyObject *station, double dt, int *excited)
+{
+    double forces[2], nf, fs, v, sv, sf, st, ss, band, limit;
+    int moving;
+    PyObject *ft = ga(est, A_forces);
+    if (!ft) return -1;
+    int bad = seq_to_doubles(ft, forces, 2, "_forces");
+    Py_DECREF(ft);
+    if (bad || getd(est, A_net_force, &nf) || getd(est, A_FORCE_SMOOTHING, &fs)
+        || filter_speed(filt, &v) || getb(station, A_moving, &moving) || getd(est, A_steady_speed, &sv)
+        || getd(est, A_steady_force, &sf) || getd(est, A_STEADY_SPEED, &ss) || getd(est, A_force_band, &band))
+        return -1;
+    double net = forces[0] - forces[1];
+    if (fs + dt == 0.0) return zero_division();
+    nf = nf + dt / (fs + dt) * (net - nf);
+    if (setd(est, A_net_force, nf)) return -1;
+    if (!moving || fabs(v - sv) > ss || fabs(nf - sf) > band) {
+        *excited = 1;
+        return (setd(est, A_steady_speed, v) || setd(est, A_steady_force, nf)
+                || setd(est, A_steady_time, 0.0)) ? -1 : 0;
+    }
+    if (getd(est, A_steady_time, &st) || getd(est, A_STEADY_TIME, &limit)) return -1;
+    st += dt;
+    *excited = st <= limit;
+    return setd(est, A_steady_time, st);
+}
+
 /* StationDetector.observe; *stop = 1 when a station stop is confirmed */
 static int station_observe(PyObject *st, double speed_meas, double position_meas, double dt, int *stop)
 {
@@ -1359,13 +1454,19 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
         || station_observe(o->station, speed_meas, position_meas, dt, &stop)
         || getb(o->station, A_moving, &moving_after))
         return -1;
+    int accepted = 1, excited, prev_rejected;
+    if (!stop && filter_gate_ekf(o->filt, speed_meas, position_meas, &accepted)) return -1;
+    if (estimator_excited(o->est, o->filt, o->station, dt, &excited)
+        || getb(o->est, A_prev_rejected, &prev_rejected))
+        return -1;
     double pstd;
     PyObject *fcfg = ga(o->filt, A_cfg);
     if (!fcfg) return -1;
     bad = getd(fcfg, A_position_std, &pstd);
     Py_DECREF(fcfg);
     if (bad) return -1;
-    int used = moving_before && moving_after && position_meas >= pv[1] - 10.0 * pstd - 1.0;
+    int used = accepted && !prev_rejected && excited && moving_before && moving_after
+               && position_meas >= pv[1] - 10.0 * pstd - 1.0;
     if (used) {
         double forces[2], length;
         int contiguous;
@@ -1400,13 +1501,22 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     if (!nt) return -1;
     bad = sa(o->est, A_prev, nt);
     Py_DECREF(nt);
-    if (bad) return -1;
+    if (bad || setb(o->est, A_prev_rejected, !accepted)) return -1;
     if (stop) {
         long stops;
         if (getl(o->est, A_station_stops, &stops) || setl(o->est, A_station_stops, stops + 1)
             || call_method0(o->ident, A_m_restart_mass))
             return -1;
         PyObject *r = PyObject_CallMethod(o->est, "restart_filter", "dd", speed_meas, position_meas);
+        if (!r) return -1;
+        Py_DECREF(r);
+        return 0;
+    }
+    if (!accepted) return filter_hold_ekf(o->filt);
+    int reacquire;
+    if (getb(o->filt, A_reacquire, &reacquire)) return -1;
+    if (reacquire) {                         /* rare: the Python method restarts the filter */
+        PyObject *r = PyObject_CallMethod(o->filt, "update", "dd", speed_meas, position_meas);
         if (!r) return -1;
         Py_DECREF(r);
         return 0;

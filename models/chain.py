@@ -17,6 +17,7 @@ from .filters import EKF, FilterConfig
 from .identification import IdentifierConfig
 from .noise import noise_streams
 from .track import GradeProfile, SpeedProfile
+from .units import G
 
 
 class StepRejected(ValueError):
@@ -34,11 +35,28 @@ def check_finite(name: str, value: float, unit: str) -> None:
         raise StepRejected(f"{name} must be finite [{unit}], got {value!r}")
 
 
+MAX_STEP = 3600.0
+"""Longest communication step [s] accepted: a step costs time in proportion to its length
+(RailCar integrates on its own grid), so a mistyped h = 1e6 s would block the host for a minute."""
+FORCE_LIMIT_FACTOR = 10.0   # a force above this many times the car's limit is not physics
+MAX_WIND = 100.0            # [m/s] |wind_speed| accepted (the strongest gusts measured: ~110 m/s)
+MAX_MEASURED_SPEED = 200.0  # [m/s] |sensor.speed| accepted by RailCarEstimator (720 km/h)
+MAX_MEASURED_DISTANCE = 1e7  # [m] |sensor.position| accepted (10,000 km from the last station)
+
+
 def check_step(current_time: float, step_size: float) -> None:
     if not (math.isfinite(step_size) and step_size > 0.0):
         raise StepRejected(f"communication step size must be > 0 [s], got {step_size!r}")
+    if step_size > MAX_STEP:
+        raise StepRejected(f"communication step size must be <= {MAX_STEP:g} s, got {step_size!r}")
     if not math.isfinite(current_time):
         raise StepRejected(f"current time must be finite [s], got {current_time!r}")
+
+
+def check_bounded(name: str, value: float, limit: float, unit: str, why: str) -> None:
+    """Raise StepRejected unless |value| <= limit (a finite value far outside physics)."""
+    if not abs(value) <= limit:
+        raise StepRejected(f"{name} = {value!r} {unit} is beyond {limit:g} {unit} ({why})")
 
 
 @dataclass
@@ -146,6 +164,9 @@ class RailCarChain:
         self._speed_noise = streams["speed_sensor"]
         self._position_noise = streams["position_sensor"]
         self.base_mass = cfg.vehicle.mass
+        # demands above these are refused (StepRejected); 1 N floors a limit configured as 0
+        self._traction_limit = FORCE_LIMIT_FACTOR * max(cfg.vehicle.traction_force_max, 1.0)
+        self._brake_limit = FORCE_LIMIT_FACTOR * max(cfg.vehicle.brake_force_max, 1.0)
         self.plant = CarPlant(cfg.vehicle, grade_profile, step=cfg.solver_step,
                               noise_psd=cfg.process_noise_psd, station_dwell=cfg.station.dwell,
                               normal_draws=streams["process"])
@@ -226,17 +247,25 @@ class RailCarChain:
 
         Raises StepRejected (naming the variable) before changing anything on bad input.
         """
+        check_step(current_time, step_size)
+        p = self.cfg.vehicle
+        check_force("traction_force_demand", traction_demand)
+        check_force("brake_force_demand", brake_demand)
+        check_bounded("traction_force_demand", traction_demand, self._traction_limit, "N",
+                      f"{FORCE_LIMIT_FACTOR:g} x car.traction_force_max")
+        check_bounded("brake_force_demand", brake_demand, self._brake_limit, "N",
+                      f"{FORCE_LIMIT_FACTOR:g} x car.brake_force_max")
+        check_finite("wind_speed", wind_speed, "m/s")
+        check_bounded("wind_speed", wind_speed, MAX_WIND, "m/s", "no wind blows that hard")
+        check_finite("car.payload", payload, "t")
+        check_bounded("car.payload", payload, FORCE_LIMIT_FACTOR * p.mass, "t",
+                      f"{FORCE_LIMIT_FACTOR:g} x car.mass")
         step = self._core_step
         if step is not None and step(self, current_time, step_size, traction_demand, brake_demand,
                                      wind_speed, payload):
             return      # compiled; False (bad input, or a method replaced on an instance,
                         # nothing changed): the Python step below raises or runs
-        check_step(current_time, step_size)
         current_time -= self.start_time          # internal time starts at 0
-        check_force("traction_force_demand", traction_demand)
-        check_force("brake_force_demand", brake_demand)
-        check_finite("wind_speed", wind_speed, "m/s")
-        check_finite("car.payload", payload, "t")
         mass = self.base_mass + payload
         if mass <= 0.0:
             raise StepRejected(f"car.payload {payload!r} t leaves a mass <= 0 (car.mass {self.base_mass} t)")
@@ -268,7 +297,7 @@ class RailCarChain:
         if self._core_outputs is not None:
             out = self._core_outputs(self)        # the same dict, compiled
             if out is not None:
-                return out
+                return self.estimator.finish_outputs(out)
         s = self.plant.state
         out = {
             "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,
@@ -297,6 +326,13 @@ class EstimatorChain:
         self.track.validate()
         self._last_track_time = -math.inf
         self._args = (identifier, filt, station, grade_profile, speed_profile)
+        # The estimator knows no force limit of the car: it refuses a force that would accelerate
+        # the heaviest car it accepts (OnlineEstimator.MASS_RANGE x est.mass_initial) at over
+        # FORCE_LIMIT_FACTOR x the adhesion limit (0.4 g) [N]
+        heaviest = OnlineEstimator.MASS_RANGE * identifier.mass_initial * 1000.0   # [kg]
+        self._force_limit = FORCE_LIMIT_FACTOR * 0.4 * G * heaviest
+        self._force_why = (f"{FORCE_LIMIT_FACTOR:g} x the adhesion limit 0.4 g of "
+                           f"{OnlineEstimator.MASS_RANGE:g} x est.mass_initial")
         build_estimator(*self._args, dt=1.0)   # validates every setting now, at initialisation
         self.estimator: OnlineEstimator | None = None
         self.time = None
@@ -314,8 +350,13 @@ class EstimatorChain:
         check_finite("sensor.track_time", track_time, "s")
         check_force("traction_force", traction)
         check_force("brake_force", brake)
+        check_bounded("traction_force", traction, self._force_limit, "N", self._force_why)
+        check_bounded("brake_force", brake, self._force_limit, "N", self._force_why)
         check_finite("sensor.speed", speed_meas, "m/s")
         check_finite("sensor.position", position_meas, "m")
+        check_bounded("sensor.speed", speed_meas, MAX_MEASURED_SPEED, "m/s", "no rail car is that fast")
+        check_bounded("sensor.position", position_meas, MAX_MEASURED_DISTANCE, "m",
+                      "no line is that long")
         if self.time is not None and abs(current_time - self.time) > 1e-9 * max(1.0, abs(current_time)):
             raise StepRejected(f"current time {current_time!r} s does not continue the FMU's "
                                f"time {self.time!r} s")

@@ -137,27 +137,44 @@ class OnlineEstimator:
         self._pair_used = False      # the pair ending at the previous sample was identified
         self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
         self._dt = id_cfg.dt         # length of that interval [s]
+        self._prev_rejected = False  # the previous measurement was refused by the gate
+        self._net_force = 0.0        # low-passed F - B [N] (_excited)
+        self._steady_speed = 0.0     # where the current steady state began [m/s], [N]
+        self._steady_force = 0.0
+        self._steady_time = 0.0      # how long it has lasted [s]
+        self._force_band = self.STEADY_FORCE * id_cfg.mass_initial * G   # [N]
+        self._mass_initial = id_cfg.mass_initial
+        self._mass_std_initial = id_cfg.mass_std_initial
+        self._last_good = None       # the last finite, plausible est.* values (finish_outputs)
 
     def measure(self, speed_meas: float, position_meas: float) -> None:
-        """Sample n: identification on the pair (n-1, n), station logic, filter update."""
+        """Sample n: identification on the pair (n-1, n), station logic, filter update.
+
+        A measurement the filter's innovation gate refuses (MotionFilter.gate: a spike, a
+        dropout) is not used: neither pair it belongs to is identified, the filter keeps its
+        prediction. Station detection sees every measurement (it needs MOVING_RUN in a row)."""
         dt = self._dt
         moving_before = self.station.moving
         stop = self.station.observe(speed_meas, position_meas, dt)
+        prev = self._prev
+        accepted = stop or prev is None or self.filter.gate(speed_meas, position_meas)
         if self.refit is not None:
             run = self._run
             if run["t"]:
                 self._t += dt
             run["t"].append(self._t)
-            run["v"].append(speed_meas)
-            run["x"].append(position_meas)
-        prev = self._prev
+            # a refused sample enters the run's record as the filter's prediction of it
+            run["v"].append(speed_meas if accepted else self.filter.predicted_speed)
+            run["x"].append(position_meas if accepted else self.filter.predicted_position)
         if prev is None and not (abs(speed_meas) < self.station.v_thr
                                  and abs(position_meas) < self.station.x_thr):
             # the run starts away from a station (a log cut mid-line, a car already moving)
             self.filter.start_from_measurement(speed_meas, position_meas)
             self._prev = (speed_meas, position_meas)
             return
-        used = (prev is not None and moving_before and self.station.moving
+        excited = self._excited(dt)
+        used = (prev is not None and accepted and not self._prev_rejected and excited
+                and moving_before and self.station.moving
                 and position_meas >= prev[1] - 10.0 * self.filter.cfg.position_std - 1.0)
         if used:
             traction, brake = self._forces
@@ -173,11 +190,12 @@ class OnlineEstimator:
             self._coasting = False
         self._pair_used = used
         self._prev = (speed_meas, position_meas)
+        self._prev_rejected = not accepted
         if self.noise_bank is not None:
-            if self.station.moving:
-                self.noise_bank.update(speed_meas)
-            else:
+            if not self.station.moving:
                 self.noise_bank.stand()
+            elif accepted:
+                self.noise_bank.update(speed_meas)
         if stop:
             self.station_stops += 1
             if self.refit is not None:
@@ -188,8 +206,42 @@ class OnlineEstimator:
                 # no separate prior, so the whole of it is forgotten alike)
                 self.coast.P[1:, 1:] /= 1.0 - self.ident.cfg.run_forgetting
             self.restart_filter(speed_meas, position_meas)
-        else:
+        elif accepted:
             self.filter.update(speed_meas, position_meas)
+        else:
+            self.filter.hold()
+
+    # Information cap per operating point. At a steady speed and force every regressor phi is the
+    # same vector: it tells nothing new about the mass, nor how the resistance splits into A0, A1,
+    # A2, while the paper's rows carry the measured speed's error in phi and in y alike (errors in
+    # variables, MODEL.md section 4), a bias that then piles up along the unexcited directions with
+    # every row. On a 2 h cruise at 60 km/h A0 walked from 0.89 to -10 N/kN and the mass crept
+    # +1.1 % with est.mass_std at 0.12 t (seed 3; with wind changes the issue saw 34 -> 573 t).
+    # So one steady state feeds at most STEADY_TIME of rows: the filter's speed within
+    # STEADY_SPEED of where the state began and the smoothed net force F - B within STEADY_FORCE
+    # N/kN of the configured weight. A grade change at cruise speed changes F - B and starts a
+    # new state, so each grade still tells its part of the mass (steep_grades).
+    STEADY_SPEED = 0.1      # [m/s]: with STEADY_TIME, below 0.005 m/s^2 (a coast on the level
+                            # decelerates at >= ~0.008: A0 >= 0.8 N/kN)
+    STEADY_FORCE = 2.0      # [N/kN] of est.mass_initial's weight
+    STEADY_TIME = 20.0      # [s]
+    FORCE_SMOOTHING = 10.0  # [s] time constant of the net force's low-pass: a cruise controller
+                            # answering process noise moves F - B by ~120 N at 2 s, ~50 N at 10 s
+
+    def _excited(self, dt: float) -> bool:
+        """Track the steady state at this sample [dt s after the last]; False once the car has
+        been in one for more than STEADY_TIME (its pairs are then not identified)."""
+        net = self._forces[0] - self._forces[1]
+        self._net_force += dt / (self.FORCE_SMOOTHING + dt) * (net - self._net_force)
+        v = self.filter.speed
+        if (not self.station.moving or abs(v - self._steady_speed) > self.STEADY_SPEED
+                or abs(self._net_force - self._steady_force) > self._force_band):
+            self._steady_speed = v
+            self._steady_force = self._net_force
+            self._steady_time = 0.0
+            return True
+        self._steady_time += dt
+        return self._steady_time <= self.STEADY_TIME
 
     def _update_from_slopes(self, traction: float, brake: float, speed: float, speed_next: float,
                             grade: float, dt: float) -> None:
@@ -417,6 +469,39 @@ class OnlineEstimator:
         else:
             out.update({"filter.speed": f.speed, "filter.position": f.position,
                         "filter.speed_std": f.speed_std, "filter.position_std": f.position_std})
+        return self.finish_outputs(out)
+
+    MASS_RANGE = 5.0   # est.mass is reported while within a factor 5 of est.mass_initial
+    PRIOR, IDENTIFYING, HOLDING, DEGRADED = 0, 1, 2, 3   # est.status
+
+    def finish_outputs(self, out: dict) -> dict:
+        """Add est.status and filter.rejected, and keep every value finite and est.mass plausible.
+
+        Right after a mass restart the first sample pair alone decides 1/(Pg): one pair's
+        differenced speed noise (+-72 N/kN at 0.05 m/s and 0.1 s) against 120 N/kN of traction
+        makes 1/(Pg) <= 0 in ~5 % of departures for a sample or two (est.mass was inf). An
+        estimate outside [m0 / MASS_RANGE, MASS_RANGE m0] (m0 = est.mass_initial), or not
+        finite, is not reported: est.mass keeps its last good value with at least
+        est.mass_std_initial, est.status = DEGRADED. A non-finite value of any other output
+        (none is known to occur) is replaced by its last good value the same way. ``out`` is
+        changed in place and returned."""
+        m0 = self._mass_initial
+        good = self._last_good
+        status = self.IDENTIFYING if self._pair_used else (self.HOLDING if self.ident.samples else self.PRIOR)
+        if not (m0 / self.MASS_RANGE <= out["est.mass"] <= self.MASS_RANGE * m0
+                and math.isfinite(out["est.mass_std"])):
+            status = self.DEGRADED
+            out["est.mass"] = good["est.mass"] if good else m0
+            out["est.mass_std"] = max(good["est.mass_std"] if good else 0.0, self._mass_std_initial)
+        if not math.isfinite(sum(out.values())):
+            status = self.DEGRADED
+            for k, v in out.items():
+                if not math.isfinite(v):
+                    out[k] = good[k] if good else 0.0
+        elif status != self.DEGRADED:
+            self._last_good = out
+        out["est.status"] = status
+        out["filter.rejected"] = self.filter.rejected
         return out
 
 

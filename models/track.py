@@ -19,14 +19,22 @@ class ProfileError(ValueError):
     """A malformed profile; the message names the source (file) and the line."""
 
 
+MAX_GRADE = 200.0   # [permille] |grade| accepted in a profile: rack-free railways stay below ~120
+MAX_SPEED = 200.0   # [m/s] accepted in a speed profile (720 km/h)
+
+
 def parse_profile_csv(text: str, source: str, columns: tuple[str, str], *,
-                      nonnegative_values: bool = False) -> tuple[list[float], list[float]]:
+                      nonnegative_values: bool = False,
+                      max_abs_value: float = math.inf) -> tuple[list[float], list[float]]:
     """Parse a two-column profile CSV.
 
     The header must be exactly ``columns`` (e.g. ``distance_m,grade_permille``); distances [m]
-    must be finite, >= 0 and strictly increasing. Blank lines and lines starting with ``#``
+    must be finite, >= 0 and strictly increasing; values within +-``max_abs_value``. A UTF-8
+    byte-order mark before the header is skipped. Blank lines and lines starting with ``#``
     are skipped. Raises :class:`ProfileError` naming ``source`` and the 1-based line number.
     """
+    if text.startswith("\ufeff"):
+        text = text[1:]
     distances: list[float] = []
     values: list[float] = []
     header_seen = False
@@ -56,6 +64,9 @@ def parse_profile_csv(text: str, source: str, columns: tuple[str, str], *,
                                f"({d} after {distances[-1]})")
         if nonnegative_values and v < 0:
             raise ProfileError(f"{source}: line {lineno}: {columns[1]} must be >= 0, got {v}")
+        if abs(v) > max_abs_value:
+            raise ProfileError(f"{source}: line {lineno}: {columns[1]} must be within "
+                               f"+-{max_abs_value:g}, got {v}")
         distances.append(d)
         values.append(v)
     if not header_seen:
@@ -91,7 +102,7 @@ class GradeProfile:
 
     @classmethod
     def from_csv_text(cls, text: str, source: str) -> "GradeProfile":
-        d, g = parse_profile_csv(text, source, GRADE_COLUMNS)
+        d, g = parse_profile_csv(text, source, GRADE_COLUMNS, max_abs_value=MAX_GRADE)
         return cls(tuple(d), tuple(g))
 
     def at(self, x: float) -> float:
@@ -125,7 +136,8 @@ class SpeedProfile:
 
     @classmethod
     def from_csv_text(cls, text: str, source: str) -> "SpeedProfile":
-        d, v = parse_profile_csv(text, source, SPEED_COLUMNS, nonnegative_values=True)
+        d, v = parse_profile_csv(text, source, SPEED_COLUMNS, nonnegative_values=True,
+                                 max_abs_value=MAX_SPEED)
         return cls(tuple(d), tuple(v))
 
     def at(self, x: float) -> float:

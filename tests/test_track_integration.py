@@ -49,11 +49,11 @@ def test_a_track_speed_shrinks_the_filters_speed_variance(kind):
     for k in range(30):
         est.do_step(k * 0.1, 0.1, 30e3, 0.0, 0.1 * k, 0.005 * k * k)
     before = est.estimator.filter.speed_std
-    est.do_step(3.0, 0.1, 30e3, 0.0, 3.0, 45.0, track_speed=2.95, track_time=2.98)
+    est.do_step(3.0, 0.1, 30e3, 0.0, 3.0, 4.5, track_speed=2.95, track_time=2.98)
     assert est.estimator.track_speeds == 1
     assert est.estimator.filter.speed_std < before
     # the same stamp again is not taken twice
-    est.do_step(3.1, 0.1, 30e3, 0.0, 3.1, 48.0, track_speed=2.95, track_time=2.98)
+    est.do_step(3.1, 0.1, 30e3, 0.0, 3.1, 4.8, track_speed=2.95, track_time=2.98)
     assert est.estimator.track_speeds == 1
 
 
