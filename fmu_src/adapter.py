@@ -45,15 +45,27 @@ def register_variables(slave, fmu: str) -> dict:
         if var.causality == "output":
             kwargs["initial"] = Fmi2Initial.exact
         else:
-            kwargs["setter"] = _setter(values, var)
+            kwargs["setter"] = _setter(slave, values, var)
         slave.register_variable(_TYPE[var.type](var.name, start=var.start, **kwargs))
     return values
 
 
-def _setter(values: dict, var: Var):
-    def set_value(v, name=var.name):
+def _setter(slave, values: dict, var: Var):
+    """A parameter is fixed once the model is built: a later set is refused and logged (the
+    FMU's own binary refuses it with fmi2Error before it gets here; this guards the pythonfmu
+    binary used where no C compiler was found)."""
+    if var.causality != "parameter":
+        def set_value(v, name=var.name):
+            values[name] = v
+        return set_value
+
+    def set_parameter(v, name=var.name):
+        if getattr(slave, "chain", None) is not None:
+            slave.log(f"set {name} = {v!r} refused: a parameter cannot change after initialisation "
+                      f"(it keeps {values[name]!r})", Fmi2Status.error)
+            return
         values[name] = v
-    return set_value
+    return set_parameter
 
 
 def resolve_profile_path(path: str, resources: str | None) -> Path:
@@ -79,6 +91,8 @@ def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, Sp
             return path.read_text(encoding="utf-8"), str(path)
         except OSError as e:
             raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
+        except UnicodeDecodeError as e:
+            raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
 
     grade_src = read("track.grade_profile")
     try:
@@ -100,6 +114,13 @@ def initialise(slave, build):
     except (ValueError, ParameterError) as e:
         slave.log(f"initialisation failed: {e}", Fmi2Status.error)
         raise ParameterError(f"initialisation failed: {e}") from None
+
+
+def not_initialised(slave) -> bool:
+    """doStep before a successful exitInitializationMode: say so, discard the step."""
+    slave.log("doStep refused: the instance is not initialised (call exitInitializationMode "
+              "first; after a failed initialisation, reset or free the instance)", Fmi2Status.error)
+    return False
 
 
 def guarded_step(slave, step) -> bool:

@@ -1,7 +1,7 @@
 """RailCar FMU: car dynamics (plant), sensors, parameter identification and Kalman filter."""
 from pythonfmu import Fmi2Slave
 
-from fmu_src.adapter import chain_config, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.adapter import chain_config, guarded_step, initialise, not_initialised, load_profiles, register_variables
 from fmu_src.variables import RAILCAR
 from models.chain import RailCarChain
 
@@ -31,6 +31,8 @@ class RailCar(Fmi2Slave):
         self.chain = initialise(self, self._build)
 
     def do_step(self, current_time, step_size):
+        if self.chain is None:
+            return not_initialised(self)
         v = self.values
 
         def step():

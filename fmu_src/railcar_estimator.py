@@ -1,7 +1,7 @@
 """RailCarEstimator FMU: identification and filter on measurements from anywhere."""
 from pythonfmu import Fmi2Slave
 
-from fmu_src.adapter import estimator_settings, track_settings, guarded_step, initialise, load_profiles, register_variables
+from fmu_src.adapter import estimator_settings, track_settings, guarded_step, initialise, not_initialised, load_profiles, register_variables
 from fmu_src.variables import ESTIMATOR
 from models.chain import EstimatorChain
 
@@ -25,6 +25,8 @@ class RailCarEstimator(Fmi2Slave):
         self.chain = initialise(self, self._build)
 
     def do_step(self, current_time, step_size):
+        if self.chain is None:
+            return not_initialised(self)
         v = self.values
 
         def step():
