@@ -167,6 +167,7 @@ class RailCarChain:
         # demands above these are refused (StepRejected); 1 N floors a limit configured as 0
         self._traction_limit = FORCE_LIMIT_FACTOR * max(cfg.vehicle.traction_force_max, 1.0)
         self._brake_limit = FORCE_LIMIT_FACTOR * max(cfg.vehicle.brake_force_max, 1.0)
+        self._payload_limit = FORCE_LIMIT_FACTOR * cfg.vehicle.mass    # [t]
         self.plant = CarPlant(cfg.vehicle, grade_profile, step=cfg.solver_step,
                               noise_psd=cfg.process_noise_psd, station_dwell=cfg.station.dwell,
                               normal_draws=streams["process"])
@@ -237,6 +238,23 @@ class RailCarChain:
         self.track_speed, self.track_time = v, stamp + self.start_time
         self._pending_track = (v, self.plant.time - stamp)
 
+    def _check_inputs(self, step_size: float, traction_demand: float, brake_demand: float,
+                      wind_speed: float, payload: float) -> None:
+        """Raise StepRejected naming the first input that is bad or beyond physics (do_step's
+        one comparison chain found one; NaN fails every comparison)."""
+        check_step(0.0, step_size)
+        check_force("traction_force_demand", traction_demand)
+        check_force("brake_force_demand", brake_demand)
+        check_bounded("traction_force_demand", traction_demand, self._traction_limit, "N",
+                      f"{FORCE_LIMIT_FACTOR:g} x car.traction_force_max")
+        check_bounded("brake_force_demand", brake_demand, self._brake_limit, "N",
+                      f"{FORCE_LIMIT_FACTOR:g} x car.brake_force_max")
+        check_finite("wind_speed", wind_speed, "m/s")
+        check_bounded("wind_speed", wind_speed, MAX_WIND, "m/s", "no wind blows that hard")
+        check_finite("car.payload", payload, "t")
+        check_bounded("car.payload", payload, self._payload_limit, "t",
+                      f"{FORCE_LIMIT_FACTOR:g} x car.mass")
+
     def next_sample_time(self) -> float:
         return (self._sample_index + 1) * self.cfg.sample_period
 
@@ -247,19 +265,10 @@ class RailCarChain:
 
         Raises StepRejected (naming the variable) before changing anything on bad input.
         """
-        check_step(current_time, step_size)
-        p = self.cfg.vehicle
-        check_force("traction_force_demand", traction_demand)
-        check_force("brake_force_demand", brake_demand)
-        check_bounded("traction_force_demand", traction_demand, self._traction_limit, "N",
-                      f"{FORCE_LIMIT_FACTOR:g} x car.traction_force_max")
-        check_bounded("brake_force_demand", brake_demand, self._brake_limit, "N",
-                      f"{FORCE_LIMIT_FACTOR:g} x car.brake_force_max")
-        check_finite("wind_speed", wind_speed, "m/s")
-        check_bounded("wind_speed", wind_speed, MAX_WIND, "m/s", "no wind blows that hard")
-        check_finite("car.payload", payload, "t")
-        check_bounded("car.payload", payload, FORCE_LIMIT_FACTOR * p.mass, "t",
-                      f"{FORCE_LIMIT_FACTOR:g} x car.mass")
+        if not (0.0 < step_size <= MAX_STEP and 0.0 <= traction_demand <= self._traction_limit
+                and 0.0 <= brake_demand <= self._brake_limit and -MAX_WIND <= wind_speed <= MAX_WIND
+                and -self._payload_limit <= payload <= self._payload_limit):
+            self._check_inputs(step_size, traction_demand, brake_demand, wind_speed, payload)
         step = self._core_step
         if step is not None and step(self, current_time, step_size, traction_demand, brake_demand,
                                      wind_speed, payload):

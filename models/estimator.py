@@ -144,6 +144,8 @@ class OnlineEstimator:
         self._steady_time = 0.0      # how long it has lasted [s]
         self._force_band = self.STEADY_FORCE * id_cfg.mass_initial * G   # [N]
         self._mass_initial = id_cfg.mass_initial
+        self._mass_low = id_cfg.mass_initial / self.MASS_RANGE    # [t] est.mass reported within
+        self._mass_high = id_cfg.mass_initial * self.MASS_RANGE
         self._mass_std_initial = id_cfg.mass_std_initial
         self._last_good = None       # the last finite, plausible est.* values (finish_outputs)
 
@@ -485,22 +487,21 @@ class OnlineEstimator:
         est.mass_std_initial, est.status = DEGRADED. A non-finite value of any other output
         (none is known to occur) is replaced by its last good value the same way. ``out`` is
         changed in place and returned."""
-        m0 = self._mass_initial
-        good = self._last_good
-        status = self.IDENTIFYING if self._pair_used else (self.HOLDING if self.ident.samples else self.PRIOR)
-        if not (m0 / self.MASS_RANGE <= out["est.mass"] <= self.MASS_RANGE * m0
-                and math.isfinite(out["est.mass_std"])):
-            status = self.DEGRADED
-            out["est.mass"] = good["est.mass"] if good else m0
-            out["est.mass_std"] = max(good["est.mass_std"] if good else 0.0, self._mass_std_initial)
-        if not math.isfinite(sum(out.values())):
-            status = self.DEGRADED
+        if (self._mass_low <= out["est.mass"] <= self._mass_high
+                and math.isfinite(sum(out.values()))):        # the usual case, in one test
+            out["est.status"] = (self.IDENTIFYING if self._pair_used
+                                 else self.HOLDING if self.ident.samples else self.PRIOR)
+            self._last_good = out
+        else:
+            good, m0 = self._last_good, self._mass_initial
+            if not (self._mass_low <= out["est.mass"] <= self._mass_high
+                    and math.isfinite(out["est.mass_std"])):
+                out["est.mass"] = good["est.mass"] if good else m0
+                out["est.mass_std"] = max(good["est.mass_std"] if good else 0.0, self._mass_std_initial)
             for k, v in out.items():
                 if not math.isfinite(v):
                     out[k] = good[k] if good else 0.0
-        elif status != self.DEGRADED:
-            self._last_good = out
-        out["est.status"] = status
+            out["est.status"] = self.DEGRADED
         out["filter.rejected"] = self.filter.rejected
         return out
 
