@@ -5,11 +5,15 @@
     python -m harness regress [--update] [NAME ...]
     python -m harness report [--out DIR] [NAME ...]
     python -m harness filters [NAME ...]
-    python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume]
+    python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
 
 Exit codes: 0 success; 1 a run failed or a regression/target check failed; 2 bad usage or
-invalid input (scenario, log, parameter).
+invalid input (scenario, log, parameter, sweep file, output folder): one line on stderr naming
+the file and the key or line (harness.textio.InputError and its subclasses), no traceback. The
+scenario's FMU parameters are checked with the FMU's own rules before any FMU runs; should the
+FMU still refuse to initialise with them, that is invalid input too (2); a run that fails after
+initialisation is 1.
 """
 from __future__ import annotations
 
@@ -19,33 +23,56 @@ import sys
 from pathlib import Path
 
 from .scenario import ScenarioError, load_scenario
+from .textio import InputError, check_out_dir
 
 EXIT_OK, EXIT_RUN_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def _init_failed(where, e) -> int:
+    """The FMU refused to initialise with the parameters of ``where``: invalid input."""
+    print(f"error: {where}: the FMU refused to initialise: {e.reason}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def _check_log_path(path: str) -> None:
+    """--log names a file to write; its folder is created (it may be the report's --out)."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"--log {p}: is a folder; give a CSV file name")
+    existing = next(a for a in p.absolute().parents if a.exists())
+    if not existing.is_dir():
+        raise InputError(f"--log {p}: {existing} is not a folder")
 
 
 def cmd_run(args) -> int:
     from .fmus import DIST, ensure_built
     from .metrics import format_summary, summarise
     from .report import write_report
-    from .runner import FmuRunner, RunError
+    from .runner import FmuRunner, InitError, RunError
 
     scenario = load_scenario(args.scenario)
+    out = Path(args.out) if args.out else Path("out") / scenario.name
+    check_out_dir(out)
+    if args.log:
+        _check_log_path(args.log)
     dist = Path(args.dist) if args.dist else DIST
     fmus = ensure_built(dist, force=args.rebuild)
     print(f"running '{scenario.name}': {scenario.purpose}", flush=True)
     with FmuRunner(fmus["RailCar"]) as runner:
         try:
             result = runner.run(scenario)
+        except InitError as e:
+            return _init_failed(f"{args.scenario}: parameters", e)
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
     summary = summarise(result)
     true_A = summary.A_true
     print(format_summary(summary))
-    out = Path(args.out) if args.out else Path("out") / scenario.name
     files = write_report(result, summary, true_A, out)
     if args.log:
         from .replay import write_log
+        Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         print(f"log for replay: {write_log(Path(args.log), result)}")
     print(f"report: {files[1]} (with {', '.join(p.name for p in files[2:])}; data {files[0].name})")
     return EXIT_OK
@@ -82,11 +109,22 @@ def _run_all(scenarios, dist, rebuild=False):
                 yield s, e
 
 
+def _init_failures(results) -> int | None:
+    """EXIT_USAGE (with a line per scenario) if the FMU refused a library scenario's parameters."""
+    from .runner import InitError
+    bad = [(s, r) for s, r in results if isinstance(r, InitError)]
+    for s, r in bad:
+        _init_failed(f"{s.path or s.name}: parameters", r)
+    return EXIT_USAGE if bad else None
+
+
 def cmd_regress(args) -> int:
     from .regress import compare, write_reference
     scenarios = _library(args.names)
     failed = False
+    results = []
     for s, result in _run_all(scenarios, args.dist, args.rebuild):
+        results.append((s, result))
         if isinstance(result, Exception):
             print(f"FAIL {s.name}: {result}")
             failed = True
@@ -107,50 +145,39 @@ def cmd_regress(args) -> int:
         for p in c.problems:
             print(f"     {p}")
         failed |= not c.ok
-    return EXIT_RUN_FAILED if failed else EXIT_OK
+    return _init_failures(results) or (EXIT_RUN_FAILED if failed else EXIT_OK)
 
 
 def cmd_report(args) -> int:
     from .library_report import format_table, library_rows, write_table
     scenarios = _library(args.names)
+    out = Path(args.out) if args.out else Path("out") / "library"
+    check_out_dir(out)
     results = list(_run_all(scenarios, args.dist, args.rebuild))
     rows = library_rows(results)
     print(format_table(rows))
-    out = Path(args.out) if args.out else Path("out") / "library"
     path = write_table(rows, out)
     print(f"table: {path}")
-    return EXIT_OK if all(r.ok for r in rows) else EXIT_RUN_FAILED
+    return _init_failures(results) or (EXIT_OK if all(r.ok for r in rows) else EXIT_RUN_FAILED)
 
 
 def cmd_replay(args) -> int:
     from .fmus import DIST, ensure_built
-    from .replay import LogError, read_log, replay_report
-    from .runner import FmuRunner, RunError
-    try:
-        log = read_log(args.log)
-    except LogError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_USAGE
-    params = {}
-    for item in args.param or []:
-        if "=" not in item:
-            print(f"error: --param {item!r}: expected NAME=VALUE", file=sys.stderr)
-            return EXIT_USAGE
-        k, v = item.split("=", 1)
-        params[k] = v
+    from .replay import estimator_parameters, read_log, replay_report
+    from .runner import FmuRunner, InitError, RunError
+    log = read_log(args.log)                     # LogError, ParamError: invalid input (exit 2)
+    params = estimator_parameters(args.param, dt=float(log.time[1] - log.time[0]))
+    out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
+    check_out_dir(out)
     fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
     with FmuRunner(fmus["RailCarEstimator"]) as runner:
         try:
-            params = runner.typed_parameters(params)
-        except (KeyError, ValueError) as e:
-            print(f"error: --param: {e}", file=sys.stderr)
-            return EXIT_USAGE
-        try:
             signals, _ = runner.replay(log, params, what=Path(args.log).name)
+        except InitError as e:
+            return _init_failed("--param", e)
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
     print(replay_report(log, signals, out))
     return EXIT_OK
 
@@ -171,6 +198,8 @@ def cmd_filters(args) -> int:
 def cmd_plan(args) -> int:
     from .plan import plan_speed_profile, profile_csv_text
     scenario = load_scenario(args.scenario)
+    if Path(args.out).is_dir():
+        raise InputError(f"--out {args.out}: is a folder; give a CSV file name")
     xs, vs = plan_speed_profile(scenario)
     Path(args.out).write_text(profile_csv_text(xs, vs), encoding="utf-8")
     print(f"wrote {args.out}: {len(xs)} points up to {xs[-1]:.1f} m")
@@ -182,14 +211,19 @@ def cmd_sweep(args) -> int:
     return cli_sweep(args)
 
 
+def _fmu_options(p) -> None:
+    p.add_argument("--dist", metavar="DIR", help="folder of RailCar.fmu and RailCarEstimator.fmu (default: dist/); "
+                   "they are built there when missing or built from other sources")
+    p.add_argument("--rebuild", action="store_true", help="rebuild the FMUs into --dist even if they are current")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m harness", description="RailCar FMU validation harness")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("run", help="build the FMUs if needed, run a scenario, print a summary, write a report")
     p.add_argument("scenario", help="scenario TOML file")
     p.add_argument("--out", help="report folder (default: out/<scenario name>)")
-    p.add_argument("--dist", help="folder of the FMUs (default: dist/)")
-    p.add_argument("--rebuild", action="store_true", help="rebuild the FMUs even if current")
+    _fmu_options(p)
     p.add_argument("--log", help="also write the run's measurements as a replayable log CSV")
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("replay", help="run RailCarEstimator on a logged CSV (time, forces, measured speed and distance)")
@@ -197,25 +231,21 @@ def main(argv=None) -> int:
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
                    help="RailCarEstimator parameter, e.g. track.grade_profile=grade.csv (repeatable)")
     p.add_argument("--out", help="folder for the estimates (default: out/replay_<log>)")
-    p.add_argument("--dist", help="folder of the FMUs (default: dist/)")
-    p.add_argument("--rebuild", action="store_true")
+    _fmu_options(p)
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser("regress", help="run the library scenarios and compare with tests/regression references")
     p.add_argument("names", nargs="*", help="library scenario names (default: all)")
     p.add_argument("--update", action="store_true", help="rewrite the references and say what changed")
-    p.add_argument("--dist")
-    p.add_argument("--rebuild", action="store_true")
+    _fmu_options(p)
     p.set_defaults(func=cmd_regress)
     p = sub.add_parser("report", help="run the library scenarios and print and write one table of metrics")
     p.add_argument("names", nargs="*", help="library scenario names (default: all)")
     p.add_argument("--out", help="folder of the table (default: out/library)")
-    p.add_argument("--dist")
-    p.add_argument("--rebuild", action="store_true")
+    _fmu_options(p)
     p.set_defaults(func=cmd_report)
     p = sub.add_parser("filters", help="each filter.kind on the library scenarios: speed/distance RMSE and NEES")
     p.add_argument("names", nargs="*", help="library scenario names (default: all)")
-    p.add_argument("--dist")
-    p.add_argument("--rebuild", action="store_true")
+    _fmu_options(p)
     p.set_defaults(func=cmd_filters)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
     p.add_argument("scenario")
@@ -228,17 +258,22 @@ def main(argv=None) -> int:
                    "(default: an embedded local cluster, one single-threaded worker process per core)")
     p.add_argument("--workers", type=int, help="worker processes of the embedded cluster (default: cores)")
     p.add_argument("--resume", action="store_true", help="skip the runs already in OUT/results.csv")
+    p.add_argument("--overwrite", action="store_true", help="discard the results already in OUT and start again "
+                   "(without --resume or --overwrite, a folder that holds results is refused)")
     p.add_argument("--limit", type=int, metavar="K", help="run only the first K runs not done yet")
     p.add_argument("--no-plots", action="store_true", help="write no plots")
-    p.add_argument("--dist", help="folder of the FMUs (default: dist/)")
-    p.add_argument("--rebuild", action="store_true")
+    _fmu_options(p)
     p.set_defaults(func=cmd_sweep)
     args = ap.parse_args(argv)
+    from .fmus import BuildError
     try:
         return args.func(args)
-    except ScenarioError as e:
+    except InputError as e:                  # ScenarioError, SweepError, LogError, ParamError, ...
         print(f"error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    except BuildError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_RUN_FAILED
 
 
 if __name__ == "__main__":

@@ -197,10 +197,13 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
         path = Path(raw["file"])
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
+        if not path.is_file():
+            raise error(f"{where}.file: cannot read {path}: no such file")
+        from .textio import read_text      # UTF-8 text, a BOM skipped; names the file
         try:
-            lines = path.read_text(encoding="utf-8").splitlines()
-        except OSError as e:
-            raise error(f"{where}.file: cannot read {path}: {e.strerror}") from None
+            lines = read_text(path, ValueError).splitlines()
+        except ValueError as e:
+            raise error(f"{where}.file: {e}") from None
         header = [c.strip().strip('"') for c in lines[0].split(",")] if lines else []
         if header != ["time_s", "traction_N", "brake_N"]:
             raise error(f"{path}: line 1: header must be 'time_s,traction_N,brake_N'")

@@ -8,8 +8,14 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+from .textio import InputError
+
 ROOT = Path(__file__).resolve().parent.parent
 DIST = ROOT / "dist"
+
+
+class BuildError(RuntimeError):
+    """build.py failed: the FMUs could not be built (exit code 1, with build.py's output)."""
 
 
 def _build_module():
@@ -35,13 +41,16 @@ def is_stale(name: str, dist: Path = DIST) -> bool:
 def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False) -> dict[str, Path]:
     """Build both FMUs (subprocess) unless they are present and current."""
     names = ("RailCar", "RailCarEstimator")
+    dist = Path(dist)
+    if dist.exists() and not dist.is_dir():
+        raise InputError(f"--dist {dist}: exists and is not a folder")
     if force or any(is_stale(n, dist) for n in names):
         if not quiet:
             print(f"building FMUs into {dist} ...", flush=True)
         proc = subprocess.run([sys.executable, str(ROOT / "build.py"), "--dest", str(dist)],
                               capture_output=True, text=True)
         if proc.returncode != 0:
-            raise RuntimeError(f"build.py failed:\n{proc.stdout}\n{proc.stderr}")
+            raise BuildError(f"build.py failed:\n{proc.stdout}\n{proc.stderr}")
         if not quiet:
             print(proc.stdout.strip(), flush=True)
     return {n: dist / f"{n}.fmu" for n in names}

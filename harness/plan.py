@@ -12,7 +12,8 @@ from models.filters import FilterConfig
 from models.track import GradeProfile
 
 from .driver import PhaseDriver
-from .scenario import Scenario
+from .scenario import Scenario, ScenarioError, profile_file
+from .textio import read_text
 
 
 def plan_speed_profile(scenario: Scenario, spacing_m: float = 10.0) -> tuple[list[float], list[float]]:
@@ -25,8 +26,8 @@ def plan_speed_profile(scenario: Scenario, spacing_m: float = 10.0) -> tuple[lis
                             brake_force_max=p("car.brake_force_max"))
     grade = GradeProfile.level()
     if p("track.grade_profile"):
-        with open(p("track.grade_profile"), encoding="utf-8") as f:
-            grade = GradeProfile.from_csv_text(f.read(), p("track.grade_profile"))
+        path = profile_file(p("track.grade_profile"), None)
+        grade = GradeProfile.from_csv_text(read_text(path, ScenarioError), str(path))
     chain = RailCarChain(ChainConfig(vehicle=vehicle, process_noise_psd=0.0,
                                      filter=FilterConfig(speed_std=1e-9, position_std=1e-9)), grade)
     driver = PhaseDriver(scenario.phases, vehicle.mass, vehicle.traction_force_max, vehicle.brake_force_max)

@@ -18,6 +18,7 @@ import numpy as np
 from fmpy.util import read_csv, read_ref_opt_file, validate_result
 
 from .runner import INPUTS
+from .textio import InputError, check_text_file
 
 ROOT = Path(__file__).resolve().parent.parent
 LIBRARY = ROOT / "scenarios" / "library"
@@ -38,6 +39,10 @@ KEY_SIGNALS: dict[str, tuple[float, float]] = {
     "filter.speed": (1e-6, 1e-6), "filter.position": (1e-5, 1e-6),
     "filter.speed_std": (1e-8, 1e-5), "filter.position_std": (1e-7, 1e-5),
 }
+
+
+class ReferenceFileError(InputError):
+    """A reference file that cannot be read (not UTF-8 text, not the cross-check layout); names it."""
 
 
 @dataclass
@@ -109,8 +114,7 @@ def compare(result, folder: Path = REFERENCES) -> Comparison:
     ref_path = folder / f"{name}_ref.csv"
     if not ref_path.is_file():
         return Comparison(name, [f"{name}: no reference {ref_path.name} (python -m harness regress --update)"], {})
-    ref = read_csv(ref_path)
-    opts = read_ref_opt_file(folder / f"{name}_ref.opt")
+    ref, opts = read_reference(name, folder)
     problems, max_abs = [], {}
     t_ref = ref["time"]
     if abs(result.time[-1] - opts["StopTime"]) > 1e-9 * max(1.0, opts["StopTime"]):
@@ -142,6 +146,27 @@ def compare(result, folder: Path = REFERENCES) -> Comparison:
         problems.append(f"{name}: fmpy band test: {100 * rel_out:.2f} % of the samples of the worst signal "
                         f"lie outside the reference band")
     return Comparison(name, problems, max_abs)
+
+
+def read_reference(name: str, folder: Path = REFERENCES) -> tuple[np.ndarray, dict]:
+    """(<Name>_ref.csv as a structured array, <Name>_ref.opt as a dict); ReferenceFileError names a
+    file that is not UTF-8 text or not in the cross-check layout."""
+    ref_path, opt_path = folder / f"{name}_ref.csv", folder / f"{name}_ref.opt"
+    for p in (ref_path, opt_path):
+        check_text_file(p, ReferenceFileError, reader="fmpy.util.read_csv")
+    try:
+        ref = read_csv(ref_path)
+    except Exception as e:              # fmpy / numpy parse errors: no common type
+        raise ReferenceFileError(f"{ref_path}: not a reference CSV: {type(e).__name__}: {e}") from None
+    if not ref.dtype.names or ref.dtype.names[0] != "time":
+        raise ReferenceFileError(f"{ref_path}: line 1: the first column must be \"time\"")
+    try:
+        opts = read_ref_opt_file(opt_path)
+        stop = float(opts["StopTime"])
+    except Exception as e:
+        raise ReferenceFileError(f"{opt_path}: not a reference options file (StopTime, ...): "
+                             f"{type(e).__name__}: {e}") from None
+    return ref, dict(opts, StopTime=stop)
 
 
 def read_inputs(name: str, folder: Path = REFERENCES) -> np.ndarray:

@@ -6,7 +6,12 @@ A log is a CSV whose header cells are ``name [unit]``, time first:
 
 ``sensor.speed`` may be given in [km/h] (converted here, at the edge). Optional truth columns
 ``car.speed [m/s]``, ``car.position [m]``, ``car.total_mass [t]`` enable error metrics. Rows
-are the measurement instants; forces on a row are applied until the next row.
+are the measurement instants; forces on a row are applied until the next row (finite, >= 0, as
+RailCarEstimator requires). The file is UTF-8 text; a BOM is skipped (harness.textio).
+
+``estimator_parameters`` checks ``--param NAME=VALUE`` against RailCarEstimator's variable table
+and the FMU's own rules (profiles parsed, the estimator configured as the FMU configures it), so
+that a bad parameter is invalid input before any FMU runs.
 """
 from __future__ import annotations
 
@@ -18,7 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
+from fmu_src.variables import ESTIMATOR, variables_for
 from models.units import kmh_to_mps
+
+from .scenario import PATH_PARAMETERS, check_integer, named_parameter, profile_file, read_profile
+from .textio import InputError, read_text
 
 REQUIRED = {"time": ("s",), "traction_force": ("N",), "brake_force": ("N",),
             "sensor.speed": ("m/s", "km/h"), "sensor.position": ("m",)}
@@ -26,8 +35,15 @@ OPTIONAL = {"car.speed": ("m/s",), "car.position": ("m",), "car.total_mass": ("t
 _HEADER = re.compile(r"^\s*\"?([A-Za-z0-9_.]+)\s*\[([^\]]*)\]\"?\s*$")
 
 
-class LogError(ValueError):
+NONNEGATIVE = ("traction_force", "brake_force")     # [N] the estimator refuses negative forces
+
+
+class LogError(InputError):
     """A log that cannot be replayed; names the file, line and column."""
+
+
+class ParamError(InputError):
+    """A ``--param NAME=VALUE`` that RailCarEstimator cannot start with; names the parameter."""
 
 
 @dataclass
@@ -40,10 +56,11 @@ class Log:
 def read_log(path: str | Path) -> Log:
     """Read and check a log; speeds in km/h are converted to m/s."""
     path = Path(path)
+    reader = csv.reader(read_text(path, LogError).splitlines())
     try:
-        rows = list(csv.reader(path.read_text(encoding="utf-8").splitlines()))
-    except OSError as e:
-        raise LogError(f"{path}: cannot read: {e.strerror}") from None
+        rows = list(reader)
+    except csv.Error as e:
+        raise LogError(f"{path}: line {reader.line_num + 1}: not valid CSV: {e}") from None
     if len(rows) < 3:
         raise LogError(f"{path}: needs a header and at least two rows")
     names, units = [], []
@@ -55,6 +72,9 @@ def read_log(path: str | Path) -> Log:
         units.append(m.group(2).strip())
     if names[0] != "time":
         raise LogError(f"{path}: line 1: the first column must be 'time [s]'")
+    for j, name in enumerate(names):
+        if name in names[:j]:
+            raise LogError(f"{path}: line 1, column {j + 1}: column '{name}' appears twice")
     for name, allowed in REQUIRED.items():
         if name not in names:
             raise LogError(f"{path}: line 1: missing column '{name} [{allowed[0]}]'")
@@ -73,6 +93,8 @@ def read_log(path: str | Path) -> Log:
                 raise LogError(f"{path}: line {i}, column '{names[j]}': not a number: '{cell}'") from None
             if not math.isfinite(x):
                 raise LogError(f"{path}: line {i}, column '{names[j]}': not finite: '{cell}'")
+            if x < 0 and names[j] in NONNEGATIVE:
+                raise LogError(f"{path}: line {i}, column '{names[j]}': must be >= 0 [N], got {cell}")
             data[i - 2, j] = x
     t = data[:, 0]
     bad = np.nonzero(np.diff(t) <= 0)[0]
@@ -82,6 +104,62 @@ def read_log(path: str | Path) -> Log:
     if units[names.index("sensor.speed")] == "km/h":
         cols["sensor.speed"] = kmh_to_mps(cols["sensor.speed"])
     return Log(str(path), t, cols)
+
+
+_ESTIMATOR_PARAMETERS = {v.name: v for v in variables_for(ESTIMATOR) if v.causality == "parameter"}
+
+
+def estimator_parameters(items: list[str] | None, dt: float = 1.0) -> dict:
+    """``--param NAME=VALUE`` strings -> RailCarEstimator parameter values, checked as the FMU
+    checks them at initialisation; ``dt`` [s] is the log's first step (the estimator's sampling
+    period). A profile path that names a file here is made absolute (the FMU would look in its
+    resources first); one that does not is checked where the FMU looks. ParamError names the
+    parameter (and the file and line of a bad profile)."""
+    from fmu_src.adapter import estimator_settings, track_settings
+    from models.chain import build_estimator
+    from models.track import GradeProfile
+    out, profiles = {}, {}
+    for item in items or []:
+        if "=" not in item:
+            raise ParamError(f"--param {item!r}: expected NAME=VALUE")
+        name, text = item.split("=", 1)
+        key = f"--param {name}"
+        var = _ESTIMATOR_PARAMETERS.get(name)
+        if var is None:
+            raise ParamError(f"{key}: not a RailCarEstimator parameter (see the README's variable table)")
+        if var.type == "Real":
+            try:
+                value = float(text)
+            except ValueError:
+                raise ParamError(f"{key}: '{text}' is not a number") from None
+        elif var.type == "Integer":
+            try:
+                value = int(text)
+            except ValueError:
+                raise ParamError(f"{key}: '{text}' is not an integer") from None
+            check_integer(name, value, key, ParamError)
+        else:
+            value = text
+            if name in PATH_PARAMETERS and text:
+                local = Path(text)
+                found = local if local.is_file() else profile_file(text, None)
+                profiles[name] = read_profile(name, found, key, ParamError)
+                if local.is_file():
+                    value = str(local.resolve())
+        out[name] = value
+    v = {n: out.get(n, var.start) for n, var in _ESTIMATOR_PARAMETERS.items()}
+    try:
+        ident, filt, station = estimator_settings(v)
+        track_settings(v).validate()
+        build_estimator(ident, filt, station, profiles.get("track.grade_profile") or GradeProfile.level(),
+                        profiles.get("track.speed_profile"), dt)
+    except (ValueError, ArithmeticError) as e:
+        name = named_parameter(str(e), _ESTIMATOR_PARAMETERS)
+        where = f"--param {name}" if name else "--param"
+        if name and name not in out:
+            where += f" (not set: the FMU's default {_ESTIMATOR_PARAMETERS[name].start!r})"
+        raise ParamError(f"{where}: {e}") from None
+    return out
 
 
 def _applied_until_next_row(x: np.ndarray) -> np.ndarray:

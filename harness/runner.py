@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import shutil
+import tempfile
+from ctypes import byref
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,6 +20,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
 from fmpy import calloc, free
+from fmpy.logging import addLoggerProxy
 
 from .driver import PhaseDriver
 from .scenario import Scenario
@@ -30,7 +33,22 @@ class RunError(RuntimeError):
 
     def __init__(self, message: str, log: list[str]):
         super().__init__(message + ("\nFMU log:\n  " + "\n  ".join(log[-20:]) if log else ""))
+        self.message = message
         self.log = log
+
+
+class InitError(RunError):
+    """The FMU refused to initialise with the parameters given: invalid input (exit code 2), where a
+    RunError after initialisation is a failed run (exit code 1)."""
+
+    @property
+    def reason(self) -> str:
+        """The FMU's own message (fmu_src.adapter logs "initialisation failed: ..."), else the call's."""
+        for line in self.log:               # the first: later ones may hold a traceback
+            head, sep, tail = line.partition("initialisation failed: ")
+            if sep and tail.strip():
+                return tail.strip().splitlines()[0]
+        return self.message
 
 
 @dataclass
@@ -49,6 +67,16 @@ class RunResult:
         return self.signals[name]
 
 
+def _int32(name: str, value: int) -> int:
+    """An fmi2Integer value: ctypes would wrap a value outside 32 bits silently (seed 2**32 + 1 ran
+    as seed 1); refused instead, with the range (harness.scenario.integer_range)."""
+    from .scenario import integer_range
+    lo, hi = integer_range(name)
+    if not lo <= value <= hi:
+        raise ValueError(f"{name}: {value} is outside {lo}..{hi} (a 32-bit fmi2Integer)")
+    return value
+
+
 def _finish(fmu: FMU2Slave) -> None:
     """Terminate and free an instance that initialised (never one after fmi2Fatal)."""
     try:
@@ -64,12 +92,15 @@ def _finish(fmu: FMU2Slave) -> None:
 class FmuRunner:
     """One extracted FMU, reused for many runs (a new instance per run)."""
 
-    def __init__(self, fmu_path: str | Path):
+    def __init__(self, fmu_path: str | Path, unzip_root: str | Path | None = None):
+        """``unzip_root``: extract into a new folder below it (default: the system's temporary
+        folder); ``close`` removes the extraction."""
         self.fmu_path = Path(fmu_path)
         if not self.fmu_path.is_file():
             raise FileNotFoundError(f"FMU not found: {self.fmu_path} (build it with: python build.py)")
         self.md = read_model_description(str(self.fmu_path))
-        self.unzipdir = extract(str(self.fmu_path))
+        self.unzipdir = extract(str(self.fmu_path), unzipdir=tempfile.mkdtemp(
+            prefix="railcar-fmu-", dir=str(unzip_root)) if unzip_root is not None else None)
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.outputs = [v.name for v in self.md.modelVariables if v.causality == "output"]
         self.units = {v.name: (v.unit or v.declaredType and v.declaredType.unit or "")
@@ -105,6 +136,7 @@ class FmuRunner:
         callbacks.logger = fmi2CallbackLoggerTYPE(logger)
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        addLoggerProxy(byref(callbacks))       # formats the variadic message in C (an FMU may log "%s", text)
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
         fmu.instantiate(callbacks=callbacks, loggingOn=True)
@@ -125,7 +157,7 @@ class FmuRunner:
                 if var.type == "Real":
                     out[name] = float(text)
                 elif var.type == "Integer":
-                    out[name] = int(text)
+                    out[name] = _int32(name, int(text))
                 else:
                     out[name] = str(Path(text).resolve()) if text and Path(text).is_file() else text
             except ValueError:
@@ -140,7 +172,7 @@ class FmuRunner:
             if var.type == "Real":
                 fmu.setReal([var.valueReference], [float(value)])
             elif var.type == "Integer":
-                fmu.setInteger([var.valueReference], [int(value)])
+                fmu.setInteger([var.valueReference], [_int32(name, int(value))])
             elif var.type == "String":
                 fmu.setString([var.valueReference], [str(value)])
             else:
@@ -162,7 +194,7 @@ class FmuRunner:
             # pythonfmu reports initialisation errors as fmi2Fatal; after Fatal the FMI standard
             # allows no further call on the instance (pythonfmu's freeInstance would segfault),
             # so the instance is deliberately leaked.
-            raise RunError(f"{what}: initialisation failed: {e}", log) from None
+            raise InitError(f"{what}: initialisation failed: {e}", log) from None
         return fmu
 
     def replay(self, log_data, parameters: dict, what: str = "replay"):

@@ -25,6 +25,7 @@ schedule, and the run's step and duration. Every error names the file, the key a
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,11 +33,18 @@ from pathlib import Path
 from fmu_src.variables import RAILCAR, variables_for
 
 from .driver import DriverPhase, TimeTable, parse_phase, parse_time_table
+from .textio import InputError, read_text
 
 PATH_PARAMETERS = ("track.grade_profile", "track.speed_profile")
+ROOT = Path(__file__).resolve().parent.parent
+# build.py bundles scenarios/profiles as the FMUs' resources/profiles: a relative profile path the
+# FMU looks up in its resources first is looked up here, for the checks, below this folder
+BUNDLED_RESOURCES = ROOT / "scenarios"
+INT32_MIN, INT32_MAX = -2 ** 31, 2 ** 31 - 1       # an fmi2Integer is a 32-bit int
+SEED_MIN, SEED_MAX = 0, INT32_MAX                   # the FMU's `seed` (an fmi2Integer, >= 0)
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario that cannot run; the message names the file, the key and the reason."""
 
 
@@ -83,8 +91,56 @@ def _number(value, where: str) -> float:
     return float(value)
 
 
+def integer_range(name: str) -> tuple[int, int]:
+    """The values an Integer FMU parameter can take: an fmi2Integer is 32-bit (a larger value would
+    wrap silently in the FMI call); ``seed`` must also be >= 0."""
+    return (SEED_MIN, SEED_MAX) if name == "seed" else (INT32_MIN, INT32_MAX)
+
+
+def check_integer(name: str, value, key: str, error=None) -> int:
+    """An Integer FMU parameter's value, or ``error`` (default ScenarioError) naming ``key`` and the range."""
+    error = error or ScenarioError
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise error(f"{key}: expected an integer, got {value!r}")
+    lo, hi = integer_range(name)
+    if not lo <= value <= hi:
+        why = "the FMU's seed is a 32-bit fmi2Integer" if name == "seed" else "an fmi2Integer is 32-bit"
+        raise error(f"{key}: must be in {lo}..{hi} ({why}), got {value}")
+    return value
+
+
+def profile_file(value: str, base_dir: Path | None) -> Path:
+    """The file a profile parameter names: relative to ``base_dir`` (a scenario's folder), else where
+    the FMU looks (its resources, then the working directory: fmu_src.adapter.resolve_profile_path)."""
+    p = Path(value)
+    if p.is_absolute():
+        return p
+    if base_dir is not None:
+        return base_dir / p
+    from fmu_src.adapter import resolve_profile_path
+    return resolve_profile_path(value, str(BUNDLED_RESOURCES))
+
+
+def read_profile(name: str, path: Path, key: str, error=None):
+    """Parse a track profile file as the FMU does (models.track), so that a bad one is reported
+    before the FMU runs, naming the file and the line; returns the GradeProfile / SpeedProfile."""
+    from models.track import GradeProfile, SpeedProfile
+    error = error or ScenarioError
+    if not path.is_file():
+        raise error(f"{key}: file not found: {path}")
+    cls = GradeProfile if name == "track.grade_profile" else SpeedProfile
+    try:
+        # the FMU reads the file itself (models.track skips a BOM, as read_text does)
+        return cls.from_csv_text(read_text(path, InputError, reader="the FMU"), str(path))
+    except ValueError as e:             # InputError, models.track.ProfileError
+        raise error(f"{key}: {e}") from None
+
+
 def parse_parameters(raw: dict, where: str, base_dir: Path | None) -> dict:
-    """Check names and types against the variable table; resolve profile paths."""
+    """Check names, types, integer ranges and profile files against the variable table (the
+    profiles are parsed as the FMU parses them); resolve profile paths against ``base_dir``."""
+    if not isinstance(raw, dict):
+        raise ScenarioError(f"{where}: expected a table of \"name\" = value, got {raw!r}")
     out = {}
     for name, value in raw.items():
         key = f"{where}.\"{name}\""
@@ -94,25 +150,94 @@ def parse_parameters(raw: dict, where: str, base_dir: Path | None) -> dict:
         if var.type == "Real":
             out[name] = _number(value, key)
         elif var.type == "Integer":
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ScenarioError(f"{key}: expected an integer, got {value!r}")
-            out[name] = value
+            out[name] = check_integer(name, value, key)
         else:
             if not isinstance(value, str):
                 raise ScenarioError(f"{key}: expected a string, got {value!r}")
             if name in PATH_PARAMETERS and value:
-                p = Path(value)
-                if not p.is_absolute() and base_dir is not None:
-                    p = base_dir / p
-                if not p.is_file():
-                    raise ScenarioError(f"{key}: file not found: {p}")
-                value = str(p.resolve())
+                p = profile_file(value, base_dir)
+                read_profile(name, p, key)
+                if base_dir is not None:
+                    value = str(p.resolve())
             out[name] = value
     return out
 
 
+def named_parameter(message: str, names) -> str | None:
+    """The first of ``names`` (FMU parameters) that a models error message names (they start with it)."""
+    found = [(m.start(), n) for n in names
+             for m in [re.search(rf"(?<![\w.]){re.escape(n)}(?![\w.])", message)] if m]
+    return min(found)[1] if found else None
+
+
+def check_fmu_parameters(parameters: dict, where: str, error=None) -> None:
+    """Check a scenario's RailCar parameters with the FMU's own rules, before any FMU runs: the
+    models chain is built from them as RailCar builds it at initialisation (fmu_src.adapter
+    chain_config, the models' validate()). ``error`` (default ScenarioError) names ``where`` and
+    the parameter."""
+    from fmu_src.adapter import chain_config
+    from models.chain import RailCarChain
+    from models.track import GradeProfile
+    error = error or ScenarioError
+    v = {n: parameters.get(n, var.start) for n, var in _PARAMETER_TABLE.items()}
+    profiles = {}
+    for n in PATH_PARAMETERS:
+        if v[n]:
+            profiles[n] = read_profile(n, profile_file(v[n], None), f"{where}.\"{n}\"", error)
+    try:
+        RailCarChain(chain_config(v), profiles.get("track.grade_profile") or GradeProfile.level(),
+                     profiles.get("track.speed_profile"))
+    except (ValueError, ArithmeticError) as e:
+        name = named_parameter(str(e), _PARAMETER_TABLE)
+        if name is None:
+            raise error(f"{where}: {e}") from None
+        note = "" if name in parameters else f" (not set: the FMU's default {_PARAMETER_TABLE[name].start!r})"
+        raise error(f"{where}.\"{name}\"{note}: {e}") from None
+
+
+def _table_list(data: dict, key: str, source: str) -> list:
+    """An array of tables ([[driver]], [[wind]]): each entry a table."""
+    raw = data.get(key, [])
+    if not isinstance(raw, list):
+        raise ScenarioError(f"{source}: {key}: expected an array of tables [[{key}]], got {raw!r}")
+    for i, entry in enumerate(raw):
+        if not isinstance(entry, dict):
+            raise ScenarioError(f"{source}: {key}[{i}]: expected a table ([[{key}]]), got {entry!r}")
+    return raw
+
+
+_TABLE_KEYS = ("time_s", "traction_N", "brake_N")
+
+
+def _time_table(raw, where: str, base_dir: Path | None) -> TimeTable:
+    """[driver_table]: the shapes and types checked here, the file checked as text, then
+    harness.driver.parse_time_table (which reads the file and checks the values)."""
+    if not isinstance(raw, dict):
+        raise ScenarioError(f"{where}: expected a table with file = \"demands.csv\" or the arrays "
+                            f"{', '.join(_TABLE_KEYS)}, got {raw!r}")
+    for key in raw:
+        if key not in ("file",) + _TABLE_KEYS:
+            raise ScenarioError(f"{where}: unknown key '{key}' (known: file, {', '.join(_TABLE_KEYS)})")
+    if "file" in raw:
+        if len(raw) > 1:
+            raise ScenarioError(f"{where}: give file or the arrays {', '.join(_TABLE_KEYS)}, not both")
+        if not isinstance(raw["file"], str) or not raw["file"]:
+            raise ScenarioError(f"{where}.file: expected a file name, got {raw['file']!r}")
+    else:
+        for key in _TABLE_KEYS:
+            col = raw.get(key, [])
+            if not isinstance(col, list):
+                raise ScenarioError(f"{where}.{key}: expected an array of numbers, got {col!r}")
+            for i, x in enumerate(col):
+                _number(x, f"{where}.{key}[{i}]")
+    return parse_time_table(raw, where, base_dir, ScenarioError)
+
+
 def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) -> Scenario:
-    """Build and validate a Scenario from parsed TOML; ``source`` names the file in errors."""
+    """Build and validate a Scenario from parsed TOML; ``source`` names the file in errors.
+
+    The RailCar parameters are checked with the FMU's own rules (``check_fmu_parameters``), so that
+    a scenario the FMU would refuse to initialise is invalid input here, before any FMU runs."""
     known = {"name", "purpose", "step_s", "duration_s", "stop_after_last_phase", "parameters",
              "driver", "driver_table", "wind"}
     for key in data:
@@ -121,6 +246,9 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise ScenarioError(f"{source}: 'name' must be a non-empty string")
+    purpose = data.get("purpose", "")
+    if not isinstance(purpose, str):
+        raise ScenarioError(f"{source}: purpose: expected a string, got {purpose!r}")
     step = _number(data.get("step_s", 0.1), f"{source}: step_s")
     duration = _number(data.get("duration_s", 200.0), f"{source}: duration_s")
     if step <= 0:
@@ -129,35 +257,37 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
         raise ScenarioError(f"{source}: duration_s must be >= step_s, got {duration}")
     params = parse_parameters(data.get("parameters", {}), f"{source}: parameters", base_dir)
     phases = tuple(parse_phase(p, f"{source}: driver[{i}]", ScenarioError)
-                   for i, p in enumerate(data.get("driver", [])))
+                   for i, p in enumerate(_table_list(data, "driver", source)))
     table = None
     if "driver_table" in data:
-        table = parse_time_table(data["driver_table"], f"{source}: driver_table", base_dir, ScenarioError)
+        table = _time_table(data["driver_table"], f"{source}: driver_table", base_dir)
     if phases and table is not None:
         raise ScenarioError(f"{source}: give either [[driver]] phases or [driver_table], not both")
     if not phases and table is None:
         raise ScenarioError(f"{source}: no driving script: add [[driver]] phases or a [driver_table]")
     wind = []
-    for i, w in enumerate(data.get("wind", [])):
+    for i, w in enumerate(_table_list(data, "wind", source)):
         where = f"{source}: wind[{i}]"
+        for key in w:
+            if key not in ("time_s", "speed_mps"):
+                raise ScenarioError(f"{where}: unknown key '{key}' (known: speed_mps, time_s)")
         wind.append(WindStep(_number(w.get("time_s"), f"{where}.time_s"),
                              _number(w.get("speed_mps"), f"{where}.speed_mps")))
     stop_after = data.get("stop_after_last_phase", True)
     if not isinstance(stop_after, bool):
         raise ScenarioError(f"{source}: stop_after_last_phase must be true or false")
-    return Scenario(name=name, purpose=str(data.get("purpose", "")),
+    check_fmu_parameters(params, f"{source}: parameters")
+    return Scenario(name=name, purpose=purpose,
                     path=Path(source) if base_dir is not None else None, parameters=params,
                     phases=phases, time_table=table, wind=tuple(sorted(wind, key=lambda w: w.time_s)),
                     step_s=step, duration_s=duration, stop_after_last_phase=stop_after)
 
 
 def read_toml(path: Path, error=None) -> dict:
-    """Parse a TOML file; ``error`` (default ScenarioError) names the file and the reason."""
+    """Parse a TOML file (UTF-8 text, a BOM skipped: harness.textio); ``error`` (default
+    ScenarioError) names the file and the reason."""
     error = error or ScenarioError
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise error(f"{path}: cannot read: {e.strerror}") from None
+    text = read_text(path, error)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -47,7 +47,13 @@ units in the header cells ``name [unit]``), and to ``DIR/results.parquet`` when 
 importable (rewritten from the CSV every few seconds and at the end, so it is always a valid
 file). ``read_results(DIR)`` returns the table sorted by run id. ``--resume`` skips the run ids
 already in results.csv (ok or failed) if the sweep, its base scenario and the FMU build are
-unchanged (``DIR/sweep.json``). List-valued metrics of ``RunSummary`` become two columns:
+unchanged (``DIR/sweep.json``); without ``--resume``, a folder that holds results is refused
+(SweepError) unless ``--overwrite`` says to start again. Seeds must be in the FMU's range,
+0..2**31 - 1 (``seed`` is a 32-bit fmi2Integer). The embedded cluster's scratch space and its
+workers' FMU extractions live in one temporary folder, removed when the sweep ends, also on an
+error, Ctrl-C or SIGTERM (harness/sweep_folder.py).
+
+List-valued metrics of ``RunSummary`` become two columns:
 ``NAME.max_abs`` (largest absolute value; nan when the list is empty or holds a nan) and
 ``NAME.list`` (the values, ';'-joined reprs). Tuples of A coefficients become ``A0_true`` ...
 """
@@ -55,6 +61,7 @@ from __future__ import annotations
 
 import pythonfmu  # noqa: F401  (import before any FMU is loaded in this process)
 
+import contextlib
 import copy
 import csv
 import hashlib
@@ -80,7 +87,10 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
 from fmu_src.variables import RAILCAR, variables_for
 
 from .runner import FmuRunner, RunError
-from .scenario import PATH_PARAMETERS, Scenario, ScenarioError, parse_parameters, read_toml, scenario_from_dict
+from .scenario import (PATH_PARAMETERS, SEED_MAX, Scenario, ScenarioError, check_integer, parse_parameters,
+                       read_toml, scenario_from_dict)
+from .sweep_folder import check_rerun, clear_outputs, read_meta, scratch_folder, workers_ignore_ctrl_c
+from .textio import check_out_dir, decode_text, read_text
 
 PARAMETERS = {v.name: v for v in variables_for(RAILCAR) if v.causality == "parameter"}
 SCENARIO_FIELDS = {"step_s": "s", "duration_s": "s", "stop_after_last_phase": ""}
@@ -293,7 +303,7 @@ def sweep_from_dict(raw: dict, path: Path) -> Sweep:
     if not base_path.is_absolute():
         base_path = sweep_dir / base_path
     try:
-        base_text = base_path.read_text(encoding="utf-8")
+        base_text = decode_text(base_path.read_bytes(), f"{path}: scenario: {base_path}", SweepError)
         base = tomllib.loads(base_text)
     except OSError as e:
         raise SweepError(f"{path}: scenario: cannot read {base_path}: {e.strerror}") from None
@@ -391,10 +401,15 @@ def sweep_from_dict(raw: dict, path: Path) -> Sweep:
         if isinstance(s, int):
             if s < 1:
                 raise SweepError(f"{where}: expected a count >= 1, got {s}")
+            if s > SEED_MAX:
+                raise SweepError(f"{where}: a count must be <= {SEED_MAX}: the seeds 1..count must be in "
+                                 f"0..{SEED_MAX} (the FMU's seed is a 32-bit fmi2Integer), got {s}")
             seeds = list(range(1, s + 1))
         elif isinstance(s, list) and s:
             if any(isinstance(x, bool) or not isinstance(x, int) for x in s):
                 raise SweepError(f"{where}: expected a list of integers, got {s!r}")
+            for i, x in enumerate(s):
+                check_integer("seed", x, f"{where}[{i}]", SweepError)
             if len(set(s)) != len(s):
                 raise SweepError(f"{where}: repeated seeds in {s!r}")
             seeds = list(s)
@@ -602,8 +617,8 @@ class ReusableRunner(FmuRunner):
     initialisation failed (pythonfmu reports fmi2Fatal) is leaked and replaced by a fresh one.
     """
 
-    def __init__(self, fmu_path):
-        super().__init__(fmu_path)
+    def __init__(self, fmu_path, unzip_root=None):
+        super().__init__(fmu_path, unzip_root)
         self.live = None                  # the instance kept between runs
         self.sink: list[str] = []         # the current run's log
         self.counts = Counter()           # instantiate / reset / leaked
@@ -653,11 +668,12 @@ class ReusableRunner(FmuRunner):
         super().close()
 
 
-def worker_runner(fmu_path: str, guid: str | None = None):
-    """This process's runner of ``fmu_path`` (extracted once); checks it is the build expected."""
+def worker_runner(fmu_path: str, guid: str | None = None, extract_root: str | None = None):
+    """This process's runner of ``fmu_path`` (extracted once, below ``extract_root`` if given);
+    checks it is the build expected."""
     runner = _WORKER_FMUS.get(fmu_path)
     if runner is None:
-        runner = _WORKER_FMUS[fmu_path] = ReusableRunner(fmu_path)
+        runner = _WORKER_FMUS[fmu_path] = ReusableRunner(fmu_path, extract_root)
     if guid is not None and runner.md.guid != guid:
         raise RuntimeError(f"this worker process (pid {os.getpid()}) already loaded another build of "
                            f"{fmu_path} (GUID {runner.md.guid}, wanted {guid}); a process caches the FMU's "
@@ -679,8 +695,10 @@ def base_row(spec: RunSpec) -> dict:
     return row
 
 
-def execute_run(fmu_path: str, guid: str | None, spec: RunSpec) -> dict:
-    """Run one sweep point in this (worker) process; never raises: a failure is a row."""
+def execute_run(fmu_path: str, guid: str | None, spec: RunSpec, extract_root: str | None = None) -> dict:
+    """Run one sweep point in this (worker) process; never raises: a failure is a row. The FMU is
+    extracted below ``extract_root`` (the embedded cluster's scratch folder, removed at its end)
+    or, by default, in the system's temporary folder for the worker process's life."""
     from .metrics import summarise
     row = base_row(spec)
     t0 = time.perf_counter()
@@ -688,7 +706,7 @@ def execute_run(fmu_path: str, guid: str | None, spec: RunSpec) -> dict:
         row.update(status=TEXT_STATUS_FAILED, error=_one_line(spec.error), wall_time=0.0)
         return row
     try:
-        runner = worker_runner(fmu_path, guid)
+        runner = worker_runner(fmu_path, guid, extract_root)
         result = runner.run(spec.scenario)
     except RunError as e:
         row.update(status=TEXT_STATUS_FAILED, error=_one_line(e))
@@ -758,7 +776,7 @@ def _columns_from_json(meta: dict) -> list[Column]:
 def read_results(out_dir: str | Path, sort: bool = True) -> Table:
     """The results of a sweep folder (results.csv + sweep.json), sorted by run id (or as written)."""
     out_dir = Path(out_dir)
-    meta = json.loads((out_dir / "sweep.json").read_text(encoding="utf-8"))
+    meta = read_meta(out_dir / "sweep.json", SweepError)
     cols = _columns_from_json(meta)
     rows = _read_csv_rows(out_dir / "results.csv", cols)
     if sort:
@@ -770,7 +788,7 @@ def _read_csv_rows(path: Path, cols: list[Column]) -> list[dict]:
     """Well-formed rows of results.csv (a line cut short by an interruption is dropped)."""
     if not path.is_file():
         return []
-    text = path.read_text(encoding="utf-8")
+    text = read_text(path, SweepError)
     rows = []
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
@@ -791,7 +809,7 @@ def _read_csv_rows(path: Path, cols: list[Column]) -> list[dict]:
 class ResultsWriter:
     """Appends rows to DIR/results.csv as they come (deduplicated by run id), Parquet alongside."""
 
-    def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool):
+    def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool, overwrite: bool = False):
         self.out_dir = out_dir
         self.cols = sweep_columns(sweep)
         self.csv_path = out_dir / "results.csv"
@@ -802,23 +820,11 @@ class ResultsWriter:
                 "columns": [[c.key, c.unit, c.kind] for c in self.cols]}
         out_dir.mkdir(parents=True, exist_ok=True)
         self._lock = _lock_folder(out_dir)
-        self.done: set[int] = set()
-        rows: list[dict] = []
-        if resume and meta_path.is_file():
-            old = json.loads(meta_path.read_text(encoding="utf-8"))
-            if old.get("fingerprint") != sweep.fingerprint:
-                raise SweepError(f"{out_dir}: --resume: the results there are of another sweep (its runs, "
-                                 f"fixed values or base scenario differ); use another --out or drop --resume")
-            if old.get("fmu_guid") != fmu_guid:
-                raise SweepError(f"{out_dir}: --resume: the FMU was rebuilt since (GUID {old.get('fmu_guid')} "
-                                 f"-> {fmu_guid}); rows of two builds would mix: use another --out or drop --resume")
-            rows = _read_csv_rows(self.csv_path, self.cols)
-            seen, kept = set(), []
-            for r in rows:                 # the first row of a run id wins
-                if r["run_id"] not in seen:
-                    seen.add(r["run_id"])
-                    kept.append(r)
-            rows = kept
+        try:
+            rows = self._previous_rows(sweep, fmu_guid, resume, overwrite)
+        except BaseException:
+            self._unlock()
+            raise
         meta_path.write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
         self.rows = rows
         self.done = {r["run_id"] for r in rows}
@@ -833,6 +839,33 @@ class ResultsWriter:
         self._w = csv.writer(self._f)
         self._last_parquet = time.monotonic()
         self.resumed = len(rows)
+
+    def _previous_rows(self, sweep: Sweep, fmu_guid, resume: bool, overwrite: bool) -> list[dict]:
+        """The rows kept from an earlier call (--resume); a folder that holds results is refused
+        without --resume or --overwrite (its rows would be discarded silently)."""
+        old = check_rerun(self.out_dir, sweep.fingerprint, resume, overwrite, SweepError)
+        if overwrite:
+            clear_outputs(self.out_dir)
+            return []
+        if not resume or not old:
+            return []
+        if old.get("fingerprint") != sweep.fingerprint:
+            raise SweepError(f"{self.out_dir}: --resume: the results there are of another sweep (its runs, "
+                             f"fixed values or base scenario differ); use another --out or drop --resume")
+        if old.get("fmu_guid") != fmu_guid:
+            raise SweepError(f"{self.out_dir}: --resume: the FMU was rebuilt since (GUID {old.get('fmu_guid')} "
+                             f"-> {fmu_guid}); rows of two builds would mix: use another --out or drop --resume")
+        seen, kept = set(), []
+        for r in _read_csv_rows(self.csv_path, self.cols):      # the first row of a run id wins
+            if r["run_id"] not in seen:
+                seen.add(r["run_id"])
+                kept.append(r)
+        return kept
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            self._lock.close()            # releases the lock
+            self._lock = None
 
     def write(self, row: dict) -> bool:
         """Append a row unless its run id is already there; False for a duplicate."""
@@ -855,9 +888,7 @@ class ResultsWriter:
         if not self._f.closed:
             self._f.close()
         self.write_parquet()
-        if self._lock is not None:
-            self._lock.close()            # releases the lock
-            self._lock = None
+        self._unlock()
 
 
 def _lock_folder(out_dir: Path):
@@ -940,11 +971,14 @@ class _Progress:
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler: str | None = None,
               workers: int | None = None, resume: bool = False, limit: int | None = None,
-              progress: bool | None = None, plots: bool = True, client=None, log=print) -> SweepOutcome:
+              progress: bool | None = None, plots: bool = True, client=None, log=print,
+              overwrite: bool = False) -> SweepOutcome:
     """Run the sweep's runs (those not in DIR yet with ``resume``; the first ``limit`` of them).
+    A DIR that holds results is refused (SweepError) unless ``resume`` or ``overwrite``.
 
     Runs on ``client`` if given, else on the dask scheduler at ``scheduler``, else on a
-    LocalCluster of ``workers`` (default: one per core) single-threaded worker processes.
+    LocalCluster of ``workers`` (default: one per core) single-threaded worker processes whose
+    scratch space and FMU extractions are in one temporary folder, removed when the sweep ends.
     """
     from .fmus import fmu_guid
     out_dir = Path(out_dir)
@@ -952,15 +986,16 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler
     if not fmu_path.is_file():
         raise FileNotFoundError(f"FMU not found: {fmu_path}")
     guid = fmu_guid(fmu_path)
-    writer = ResultsWriter(out_dir, sweep, guid, resume)
+    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite)
     todo = [s for s in sweep.runs if s.run_id not in writer.done]
     if limit is not None:
         todo = todo[:limit]
     t0 = time.monotonic()
     bar = _Progress(len(todo), f"sweep {sweep.name}", progress)
     ran = 0
-    own_cluster = own_client = None
+    own_cluster = own_client = extract_root = None
     n_workers = 0
+    scratch = contextlib.ExitStack()         # closed last: after the cluster's worker processes ended
     try:
         for spec in [s for s in todo if s.error is not None]:        # invalid scenarios: rows now
             writer.write(execute_run(str(fmu_path), guid, spec))
@@ -974,18 +1009,22 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler
                     client = own_client = Client(scheduler, timeout="30s")
                 else:
                     import logging
-                    own_cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                               processes=True, dashboard_address=None, host="127.0.0.1",
-                                               silence_logs=logging.ERROR)
+                    extract_root = scratch.enter_context(scratch_folder())
+                    with workers_ignore_ctrl_c():
+                        own_cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                                                   processes=True, dashboard_address=None, host="127.0.0.1",
+                                                   silence_logs=logging.ERROR, local_directory=extract_root,
+                                                   scheduler_kwargs={"local_directory": extract_root})
                     client = own_client = Client(own_cluster)
             n_workers = _check_workers(client, fmu_path, log)
-            ran += _execute(client, sweep, valid, str(fmu_path), guid, writer, bar)
+            ran += _execute(client, sweep, valid, str(fmu_path), guid, writer, bar, extract_root)
     finally:
-        writer.close()
-        if own_client is not None:
-            own_client.close()
-        if own_cluster is not None:
-            own_cluster.close()
+        with scratch:
+            writer.close()
+            if own_client is not None:
+                own_client.close()
+            if own_cluster is not None:
+                own_cluster.close()
     table = read_results(out_dir)
     done = {r["run_id"] for r in table.rows}
     outcome = SweepOutcome(table=table, ran=ran, resumed=writer.resumed,
@@ -1022,13 +1061,14 @@ def _check_workers(client, fmu_path: Path, log) -> int:
     return len(checks)
 
 
-def _execute(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid, writer: ResultsWriter, bar) -> int:
+def _execute(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid, writer: ResultsWriter, bar,
+             extract_root: str | None = None) -> int:
     from distributed import as_completed
     nonce = uuid.uuid4().hex[:8]
     futures = {}
     for spec in specs:
-        f = client.submit(execute_run, fmu_path, guid, spec, key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{spec.run_id}",
-                          pure=False, retries=2)
+        f = client.submit(execute_run, fmu_path, guid, spec, extract_root, pure=False, retries=2,
+                          key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{spec.run_id}")
         futures[f.key] = (f, spec)
     ran = 0
     try:
@@ -1231,14 +1271,19 @@ def cli_sweep(args) -> int:
     if args.limit is not None and args.limit < 0:
         print("error: --limit must be >= 0", file=sys.stderr)
         return 2
+    if args.resume and args.overwrite:
+        print("error: --resume continues the results in --out, --overwrite discards them: give one", file=sys.stderr)
+        return 2
     sweep = load_sweep(args.sweep)
     out = Path(args.out) if args.out else Path("out") / "sweeps" / sweep.name
+    check_out_dir(out)
+    check_rerun(out, sweep.fingerprint, args.resume, args.overwrite, SweepError)   # before any build
     fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
     where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
     print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)
     try:
         o = run_sweep(sweep, out, fmus["RailCar"], scheduler=args.scheduler, workers=args.workers,
-                      resume=args.resume, limit=args.limit, plots=not args.no_plots)
+                      resume=args.resume, limit=args.limit, plots=not args.no_plots, overwrite=args.overwrite)
     except KeyboardInterrupt:
         print(f"\ninterrupted: the finished runs are in {out / 'results.csv'}; --resume continues", file=sys.stderr)
         return 1

@@ -123,8 +123,8 @@ class ChainConfig:
     def validate(self) -> None:
         self.vehicle.validate()
         self.track.validate()
-        if not 0 <= int(self.seed) < 2 ** 63:
-            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if not 0 <= int(self.seed) <= 2 ** 31 - 1:     # the FMU's seed is an fmi2Integer
+            raise ValueError(f"seed must be in 0..2147483647 (a 32-bit fmi2Integer), got {self.seed}")
         if not (self.sample_period > 0 and math.isfinite(self.sample_period)):
             raise ValueError(f"sensor.sample_period must be > 0, got {self.sample_period}")
         for name in ("initial_speed", "initial_position"):

@@ -38,7 +38,7 @@ seeds = 3
 duration_s = 60.0
 
 [grid]
-"car.mass" = [-5.0, 30.0, 38.0]                  # -5 t: the FMU refuses to initialise (a failed row)
+"car.mass" = [-5.0, 30.0, 38.0]                  # -5 t: refused before the FMU runs (a failed row)
 "driver[0].until_speed_kmh" = [40.0, 60.0]
 """
 

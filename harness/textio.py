@@ -1,0 +1,69 @@
+"""Reading the harness's input text files (TOML, CSV, JSON) with one set of checks.
+
+Every reader of the harness goes through ``read_text``: the file must be UTF-8 text; a binary
+file (a NUL byte) or bytes that are not UTF-8 are refused with ``FILE: not UTF-8 text (byte
+offset N)``; a UTF-8 byte order mark (BOM, which spreadsheet programs write) is stripped, or
+refused with a message that says so where the text goes on to a reader that cannot skip it.
+Errors are ``InputError`` (or the caller's subclass of it): invalid input, exit code 2.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+BOM = "\ufeff"
+_BOM_BYTES = BOM.encode("utf-8")
+
+
+class InputError(ValueError):
+    """Invalid input (a file, a key, a command-line value); the message names the file and the key
+    or line. The command line exits with code 2 on it."""
+
+
+def decode_text(data: bytes, where: str, error: type[Exception] = InputError, bom: str = "strip",
+                reader: str = "") -> str:
+    """``data`` as text; ``where`` names the file in errors.
+
+    ``bom``: "strip" drops a leading UTF-8 BOM; "reject" refuses it (``reader`` names what cannot
+    read it, for the message)."""
+    nul = data.find(b"\x00")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        offset = e.start if nul < 0 else min(e.start, nul)
+        hint = " (UTF-16? save it as UTF-8)" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else \
+            " (a binary file?)" if nul >= 0 else ""
+        raise error(f"{where}: not UTF-8 text (byte offset {offset}){hint}") from None
+    if nul >= 0:
+        raise error(f"{where}: not UTF-8 text (byte offset {nul}) (a NUL byte: a binary file?)")
+    if text.startswith(BOM):
+        if bom == "reject":
+            raise error(f"{where}: starts with a UTF-8 BOM (byte order mark), which {reader or 'its reader'} "
+                        f"does not accept: save the file as UTF-8 without BOM")
+        text = text[1:]
+    return text
+
+
+def read_text(path: str | Path, error: type[Exception] = InputError, bom: str = "strip",
+              reader: str = "") -> str:
+    """The text of ``path`` (see ``decode_text``); an unreadable file raises ``error`` naming it."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder, not a file") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read: {e.strerror or e}") from None
+    return decode_text(data, str(path), error, bom, reader)
+
+
+def check_text_file(path: str | Path, error: type[Exception] = InputError, reader: str = "") -> None:
+    """Check that a file another reader will open (the FMU, ``harness.driver``) is UTF-8 text without
+    a BOM, so that a bad file is reported here, naming it, rather than there."""
+    read_text(path, error, bom="reject", reader=reader)
+
+
+def check_out_dir(path: str | Path, option: str = "--out") -> None:
+    """An output folder given on the command line must be a folder or not exist yet."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{option} {p}: exists and is not a folder")
