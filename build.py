@@ -1,11 +1,17 @@
 """Build dist/RailCar.fmu and dist/RailCarEstimator.fmu and validate them.
 
-    python build.py [--dest dist]
+    python build.py [--dest dist] [--pythonfmu-binary]
 
 Each FMU is built by pythonfmu in a subprocess (a Python process caches the FMU's modules, so
 building and loading in one process can run stale code). The model description is then
 completed from ``fmu_src/variables.py``: UnitDefinitions and ``unit``/``min``/``max`` on every
 Real, a DefaultExperiment, and a GUID derived from the sources (same sources => same GUID).
+
+The Linux binary pythonfmu ships (``binaries/linux64/<model>.so``) is replaced by ours, compiled
+here from ``fmu_src/c/`` (C99, the Python C API, FMI 2 headers from fmpy): it reports errors as
+fmi2Error instead of crashing the host after fmi2Fatal. Without a C compiler (or with
+``--pythonfmu-binary``) pythonfmu's binary stays, with a loud warning. The win64 DLL is always
+pythonfmu's (it cannot be built or tested here).
 The build fails unless ``fmpy.validation.validate_fmu`` reports no problem.
 """
 from __future__ import annotations
@@ -13,8 +19,12 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import platform
+import shlex
+import shutil
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import uuid
 import zipfile
@@ -29,6 +39,13 @@ from fmu_src.variables import UNITS, variables_for  # noqa: E402
 FMUS = {"RailCar": "fmu_src/railcar.py", "RailCarEstimator": "fmu_src/railcar_estimator.py"}
 PROJECT_FILES = ["fmu_src", "models", "scenarios/profiles"]
 DEFAULT_EXPERIMENT = {"startTime": "0", "stopTime": "200", "stepSize": "0.1"}
+
+# Our FMI 2 binary: sources, flags, and the marker string it carries (tests look for it).
+C_SOURCES = ["fmu_src/c/fmi2_glue.c", "fmu_src/c/pyslave.c"]
+C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-fPIC", "-shared",
+           "-fvisibility=hidden", "-pthread"]
+BINARY_MARKER = b"railcar-fmu fmi2 binary 1"
+LINUX_BINARY = "binaries/linux64/{model}.so"
 
 
 def source_files() -> list[Path]:
@@ -88,18 +105,80 @@ def complete_model_description(xml: bytes, model_name: str) -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
-def rewrite_fmu(path: Path, model_name: str) -> None:
+def _warn(message: str) -> None:
+    bar = "!" * 78
+    print(f"{bar}\nWARNING: {message}\n{bar}", file=sys.stderr)
+    print(f"WARNING: {message}")
+
+
+def find_compiler() -> list[str] | None:
+    """$CC, else the compiler Python was built with, else cc/gcc/clang; None if there is none."""
+    candidates = [os.environ.get("CC"), sysconfig.get_config_var("CC"), "cc", "gcc", "clang"]
+    for cc in candidates:
+        cmd = shlex.split(cc) if cc else []
+        if cmd and shutil.which(cmd[0]):
+            return cmd
+    return None
+
+
+def fmi2_headers() -> Path:
+    """The FMI 2.0 headers fmpy ships (fmpy/c-code/fmi2Functions.h ...)."""
+    import fmpy
+    folder = Path(fmpy.__file__).resolve().parent / "c-code"
+    if not (folder / "fmi2Functions.h").is_file():
+        raise SystemExit(f"FMI 2 headers not found in {folder} (is fmpy installed?)")
+    return folder
+
+
+def compile_binary(out_dir: Path) -> Path | None:
+    """Compile our FMI 2 binary for linux64 into ``out_dir``; None (with a warning) when it
+    cannot be built here, so that pythonfmu's binary stays. A compiler error fails the build."""
+    if not (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")):
+        _warn(f"our FMI 2 binary is built for linux64 only (this is {sys.platform}/"
+              f"{platform.machine()}): the FMUs keep pythonfmu's binary, which crashes the host "
+              "after an initialisation error (see README, Limits)")
+        return None
+    cc = find_compiler()
+    if cc is None:
+        _warn("no C compiler found (set CC or install gcc): the FMUs keep pythonfmu's binary, "
+              "which reports errors as fmi2Fatal and crashes the host when such an instance is "
+              "freed (see README, Limits)")
+        return None
+    out = out_dir / "fmi2_python.so"
+    cmd = [*cc, *C_FLAGS, "-I", sysconfig.get_paths()["include"], "-I", str(fmi2_headers()),
+           *[str(ROOT / s) for s in C_SOURCES], "-o", str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"compiling the FMI 2 binary failed:\n{shlex.join(cmd)}\n"
+                         f"{proc.stdout}{proc.stderr}")
+    if BINARY_MARKER not in out.read_bytes():
+        raise SystemExit(f"{out}: the compiled binary does not carry its marker {BINARY_MARKER!r}")
+    return out
+
+
+def rewrite_fmu(path: Path, model_name: str, binary: Path | None = None) -> None:
+    """Complete the model description; swap in our linux64 binary; drop our C sources."""
     tmp = path.with_suffix(".tmp")
+    linux_binary = LINUX_BINARY.format(model=model_name)
+    swapped = False
     with zipfile.ZipFile(path) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
         for item in src.infolist():
+            if item.filename.startswith("resources/fmu_src/c/"):
+                continue                     # compiled into the binary, not needed at run time
             data = src.read(item.filename)
             if item.filename == "modelDescription.xml":
                 data = complete_model_description(data, model_name)
+            elif item.filename == linux_binary and binary is not None:
+                data = binary.read_bytes()
+                swapped = True
             dst.writestr(item, data)
+    if binary is not None and not swapped:
+        tmp.unlink()
+        raise SystemExit(f"{path}: pythonfmu wrote no {linux_binary} to replace")
     tmp.replace(path)
 
 
-def build_one(model_name: str, script: str, dest: Path) -> Path:
+def build_one(model_name: str, script: str, dest: Path, binary: Path | None = None) -> Path:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "pythonfmu", "build", "-f", script, "-d", out, *PROJECT_FILES]
@@ -110,7 +189,7 @@ def build_one(model_name: str, script: str, dest: Path) -> Path:
         dest.mkdir(parents=True, exist_ok=True)
         target = dest / f"{model_name}.fmu"
         target.write_bytes(built.read_bytes())
-    rewrite_fmu(target, model_name)
+    rewrite_fmu(target, model_name, binary)
     return target
 
 
@@ -122,19 +201,30 @@ def validate(path: Path) -> list[str]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dest", default=str(ROOT / "dist"), help="output folder (default: dist/)")
+    ap.add_argument("--pythonfmu-binary", action="store_true",
+                    help="keep pythonfmu's linux64 binary instead of compiling ours (for comparisons)")
     args = ap.parse_args(argv)
     dest = Path(args.dest)
     failed = False
-    for name, script in FMUS.items():
-        path = build_one(name, script, dest)
-        problems = validate(path)
-        if problems:
-            failed = True
-            print(f"{path}: fmpy.validation found {len(problems)} problem(s):")
-            for p in problems:
-                print(f"  - {p}")
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.pythonfmu_binary:
+            _warn("--pythonfmu-binary: the FMUs keep pythonfmu's linux64 binary (fmi2Fatal on any "
+                  "Python exception; the host crashes when such an instance is freed)")
+            binary = None
         else:
-            print(f"built {path} (validate_fmu: no problems)")
+            binary = compile_binary(Path(tmp))
+        which = ("our FMI 2 binary (fmu_src/c)" if binary is not None
+                 else "pythonfmu's binary (WARNING: see above)")
+        for name, script in FMUS.items():
+            path = build_one(name, script, dest, binary)
+            problems = validate(path)
+            if problems:
+                failed = True
+                print(f"{path}: fmpy.validation found {len(problems)} problem(s):")
+                for p in problems:
+                    print(f"  - {p}")
+            else:
+                print(f"built {path} (validate_fmu: no problems; linux64: {which})")
     return 1 if failed else 0
 
 

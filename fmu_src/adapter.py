@@ -1,10 +1,10 @@
 """The thin layer between pythonfmu and ``models``: registration, parameters, errors.
 
-Every slave callback that computes is wrapped so that no Python exception escapes to
-pythonfmu during a step (it would become fmi2Fatal and kill the instance): bad inputs are
-logged, naming the variable and value, and the step is discarded (do_step returns False).
-Bad parameters are found in exit_initialization_mode; pythonfmu can only report those as
-fmi2Fatal, so the exception raised there carries the message (parameter, file, line).
+Every slave callback that computes is wrapped so that no Python exception escapes during a
+step: bad inputs are logged, naming the variable and value, and the step is discarded (do_step
+returns False -> fmi2Discard). Bad parameters are found in exit_initialization_mode, which
+raises ParameterError naming the parameter (file, line): the FMU's binary (fmu_src/c) returns
+fmi2Error with that message and keeps the instance safe to reset or free.
 """
 from __future__ import annotations
 
@@ -108,11 +108,11 @@ def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, Sp
 
 
 def initialise(slave, build):
-    """Build the model chain from the parameters; log and re-raise a clear error if it fails."""
+    """Build the model chain from the parameters; raise ParameterError with a clear message
+    if it fails (the binary logs it, once)."""
     try:
         return build()
     except (ValueError, ParameterError) as e:
-        slave.log(f"initialisation failed: {e}", Fmi2Status.error)
         raise ParameterError(f"initialisation failed: {e}") from None
 
 

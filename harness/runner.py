@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 import shutil
 import tempfile
-from ctypes import byref
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,7 +19,6 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
 from fmpy import calloc, free
-from fmpy.logging import addLoggerProxy
 
 from .driver import PhaseDriver
 from .scenario import Scenario
@@ -136,7 +134,6 @@ class FmuRunner:
         callbacks.logger = fmi2CallbackLoggerTYPE(logger)
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        addLoggerProxy(byref(callbacks))       # formats the variadic message in C (an FMU may log "%s", text)
         fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
                         modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
         fmu.instantiate(callbacks=callbacks, loggingOn=True)
