@@ -54,7 +54,8 @@ enum {
     A_m_covariance_flat, A_m_sigma2, A_m_update, A_m_restart_mass, A_m_measure,
     A_kw_contiguous, A_scale, A_core_guard,
     /* the innovation gate (MotionFilter.gate) and the information cap (OnlineEstimator._excited) */
-    A_rejected, A_rejected_run, A_reacquire, A_GATE_CHI2, A_REACQUIRE, A_prev_rejected,
+    A_rejected, A_speed_run, A_position_run, A_speed_fit, A_reacquire, A_GATE_SIGMAS,
+    A_FIT_SIGMAS, A_REACQUIRE, A_prev_fit,
     A_net_force, A_steady_speed, A_steady_force, A_steady_time, A_force_band, A_STEADY_SPEED,
     A_STEADY_TIME, A_FORCE_SMOOTHING,
     A_count
@@ -77,7 +78,8 @@ static const char *ATTR_NAMES[A_count] = {
     "sigma2_initial", "track_speed", "track_time", "_batch_y",
     "_covariance_flat", "sigma2", "update", "restart_mass", "measure",
     "contiguous", "_scale", "_core_guard",
-    "rejected", "rejected_run", "_reacquire", "GATE_CHI2", "REACQUIRE", "_prev_rejected",
+    "rejected", "speed_run", "position_run", "speed_fit", "_reacquire", "GATE_SIGMAS",
+    "FIT_SIGMAS", "REACQUIRE", "_prev_fit",
     "_net_force", "_steady_speed", "_steady_force", "_steady_time", "_force_band", "STEADY_SPEED",
     "STEADY_TIME", "FORCE_SMOOTHING",
 };
@@ -899,6 +901,10 @@ static int ident_update_impl(PyObject *id, double traction, double brake, double
                     S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
                     S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3};
     double pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3];
+    if (!(pSp > 0.0)) {                      /* S lost positive definiteness: Python repairs it */
+        result = 0;
+        goto done;
+    }
     double pred_err = y - (th[0] * p0 + th[1] * p1 + th[2] * p2 + th[3] * p3);
     double den = 1.0 + mu * (pSp - 1.0);
     if (den == 0.0 || 1.0 - mu == 0.0) { zero_division(); goto done; }
@@ -1188,21 +1194,40 @@ done:
     return r;
 }
 
+/* The distance measurement's variance at position_meas [m^2]: _r1, or with odometry drift
+ * (position_std + rel |X|)^2 computed as Python does (libm pow) */
+static int position_variance(PyObject *f, PyObject *cfg, double position_meas, double *r1)
+{
+    double rel;
+    if (getd(cfg, A_position_std_rel, &rel)) return -1;
+    if (rel != 0.0) {
+        double pstd;
+        if (getd(cfg, A_position_std, &pstd)) return -1;
+        *r1 = py_square(pstd + rel * fabs(position_meas));
+        return 0;
+    }
+    return getd(f, A_r1, r1);
+}
+
+/* The posterior of an EKF update (vzad = 0; a car never moves backwards) */
+static int store_posterior(PyObject *f, double xh0, double xh1, double p00, double p01, double p11)
+{
+    double vzad = 0.0;
+    if (xh0 + vzad < 0.0) xh0 = -vzad;
+    return (setd(f, A_xh1, xh1) || setd(f, A_xh0, xh0) || setd(f, A_p00, p00) || setd(f, A_p01, p01)
+            || setd(f, A_p11, p11) || setd(f, A_vzad_hat, vzad)) ? -1 : 0;
+}
+
 /* MotionFilter.update for the EKF (vzad = 0) */
 static int filter_update_ekf(PyObject *f, double speed_meas, double position_meas)
 {
     PyObject *cfg = ga(f, A_cfg);
     if (!cfg) return -1;
     int r = -1;
-    double r0, r1, rel, m00, m01, m11, xb0, xb1;
-    if (getd(f, A_r0, &r0) || getd(cfg, A_position_std_rel, &rel) || getd(f, A_m00, &m00)
+    double r0, r1, m00, m01, m11, xb0, xb1;
+    if (getd(f, A_r0, &r0) || position_variance(f, cfg, position_meas, &r1) || getd(f, A_m00, &m00)
         || getd(f, A_m01, &m01) || getd(f, A_m11, &m11) || getd(f, A_xb0, &xb0) || getd(f, A_xb1, &xb1))
         goto done;
-    if (rel != 0.0) {
-        double pstd;
-        if (getd(cfg, A_position_std, &pstd)) goto done;
-        r1 = py_square(pstd + rel * fabs(position_meas));
-    } else if (getd(f, A_r1, &r1)) goto done;
     double vzad = 0.0;
     double s00 = m00 + r0, s11 = m11 + r1;
     double det = s00 * s11 - m01 * m01;
@@ -1219,9 +1244,45 @@ static int filter_update_ekf(PyObject *f, double speed_meas, double position_mea
     double k00 = p00 / r0, k01 = p01 / r1, k10 = p01 / r0, k11 = p11 / r1;   /* (17) */
     double xh0 = xb0 + k00 * e0 + k01 * e1;                            /* (15) */
     double xh1 = xb1 + k10 * e0 + k11 * e1;
-    if (xh0 + vzad < 0.0) xh0 = -vzad;
-    if (setd(f, A_xh1, xh1) || setd(f, A_xh0, xh0) || setd(f, A_p00, p00) || setd(f, A_p01, p01)
-        || setd(f, A_p11, p11) || setd(f, A_vzad_hat, vzad))
+    r = store_posterior(f, xh0, xh1, p00, p01, p11);
+done:
+    Py_DECREF(cfg);
+    return r;
+}
+
+/* MotionFilter.gate for the EKF (vzad = 0): *use_v, *use_x say which measurements the update
+ * takes, *fit whether the speed may be identified, *reacquire that the filter restarts */
+static int filter_gate_ekf(PyObject *f, double speed_meas, double position_meas, int *use_v,
+                           int *use_x, int *fit, int *reacquire)
+{
+    PyObject *cfg = ga(f, A_cfg);
+    if (!cfg) return -1;
+    int r = -1;
+    double r0, r1, m00, m11, xb0, xb1, gs, fs;
+    long vrun, xrun, limit, rejected;
+    if (getd(f, A_r0, &r0) || position_variance(f, cfg, position_meas, &r1) || getd(f, A_m00, &m00)
+        || getd(f, A_m11, &m11) || getd(f, A_xb0, &xb0) || getd(f, A_xb1, &xb1)
+        || getd(f, A_GATE_SIGMAS, &gs) || getd(f, A_FIT_SIGMAS, &fs) || getl(f, A_speed_run, &vrun)
+        || getl(f, A_position_run, &xrun) || getl(f, A_REACQUIRE, &limit))
+        goto done;
+    double e0 = speed_meas - 0.0 - xb0, e1 = position_meas - xb1;
+    double s00 = m00 + r0, s11 = m11 + r1;
+    double g2 = gs * gs;
+    *use_v = e0 * e0 <= g2 * s00;
+    *use_x = e1 * e1 <= g2 * s11;
+    *fit = *use_v && e0 * e0 <= fs * fs * s00;
+    vrun = *use_v ? 0 : vrun + 1;
+    xrun = *use_x ? 0 : xrun + 1;
+    *reacquire = 0;
+    if (vrun >= limit || xrun >= limit) {
+        *use_v = *use_x = *reacquire = 1;
+        *fit = 0;
+        r = (setb(f, A_speed_fit, 0) || setl(f, A_speed_run, 0) || setl(f, A_position_run, 0)
+             || setb(f, A_reacquire, 1)) ? -1 : 0;
+        goto done;
+    }
+    if (setb(f, A_speed_fit, *fit) || setl(f, A_speed_run, vrun) || setl(f, A_position_run, xrun)
+        || getl(f, A_rejected, &rejected) || setl(f, A_rejected, rejected + !*use_v + !*use_x))
         goto done;
     r = 0;
 done:
@@ -1229,44 +1290,32 @@ done:
     return r;
 }
 
-/* MotionFilter.gate for the EKF (vzad = 0): *accept = 0 refuses the measurement */
-static int filter_gate_ekf(PyObject *f, double speed_meas, double position_meas, int *accept)
+/* MotionFilter._update_one for the EKF (vzad = 0): the speed alone or the distance alone */
+static int filter_update_one_ekf(PyObject *f, double speed_meas, double position_meas, int speed)
 {
     PyObject *cfg = ga(f, A_cfg);
     if (!cfg) return -1;
     int r = -1;
-    double r0, r1, rel, m00, m01, m11, xb0, xb1, chi2;
-    long run, limit, rejected;
-    if (getd(f, A_r0, &r0) || getd(cfg, A_position_std_rel, &rel) || getd(f, A_m00, &m00)
-        || getd(f, A_m01, &m01) || getd(f, A_m11, &m11) || getd(f, A_xb0, &xb0) || getd(f, A_xb1, &xb1)
-        || getd(f, A_GATE_CHI2, &chi2) || getl(f, A_rejected_run, &run) || getl(f, A_REACQUIRE, &limit))
+    double m00, m01, m11, xb0, xb1, s, e, k0, k1, p00, p01, p11;
+    if (getd(f, A_m00, &m00) || getd(f, A_m01, &m01) || getd(f, A_m11, &m11) || getd(f, A_xb0, &xb0)
+        || getd(f, A_xb1, &xb1))
         goto done;
-    if (rel != 0.0) {
-        double pstd;
-        if (getd(cfg, A_position_std, &pstd)) goto done;
-        r1 = py_square(pstd + rel * fabs(position_meas));
-    } else if (getd(f, A_r1, &r1)) goto done;
-    double s00 = m00 + r0, s01 = m01, s11 = m11 + r1;       /* innovation_distance */
-    double e0 = speed_meas - 0.0 - xb0, e1 = position_meas - xb1;
-    double det = s00 * s11 - s01 * s01;
-    if (det == 0.0) { zero_division(); goto done; }
-    double d2 = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / det;
-    if (d2 <= chi2) {
-        *accept = 1;
-        r = setl(f, A_rejected_run, 0);
-        goto done;
+    if (speed) {
+        double r0;
+        if (getd(f, A_r0, &r0)) goto done;
+        s = m00 + r0;
+        e = speed_meas - 0.0 - xb0;
+        k0 = m00 / s; k1 = m01 / s;
+        p00 = m00 - k0 * m00; p01 = m01 - k0 * m01; p11 = m11 - k1 * m01;
+    } else {
+        double r1;
+        if (position_variance(f, cfg, position_meas, &r1)) goto done;
+        s = m11 + r1;
+        e = position_meas - xb1;
+        k0 = m01 / s; k1 = m11 / s;
+        p00 = m00 - k0 * m01; p01 = m01 - k0 * m11; p11 = m11 - k1 * m11;
     }
-    run += 1;
-    if (run < limit) {
-        *accept = 0;
-        if (setl(f, A_rejected_run, run) || getl(f, A_rejected, &rejected)
-            || setl(f, A_rejected, rejected + 1))
-            goto done;
-        r = 0;
-        goto done;
-    }
-    *accept = 1;
-    r = (setl(f, A_rejected_run, 0) || setb(f, A_reacquire, 1)) ? -1 : 0;
+    r = store_posterior(f, xb0 + k0 * e, xb1 + k1 * e, p00, p01, p11);
 done:
     Py_DECREF(cfg);
     return r;
@@ -1454,10 +1503,10 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
         || station_observe(o->station, speed_meas, position_meas, dt, &stop)
         || getb(o->station, A_moving, &moving_after))
         return -1;
-    int accepted = 1, excited, prev_rejected;
-    if (!stop && filter_gate_ekf(o->filt, speed_meas, position_meas, &accepted)) return -1;
-    if (estimator_excited(o->est, o->filt, o->station, dt, &excited)
-        || getb(o->est, A_prev_rejected, &prev_rejected))
+    int use_v = 1, use_x = 1, fit = 1, reacquire = 0, excited, prev_fit;
+    if (!stop && filter_gate_ekf(o->filt, speed_meas, position_meas, &use_v, &use_x, &fit, &reacquire))
+        return -1;
+    if (estimator_excited(o->est, o->filt, o->station, dt, &excited) || getb(o->est, A_prev_fit, &prev_fit))
         return -1;
     double pstd;
     PyObject *fcfg = ga(o->filt, A_cfg);
@@ -1465,7 +1514,7 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     bad = getd(fcfg, A_position_std, &pstd);
     Py_DECREF(fcfg);
     if (bad) return -1;
-    int used = accepted && !prev_rejected && excited && moving_before && moving_after
+    int used = fit && prev_fit && excited && moving_before && moving_after
                && position_meas >= pv[1] - 10.0 * pstd - 1.0;
     if (used) {
         double forces[2], length;
@@ -1501,7 +1550,7 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     if (!nt) return -1;
     bad = sa(o->est, A_prev, nt);
     Py_DECREF(nt);
-    if (bad || setb(o->est, A_prev_rejected, !accepted)) return -1;
+    if (bad || setb(o->est, A_prev_fit, fit)) return -1;
     if (stop) {
         long stops;
         if (getl(o->est, A_station_stops, &stops) || setl(o->est, A_station_stops, stops + 1)
@@ -1512,9 +1561,8 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
         Py_DECREF(r);
         return 0;
     }
-    if (!accepted) return filter_hold_ekf(o->filt);
-    int reacquire;
-    if (getb(o->filt, A_reacquire, &reacquire)) return -1;
+    if (!use_v && !use_x) return filter_hold_ekf(o->filt);
+    if (use_v != use_x) return filter_update_one_ekf(o->filt, speed_meas, position_meas, use_v);
     if (reacquire) {                         /* rare: the Python method restarts the filter */
         PyObject *r = PyObject_CallMethod(o->filt, "update", "dd", speed_meas, position_meas);
         if (!r) return -1;

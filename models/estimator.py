@@ -137,7 +137,7 @@ class OnlineEstimator:
         self._pair_used = False      # the pair ending at the previous sample was identified
         self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
         self._dt = id_cfg.dt         # length of that interval [s]
-        self._prev_rejected = False  # the previous measurement was refused by the gate
+        self._prev_fit = True        # the previous speed may be identified (MotionFilter.gate)
         self._net_force = 0.0        # low-passed F - B [N] (_excited)
         self._steady_speed = 0.0     # where the current steady state began [m/s], [N]
         self._steady_force = 0.0
@@ -152,22 +152,27 @@ class OnlineEstimator:
     def measure(self, speed_meas: float, position_meas: float) -> None:
         """Sample n: identification on the pair (n-1, n), station logic, filter update.
 
-        A measurement the filter's innovation gate refuses (MotionFilter.gate: a spike, a
-        dropout) is not used: neither pair it belongs to is identified, the filter keeps its
-        prediction. Station detection sees every measurement (it needs MOVING_RUN in a row)."""
+        The filter's innovation gate (MotionFilter.gate) decides which of the two measurements
+        the filter takes (a spike, a dropout is refused); a speed outside its tighter FIT_SIGMAS
+        is not identified, in neither pair it belongs to. Station detection sees every
+        measurement (it needs MOVING_RUN in a row)."""
         dt = self._dt
         moving_before = self.station.moving
         stop = self.station.observe(speed_meas, position_meas, dt)
         prev = self._prev
-        accepted = stop or prev is None or self.filter.gate(speed_meas, position_meas)
+        if stop or prev is None:       # the station logic restarts the filter (restart_filter)
+            use_v = use_x = fit = True
+        else:
+            use_v, use_x = self.filter.gate(speed_meas, position_meas)
+            fit = self.filter.speed_fit
         if self.refit is not None:
             run = self._run
             if run["t"]:
                 self._t += dt
             run["t"].append(self._t)
-            # a refused sample enters the run's record as the filter's prediction of it
-            run["v"].append(speed_meas if accepted else self.filter.predicted_speed)
-            run["x"].append(position_meas if accepted else self.filter.predicted_position)
+            # a refused measurement enters the run's record as the filter's prediction of it
+            run["v"].append(speed_meas if use_v else self.filter.predicted_speed)
+            run["x"].append(position_meas if use_x else self.filter.predicted_position)
         if prev is None and not (abs(speed_meas) < self.station.v_thr
                                  and abs(position_meas) < self.station.x_thr):
             # the run starts away from a station (a log cut mid-line, a car already moving)
@@ -175,7 +180,7 @@ class OnlineEstimator:
             self._prev = (speed_meas, position_meas)
             return
         excited = self._excited(dt)
-        used = (prev is not None and accepted and not self._prev_rejected and excited
+        used = (prev is not None and fit and self._prev_fit and excited
                 and moving_before and self.station.moving
                 and position_meas >= prev[1] - 10.0 * self.filter.cfg.position_std - 1.0)
         if used:
@@ -192,11 +197,11 @@ class OnlineEstimator:
             self._coasting = False
         self._pair_used = used
         self._prev = (speed_meas, position_meas)
-        self._prev_rejected = not accepted
+        self._prev_fit = fit
         if self.noise_bank is not None:
             if not self.station.moving:
                 self.noise_bank.stand()
-            elif accepted:
+            elif use_v:
                 self.noise_bank.update(speed_meas)
         if stop:
             self.station_stops += 1
@@ -208,10 +213,8 @@ class OnlineEstimator:
                 # no separate prior, so the whole of it is forgotten alike)
                 self.coast.P[1:, 1:] /= 1.0 - self.ident.cfg.run_forgetting
             self.restart_filter(speed_meas, position_meas)
-        elif accepted:
-            self.filter.update(speed_meas, position_meas)
         else:
-            self.filter.hold()
+            self.filter.update(speed_meas, position_meas)
 
     # Information cap per operating point. At a steady speed and force every regressor phi is the
     # same vector: it tells nothing new about the mass, nor how the resistance splits into A0, A1,
@@ -306,6 +309,7 @@ class OnlineEstimator:
         traction, brake = self._forces
         self.filter.predict(traction, brake, self.model_theta(), self.process_noise(traction, brake, self._dt),
                             self._dt)
+        self.filter.gate(speed_meas, position_meas)    # a spike at departure is refused too
         self.filter.update(speed_meas, position_meas)
 
     ACCEL_STD = 0.1   # [m/s^2] uncertainty of the acceleration used to carry a speed over its age

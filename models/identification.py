@@ -327,6 +327,7 @@ class ParameterIdentifier:
         self._batch_y: list[float] = []
         self._batch_contiguous: list[bool] = []
         self.mass_restarts = 0
+        self.repairs = 0              # times R was made positive definite again
         # honest covariance (see covariance()): white-noise meat W, differenced-noise meat D
         # (closed runs; the open run's end is _last_phi), lag-0/lag-1 residual autocovariance
         self._W = [0.0] * 16
@@ -465,6 +466,14 @@ class ParameterIdentifier:
               S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
               S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3]
         pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3]
+        if not pSp > 0.0:                    # S is no longer positive definite (rounding)
+            self._restore_positive_definite()
+            S = self._S
+            Sp = [S[0] * p0 + S[1] * p1 + S[2] * p2 + S[3] * p3,
+                  S[4] * p0 + S[5] * p1 + S[6] * p2 + S[7] * p3,
+                  S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
+                  S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3]
+            pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3]
         pred_err = y - (th[0] * p0 + th[1] * p1 + th[2] * p2 + th[3] * p3)
         g = mu * pred_err / (1.0 + mu * (pSp - 1.0))                              # (8), (9)
         self._theta = [th[0] + g * Sp[0], th[1] + g * Sp[1], th[2] + g * Sp[2], th[3] + g * Sp[3]]
@@ -541,11 +550,26 @@ class ParameterIdentifier:
         self.n = n
         self._batch_phi, self._batch_y, self._batch_contiguous = [], [], []
 
+    def _restore_positive_definite(self) -> None:
+        """Make R = S^-1 positive definite again. The recursive form (11) loses it to rounding
+        over ~1e5 updates, R's eigenvalues spanning ~1e9 (1/(Pg) against F - B ~ 4e4 N; the A's
+        unexcited, near the prior's J0 / n): in a 10 h service day an eigenvalue went to -2e-3,
+        then the LS ran away (A0 -32 N/kN) and sqrt(gain) failed. R is symmetrised and its
+        eigenvalues lifted to the prior's information min(J0) / n, the least any direction has."""
+        R = np.linalg.inv(self.S)
+        w, V = np.linalg.eigh(0.5 * (R + R.T))
+        w = np.maximum(w, min(self._j0) / self._n_info())
+        self._S = [float(x) for x in ((V / w) @ V.T).ravel()]
+        self.repairs += 1
+        self._cov = self._sigma2 = self._model_cov = None
+
     def restart_mass(self) -> None:
         """New passengers: reopen 1/(Pg) with its prior; the A's keep what they learnt."""
         self.mass_restarts += 1
         if self._S is None or self.cfg.frozen:
             return
+        if np.linalg.eigvalsh(self.S)[0] <= 0.0:
+            self._restore_positive_definite()
         if self._slope_rows:
             self._reweight_prior()
         R = np.linalg.inv(self.S)

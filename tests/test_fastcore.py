@@ -114,7 +114,7 @@ def test_variant_bit_identical(name):
     assert _assert_identical(path, overrides, max_steps=1500) > 100
 
 
-def _faulty_cruise(core, seconds: float, faults: dict[int, float]):
+def _faulty_cruise(core, seconds: float, faults: dict[int, float], position_faults: dict[int, float]):
     """tests/test_robust_estimator.py's cruise with planted speed-sensor faults, on one core."""
     from test_robust_estimator import FaultyStream, demands
     from models.dynamics import VehicleParams
@@ -124,6 +124,7 @@ def _faulty_cruise(core, seconds: float, faults: dict[int, float]):
     try:
         chain = RailCarChain(ChainConfig(vehicle=VehicleParams(mass=34.0), seed=3), GradeProfile.level())
         chain._speed_noise = FaultyStream(chain._speed_noise, faults)
+        chain._position_noise = FaultyStream(chain._position_noise, position_faults)
         rows, t = [], 0.0
         for _ in range(round(seconds / 0.1)):
             chain.do_step(t, 0.1, *demands(chain, t, 34.0), 0.0, 0.0)
@@ -132,8 +133,10 @@ def _faulty_cruise(core, seconds: float, faults: dict[int, float]):
         state = _internal_state(chain)
         est = chain.estimator
         state.update({n: getattr(est, n) for n in ("_net_force", "_steady_speed", "_steady_force",
-                                                    "_steady_time", "_prev_rejected", "_pair_used")})
-        state.update({f"filter.{n}": getattr(est.filter, n) for n in ("rejected", "rejected_run", "reacquired")})
+                                                    "_steady_time", "_prev_fit", "_pair_used")})
+        state.update({f"filter.{n}": getattr(est.filter, n) for n in
+                      ("rejected", "speed_run", "position_run", "speed_fit", "reacquired",
+                       "_use_speed", "_use_position", "_reacquire")})
         return rows, state
     finally:
         _fast.core = CORE
@@ -142,18 +145,20 @@ def _faulty_cruise(core, seconds: float, faults: dict[int, float]):
 def test_gate_reacquire_and_steady_cap_bit_identical():
     """The innovation gate (a spike, a dropout long enough to reacquire) and the information cap
     of a steady cruise (OnlineEstimator._excited), compiled and in Python: equal at every step."""
-    faults = {1500: 200.0, **{k: -300.0 for k in range(2000, 2080)}, 2500: -150.0}
+    faults = {1500: 200.0, **{k: -300.0 for k in range(2000, 2080)}, 2500: -150.0,
+              **{k: -20.0 for k in range(3000, 3010)}}             # a spike, dropouts
+    position_faults = {2700: 100.0, 3300: -80.0, **{k: 50.0 for k in range(4000, 4060)}}
     steps = 6000                                       # 600 s: 9 min of cruise, capped
-    rows_py, state_py = _faulty_cruise(None, steps * 0.1, faults)
+    rows_py, state_py = _faulty_cruise(None, steps * 0.1, faults, position_faults)
     compiled_before = CORE.step_counts()[0]
-    rows_c, state_c = _faulty_cruise(CORE, steps * 0.1, faults)
+    rows_c, state_c = _faulty_cruise(CORE, steps * 0.1, faults, position_faults)
     assert CORE.step_counts()[0] - compiled_before == steps     # every step ran compiled
     for i, (a, b) in enumerate(zip(rows_py, rows_c)):
         diff = [(k, a[k], b[k]) for k in a if not _same(a[k], b[k])]
         assert not diff, f"row {i} differs: {diff[:3]}"
     diff = [k for k in state_py if not _same(state_py[k], state_c[k])]
     assert not diff, f"internal state differs in {diff}"
-    assert state_c["filter.reacquired"] >= 1 and state_c["filter.rejected"] >= 50
+    assert state_c["filter.reacquired"] >= 2 and state_c["filter.rejected"] >= 100
     assert state_c["_steady_time"] > 20.0               # the cap was reached
 
 

@@ -200,3 +200,35 @@ def test_a_grade_beyond_200_permille_is_refused_naming_file_and_line():
 def test_a_byte_order_mark_before_the_header_is_accepted():
     p = GradeProfile.from_csv_text("\ufeffdistance_m,grade_permille\n0,5\n", "g.csv")
     assert p.at(10.0) == 5.0
+
+
+def test_an_information_matrix_that_lost_positive_definiteness_is_restored():
+    """Rounding in the recursive form (11) made R = S^-1 indefinite after ~2e5 updates of a 10 h
+    service day (smallest eigenvalue -2e-3), and the LS ran away (A0 -32 N/kN) until
+    sqrt(gain) failed. An update that meets such an S (phi^T S phi <= 0) first lifts R's
+    eigenvalues to the prior's information floor; so does a mass restart."""
+    import numpy as np
+    from models.identification import ParameterIdentifier
+    ident = ParameterIdentifier(IdentifierConfig(speed_std=0.05))
+    rng = np.random.default_rng(5)
+    v = 5.0
+    for k in range(200):                                   # past the batch: the recursive form
+        f = 20e3 if k % 40 < 20 else 0.0
+        v_next = v + 0.1 * (f / 34e3 - 0.01) + 0.05 * rng.standard_normal()
+        ident.update(f, 0.0, v, v_next, 0.0, 0.1)
+        v = v_next
+    R = np.linalg.inv(ident.S)
+    w, V = np.linalg.eigh(0.5 * (R + R.T))
+    w[0] = -abs(w[-1]) * 1e-6                              # one direction lost, as in the day
+    ident._S = [float(x) for x in np.linalg.inv((V * w) @ V.T).ravel()]
+    phi = np.array([0.0, -1.0, -v, -v * v])
+    if phi @ ident.S @ phi > 0.0:                          # make sure the update meets it
+        ident._S = [float(x) for x in np.linalg.inv(-(V * np.abs(w)) @ V.T).ravel()]
+    ident.update(0.0, 0.0, v, v - 0.001, 0.0, 0.1)
+    assert ident.repairs == 1
+    assert np.linalg.eigvalsh(np.linalg.inv(ident.S))[0] > 0.0
+    assert all(math.isfinite(x) for x in ident.theta)
+    ident._S = [float(x) for x in np.linalg.inv((V * w) @ V.T).ravel()]
+    ident.restart_mass()
+    assert ident.repairs == 2
+    assert np.linalg.eigvalsh(ident.S)[0] > 0.0
