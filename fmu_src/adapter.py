@@ -126,8 +126,14 @@ def not_initialised(slave) -> bool:
 def guarded_step(slave, step) -> bool:
     """Run one step; on bad input or any failure log it and discard the step (return False)."""
     from models.chain import StepRejected
+    values = getattr(slave, "values", {})
+    rejected = values.get("filter.rejected", 0)
     try:
         step()
+        if values.get("filter.rejected", 0) != rejected:
+            n = values["filter.rejected"] - rejected
+            slave.log(f"{n} measurement(s) refused by the innovation gate in this step (a spike, a "
+                      f"dropout; filter.rejected = {values['filter.rejected']})", Fmi2Status.warning)
         return True
     except StepRejected as e:
         slave.log(f"step discarded: {e}", Fmi2Status.discard)

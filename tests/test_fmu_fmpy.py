@@ -356,6 +356,25 @@ def test_estimator_bad_input_is_discarded_and_the_instance_stays_usable(estimato
     assert 20.0 < rows[-1][0] < 45.0    # the estimator did identify something
 
 
+def test_a_speed_spike_is_refused_with_a_warning_and_counted(estimator, slave_factory):
+    """A +100 m/s spike at one sample of a plausible run (it sent est.mass to inf before): the
+    step is OK, the FMU warns, filter.rejected counts it, est.mass stays finite and plausible."""
+    from conftest import WARNING
+    s = slave_factory(estimator)
+    s.initialize({})
+    for k in range(120):
+        inputs = _estimator_inputs(k)
+        if k == 90:
+            inputs["sensor.speed"] += 100.0
+        s.set(inputs)
+        assert s.do_step(k * STEP, STEP) == OK, s.log_text()
+        if k == 90:
+            assert s.messages and s.messages[-1].status == WARNING
+            assert "refused by the innovation gate" in s.messages[-1].message
+    assert s.get("filter.rejected") == 1
+    assert 20.0 < s.get("est.mass") < 45.0 and math.isfinite(s.get("est.mass_std"))
+
+
 def test_estimator_bad_step_size_is_discarded(estimator, slave_factory):
     s = slave_factory(estimator)
     s.initialize({})
