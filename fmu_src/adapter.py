@@ -139,7 +139,8 @@ def guarded_step(slave, step) -> bool:
         slave.log(f"step discarded: {e}", Fmi2Status.discard)
         return False
     except Exception as e:  # the FMU never takes its host down
-        slave.log(f"step failed: {type(e).__name__}: {e}\n{traceback.format_exc()}", Fmi2Status.error)
+        slave.log(f"step failed: {type(e).__name__}: {e}", Fmi2Status.error)
+        slave.log(traceback.format_exc(), Fmi2Status.ok, category="logAll")   # debug: with loggingOn
         return False
 
 

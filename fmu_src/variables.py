@@ -149,7 +149,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("filter.position", "output", "Real", "m", 0.0, "filtered distance"),
     Var("filter.speed_std", "output", "Real", "m/s", 0.0, "standard deviation of filter.speed"),
     Var("filter.position_std", "output", "Real", "m", 0.0, "standard deviation of filter.position"),
-    Var("filter.rejected", "output", "Integer", None, 0, "measurements refused by the innovation gate (chi^2, 2 dof, P = 1e-9 for a good one): spikes, dropouts"),
+    Var("filter.rejected", "output", "Integer", None, 0, "speeds and distances refused by the innovation gate (beyond 6 sigma of their innovation: once in 5e8 for a good one): spikes, dropouts, a stuck sensor"),
 )
 
 

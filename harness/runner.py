@@ -127,8 +127,9 @@ class FmuRunner:
     def _new_instance(self, sink, instance_name: str) -> FMU2Slave:
         """Instantiate with logging on; the FMU's messages go to the list ``sink()`` returns."""
         def logger(_env, instance, status, category, message):
-            sink().append(f"[{status}] {category.decode(errors='replace') if category else ''}: "
-                          f"{message.decode(errors='replace') if message else ''}")
+            # the message arrives as a printf format without arguments: '%%' stands for '%'
+            text = message.decode(errors="replace").replace("%%", "%") if message else ""
+            sink().append(f"[{status}] {category.decode(errors='replace') if category else ''}: {text}")
 
         callbacks = fmi2CallbackFunctions()
         callbacks.logger = fmi2CallbackLoggerTYPE(logger)

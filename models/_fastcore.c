@@ -1274,11 +1274,15 @@ static int filter_gate_ekf(PyObject *f, double speed_meas, double position_meas,
     vrun = *use_v ? 0 : vrun + 1;
     xrun = *use_x ? 0 : xrun + 1;
     *reacquire = 0;
-    if (vrun >= limit || xrun >= limit) {
+    if (xrun >= limit) {                     /* the distance restarts; the speed too if refused */
+        long what = *use_v ? 2 : 1;          /* REACQUIRE_DISTANCE, REACQUIRE_BOTH */
+        if (what == 1) {
+            *fit = 0;
+            vrun = 0;
+        }
         *use_v = *use_x = *reacquire = 1;
-        *fit = 0;
-        r = (setb(f, A_speed_fit, 0) || setl(f, A_speed_run, 0) || setl(f, A_position_run, 0)
-             || setb(f, A_reacquire, 1)) ? -1 : 0;
+        r = (setb(f, A_speed_fit, *fit) || setl(f, A_speed_run, vrun) || setl(f, A_position_run, 0)
+             || setl(f, A_reacquire, what)) ? -1 : 0;
         goto done;
     }
     if (setb(f, A_speed_fit, *fit) || setl(f, A_speed_run, vrun) || setl(f, A_position_run, xrun)
@@ -1546,6 +1550,7 @@ static int estimator_measure(ChainObjs *o, double speed_meas, double position_me
     }
     if (setb(o->est, A_pair_used, used)) return -1;
     double nv[2] = {speed_meas, position_meas};
+    if (!use_x && getd(o->filt, A_xb1, &nv[1])) return -1;   /* a refused distance: its prediction */
     PyObject *nt = doubles_to_tuple(nv, 2);
     if (!nt) return -1;
     bad = sa(o->est, A_prev, nt);

@@ -238,11 +238,12 @@ class RailCarChain:
         self.track_speed, self.track_time = v, stamp + self.start_time
         self._pending_track = (v, self.plant.time - stamp)
 
-    def _check_inputs(self, step_size: float, traction_demand: float, brake_demand: float,
-                      wind_speed: float, payload: float) -> None:
+    def _check_inputs(self, current_time: float, step_size: float, traction_demand: float,
+                      brake_demand: float, wind_speed: float, payload: float) -> None:
         """Raise StepRejected naming the first input that is bad or beyond physics (do_step's
-        one comparison chain found one; NaN fails every comparison)."""
-        check_step(0.0, step_size)
+        one comparison chain found one; NaN fails every comparison: a NaN time used to send the
+        sample loop on for ever)."""
+        check_step(current_time, step_size)
         check_force("traction_force_demand", traction_demand)
         check_force("brake_force_demand", brake_demand)
         check_bounded("traction_force_demand", traction_demand, self._traction_limit, "N",
@@ -267,8 +268,10 @@ class RailCarChain:
         """
         if not (0.0 < step_size <= MAX_STEP and 0.0 <= traction_demand <= self._traction_limit
                 and 0.0 <= brake_demand <= self._brake_limit and -MAX_WIND <= wind_speed <= MAX_WIND
-                and -self._payload_limit <= payload <= self._payload_limit):
-            self._check_inputs(step_size, traction_demand, brake_demand, wind_speed, payload)
+                and -self._payload_limit <= payload <= self._payload_limit
+                and -math.inf < current_time < math.inf):
+            self._check_inputs(current_time, step_size, traction_demand, brake_demand, wind_speed,
+                               payload)
         step = self._core_step
         if step is not None and step(self, current_time, step_size, traction_demand, brake_demand,
                                      wind_speed, payload):

@@ -196,7 +196,8 @@ class OnlineEstimator:
         elif self.coast is not None:
             self._coasting = False
         self._pair_used = used
-        self._prev = (speed_meas, position_meas)
+        # a refused distance would pick the next pair's grade: its prediction stands in
+        self._prev = (speed_meas, position_meas if use_x else self.filter.predicted_position)
         self._prev_fit = fit
         if self.noise_bank is not None:
             if not self.station.moving:

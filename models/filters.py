@@ -148,7 +148,7 @@ class MotionFilter:
         self.reacquired = 0           # restarts from the measurements after REACQUIRE of them
         self.speed_fit = True         # the last gated speed may be identified (FIT_SIGMAS)
         self._use_speed = self._use_position = True   # what the next update takes (gate)
-        self._reacquire = False
+        self._reacquire = 0           # REACQUIRE_BOTH / _DISTANCE: the next update restarts
         self.restart()
 
     # state: x_bar = (xb0, xb1), M = [[m00, m01], [m01, m11]]; x_hat, P likewise
@@ -206,7 +206,7 @@ class MotionFilter:
         self._xh0 = self._xh1 = self._p00 = self._p01 = self._p11 = 0.0
         self.speed_run = self.position_run = 0
         self._use_speed = self._use_position = True
-        self._reacquire = False
+        self._reacquire = 0
         # V_zad at the posterior's / the prediction's instant [m/s]; 0 for the EKF (absolute speed)
         self.vzad_hat = self.vzad_bar = self._vzad(0.0) if self.kind in (LINEARISED, PAPER) else 0.0
         if self.kind == SINGER:
@@ -223,19 +223,21 @@ class MotionFilter:
     # (a speed dropout no longer drags the filter). The identification is pickier
     # (speed_fit: within FIT_SIGMAS, 7e-6 of good samples dropped): a stuck reading under full
     # traction drifts off the prediction slowly, and its first zero-acceleration pairs alone ran
-    # the mass up by 40 %. After REACQUIRE refusals of one measurement in a row it is the filter,
-    # not the sensor, that has lost the car (a model far off, a jump in the data): the filter
-    # restarts from the measurements.
+    # the mass up by 40 %. After REACQUIRE refusals of the distance in a row it has jumped, or the
+    # filter lost the car (a model far off): the distance restarts from its measurement, the whole
+    # filter when the speed is refused too. A refused speed alone does not restart anything: the
+    # distance taken meanwhile vouches for the filter (a stuck speed sensor stays refused).
     GATE_SIGMAS = 6.0
     FIT_SIGMAS = 4.5
     REACQUIRE = 50                                     # samples (5 s at 0.1 s)
+    REACQUIRE_BOTH, REACQUIRE_DISTANCE = 1, 2          # what the next update restarts from
 
     def gate(self, speed_meas: float, position_meas: float) -> tuple[bool, bool]:
         """(use the speed, use the distance) [m/s, m] at this sample, against the prediction;
         counts refusals in ``rejected``, sets ``speed_fit`` (the speed may be identified) and
-        what the next ``update`` takes. The REACQUIRE-th refusal in a row of one measurement is
-        taken instead, and the next ``update`` restarts the filter from the measurements
-        (counted in ``reacquired``)."""
+        what the next ``update`` takes. The REACQUIRE-th refusal in a row of the distance is
+        taken instead, and the next ``update`` restarts the distance from it -- the whole filter
+        when the speed is refused too (counted in ``reacquired``)."""
         vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
         r1 = self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
         e0, e1 = speed_meas - vzad - self._xb0, position_meas - self._xb1
@@ -245,10 +247,17 @@ class MotionFilter:
         self.speed_fit = use_v and e0 * e0 <= self.FIT_SIGMAS * self.FIT_SIGMAS * s00
         self.speed_run = 0 if use_v else self.speed_run + 1
         self.position_run = 0 if use_x else self.position_run + 1
-        if self.speed_run >= self.REACQUIRE or self.position_run >= self.REACQUIRE:
-            self.speed_run = self.position_run = 0
-            self._reacquire = True
-            self.speed_fit = False
+        if self.position_run >= self.REACQUIRE:
+            # the distance has jumped (or the filter lost the car): take it again; the speed too
+            # if it is refused now. A refused speed alone never triggers this: while the distance
+            # is taken, it keeps the filter on the car, and the speed sensor is the one at fault.
+            self.position_run = 0
+            if use_v:
+                self._reacquire = self.REACQUIRE_DISTANCE
+            else:
+                self.speed_run = 0
+                self._reacquire = self.REACQUIRE_BOTH
+                self.speed_fit = False
             return True, True
         self.rejected += (not use_v) + (not use_x)
         self._use_speed, self._use_position = use_v, use_x
@@ -287,9 +296,16 @@ class MotionFilter:
         """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m], H = I: the
         measurements ``gate`` let through (both, without a gate)."""
         if self._reacquire:
-            self._reacquire = False
+            what, self._reacquire = self._reacquire, 0
             self.reacquired += 1
-            self.start_from_measurement(speed_meas, position_meas)
+            if what == self.REACQUIRE_BOTH or self.kind == SINGER:
+                self.start_from_measurement(speed_meas, position_meas)
+                return
+            # the distance alone: the update with the speed, then the distance restarted from
+            # its measurement (uncorrelated with the speed, its noise's variance)
+            self._update_one(speed_meas, position_meas, True)
+            self._xh1, self._p01 = position_meas, 0.0
+            self._p11 = self.cfg.position_noise_std(position_meas) ** 2
             return
         use_v, use_x = self._use_speed, self._use_position
         if not (use_v and use_x):

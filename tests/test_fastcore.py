@@ -162,6 +162,81 @@ def test_gate_reacquire_and_steady_cap_bit_identical():
     assert state_c["_steady_time"] > 20.0               # the cap was reached
 
 
+def _faulty_stations(core, faults: dict, position_faults: dict, stops: int, rel: float = 0.0):
+    """Station runs (traction, coast, brake to a stop at 1200 m, 25 s held) with planted
+    speed and distance faults, on one core: rows and the estimator's state at the end."""
+    from test_robust_estimator import FaultyStream
+    from models.chain import ChainConfig
+    from models.dynamics import VehicleParams
+    from models.filters import FilterConfig
+    from models.track import GradeProfile
+    _fast.core = core
+    try:
+        chain = RailCarChain(ChainConfig(vehicle=VehicleParams(mass=34.0), seed=2,
+                                         filter=FilterConfig(position_std_rel=rel)), GradeProfile.level())
+        chain._speed_noise = FaultyStream(chain._speed_noise, faults)
+        chain._position_noise = FaultyStream(chain._position_noise, position_faults)
+        t, phase, held, done, rows = 0.0, "traction", 0.0, 0, []
+        while done < stops:
+            v, x = chain.plant.state.speed, chain.plant.state.position
+            if phase == "traction":
+                f, b, phase = 40e3, 0.0, "coast" if v > 16.7 else phase
+            elif phase == "coast":
+                f, b, phase = 0.0, 0.0, "brake" if v * v / 1.6 >= 1200.0 - x else phase
+            elif phase == "brake":
+                f, b = 0.0, min(34e3 * v * v / (2.0 * max(1200.0 - x, 0.5)), 45e3)
+                phase, held = ("hold", 0.0) if v <= 0.0 else (phase, held)
+            else:
+                f, b, held = 0.0, 10e3, held + 0.1
+                phase, done = ("traction", done + 1) if held >= 25.0 else (phase, done)
+            chain.do_step(t, 0.1, f, b, 0.0, 0.0)
+            t += 0.1
+            rows.append(chain.outputs())
+        state = _internal_state(chain)
+        est = chain.estimator
+        state.update({n: getattr(est, n) for n in ("_prev", "_prev_fit", "_pair_used", "station_stops")})
+        state.update({f"filter.{n}": getattr(est.filter, n) for n in
+                      ("rejected", "speed_run", "position_run", "speed_fit", "reacquired", "_reacquire")})
+        return rows, state
+    finally:
+        _fast.core = CORE
+
+
+_BOTH = range(700, 706)                                    # both refused: the hold path
+STATION_FAULTS = {
+    "scattered_and_both": ({**{k: (200.0, -300.0, 7.0)[k % 3] for k in range(50, 4000, 37)},
+                            **{k: 250.0 for k in _BOTH}},
+                           {**{k: (100.0, -60.0)[k % 2] for k in range(60, 4000, 71)},
+                            **{k: 90.0 for k in _BOTH}}, 0.0),
+    "with_odometry_drift": ({k: 200.0 for k in range(50, 4000, 41)},
+                            {k: 80.0 for k in range(90, 4000, 83)}, 0.01),
+    "speed_stuck_distance_good": ({k: -300.0 for k in range(600, 900)}, {}, 0.0),
+    "distance_jump": ({}, {k: 40.0 for k in range(1500, 1600)}, 0.0),
+}
+
+
+@pytest.mark.parametrize("name", STATION_FAULTS)
+def test_gate_across_station_stops_bit_identical(name):
+    """Faults through departures (the gate in restart_filter), at the same sample on both
+    sensors (hold), with odometry drift, a speed stuck for 30 s with good distances (refused
+    throughout, no reacquire) and a 10 s distance jump (the distance alone reacquired)."""
+    faults, position_faults, rel = STATION_FAULTS[name]
+    rows_py, state_py = _faulty_stations(None, faults, position_faults, 3, rel)
+    compiled_before = CORE.step_counts()[0]
+    rows_c, state_c = _faulty_stations(CORE, faults, position_faults, 3, rel)
+    assert CORE.step_counts()[0] - compiled_before == len(rows_c)
+    for i, (a, b) in enumerate(zip(rows_py, rows_c)):
+        diff = [(k, a[k], b[k]) for k in a if not _same(a[k], b[k])]
+        assert not diff, f"{name}: row {i} differs: {diff[:3]}"
+    diff = [k for k in state_py if not _same(state_py[k], state_c[k])]
+    assert not diff, f"{name}: internal state differs in {diff}"
+    assert state_c["station_stops"] >= 2 and state_c["filter.rejected"] > 0   # the 3rd confirms on departure
+    if name == "speed_stuck_distance_good":
+        assert state_c["filter.reacquired"] == 0 and state_c["filter.rejected"] >= 290
+    if name == "distance_jump":
+        assert state_c["filter.reacquired"] >= 1
+
+
 def test_oracle_bit_identical(monkeypatch):
     """The frozen identifier (the harness's oracle filter) takes the Python covariance path."""
     from models import identification

@@ -375,6 +375,13 @@ DISCARD_CASES = [
     ("time-does-not-continue", RC, {}, (0.7, 0.1), ["does not continue"]),
     ("estimator-NaN-speed", EST, {"sensor.speed": math.nan}, (0.5, 0.1), ["sensor.speed"]),
     ("estimator-negative-brake", EST, {"brake_force": -1.0}, (0.5, 0.1), ["brake_force"]),
+    # beyond physics, and a NaN time (it looped for ever before the review of this round)
+    ("NaN-time", RC, {}, (math.nan, 0.1), ["current time must be finite"]),
+    ("traction-1e300", RC, {"traction_force_demand": 1e300}, (0.5, 0.1),
+     ["traction_force_demand", "10 x car.traction_force_max"]),
+    ("wind-150", RC, {"wind_speed": 150.0}, (0.5, 0.1), ["wind_speed", "100 m/s"]),
+    ("step-1e6", RC, {}, (0.5, 1e6), ["<= 3600 s"]),
+    ("estimator-speed-250", EST, {"sensor.speed": 250.0}, (0.5, 0.1), ["sensor.speed", "200 m/s"]),
 ]
 
 

@@ -109,9 +109,10 @@ int glue_log_wanted(const GlueInstance *g, fmi2Status status, const char *catego
 void glue_log_text(GlueInstance *g, fmi2Status status, const char *category, const char *message) {
     if (!category) category = glue_status_category(status);
     if (!glue_log_wanted(g, status, category)) return;
-    /* The logger is printf-like, but many hosts (fmpy's Python logger among them) print the
-     * format without applying it: pass the text itself as the format, each '%' doubled, and no
-     * arguments, which reads right either way. */
+    /* The logger is printf-like, but some hosts (fmpy's Python logger among them) print the
+     * format without applying it, and a "%s" format then shows as "%s": pass the text itself as
+     * the format, each '%' doubled, and no arguments. A printf-like host prints the text; one
+     * that prints the format shows "%%" for a literal '%' (the harness undoes that). */
     const char *text = message ? message : "", *p;
     size_t percents = 0, len = 0;
     for (p = text; *p; p++, len++) percents += *p == '%';
