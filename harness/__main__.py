@@ -7,6 +7,7 @@
     python -m harness filters [NAME ...]
     python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
+    python -m harness list
 
 Exit codes: 0 success; 1 a run failed or a regression/target check failed; 2 bad usage or
 invalid input (scenario, log, parameter, sweep file, output folder): one line on stderr naming
@@ -206,6 +207,23 @@ def cmd_plan(args) -> int:
     return EXIT_OK
 
 
+def cmd_list(args) -> int:
+    """The scenarios (default and library) and the sweep files, one line each: name and purpose."""
+    import tomllib
+    from .regress import library_scenarios
+    root = Path(__file__).resolve().parent.parent / "scenarios"
+    print("scenarios (python -m harness run scenarios/...; library: regress, report)")
+    for path in [root / "default.toml", *library_scenarios()]:
+        s = load_scenario(path)
+        print(f"  {path.relative_to(root).as_posix():40s} {s.purpose}")
+    print("sweeps (python -m harness sweep scenarios/sweeps/NAME.toml --out DIR)")
+    for path in sorted((root / "sweeps").glob("*.toml")):
+        with path.open("rb") as f:
+            purpose = tomllib.load(f).get("purpose", "")
+        print(f"  {path.relative_to(root).as_posix():40s} {purpose}")
+    return EXIT_OK
+
+
 def cmd_sweep(args) -> int:
     from .sweep import cli_sweep
     return cli_sweep(args)
@@ -247,6 +265,8 @@ def main(argv=None) -> int:
     p.add_argument("names", nargs="*", help="library scenario names (default: all)")
     _fmu_options(p)
     p.set_defaults(func=cmd_filters)
+    p = sub.add_parser("list", help="the scenarios and sweeps that come with the harness, one line each")
+    p.set_defaults(func=cmd_list)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
     p.add_argument("scenario")
     p.add_argument("--out", required=True, help="CSV file to write (distance_m,speed_mps)")
