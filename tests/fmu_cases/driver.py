@@ -234,12 +234,28 @@ class Case:
 
     def run(self, steps):
         for step in steps:
+            assert hasattr(self, "op_" + step[0]), f"unknown op {step[0]!r} in {step!r}"
             mark = len(self.log)
             record = getattr(self, "op_" + step[0])(*step[1:])
             record["op"] = step
             record["log"] = self.log[mark:]
+            check_record(record)
             self.records.append(record)
             sys.stdout.flush()
+
+
+FMI2_STATUSES = range(5)     # fmi2OK, Warning, Discard, Error, Fatal
+
+
+def check_record(record: dict) -> None:
+    """What no FMU may ever do, whatever the case: return or log a status that is not an
+    fmi2Status (a garbage int from a broken binary). A failure ends the process without the
+    CASE-RESULT marker, so the test fails naming this assertion."""
+    statuses = record.get("statuses", [record.get("status")])
+    for status in statuses:
+        assert status is None or status in FMI2_STATUSES, f"{record['op']}: status {status!r}"
+    for message in record["log"]:
+        assert message[0] in FMI2_STATUSES, f"{record['op']}: logged status {message!r}"
 
 
 def main() -> None:
