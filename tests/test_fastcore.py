@@ -36,6 +36,20 @@ def test_compiled_core_is_built():
     assert CORE is not None, "models/_fastcore.c was not compiled: run pip install -e . with a C compiler"
 
 
+def test_compiled_core_compiles_without_a_warning():
+    """models/_fastcore.c under -Wall -Wextra -Werror (setup.py builds it without -Werror, so that
+    a newer compiler's warning cannot silently drop the optional extension)."""
+    import shutil
+    import subprocess
+    import sysconfig
+    gcc = shutil.which("gcc")
+    assert gcc
+    proc = subprocess.run([gcc, "-fsyntax-only", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off",
+                           f"-I{sysconfig.get_paths()['include']}", str(ROOT / "models" / "_fastcore.c")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
 def _run(path: Path, core, overrides: dict, max_steps: int | None = None):
     """Outputs at every step and the internal state at the end, with the given core."""
     _fast.core = core
@@ -165,7 +179,7 @@ def test_gate_reacquire_and_steady_cap_bit_identical():
 def _faulty_stations(core, faults: dict, position_faults: dict, stops: int, rel: float = 0.0):
     """Station runs (traction, coast, brake to a stop at 1200 m, 25 s held) with planted
     speed and distance faults, on one core: rows and the estimator's state at the end."""
-    from test_robust_estimator import FaultyStream
+    from test_robust_estimator import FaultyStream, station_runs
     from models.chain import ChainConfig
     from models.dynamics import VehicleParams
     from models.filters import FilterConfig
@@ -176,22 +190,7 @@ def _faulty_stations(core, faults: dict, position_faults: dict, stops: int, rel:
                                          filter=FilterConfig(position_std_rel=rel)), GradeProfile.level())
         chain._speed_noise = FaultyStream(chain._speed_noise, faults)
         chain._position_noise = FaultyStream(chain._position_noise, position_faults)
-        t, phase, held, done, rows = 0.0, "traction", 0.0, 0, []
-        while done < stops:
-            v, x = chain.plant.state.speed, chain.plant.state.position
-            if phase == "traction":
-                f, b, phase = 40e3, 0.0, "coast" if v > 16.7 else phase
-            elif phase == "coast":
-                f, b, phase = 0.0, 0.0, "brake" if v * v / 1.6 >= 1200.0 - x else phase
-            elif phase == "brake":
-                f, b = 0.0, min(34e3 * v * v / (2.0 * max(1200.0 - x, 0.5)), 45e3)
-                phase, held = ("hold", 0.0) if v <= 0.0 else (phase, held)
-            else:
-                f, b, held = 0.0, 10e3, held + 0.1
-                phase, done = ("traction", done + 1) if held >= 25.0 else (phase, done)
-            chain.do_step(t, 0.1, f, b, 0.0, 0.0)
-            t += 0.1
-            rows.append(chain.outputs())
+        rows = list(station_runs(chain, stops))
         state = _internal_state(chain)
         est = chain.estimator
         state.update({n: getattr(est, n) for n in ("_prev", "_prev_fit", "_pair_used", "station_stops")})
