@@ -232,14 +232,22 @@ class MotionFilter:
     REACQUIRE = 50                                     # samples (5 s at 0.1 s)
     REACQUIRE_BOTH, REACQUIRE_DISTANCE = 1, 2          # what the next update restarts from
 
+    def _vzad_predicted(self) -> float:
+        """V_zad at the prediction's instant [m/s]: 0 for the filters of absolute speed."""
+        return self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
+
+    def _position_variance(self, position_meas: float) -> float:
+        """Variance of the measured distance [m^2] at ``position_meas`` [m]."""
+        return self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
+
     def gate(self, speed_meas: float, position_meas: float) -> tuple[bool, bool]:
         """(use the speed, use the distance) [m/s, m] at this sample, against the prediction;
         counts refusals in ``rejected``, sets ``speed_fit`` (the speed may be identified) and
         what the next ``update`` takes. The REACQUIRE-th refusal in a row of the distance is
         taken instead, and the next ``update`` restarts the distance from it -- the whole filter
         when the speed is refused too (counted in ``reacquired``)."""
-        vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
-        r1 = self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
+        vzad = self._vzad_predicted()
+        r1 = self._position_variance(position_meas)
         e0, e1 = speed_meas - vzad - self._xb0, position_meas - self._xb1
         s00, s11 = self._m00 + self._r0, self._m11 + r1
         g2 = self.GATE_SIGMAS * self.GATE_SIGMAS
@@ -270,11 +278,11 @@ class MotionFilter:
             return
         self._xh0, self._xh1 = self._xb0, self._xb1
         self._p00, self._p01, self._p11 = self._m00, self._m01, self._m11
-        self.vzad_hat = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
+        self.vzad_hat = self._vzad_predicted()
 
     def _update_one(self, speed_meas: float, position_meas: float, speed: bool) -> None:
         """The update with the speed alone (H = [1 0]) or the distance alone (H = [0 1])."""
-        vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
+        vzad = self._vzad_predicted()
         m00, m01, m11 = self._m00, self._m01, self._m11
         if speed:
             s = m00 + self._r0
@@ -282,7 +290,7 @@ class MotionFilter:
             k0, k1 = m00 / s, m01 / s
             self._p00, self._p01, self._p11 = m00 - k0 * m00, m01 - k0 * m01, m11 - k1 * m01
         else:
-            r1 = self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
+            r1 = self._position_variance(position_meas)
             s = m11 + r1
             e = position_meas - self._xb1
             k0, k1 = m01 / s, m11 / s
@@ -305,7 +313,7 @@ class MotionFilter:
             # its measurement (uncorrelated with the speed, its noise's variance)
             self._update_one(speed_meas, position_meas, True)
             self._xh1, self._p01 = position_meas, 0.0
-            self._p11 = self.cfg.position_noise_std(position_meas) ** 2
+            self._p11 = self._position_variance(position_meas)
             return
         use_v, use_x = self._use_speed, self._use_position
         if not (use_v and use_x):
@@ -327,9 +335,9 @@ class MotionFilter:
                                                self.cfg.position_noise_std(position_meas))
             self._singer_copy(posterior=True)
             return
-        vzad = self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
+        vzad = self._vzad_predicted()
         r0 = self._r0
-        r1 = self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
+        r1 = self._position_variance(position_meas)
         m00, m01, m11 = self._m00, self._m01, self._m11
         s00, s11 = m00 + r0, m11 + r1                     # M + R and its inverse
         det = s00 * s11 - m01 * m01

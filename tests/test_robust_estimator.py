@@ -122,10 +122,9 @@ def test_a_distance_that_jumps_for_good_is_taken_again():
     assert max(abs(r["filter.speed"] - r["car.speed"]) for r in rows[1490:1600]) < 0.1
 
 
-def station_runs(seed: int, stops: int):
-    """Traction to 60 km/h, coast, brake to a stop at 1200 m, 25 s at the station; repeated.
-    Yields the outputs after every step."""
-    chain = RailCarChain(ChainConfig(vehicle=VehicleParams(mass=34.0), seed=seed), GradeProfile.level())
+def station_runs(chain: RailCarChain, stops: int):
+    """Traction to 60 km/h, coast, brake to a stop at 1200 m, 25 s at the station; repeated
+    ``stops`` times on ``chain`` (a 34 t car). Yields the outputs after every step."""
     t, phase, held, done = 0.0, "traction", 0.0, 0
     while done < stops:
         s = chain.plant.state
@@ -153,7 +152,8 @@ def test_est_mass_is_always_finite_and_plausible_after_departures():
     """Seed 2 made 1/(Pg) <= 0 for a sample 0.5-0.6 s after 4 of 27 departures (est.mass inf):
     now est.mass keeps its last good value, std >= est.mass_std_initial, est.status 3."""
     degraded = 0
-    for out in station_runs(seed=2, stops=27):
+    chain = RailCarChain(ChainConfig(vehicle=VehicleParams(mass=34.0), seed=2), GradeProfile.level())
+    for out in station_runs(chain, stops=27):
         assert math.isfinite(out["est.mass"]) and math.isfinite(out["est.mass_std"])
         assert 30.0 / 5 <= out["est.mass"] <= 30.0 * 5
         if out["est.status"] == OnlineEstimator.DEGRADED:
