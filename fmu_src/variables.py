@@ -159,7 +159,7 @@ def variables_for(fmu: str) -> tuple[Var, ...]:
 
 
 def markdown_table(fmu: str) -> str:
-    """The README's table of one FMU's variables, generated from this table."""
+    """docs/variables.md's table of one FMU's variables, generated from this table."""
     lines = ["| name | causality | type | unit | start | description |", "|---|---|---|---|---|---|"]
     for v in variables_for(fmu):
         start = f'"{v.start}"' if v.type == "String" else f"{v.start:g}" if isinstance(v.start, float) else str(v.start)
@@ -167,21 +167,21 @@ def markdown_table(fmu: str) -> str:
     return "\n".join(lines)
 
 
-def readme_block() -> str:
-    """What stands between the README's variables markers."""
+def docs_block() -> str:
+    """What stands between the variables markers of docs/variables.md."""
     return "\n" + "\n\n".join(f"### `{n}`\n\n{markdown_table(n)}" for n in BOTH) + "\n"
 
 
 if __name__ == "__main__":
     import sys
     from pathlib import Path
-    if "--update-readme" in sys.argv:
-        readme = Path(__file__).resolve().parent.parent / "README.md"
-        text = readme.read_text(encoding="utf-8")
+    if "--update-docs" in sys.argv:
+        page = Path(__file__).resolve().parent.parent / "docs" / "variables.md"
+        text = page.read_text(encoding="utf-8")
         head, rest = text.split("<!-- variables:start -->")
         tail = rest.split("<!-- variables:end -->")[1]
-        readme.write_text(f"{head}<!-- variables:start -->{readme_block()}<!-- variables:end -->{tail}",
-                          encoding="utf-8")
-        print(f"updated {readme}")
+        page.write_text(f"{head}<!-- variables:start -->{docs_block()}<!-- variables:end -->{tail}",
+                        encoding="utf-8")
+        print(f"updated {page}")
     else:
-        print(readme_block())
+        print(docs_block())
