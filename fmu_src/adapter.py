@@ -107,7 +107,7 @@ def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, Sp
     return grade, speed
 
 
-def initialise(slave, build):
+def initialise(build):
     """Build the model chain from the parameters; raise ParameterError with a clear message
     if it fails (the binary logs it, once)."""
     try:

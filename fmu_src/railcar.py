@@ -28,7 +28,7 @@ class RailCar(Fmi2Slave):
         return chain
 
     def exit_initialization_mode(self):
-        self.chain = initialise(self, self._build)
+        self.chain = initialise(self._build)
 
     def do_step(self, current_time, step_size):
         if self.chain is None:

@@ -22,7 +22,7 @@ class RailCarEstimator(Fmi2Slave):
         return EstimatorChain(ident, filt, station, grade, speed, track_settings(v))
 
     def exit_initialization_mode(self):
-        self.chain = initialise(self, self._build)
+        self.chain = initialise(self._build)
 
     def do_step(self, current_time, step_size):
         if self.chain is None:
