@@ -32,25 +32,25 @@ def noise_lib(tmp_path_factory):
                     "-pedantic", "-fPIC", "-shared", str(CORE / "noise.c"), "-o", str(lib), "-lm"],
                    check=True, capture_output=True, text=True)
     dll = ctypes.CDLL(str(lib))
-    dll.railcar_stream_seed.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint32]
-    dll.railcar_stream_normal.argtypes = [ctypes.c_void_p]
-    dll.railcar_stream_normal.restype = ctypes.c_double
-    dll.railcar_stream_fill.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long]
+    dll.rc_stream_seed.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint32]
+    dll.rc_stream_normal.argtypes = [ctypes.c_void_p]
+    dll.rc_stream_normal.restype = ctypes.c_double
+    dll.rc_stream_fill.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long]
     return dll
 
 
 class CStream:
-    """A railcar_stream in a 16-byte-aligned buffer (the struct holds 128-bit integers)."""
+    """A rc_stream in a 16-byte-aligned buffer (the struct holds 128-bit integers)."""
 
     def __init__(self, lib, seed: int, child: int):
         self._buf = ctypes.create_string_buffer(32 + 16)
         self.ptr = (ctypes.addressof(self._buf) + 15) & ~15
         self.lib = lib
-        lib.railcar_stream_seed(self.ptr, seed, child)
+        lib.rc_stream_seed(self.ptr, seed, child)
 
     def draws(self, n: int) -> np.ndarray:
         out = np.empty(n)
-        self.lib.railcar_stream_fill(self.ptr, out.ctypes.data, n)
+        self.lib.rc_stream_fill(self.ptr, out.ctypes.data, n)
         return out
 
 
@@ -74,7 +74,7 @@ def test_single_draws_continue_the_stream_as_numpys_blocks_do(noise_lib):
     stream = noise_streams(5, STREAMS)["speed_sensor"]
     c = CStream(noise_lib, 5, 1)
     for _ in range(10_000):
-        assert noise_lib.railcar_stream_normal(c.ptr) == stream()
+        assert noise_lib.rc_stream_normal(c.ptr) == stream()
 
 
 SANITIZED_MAIN = r"""
@@ -83,13 +83,13 @@ SANITIZED_MAIN = r"""
 #include "noise.h"
 int main(int argc, char **argv)
 {
-    railcar_stream s;                       /* on the stack: any alignment bug shows */
+    rc_stream s;                       /* on the stack: any alignment bug shows */
     if (argc != 4) return 2;
     long n = atol(argv[3]);
-    railcar_stream_seed(&s, strtoull(argv[1], NULL, 10), (unsigned)atoi(argv[2]));
+    rc_stream_seed(&s, strtoull(argv[1], NULL, 10), (unsigned)atoi(argv[2]));
     double *out = malloc((size_t)n * sizeof *out);
     if (!out) return 2;
-    railcar_stream_fill(&s, out, n);
+    rc_stream_fill(&s, out, n);
     fwrite(out, sizeof *out, (size_t)n, stdout);
     free(out);
     return 0;

@@ -5,7 +5,7 @@
 
 #include "ziggurat_tables.h"
 
-typedef railcar_u128 u128;
+typedef rc_u128 u128;
 
 /* SeedSequence: entropy words hashed into a pool of four 32-bit words (arithmetic mod 2^32) */
 #define SS_INIT_A 0x43b0d7e5u
@@ -57,7 +57,7 @@ static void seed_words(uint64_t seed, uint32_t child, uint64_t out[4])
 
 static const u128 PCG_MULT = ((u128)2549297995355413924ULL << 64) | 4865540595714422341ULL;
 
-void railcar_stream_seed(railcar_stream *s, uint64_t seed, uint32_t child)
+void rc_stream_seed(rc_stream *s, uint64_t seed, uint32_t child)
 {
     uint64_t w[4];
     seed_words(seed, child, w);
@@ -68,7 +68,7 @@ void railcar_stream_seed(railcar_stream *s, uint64_t seed, uint32_t child)
     s->state = s->state * PCG_MULT + s->inc;
 }
 
-static uint64_t next_u64(railcar_stream *s)
+static uint64_t next_u64(rc_stream *s)
 {
     s->state = s->state * PCG_MULT + s->inc;
     uint64_t v = (uint64_t)(s->state >> 64) ^ (uint64_t)s->state;
@@ -76,7 +76,7 @@ static uint64_t next_u64(railcar_stream *s)
     return (v >> rot) | (v << ((-rot) & 63u));
 }
 
-static double next_double(railcar_stream *s)
+static double next_double(rc_stream *s)
 {
     return (double)(next_u64(s) >> 11) * (1.0 / 9007199254740992.0);   /* 53 bits, [0, 1) */
 }
@@ -84,7 +84,7 @@ static double next_double(railcar_stream *s)
 static const double ZIG_R = 0x1.d3bb48209ad33p+1;        /* the ziggurat's rightmost edge */
 static const double ZIG_INV_R = 0x1.183aa6c20e8c1p-2;    /* 1 / ZIG_R, as a double */
 
-double railcar_stream_normal(railcar_stream *s)
+double rc_stream_normal(rc_stream *s)
 {
     for (;;) {
         uint64_t r = next_u64(s);
@@ -108,7 +108,7 @@ double railcar_stream_normal(railcar_stream *s)
     }
 }
 
-void railcar_stream_fill(railcar_stream *s, double *out, long n)
+void rc_stream_fill(rc_stream *s, double *out, long n)
 {
-    for (long i = 0; i < n; i++) out[i] = railcar_stream_normal(s);
+    for (long i = 0; i < n; i++) out[i] = rc_stream_normal(s);
 }

@@ -14,20 +14,20 @@
 #include <stdint.h>
 
 /* 128-bit arithmetic: gcc and clang on 64-bit targets (MSVC would need a two-word version) */
-__extension__ typedef unsigned __int128 railcar_u128;
+__extension__ typedef unsigned __int128 rc_u128;
 
 typedef struct {
-    railcar_u128 state, inc;        /* PCG64 */
-} railcar_stream;
+    rc_u128 state, inc;        /* PCG64 */
+} rc_stream;
 
 /* The stream numpy gives SeedSequence(seed).spawn(n)[child] (any n > child): seed in
  * 0..2^64-1, child in 0..2^32-1. */
-void railcar_stream_seed(railcar_stream *s, uint64_t seed, uint32_t child);
+void rc_stream_seed(rc_stream *s, uint64_t seed, uint32_t child);
 
 /* The next standard normal draw [-]. */
-double railcar_stream_normal(railcar_stream *s);
+double rc_stream_normal(rc_stream *s);
 
-/* n draws into out (what n calls of railcar_stream_normal give). */
-void railcar_stream_fill(railcar_stream *s, double *out, long n);
+/* n draws into out (what n calls of rc_stream_normal give). */
+void rc_stream_fill(rc_stream *s, double *out, long n);
 
 #endif

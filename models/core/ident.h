@@ -1,0 +1,70 @@
+/* ident.h -- models.identification.ParameterIdentifier for the paper's differenced rows
+ * (est.method 0 and the LS part of the others' rows is not here): the first batch with its
+ * prior, the running estimate before it, the recursive step (8), (9), (11) with mu = 1/n or a
+ * constant forgetting mu0, the sandwich covariance, sigma^2 from LAG sums, the mass restart at a
+ * station (with est.run_forgetting) and the positive-definiteness repair. */
+#ifndef RAILCAR_IDENT_H
+#define RAILCAR_IDENT_H
+
+#define RC_LAG 50              /* ParameterIdentifier.LAG */
+
+typedef struct {               /* models.identification.IdentifierConfig (method 0) */
+    double dt;                 /* [s] */
+    long batch_size;           /* >= 4 */
+    double forgetting;         /* mu0 in [0, 1) */
+    double gamma;
+    double mass_initial, mass_std_initial;             /* [t] */
+    double A0_initial, A1_initial, A2_initial;
+    double A0_std_initial, A1_std_initial, A2_std_initial;
+    double sigma2_initial;     /* [(m/s)^2] */
+    double speed_std;          /* [m/s] */
+    int frozen;                /* bool */
+    double run_forgetting;     /* [0, 1) */
+} rc_ident_config;
+
+typedef struct {               /* models.identification.ParameterIdentifier */
+    rc_ident_config cfg;
+    double theta0[4], scale, s2_ref, s2_prior[4], j0[4];
+    double end_factor, end_weight;     /* 2 and 1 for the paper's rows */
+    double theta[4], prior_mean[4];
+    int has_running;  double running_theta[4];         /* _running_theta */
+    double batch_info_inv[16], batch_j0[4], batch_s2p[4];   /* _batch_info_inv, _batch_prior */
+    int has_model_cov;  double model_cov[16];          /* cache */
+    int has_S;  double S[16];
+    long n;
+    double q_e, s2;
+    double (*batch_phi)[4];    /* batch_size rows, allocated by rc_ident_init */
+    double *batch_y;
+    int *batch_contiguous;
+    long batch_len;
+    long mass_restarts, repairs;
+    double W[16], D[16];
+    int has_last_phi;  double last_phi[4];
+    int has_last_err;  double last_err;
+    double c0, c1;  long n_c1;
+    double window[RC_LAG];  long window_len, window_start;  double window_sum;   /* ring */
+    int has_cL;  double cL;  long n_cL;
+    int has_cov;  double cov[16];                      /* caches */
+    int has_sigma2;  double sigma2;
+    int has_J;  double J[16];                          /* with forgetting */
+} rc_ident;
+
+/* ParameterIdentifier.__init__; allocates the batch buffers (0, or -1 out of memory) */
+int rc_ident_init(rc_ident *id, const rc_ident_config *cfg);
+void rc_ident_free(rc_ident *id);
+void rc_ident_reset(rc_ident *id);
+void rc_ident_update(rc_ident *id, double traction, double brake, double speed, double speed_next,
+                     double grade, double dt, int contiguous);
+void rc_ident_restart_mass(rc_ident *id);
+/* model_theta, theta -> out[4]; covariance (flat 4x4), model covariance */
+void rc_ident_model_theta(const rc_ident *id, double *out);
+const double *rc_ident_covariance(rc_ident *id);
+const double *rc_ident_model_covariance(rc_ident *id);
+double rc_ident_model_variance_along(rc_ident *id, const double *phi);
+void rc_ident_stds(rc_ident *id, double *out);
+double rc_ident_mass(const rc_ident *id);
+double rc_ident_mass_std(rc_ident *id);
+double rc_ident_sigma2(rc_ident *id);
+long rc_ident_samples(const rc_ident *id);
+
+#endif

@@ -1,0 +1,38 @@
+/* rc_common.h -- what every part of the C model core shares: status codes, the error message
+ * buffer, the constants of models/units.py, and Python's arithmetic where C's differs.
+ *
+ * The core is the C twin of the Python reference in models/: every expression keeps Python's
+ * operand order and association, and it is compiled with -ffp-contract=off (no fused
+ * multiply-add), so results are bit-identical (tests/test_core_*.py compare them exactly).
+ * No Python.h, no globals, no allocation per step.
+ */
+#ifndef RAILCAR_COMMON_H
+#define RAILCAR_COMMON_H
+
+#include <math.h>
+
+#define RC_G 9.81                 /* gravity [m/s^2], models.units.G */
+
+typedef enum {
+    RC_OK = 0,
+    RC_REJECTED = 1,      /* a bad input or step: nothing was changed (StepRejected) */
+    RC_BAD_CONFIG = 2,    /* a configuration the core refuses (ValueError) */
+    RC_MATH = 3           /* Python would raise (division by zero, sqrt of a negative) */
+} rc_status;
+
+#define RC_MSG_SIZE 256
+typedef struct {
+    char msg[RC_MSG_SIZE];        /* names the variable and its value; "" when status is RC_OK */
+} rc_error;
+
+/* CPython's x ** 2 calls libm pow(), which is not always x * x in the last bit. The volatile
+ * pointer keeps the compiler from turning pow(x, 2.0) into x * x. */
+static double (*volatile rc_libm_pow)(double, double) = pow;
+static inline double rc_square(double x) { return rc_libm_pow(x, 2.0); }
+
+/* Python's max(a, b) / min(a, b) for floats: the first unless the second is strictly
+ * greater / smaller (so NaN and signed zeros come out as in Python). */
+static inline double rc_max(double a, double b) { return b > a ? b : a; }
+static inline double rc_min(double a, double b) { return b < a ? b : a; }
+
+#endif
