@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _fast
+from . import linalg4
 from .differentiation import centred_slope_weights
 from .units import G
 
@@ -263,8 +264,10 @@ class ParameterIdentifier:
 
     The per-sample path is scalar Python on flat 4x4 lists (numpy's per-call overhead on 4x4
     arrays dominated the step); it computes eqs. (8), (9), (11) exactly as ``rls_step`` does,
-    which tests check. Rare events (the first batch, a mass restart, regularised forgetting)
-    use numpy.
+    which tests check. Rare events (the first batch, a mass restart, regularised forgetting,
+    the positive-definiteness repair) use models/linalg4.py, scalar code with a fixed operation
+    order that models/core/linalg4.c reproduces bit for bit (not numpy/LAPACK: est.method 2's
+    _reweight_prior is the one numpy path left).
     """
 
     def __init__(self, cfg: IdentifierConfig):
@@ -343,7 +346,7 @@ class ParameterIdentifier:
         self._n_cL = 0
         self._cov = None              # cached covariance (flat), cleared by every change
         self._sigma2 = None           # cached sigma2(), cleared with it
-        self._J = None                # information J, kept explicitly only with forgetting
+        self._J = None                # information J (flat 4x4), kept only with forgetting
 
     # ------------------------------------------------------------ state views
 
@@ -486,9 +489,15 @@ class ParameterIdentifier:
         if forgetting > 0.0:
             # regularised forgetting: keep the prior's information (anti-windup)
             lam = 1.0 - forgetting
-            self._J = lam * (self._J - self.J0) + self.J0 + np.outer(phi, phi)
-            S_new = np.linalg.inv(np.linalg.inv(self.S) + mu * mu * self.J0)
-            self._S = [float(x) for x in S_new.ravel()]
+            J, j0 = self._J, self._j0
+            for i in range(4):
+                for j in range(4):
+                    d = j0[i] if i == j else 0.0
+                    J[4 * i + j] = lam * (J[4 * i + j] - d) + d + phi[i] * phi[j]
+            R = linalg4.inverse(self._S)
+            for i in range(4):
+                R[5 * i] += mu * mu * j0[i]
+            self._S = linalg4.inverse(R)
             self.s2 = (1.0 - mu) * self.s2 + mu * pred_err ** 2 / gain_den
         else:
             self.q_e += pred_err ** 2 / gain_den
@@ -502,8 +511,8 @@ class ParameterIdentifier:
         filter used to predict with the configured mass (30 t for a 44 t car: 0.04 m/s per step)
         for the first 5 s. The outputs (theta, est.*) keep the configured values until the batch,
         as the FMU interface states."""
-        phi = np.array(self._batch_phi)
-        n = len(phi)
+        rows = self._batch_phi
+        n = len(rows)
         # The mass prior's weight: over n pairs the differenced measurement noise telescopes to
         # its two end errors, so the data's variance along 1/(Pg) is (2a + n b)/(n F)^2 and the
         # prior's fair weight is (b + 2a/n) / prior variance -- b alone (the batch's weight, right
@@ -515,11 +524,14 @@ class ParameterIdentifier:
         prior_var0 = s2p[0] / j0[0]
         s2p[0] = b + self._end_factor * a / n
         j0[0] = s2p[0] / prior_var0
-        J0 = np.diag(j0)
-        info = phi.T @ phi + J0
-        rhs = phi.T @ np.array(self._batch_y) + J0 @ np.array(self._prior_mean)
-        self._running_theta = [float(x) for x in np.linalg.solve(info, rhs)]
-        self._batch_info_inv = [float(x) for x in np.linalg.inv(info).ravel()]
+        info = linalg4.gram(rows)                        # Phi^T Phi + J0
+        for i in range(4):
+            info[5 * i] += j0[i]
+        pty = linalg4.gram_t_vec(rows, self._batch_y)    # Phi^T Y + J0 Theta0
+        pm = self._prior_mean
+        rhs = [pty[i] + j0[i] * pm[i] for i in range(4)]
+        self._running_theta = linalg4.solve(info, rhs)
+        self._batch_info_inv = linalg4.inverse(info)
         self._batch_prior = (j0, s2p)
 
     def _configured_noise(self) -> tuple[float, float]:
@@ -529,24 +541,36 @@ class ParameterIdentifier:
                 self._scale ** 2 * max(self.cfg.sigma2_initial, 1e-12))
 
     def _solve_batch(self) -> None:
-        phi = np.array(self._batch_phi)
-        y = np.array(self._batch_y)
+        rows = self._batch_phi
+        y = self._batch_y
         n = len(y)
-        info = phi.T @ phi + self.J0
-        theta = np.linalg.solve(info, phi.T @ y + self.J0 @ np.array(self._prior_mean))
-        self._theta = [float(x) for x in theta]
-        self._S = [float(x) for x in np.linalg.inv(info / n).ravel()]
+        j0 = self._j0
+        info = linalg4.gram(rows)                        # Phi^T Phi + J0
+        for i in range(4):
+            info[5 * i] += j0[i]
+        pty = linalg4.gram_t_vec(rows, y)
+        pm = self._prior_mean
+        theta = linalg4.solve(info, [pty[i] + j0[i] * pm[i] for i in range(4)])
+        self._theta = theta
+        self._S = linalg4.inverse([x / n for x in info])
         if self.cfg.forgetting > 0.0:
-            self._J = info.copy()
-        resid = y - phi @ theta
-        self.q_e = float(resid @ resid)
+            self._J = list(info)
+        resid = [y[k] - linalg4.dot(rows[k], theta) for k in range(n)]
+        q_e = 0.0
+        for r in resid:
+            q_e += r * r
+        self.q_e = q_e
         self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
         self._running_theta = self._batch_info_inv = self._model_cov = None   # W, D hold the batch
         self.c0 = self.q_e / max(n - 4, 1)
-        lagged = [resid[k] * resid[k - 1] for k in range(1, n) if self._batch_contiguous[k]]
-        self._n_c1 = len(lagged)
-        self.c1 = float(np.mean(lagged)) if lagged else 0.0
-        self._last_err = float(resid[-1])
+        lagged_sum, n_lagged = 0.0, 0
+        for k in range(1, n):
+            if self._batch_contiguous[k]:
+                lagged_sum += resid[k] * resid[k - 1]
+                n_lagged += 1
+        self._n_c1 = n_lagged
+        self.c1 = lagged_sum / n_lagged if n_lagged else 0.0
+        self._last_err = resid[-1]
         self.n = n
         self._batch_phi, self._batch_y, self._batch_contiguous = [], [], []
 
@@ -556,10 +580,11 @@ class ParameterIdentifier:
         unexcited, near the prior's J0 / n): in a 10 h service day an eigenvalue went to -2e-3,
         then the LS ran away (A0 -32 N/kN) and sqrt(gain) failed. R is symmetrised and its
         eigenvalues lifted to the prior's information min(J0) / n, the least any direction has."""
-        R = np.linalg.inv(self.S)
-        w, V = np.linalg.eigh(0.5 * (R + R.T))
-        w = np.maximum(w, min(self._j0) / self._n_info())
-        self._S = [float(x) for x in ((V / w) @ V.T).ravel()]
+        R = linalg4.inverse(self._S)
+        w, V = linalg4.eigh([0.5 * (R[4 * i + j] + R[4 * j + i]) for i in range(4) for j in range(4)])
+        floor = min(self._j0) / self._n_info()
+        w = [max(x, floor) for x in w]
+        self._S = linalg4.inverse_from_eigen(w, V)
         self.repairs += 1
         self._cov = self._sigma2 = self._model_cov = None
 
@@ -568,11 +593,11 @@ class ParameterIdentifier:
         self.mass_restarts += 1
         if self._S is None or self.cfg.frozen:
             return
-        if np.linalg.eigvalsh(self.S)[0] <= 0.0:
+        if not linalg4.is_positive_definite(self._S):
             self._restore_positive_definite()
         if self._slope_rows:
             self._reweight_prior()
-        R = np.linalg.inv(self.S)
+        R = linalg4.inverse(self._S)
         # The sandwich's meat follows the marginalisation: with Theta1 out of J the A's are the
         # estimator A - t (1/(Pg)), t = J_A0 / J_00, whose meat is T M T^T, T = [-t, I] (M's A
         # block kept as it was is not the meat of that estimator). The open run's end closes
@@ -586,31 +611,44 @@ class ParameterIdentifier:
         lam = 1.0 - self.cfg.run_forgetting
         if self._last_phi is not None:
             _add_outer(self._D, self._end_row(self._last_phi))
-        t = R[1:, 0] / R[0, 0]
+        t = [R[4 * i] / R[0] for i in (1, 2, 3)]
         for meat in (self._W, self._D):
-            M = np.array(meat).reshape(4, 4)
-            M_AA = (M[1:, 1:] - np.outer(t, M[0, 1:]) - np.outer(M[1:, 0], t) + np.outer(t, t) * M[0, 0])
-            M[1:, 1:] = 0.5 * (M_AA + M_AA.T) * lam
-            M[0, :] = M[:, 0] = 0.0
-            meat[:] = [float(x) for x in M.ravel()]
-        R[1:, 1:] -= np.outer(R[1:, 0], R[0, 1:]) / R[0, 0]       # marginalise Theta1 out
-        if lam < 1.0:
-            j0 = np.diag(self._j0[1:]) / self._n_info()
-            R[1:, 1:] = lam * (R[1:, 1:] - j0) + j0
-        R[0, 1:] = 0.0
-        R[1:, 0] = 0.0
-        R[0, 0] = self._j0[0] / self._n_info()
-        self._S = [float(x) for x in np.linalg.inv(R).ravel()]
+            M = meat
+            m00 = M[0]
+            M_AA = [((M[4 * i + j] - t[i - 1] * M[j]) - M[4 * i] * t[j - 1]) + t[i - 1] * t[j - 1] * m00
+                    for i in (1, 2, 3) for j in (1, 2, 3)]          # 3x3, row-major
+            for i in range(3):
+                for j in range(3):
+                    M[4 * (i + 1) + j + 1] = 0.5 * (M_AA[3 * i + j] + M_AA[3 * j + i]) * lam
+            for k in range(4):
+                M[k] = 0.0
+                M[4 * k] = 0.0
+        n_info = self._n_info()
+        self._marginalise_mass(R, lam, [x / n_info for x in self._j0])
+        self._S = linalg4.inverse(R)
         if self._J is not None:
-            J = self._J
-            J[1:, 1:] -= np.outer(J[1:, 0], J[0, 1:]) / J[0, 0]
-            if lam < 1.0:
-                j0 = np.diag(self._j0[1:])
-                J[1:, 1:] = lam * (J[1:, 1:] - j0) + j0
-            J[0, 1:] = J[1:, 0] = 0.0
-            J[0, 0] = self._j0[0]
+            self._marginalise_mass(self._J, lam, self._j0)
         self._last_phi = None
         self._cov = None
+
+    @staticmethod
+    def _marginalise_mass(R: list, lam: float, j0: list) -> None:
+        """In place on a flat 4x4 information matrix R: Theta1 marginalised out of the A's block
+        (R_AA - R_A0 R_0A / R_00), the data's share of it forgotten (lam (R_AA - j0_A) + j0_A,
+        when lam < 1), and Theta1 reopened with its prior information j0[0] alone."""
+        r00 = R[0]
+        for i in (1, 2, 3):
+            for j in (1, 2, 3):
+                R[4 * i + j] -= R[4 * i] * R[j] / r00
+        if lam < 1.0:
+            for i in (1, 2, 3):
+                for j in (1, 2, 3):
+                    d = j0[i] if i == j else 0.0
+                    R[4 * i + j] = lam * (R[4 * i + j] - d) + d
+        for k in (1, 2, 3):
+            R[k] = 0.0
+            R[4 * k] = 0.0
+        R[0] = j0[0]
 
     def _reweight_prior(self) -> None:
         """est.method 2, at a mass restart: the prior's weight follows the identified process
@@ -636,7 +674,8 @@ class ParameterIdentifier:
         self._theta = [float(x) for x in np.linalg.solve(J_new, J @ theta + d * np.array(self._prior_mean))]
         self._S = [float(x) for x in np.linalg.inv(J_new / n).ravel()]
         if self._J is not None:
-            self._J += np.diag(d)
+            for i in range(4):
+                self._J[5 * i] += float(d[i])
         self._j0 = [float(x) for x in j0_new]
         self.s2_prior = [s2_new] * 4
         self.J0 = np.diag(j0_new)
@@ -685,7 +724,7 @@ class ParameterIdentifier:
         a, b = self.noise_split()
         b = self._process_share(a, b)
         if self._J is not None:                  # forgetting: J kept explicitly
-            Ji = [float(x) for x in np.linalg.inv(self._J).ravel()]
+            Ji = linalg4.inverse(self._J)
         else:                                    # mu = 1/n: J = n R, so J^-1 = S / n exactly
             k = 1.0 / self._n_info()
             Ji = [x * k for x in self._S]
