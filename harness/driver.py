@@ -240,10 +240,10 @@ def run_on_chain(scenario, overrides: dict | None = None):
     ValueError, naming the parameter, if the configuration rejects one."""
     from fmu_src.adapter import chain_config, load_profiles
     from fmu_src.variables import RAILCAR, variables_for
-    from models.chain import RailCarChain
+    from models.compiled import open_chain
     v = {x.name: scenario.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
     v.update(overrides or {})
-    return chain_result(RailCarChain(chain_config(v), *load_profiles(v, None)), scenario)
+    return chain_result(open_chain(chain_config(v), *load_profiles(v, None)), scenario)
 
 
 def chain_result(chain, scenario):
@@ -277,8 +277,8 @@ def drive_chain(chain, scenario, max_steps: int | None = None,
     steps = int(round(scenario.duration_s / h))
     for k in range(steps if max_steps is None else min(steps, max_steps)):
         t = k * h
-        s = chain.plant.state
-        traction, brake, dm = driver.demands(t, s.speed, s.position)
+        last = rows[-1]        # the truth the closed loop sees (the car's own speed and distance)
+        traction, brake, dm = driver.demands(t, last["car.speed"], last["car.position"])
         payload += dm
         if driver.finished and scenario.stop_after_last_phase:
             break

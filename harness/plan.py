@@ -6,7 +6,8 @@ on the nominal car (the estimator's initial mass and resistance), without noise.
 """
 from __future__ import annotations
 
-from models.chain import ChainConfig, RailCarChain
+from models.chain import ChainConfig
+from models.compiled import open_chain
 from models.dynamics import VehicleParams
 from models.filters import FilterConfig
 from models.track import GradeProfile
@@ -28,24 +29,25 @@ def plan_speed_profile(scenario: Scenario, spacing_m: float = 10.0) -> tuple[lis
     if p("track.grade_profile"):
         path = profile_file(p("track.grade_profile"), None)
         grade = GradeProfile.from_csv_text(read_text(path, ScenarioError), str(path))
-    chain = RailCarChain(ChainConfig(vehicle=vehicle, process_noise_psd=0.0,
+    chain = open_chain(ChainConfig(vehicle=vehicle, process_noise_psd=0.0,
                                      filter=FilterConfig(speed_std=1e-9, position_std=1e-9)), grade)
     driver = PhaseDriver(scenario.phases, vehicle.mass, vehicle.traction_force_max, vehicle.brake_force_max)
     h = scenario.step_s
     xs, vs = [0.0], [0.0]
     moved = False
     for k in range(int(round(scenario.duration_s / h))):
-        s = chain.plant.state
-        f, b, _ = driver.demands(k * h, s.speed, s.position)
+        out = chain.outputs()
+        f, b, _ = driver.demands(k * h, out["car.speed"], out["car.position"])
         chain.do_step(k * h, h, f, b, 0.0)
-        s = chain.plant.state
-        if s.speed > 0:
+        out = chain.outputs()
+        speed, position = out["car.speed"], out["car.position"]
+        if speed > 0:
             moved = True
-        if s.position >= xs[-1] + spacing_m or (moved and s.speed <= 0.0):
-            if s.position > xs[-1]:
-                xs.append(s.position)
-                vs.append(s.speed)
-        if moved and s.speed <= 0.0:
+        if position >= xs[-1] + spacing_m or (moved and speed <= 0.0):
+            if position > xs[-1]:
+                xs.append(position)
+                vs.append(speed)
+        if moved and speed <= 0.0:
             break
     return xs, vs
 

@@ -146,7 +146,10 @@ def build_estimator(id_cfg: IdentifierConfig, filt: FilterConfig, station: Stati
 
 
 class RailCarChain:
-    """Plant + sensors + estimator; one instance per FMU instance."""
+    """Plant + sensors + estimator; one instance per FMU instance. The Python reference: the
+    C core (models/compiled.py) is its bit-identical twin."""
+
+    engine = "python"
 
     def __init__(self, cfg: ChainConfig, grade_profile: GradeProfile,
                  speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
@@ -330,6 +333,8 @@ class EstimatorChain:
     prediction) and the identification up to t. The estimator is built at the first step,
     whose size h is the nominal sampling period.
     """
+
+    engine = "python"
 
     def __init__(self, identifier: IdentifierConfig, filt: FilterConfig, station: StationConfig,
                  grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None,

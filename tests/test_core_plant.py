@@ -29,7 +29,7 @@ from models.track import GradeProfile
 ROOT = Path(__file__).resolve().parent.parent
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "plant_shim.c"
-SOURCES = [CORE / "plant.c", CORE / "track.c", CORE / "noise.c", SHIM]
+SOURCES = [CORE / "plant.c", CORE / "track.c", CORE / "noise.c", CORE / "repr.c", SHIM]
 CFLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic",
           "-fPIC"]
 STREAMS = ("process", "speed_sensor", "position_sensor", "track_sensor")   # models/chain.py's

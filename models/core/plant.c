@@ -117,60 +117,11 @@ static void update_outputs(rc_plant *pl, const dyn *d)
         s->mode = RC_COASTING;
 }
 
-/* Python's repr(float) (shortest round trip; exponent form below 1e-4 and from 1e16 on) */
-static void py_repr(double v, char *out, size_t size)
-{
-    if (isnan(v)) { snprintf(out, size, "nan"); return; }
-    if (isinf(v)) { snprintf(out, size, v > 0 ? "inf" : "-inf"); return; }
-    char buf[40];
-    for (int prec = 0; prec <= 16; prec++) {
-        snprintf(buf, sizeof buf, "%.*e", prec, v);
-        if (strtod(buf, NULL) == v)
-            break;
-    }
-    char digits[24];
-    int nd = 0, neg = buf[0] == '-';
-    const char *c = buf + neg;
-    for (; *c != 'e'; c++)
-        if (*c != '.')
-            digits[nd++] = *c;
-    int e = atoi(c + 1);
-    while (nd > 1 && digits[nd - 1] == '0')
-        nd--;
-    digits[nd] = '\0';
-    char res[48];
-    size_t n = 0;
-    if (neg) res[n++] = '-';
-    if (e < -4 || e >= 16) {
-        res[n++] = digits[0];
-        if (nd > 1) {
-            res[n++] = '.';
-            for (int i = 1; i < nd; i++) res[n++] = digits[i];
-        }
-        snprintf(res + n, sizeof res - n, "e%c%02d", e < 0 ? '-' : '+', e < 0 ? -e : e);
-    } else if (e < 0) {
-        res[n++] = '0';
-        res[n++] = '.';
-        for (int i = -1; i > e; i--) res[n++] = '0';
-        for (int i = 0; i < nd; i++) res[n++] = digits[i];
-        res[n] = '\0';
-    } else {
-        for (int i = 0; i <= e; i++) res[n++] = i < nd ? digits[i] : '0';
-        res[n++] = '.';
-        if (nd > e + 1)
-            for (int i = e + 1; i < nd; i++) res[n++] = digits[i];
-        else
-            res[n++] = '0';
-        res[n] = '\0';
-    }
-    snprintf(out, size, "%s", res);
-}
-
 static rc_status bad(rc_error *err, const char *name, const char *rule, double v)
 {
     if (err) {
         char val[48];
-        py_repr(v, val, sizeof val);
+        rc_repr(v, val, (int)sizeof val);
         snprintf(err->msg, sizeof err->msg, "%s %s, got %s", name, rule, val);
     }
     return RC_BAD_CONFIG;

@@ -35,4 +35,8 @@ static inline double rc_square(double x) { return rc_libm_pow(x, 2.0); }
 static inline double rc_max(double a, double b) { return b > a ? b : a; }
 static inline double rc_min(double a, double b) { return b < a ? b : a; }
 
+/* Python's repr() of a float into buf (shortest round-trip digits, Python's switch to an
+ * exponent): messages name a value as the Python code does (repr.c) */
+void rc_repr(double x, char *buf, int size);
+
 #endif

@@ -1,0 +1,531 @@
+/* _railcar.c -- the thin CPython binding of the C model core (models/core/railcar.h).
+ *
+ * One type, Chain, owns one rc_chain (allocated once; the struct points into itself). It is
+ * subclassed by models.compiled.CompiledChain, which gives it RailCarChain's interface. The
+ * binding only converts: numbers in, numbers out, the core's messages raised as the exception
+ * type given at construction. Why a hand-written extension and not cffi or ctypes: the per-step
+ * call is the hot path (three times the old compiled path is the target), cffi would be a new
+ * dependency, and ctypes costs microseconds per call; the extension is ~300 lines of plain
+ * argument conversion.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include "core/railcar.h"
+
+/* A sequence of numbers into a new malloc'd array of doubles (*n its length) */
+static double *doubles(PyObject *seq, Py_ssize_t *n, const char *what)
+{
+    PyObject *fast = PySequence_Fast(seq, what);
+    if (!fast)
+        return NULL;
+    *n = PySequence_Fast_GET_SIZE(fast);
+    double *out = PyMem_Malloc(sizeof(double) * (size_t)(*n > 0 ? *n : 1));
+    if (!out) {
+        Py_DECREF(fast);
+        PyErr_NoMemory();
+        return NULL;
+    }
+    for (Py_ssize_t k = 0; k < *n; k++) {
+        out[k] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(fast, k));
+        if (out[k] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(fast);
+            PyMem_Free(out);
+            return NULL;
+        }
+    }
+    Py_DECREF(fast);
+    return out;
+}
+
+typedef struct {
+    PyObject_HEAD
+    rc_chain *chain;
+    PyObject *names;        /* tuple of the output names (str), RC_CHAIN_OUTPUTS */
+    PyObject *integers;     /* tuple of bools: which outputs are integers */
+    PyObject *error;        /* the exception type a rejected step raises */
+} ChainObject;
+
+static int chain_init(ChainObject *self, PyObject *args, PyObject *kwds)
+{
+    PyObject *values, *gd, *gg, *sd, *sv, *names, *integers, *error;
+    static char *kwlist[] = {"config", "grade_distances", "grades", "speed_distances", "speeds",
+                             "names", "integers", "error", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOO!O!O:Chain", kwlist, &values, &gd, &gg,
+                                     &sd, &sv, &PyTuple_Type, &names, &PyTuple_Type, &integers,
+                                     &error))
+        return -1;
+    if (PyTuple_GET_SIZE(names) != RC_CHAIN_OUTPUTS || PyTuple_GET_SIZE(integers) != RC_CHAIN_OUTPUTS) {
+        PyErr_Format(PyExc_ValueError, "the C core has %d outputs", RC_CHAIN_OUTPUTS);
+        return -1;
+    }
+    if (self->chain) {
+        PyErr_SetString(PyExc_RuntimeError, "Chain is initialised once");
+        return -1;
+    }
+    Py_ssize_t nv, ngd, ngg, nsd, nsv;
+    double *v = NULL, *a = NULL, *b = NULL, *c = NULL, *d = NULL;
+    int ok = -1;
+    rc_chain_config cfg;
+    memset(&cfg, 0, sizeof cfg);
+    if (!(v = doubles(values, &nv, "config must be a sequence of numbers"))
+            || !(a = doubles(gd, &ngd, "grade_distances must be a sequence of numbers"))
+            || !(b = doubles(gg, &ngg, "grades must be a sequence of numbers"))
+            || !(c = doubles(sd, &nsd, "speed_distances must be a sequence of numbers"))
+            || !(d = doubles(sv, &nsv, "speeds must be a sequence of numbers")))
+        goto done;
+    if (ngd != ngg || nsd != nsv || ngd < 1) {
+        PyErr_SetString(PyExc_ValueError, "a profile's distances and values must have one length (>= 1)");
+        goto done;
+    }
+    long expected = rc_chain_config_from_values(&cfg, v, (long)nv);
+    if (expected) {
+        PyErr_Format(PyExc_ValueError, "the C core takes %ld configuration values, got %zd",
+                     expected, nv);
+        goto done;
+    }
+    cfg.grade_distances = a;
+    cfg.grades = b;
+    cfg.grade_n = ngd;
+    cfg.speed_distances = c;
+    cfg.speeds = d;
+    cfg.speed_n = nsd;
+    rc_chain *chain = PyMem_Malloc(sizeof *chain);
+    if (!chain) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    rc_error err;
+    if (rc_chain_init(chain, &cfg, &err) != RC_OK) {
+        PyMem_Free(chain);
+        PyErr_SetString(PyExc_ValueError, err.msg);
+        goto done;
+    }
+    self->chain = chain;
+    Py_INCREF(names);
+    Py_INCREF(integers);
+    Py_INCREF(error);
+    self->names = names;
+    self->integers = integers;
+    self->error = error;
+    ok = 0;
+done:
+    PyMem_Free(v);
+    PyMem_Free(a);
+    PyMem_Free(b);
+    PyMem_Free(c);
+    PyMem_Free(d);
+    return ok;
+}
+
+static void chain_dealloc(ChainObject *self)
+{
+    PyObject_GC_UnTrack(self);
+    if (self->chain) {
+        rc_chain_free(self->chain);
+        PyMem_Free(self->chain);
+    }
+    Py_CLEAR(self->names);
+    Py_CLEAR(self->integers);
+    Py_CLEAR(self->error);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static int chain_traverse(ChainObject *self, visitproc visit, void *arg)
+{
+    Py_VISIT(self->names);
+    Py_VISIT(self->integers);
+    Py_VISIT(self->error);
+    return 0;
+}
+
+static int ready(ChainObject *self)
+{
+    if (self->chain)
+        return 1;
+    PyErr_SetString(PyExc_RuntimeError, "Chain was not initialised");
+    return 0;
+}
+
+/* do_step(current_time, step_size, traction_demand, brake_demand, wind_speed, payload=0.0) */
+static PyObject *chain_do_step(ChainObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double x[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+    if (nargs < 5 || nargs > 6) {
+        PyErr_SetString(PyExc_TypeError, "do_step takes 5 or 6 numbers");
+        return NULL;
+    }
+    if (!ready(self))
+        return NULL;
+    for (Py_ssize_t k = 0; k < nargs; k++) {
+        x[k] = PyFloat_AsDouble(args[k]);
+        if (x[k] == -1.0 && PyErr_Occurred())
+            return NULL;
+    }
+    rc_error err;
+    if (rc_chain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], &err) != RC_OK) {
+        PyErr_SetString(self->error, err.msg);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* {names[k]: out[k]} with the integers (integers[k] is True) as int */
+static PyObject *values_dict(PyObject *names, PyObject *integers, const double *out, Py_ssize_t n)
+{
+    PyObject *d = _PyDict_NewPresized(n);
+    if (!d)
+        return NULL;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        PyObject *v = PyTuple_GET_ITEM(integers, k) == Py_True ? PyLong_FromDouble(out[k])
+                                                               : PyFloat_FromDouble(out[k]);
+        if (!v || PyDict_SetItem(d, PyTuple_GET_ITEM(names, k), v) < 0) {
+            Py_XDECREF(v);
+            Py_DECREF(d);
+            return NULL;
+        }
+        Py_DECREF(v);
+    }
+    return d;
+}
+
+/* outputs() -> dict, RailCarChain.outputs() */
+static PyObject *chain_outputs(ChainObject *self, PyObject *Py_UNUSED(ignored))
+{
+    double out[RC_CHAIN_OUTPUTS];
+    if (!ready(self))
+        return NULL;
+    rc_chain_outputs(self->chain, out);
+    return values_dict(self->names, self->integers, out, RC_CHAIN_OUTPUTS);
+}
+
+/* A writable (or read-only) C-contiguous buffer of doubles with `columns` columns: its rows */
+static int double_rows(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t columns,
+                       const char *what, Py_ssize_t *rows)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0)
+        return -1;
+    if (!view->format || strcmp(view->format, "d") != 0 || view->len % (Py_ssize_t)(columns * sizeof(double))) {
+        PyErr_Format(PyExc_ValueError, "%s must be float64 with %zd columns", what, columns);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    *rows = view->len / (Py_ssize_t)(columns * sizeof(double));
+    return 0;
+}
+
+/* run(inputs, outputs) -> None: for each row i of inputs (current_time, step_size,
+ * traction_demand, brake_demand, wind_speed, payload), a step, then the outputs into row i of
+ * outputs (RC_CHAIN_OUTPUTS columns), without returning to Python between steps. A rejected step
+ * raises naming the row; the rows before it are done and written. */
+static PyObject *chain_run(ChainObject *self, PyObject *args)
+{
+    PyObject *in_obj, *out_obj;
+    Py_buffer in, out;
+    Py_ssize_t n_in, n_out;
+    if (!PyArg_ParseTuple(args, "OO:run", &in_obj, &out_obj) || !ready(self))
+        return NULL;
+    if (double_rows(in_obj, &in, 0, 6, "inputs", &n_in) < 0)
+        return NULL;
+    if (double_rows(out_obj, &out, 1, RC_CHAIN_OUTPUTS, "outputs", &n_out) < 0) {
+        PyBuffer_Release(&in);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    if (n_out != n_in) {
+        PyErr_Format(PyExc_ValueError, "outputs must have one row per input row (%zd), got %zd",
+                     n_in, n_out);
+        goto done;
+    }
+    const double *x = in.buf;
+    double *y = out.buf;
+    rc_error err;
+    rc_status st = RC_OK;
+    Py_ssize_t i;
+    for (i = 0; i < n_in; i++, x += 6, y += RC_CHAIN_OUTPUTS) {
+        st = rc_chain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], &err);
+        if (st != RC_OK)
+            break;
+        rc_chain_outputs(self->chain, y);
+    }
+    if (st != RC_OK) {
+        PyErr_Format(self->error, "inputs row %zd: %s", i, err.msg);
+        goto done;
+    }
+    result = Py_NewRef(Py_None);
+done:
+    PyBuffer_Release(&in);
+    PyBuffer_Release(&out);
+    return result;
+}
+
+static PyObject *chain_next_sample_time(ChainObject *self, PyObject *Py_UNUSED(ignored))
+{
+    if (!ready(self))
+        return NULL;
+    return PyFloat_FromDouble(rc_chain_next_sample_time(self->chain));
+}
+
+static PyObject *chain_reset(ChainObject *self, PyObject *Py_UNUSED(ignored))
+{
+    if (!ready(self))
+        return NULL;
+    rc_error err;
+    if (rc_chain_reset(self->chain, &err) != RC_OK) {
+        PyMem_Free(self->chain);
+        self->chain = NULL;
+        PyErr_SetString(PyExc_RuntimeError, err.msg);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* state() -> tuple: the internal state tests compare with the Python chain's (models/compiled.py
+ * STATE_FIELDS says what each value is) */
+static PyObject *chain_state(ChainObject *self, PyObject *Py_UNUSED(ignored))
+{
+    if (!ready(self))
+        return NULL;
+    const rc_chain *c = self->chain;
+    const rc_ident *id = &c->est.ident;
+    const rc_filter *f = &c->est.filter;
+    const rc_plant *p = &c->plant;
+    double v[128];
+    int n = 0;
+    for (int k = 0; k < 4; k++) v[n++] = id->theta[k];
+    for (int k = 0; k < 16; k++) v[n++] = id->has_S ? id->S[k] : NAN;
+    for (int k = 0; k < 16; k++) v[n++] = id->W[k];
+    for (int k = 0; k < 16; k++) v[n++] = id->D[k];
+    v[n++] = (double)id->n; v[n++] = id->q_e; v[n++] = id->s2; v[n++] = id->c0; v[n++] = id->c1;
+    v[n++] = id->has_cL ? id->cL : NAN; v[n++] = (double)id->n_cL; v[n++] = (double)id->n_c1;
+    v[n++] = f->xb0; v[n++] = f->xb1; v[n++] = f->m00; v[n++] = f->m01; v[n++] = f->m11;
+    v[n++] = f->xh0; v[n++] = f->xh1; v[n++] = f->p00; v[n++] = f->p01; v[n++] = f->p11;
+    v[n++] = c->est.station.still_time; v[n++] = (double)c->est.station.fast_run;
+    v[n++] = p->time; v[n++] = (double)p->grid_index;
+    v[n++] = p->traction_impulse; v[n++] = p->brake_impulse;
+    v[n++] = p->state.still_time; v[n++] = (double)p->state.stops;
+    v[n++] = (double)c->sample_index;
+    PyObject *t = PyTuple_New(n);
+    if (!t)
+        return NULL;
+    for (int k = 0; k < n; k++) {
+        PyObject *x = PyFloat_FromDouble(v[k]);
+        if (!x) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, k, x);
+    }
+    return t;
+}
+
+static PyMethodDef chain_methods[] = {
+    {"do_step", (PyCFunction)(void (*)(void))chain_do_step, METH_FASTCALL,
+     "do_step(current_time, step_size, traction_demand, brake_demand, wind_speed, payload=0.0)"},
+    {"outputs", (PyCFunction)chain_outputs, METH_NOARGS, "outputs() -> dict"},
+    {"run", (PyCFunction)chain_run, METH_VARARGS,
+     "run(inputs, outputs): many steps over float64 buffers (n x 6 in, n x outputs out)"},
+    {"next_sample_time", (PyCFunction)chain_next_sample_time, METH_NOARGS, "[s]"},
+    {"reset", (PyCFunction)chain_reset, METH_NOARGS, "back to the initial state"},
+    {"state", (PyCFunction)chain_state, METH_NOARGS, "internal state (tests)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject ChainType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "models._railcar.Chain",
+    .tp_basicsize = sizeof(ChainObject),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_BASETYPE | Py_TPFLAGS_HAVE_GC,
+    .tp_doc = "The RailCar chain in C (models/core/railcar.h); see models.compiled.CompiledChain",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)chain_init,
+    .tp_dealloc = (destructor)chain_dealloc,
+    .tp_traverse = (traverseproc)chain_traverse,
+    .tp_methods = chain_methods,
+};
+
+/* ------------------------------------------------------------------ Estimator */
+
+typedef struct {
+    PyObject_HEAD
+    rc_estchain *chain;
+    PyObject *names;        /* tuple of the output names (str), RC_EST_OUTPUTS */
+    PyObject *integers;     /* tuple of bools */
+    PyObject *error;
+} EstimatorObject;
+
+static int estimator_init(EstimatorObject *self, PyObject *args, PyObject *kwds)
+{
+    PyObject *values, *gd, *gg, *sd, *sv, *names, *integers, *error;
+    static char *kwlist[] = {"config", "grade_distances", "grades", "speed_distances", "speeds",
+                             "names", "integers", "error", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOO!O!O:Estimator", kwlist, &values, &gd,
+                                     &gg, &sd, &sv, &PyTuple_Type, &names, &PyTuple_Type,
+                                     &integers, &error))
+        return -1;
+    if (PyTuple_GET_SIZE(names) != RC_EST_OUTPUTS || PyTuple_GET_SIZE(integers) != RC_EST_OUTPUTS) {
+        PyErr_Format(PyExc_ValueError, "the C estimator has %d outputs", RC_EST_OUTPUTS);
+        return -1;
+    }
+    if (self->chain) {
+        PyErr_SetString(PyExc_RuntimeError, "Estimator is initialised once");
+        return -1;
+    }
+    Py_ssize_t nv, ngd, ngg, nsd, nsv;
+    double *v = NULL, *a = NULL, *b = NULL, *c = NULL, *d = NULL;
+    int ok = -1;
+    rc_estchain_config cfg;
+    memset(&cfg, 0, sizeof cfg);
+    if (!(v = doubles(values, &nv, "config must be a sequence of numbers"))
+            || !(a = doubles(gd, &ngd, "grade_distances must be a sequence of numbers"))
+            || !(b = doubles(gg, &ngg, "grades must be a sequence of numbers"))
+            || !(c = doubles(sd, &nsd, "speed_distances must be a sequence of numbers"))
+            || !(d = doubles(sv, &nsv, "speeds must be a sequence of numbers")))
+        goto done;
+    if (ngd != ngg || nsd != nsv || ngd < 1) {
+        PyErr_SetString(PyExc_ValueError, "a profile's distances and values must have one length (>= 1)");
+        goto done;
+    }
+    long expected = rc_estchain_config_from_values(&cfg, v, (long)nv);
+    if (expected) {
+        PyErr_Format(PyExc_ValueError, "the C estimator takes %ld configuration values, got %zd",
+                     expected, nv);
+        goto done;
+    }
+    cfg.grade_distances = a;
+    cfg.grades = b;
+    cfg.grade_n = ngd;
+    cfg.speed_distances = c;
+    cfg.speeds = d;
+    cfg.speed_n = nsd;
+    rc_estchain *chain = PyMem_Malloc(sizeof *chain);
+    if (!chain) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    rc_error err;
+    if (rc_estchain_init(chain, &cfg, &err) != RC_OK) {
+        PyMem_Free(chain);
+        PyErr_SetString(PyExc_ValueError, err.msg);
+        goto done;
+    }
+    self->chain = chain;
+    Py_INCREF(names);
+    Py_INCREF(integers);
+    Py_INCREF(error);
+    self->names = names;
+    self->integers = integers;
+    self->error = error;
+    ok = 0;
+done:
+    PyMem_Free(v);
+    PyMem_Free(a);
+    PyMem_Free(b);
+    PyMem_Free(c);
+    PyMem_Free(d);
+    return ok;
+}
+
+static void estimator_dealloc(EstimatorObject *self)
+{
+    PyObject_GC_UnTrack(self);
+    if (self->chain) {
+        rc_estchain_free(self->chain);
+        PyMem_Free(self->chain);
+    }
+    Py_CLEAR(self->names);
+    Py_CLEAR(self->integers);
+    Py_CLEAR(self->error);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static int estimator_traverse(EstimatorObject *self, visitproc visit, void *arg)
+{
+    Py_VISIT(self->names);
+    Py_VISIT(self->integers);
+    Py_VISIT(self->error);
+    return 0;
+}
+
+/* do_step(current_time, step_size, traction, brake, speed_meas, position_meas, track_speed=0.0,
+ * track_time=0.0) */
+static PyObject *estimator_do_step(EstimatorObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double x[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+    if (nargs < 6 || nargs > 8) {
+        PyErr_SetString(PyExc_TypeError, "do_step takes 6 to 8 numbers");
+        return NULL;
+    }
+    if (!self->chain) {
+        PyErr_SetString(PyExc_RuntimeError, "Estimator was not initialised");
+        return NULL;
+    }
+    for (Py_ssize_t k = 0; k < nargs; k++) {
+        x[k] = PyFloat_AsDouble(args[k]);
+        if (x[k] == -1.0 && PyErr_Occurred())
+            return NULL;
+    }
+    rc_error err;
+    if (rc_estchain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], &err) != RC_OK) {
+        PyErr_SetString(self->error, err.msg);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* outputs() -> dict (empty before the first step) */
+static PyObject *estimator_outputs(EstimatorObject *self, PyObject *Py_UNUSED(ignored))
+{
+    double out[RC_EST_OUTPUTS];
+    if (!self->chain) {
+        PyErr_SetString(PyExc_RuntimeError, "Estimator was not initialised");
+        return NULL;
+    }
+    if (!rc_estchain_outputs(self->chain, out))
+        return PyDict_New();
+    return values_dict(self->names, self->integers, out, RC_EST_OUTPUTS);
+}
+
+static PyMethodDef estimator_methods[] = {
+    {"do_step", (PyCFunction)(void (*)(void))estimator_do_step, METH_FASTCALL,
+     "do_step(current_time, step_size, traction, brake, speed_meas, position_meas, "
+     "track_speed=0.0, track_time=0.0)"},
+    {"outputs", (PyCFunction)estimator_outputs, METH_NOARGS, "outputs() -> dict"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject EstimatorType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "models._railcar.Estimator",
+    .tp_basicsize = sizeof(EstimatorObject),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_BASETYPE | Py_TPFLAGS_HAVE_GC,
+    .tp_doc = "RailCarEstimator's chain in C; see models.compiled.CompiledEstimatorChain",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)estimator_init,
+    .tp_dealloc = (destructor)estimator_dealloc,
+    .tp_traverse = (traverseproc)estimator_traverse,
+    .tp_methods = estimator_methods,
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "models._railcar",
+    "Thin binding of the C model core (models/core/): see models/compiled.py.", -1, NULL,
+    NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__railcar(void)
+{
+    if (PyType_Ready(&ChainType) < 0 || PyType_Ready(&EstimatorType) < 0)
+        return NULL;
+    PyObject *m = PyModule_Create(&module);
+    if (!m)
+        return NULL;
+    if (PyModule_AddType(m, &ChainType) < 0 || PyModule_AddType(m, &EstimatorType) < 0
+            || PyModule_AddIntConstant(m, "OUTPUTS", RC_CHAIN_OUTPUTS) < 0
+            || PyModule_AddIntConstant(m, "ESTIMATOR_OUTPUTS", RC_EST_OUTPUTS) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

@@ -1,0 +1,198 @@
+"""The C model core (models/core/, bound by models/_railcar.c) behind RailCarChain's interface.
+
+``open_chain(cfg, grade, speed, start_time)`` is what the FMU, the harness and the studies
+build: a ``CompiledChain`` when the C core is compiled and covers the configuration, else the
+Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs for the same seed
+(tests/test_core_chain.py). Which one runs is visible: ``chain.engine`` is "c" or "python", and
+``ENGINES`` counts the chains opened with each.
+
+The C core covers filter kinds 0-3, est.method 0, est.physical 0, est.sigma2_method 0, any
+forgetting, car length and odometry drift; track sensors, the Singer filter and the other
+estimation methods run in Python. ``RAILCAR_PURE_PYTHON=1`` runs Python always (and a machine
+without a C compiler installs without the core and does the same).
+"""
+from __future__ import annotations
+
+import collections
+import math
+import os
+from dataclasses import replace
+
+import numpy as np
+
+from .chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected, TrackSensorConfig,
+                    build_estimator)
+from .estimator import StationConfig
+from .filters import SINGER, FilterConfig
+from .identification import IdentifierConfig
+from .track import GradeProfile, SpeedProfile
+
+try:
+    from . import _railcar
+except ImportError:          # not compiled (no compiler at install, or another Python)
+    _railcar = None
+
+ENGINES: collections.Counter = collections.Counter()   # chains opened per engine ("c", "python")
+
+OUTPUT_NAMES = (
+    "car.speed", "car.position", "car.acceleration", "car.traction_force", "car.brake_force",
+    "car.grade", "car.mode", "car.total_mass", "sensor.speed", "sensor.position",
+    "sensor.track_speed", "sensor.track_time",
+    "est.mass", "est.mass_std", "est.A0", "est.A1", "est.A2", "est.A0_std", "est.A1_std",
+    "est.A2_std", "est.sigma2", "est.samples", "est.station_stops", "filter.speed",
+    "filter.position", "filter.speed_std", "filter.position_std", "est.status", "filter.rejected",
+)
+"""RailCarChain.outputs()'s names in the C core's order (models/core/railcar.h)."""
+INTEGER_OUTPUTS = frozenset({"car.mode", "est.samples", "est.station_stops", "est.status",
+                             "filter.rejected"})
+INPUT_COLUMNS = ("current_time", "step_size", "traction_force_demand", "brake_force_demand",
+                 "wind_speed", "car.payload")
+"""Columns of ``CompiledChain.run``'s inputs: [s], [s], [N], [N], [m/s], [t]."""
+
+
+def enabled() -> bool:
+    """True when the C core is compiled and not switched off (RAILCAR_PURE_PYTHON)."""
+    return _railcar is not None and not os.environ.get("RAILCAR_PURE_PYTHON")
+
+
+def estimator_not_covered(identifier: IdentifierConfig, filt: FilterConfig) -> str | None:
+    """Why the C core does not run this estimator, or None when it does."""
+    if filt.kind == SINGER:
+        return "the Singer filter (filter.kind 4)"
+    if identifier.method != 0 or identifier.physical or identifier.sigma2_method != 0:
+        return "est.method, est.physical or est.sigma2_method other than 0"
+    return None
+
+
+def not_covered(cfg: ChainConfig) -> str | None:
+    """Why the C core does not run this chain, or None when it does."""
+    if cfg.track.spacing:
+        return "track sensors (sensor.track_spacing > 0)"
+    return estimator_not_covered(cfg.identifier, cfg.filter)
+
+
+def _estimator_values(ic: IdentifierConfig, fc: FilterConfig) -> list[float]:
+    """The identifier's and the filter's numbers, in _railcar.c's order."""
+    return [ic.dt, int(ic.batch_size), ic.forgetting, ic.gamma, ic.mass_initial,
+            ic.mass_std_initial, ic.A0_initial, ic.A1_initial, ic.A2_initial, ic.A0_std_initial,
+            ic.A1_std_initial, ic.A2_std_initial, ic.sigma2_initial, ic.speed_std,
+            1.0 if ic.frozen else 0.0, ic.run_forgetting, int(ic.method), int(ic.physical),
+            int(ic.sigma2_method),
+            fc.dt, fc.speed_std, fc.position_std, fc.position_std_rel, fc.gamma, int(fc.kind),
+            fc.length]
+
+
+def _config_values(cfg: ChainConfig, start_time: float) -> list[float]:
+    """The numbers the C chain's configuration is made of, in _railcar.c's order."""
+    v, st = cfg.vehicle, cfg.station
+    return [v.mass, v.A0, v.A1, v.A2, v.gamma, v.length, v.traction_force_max,
+            v.traction_power_max, v.brake_force_max, v.adhesion_mass_fraction, v.adhesion_factor,
+            cfg.solver_step, cfg.process_noise_psd, cfg.sample_period, int(cfg.seed),
+            cfg.initial_speed, cfg.initial_position,
+            st.dwell, st.speed_threshold, st.position_threshold,
+            *_estimator_values(cfg.identifier, cfg.filter), cfg.track.spacing, start_time]
+
+
+def validate(cfg: ChainConfig, speed_profile: SpeedProfile | None, start_time: float) -> ChainConfig:
+    """Raise ValueError naming the first bad setting, in the order RailCarChain meets them;
+    returns the private copy the chain runs."""
+    cfg = replace(cfg, vehicle=replace(cfg.vehicle))
+    cfg.validate()
+    if not math.isfinite(start_time):
+        raise ValueError(f"start time must be finite, got {start_time}")
+    if not (cfg.solver_step > 0 and math.isfinite(cfg.solver_step)):
+        raise ValueError(f"solver.step must be > 0, got {cfg.solver_step}")
+    if not (cfg.process_noise_psd >= 0 and math.isfinite(cfg.process_noise_psd)):
+        raise ValueError(f"car.process_noise_psd must be >= 0, got {cfg.process_noise_psd}")
+    replace(cfg.identifier, dt=cfg.sample_period, speed_std=cfg.filter.speed_std).validate()
+    replace(cfg.filter, length=cfg.vehicle.length).validate(speed_profile is not None)
+    cfg.station.validate()
+    return cfg
+
+
+class CompiledChain(_railcar.Chain if _railcar is not None else object):
+    """RailCarChain in C: ``do_step``, ``outputs``, ``next_sample_time``, ``reset`` and the
+    batched ``run``. Raises StepRejected (naming the variable) on bad input, as RailCarChain."""
+
+    engine = "c"
+
+    def __init__(self, cfg: ChainConfig, grade_profile: GradeProfile,
+                 speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
+        if _railcar is None:
+            raise RuntimeError("the C core (models._railcar) is not compiled")
+        cfg = validate(cfg, speed_profile, start_time)
+        why = not_covered(cfg)
+        if why:
+            raise ValueError(f"the C core does not cover {why}: use open_chain()")
+        self.cfg = cfg
+        self.start_time = start_time
+        sp = speed_profile
+        super().__init__(_config_values(cfg, start_time), grade_profile.distances,
+                         grade_profile.grades, sp.distances if sp else (), sp.speeds if sp else (),
+                         OUTPUT_NAMES, tuple(n in INTEGER_OUTPUTS for n in OUTPUT_NAMES),
+                         StepRejected)
+
+    def run_steps(self, inputs) -> np.ndarray:
+        """Many steps at once: ``inputs`` rows are INPUT_COLUMNS; returns the outputs after each
+        step, one row per step, columns OUTPUT_NAMES. Raises StepRejected naming the row."""
+        x = np.ascontiguousarray(inputs, dtype=float)
+        if x.ndim != 2 or x.shape[1] != len(INPUT_COLUMNS):
+            raise ValueError(f"inputs must have {len(INPUT_COLUMNS)} columns {INPUT_COLUMNS}, "
+                             f"got shape {x.shape}")
+        out = np.empty((len(x), len(OUTPUT_NAMES)))
+        self.run(x, out)
+        return out
+
+
+def open_chain(cfg: ChainConfig, grade_profile: GradeProfile,
+               speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
+    """The chain for this configuration: C when it is compiled, enabled and covers it, else the
+    Python reference. ``chain.engine`` says which; ENGINES counts them."""
+    if enabled() and not_covered(cfg) is None:
+        chain = CompiledChain(cfg, grade_profile, speed_profile, start_time)
+    else:
+        chain = RailCarChain(cfg, grade_profile, speed_profile, start_time)
+    ENGINES[chain.engine] += 1
+    return chain
+
+
+ESTIMATOR_OUTPUT_NAMES = OUTPUT_NAMES[12:]
+"""EstimatorChain.outputs()'s names in the C core's order."""
+
+
+class CompiledEstimatorChain(_railcar.Estimator if _railcar is not None else object):
+    """EstimatorChain (RailCarEstimator without FMI) in C: ``do_step`` and ``outputs``."""
+
+    engine = "c"
+
+    def __init__(self, identifier: IdentifierConfig, filt: FilterConfig, station: StationConfig,
+                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None,
+                 track: TrackSensorConfig | None = None):
+        if _railcar is None:
+            raise RuntimeError("the C core (models._railcar) is not compiled")
+        track = track or TrackSensorConfig()
+        track.validate()
+        build_estimator(identifier, filt, station, grade_profile, speed_profile, dt=1.0)  # validates
+        why = estimator_not_covered(identifier, filt)
+        if why:
+            raise ValueError(f"the C core does not cover {why}: use open_estimator_chain()")
+        sp = speed_profile
+        st = station
+        super().__init__([*_estimator_values(identifier, filt), st.dwell, st.speed_threshold,
+                          st.position_threshold, track.base, track.resolution, track.jitter],
+                         grade_profile.distances, grade_profile.grades,
+                         sp.distances if sp else (), sp.speeds if sp else (),
+                         ESTIMATOR_OUTPUT_NAMES,
+                         tuple(n in INTEGER_OUTPUTS for n in ESTIMATOR_OUTPUT_NAMES), StepRejected)
+
+
+def open_estimator_chain(identifier: IdentifierConfig, filt: FilterConfig, station: StationConfig,
+                         grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None,
+                         track: TrackSensorConfig | None = None):
+    """EstimatorChain for this configuration: C when it can, else the Python reference."""
+    if enabled() and estimator_not_covered(identifier, filt) is None:
+        chain = CompiledEstimatorChain(identifier, filt, station, grade_profile, speed_profile, track)
+    else:
+        chain = EstimatorChain(identifier, filt, station, grade_profile, speed_profile, track)
+    ENGINES[chain.engine] += 1
+    return chain

@@ -1,0 +1,74 @@
+/* config.c -- the chains' configurations from flat arrays of numbers, the one format the
+ * Python binding (models/_railcar.c) and C hosts (tests/core_cases/chain_driver.c) share. */
+#include "railcar.h"
+
+#include <stddef.h>
+
+/* See railcar.h: the order of models/compiled.py's _config_values */
+long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
+{
+    double *f[] = {
+        &c->vehicle.mass, &c->vehicle.A0, &c->vehicle.A1, &c->vehicle.A2, &c->vehicle.gamma,
+        &c->vehicle.length, &c->vehicle.traction_force_max, &c->vehicle.traction_power_max,
+        &c->vehicle.brake_force_max, &c->vehicle.adhesion_mass_fraction,
+        &c->vehicle.adhesion_factor,
+        &c->solver_step, &c->process_noise_psd, &c->sample_period, NULL /* seed */,
+        &c->initial_speed, &c->initial_position,
+        &c->station.dwell, &c->station.speed_threshold, &c->station.position_threshold,
+        &c->identifier.dt, NULL /* batch_size */, &c->identifier.forgetting, &c->identifier.gamma,
+        &c->identifier.mass_initial, &c->identifier.mass_std_initial, &c->identifier.A0_initial,
+        &c->identifier.A1_initial, &c->identifier.A2_initial, &c->identifier.A0_std_initial,
+        &c->identifier.A1_std_initial, &c->identifier.A2_std_initial,
+        &c->identifier.sigma2_initial, &c->identifier.speed_std, NULL /* frozen */,
+        &c->identifier.run_forgetting, NULL /* method */, NULL /* physical */,
+        NULL /* sigma2_method */,
+        &c->filter.dt, &c->filter.speed_std, &c->filter.position_std,
+        &c->filter.position_std_rel, &c->filter.gamma, NULL /* kind */, &c->filter.length,
+        &c->track_spacing, &c->start_time,
+    };
+    const long count = (long)(sizeof f / sizeof f[0]);
+    if (n != count)
+        return count;
+    for (long k = 0; k < n; k++)
+        if (f[k])
+            *f[k] = v[k];
+    c->seed = (long)v[14];
+    c->identifier.batch_size = (long)v[21];
+    c->identifier.frozen = v[34] != 0.0;
+    c->method = (int)v[36];
+    c->physical = (int)v[37];
+    c->sigma2_method = (int)v[38];
+    c->filter.kind = (int)v[44];
+    return 0;
+}
+
+/* See railcar.h: the order of models/compiled.py's CompiledEstimatorChain */
+long rc_estchain_config_from_values(rc_estchain_config *c, const double *v, long n)
+{
+    double *f[] = {
+        &c->identifier.dt, NULL /* batch_size */, &c->identifier.forgetting, &c->identifier.gamma,
+        &c->identifier.mass_initial, &c->identifier.mass_std_initial, &c->identifier.A0_initial,
+        &c->identifier.A1_initial, &c->identifier.A2_initial, &c->identifier.A0_std_initial,
+        &c->identifier.A1_std_initial, &c->identifier.A2_std_initial,
+        &c->identifier.sigma2_initial, &c->identifier.speed_std, NULL /* frozen */,
+        &c->identifier.run_forgetting, NULL /* method */, NULL /* physical */,
+        NULL /* sigma2_method */,
+        &c->filter.dt, &c->filter.speed_std, &c->filter.position_std,
+        &c->filter.position_std_rel, &c->filter.gamma, NULL /* kind */, &c->filter.length,
+        &c->station.dwell, &c->station.speed_threshold, &c->station.position_threshold,
+        &c->track_base, &c->track_resolution, &c->track_jitter,
+    };
+    const long count = (long)(sizeof f / sizeof f[0]);
+    if (n != count)
+        return count;
+    for (long k = 0; k < n; k++)
+        if (f[k])
+            *f[k] = v[k];
+    c->identifier.batch_size = (long)v[1];
+    c->identifier.frozen = v[14] != 0.0;
+    c->method = (int)v[16];
+    c->physical = (int)v[17];
+    c->sigma2_method = (int)v[18];
+    c->filter.kind = (int)v[24];
+    return 0;
+}

@@ -1,0 +1,141 @@
+/* estchain.c -- models.chain.EstimatorChain in C (see railcar.h), same checks and order. */
+#include "railcar.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "checks.h"
+
+#define MASS_RANGE 5.0                 /* OnlineEstimator.MASS_RANGE */
+
+rc_status rc_estchain_init(rc_estchain *c, const rc_estchain_config *cfg, rc_error *err)
+{
+    memset(c, 0, sizeof *c);
+    if (err)
+        err->msg[0] = '\0';
+    if (cfg->filter.kind == RC_SINGER || cfg->method != 0 || cfg->physical != 0
+            || cfg->sigma2_method != 0) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "the C core does not cover the Singer filter, "
+                     "est.method, est.physical or est.sigma2_method other than 0");
+        return RC_BAD_CONFIG;
+    }
+    long ng = cfg->grade_n, ns = cfg->speed_n;
+    if (ng < 1 || ns < 0) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "track.grade_profile must have at least one row");
+        return RC_BAD_CONFIG;
+    }
+    c->profiles = malloc(sizeof(double) * (size_t)(3 * ng + 2 * ns));
+    if (!c->profiles) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "out of memory for the profiles");
+        return RC_BAD_CONFIG;
+    }
+    double *gd = c->profiles, *gg = gd + ng, *gc = gg + ng, *sd = gc + ng, *sv = sd + ns;
+    memcpy(gd, cfg->grade_distances, sizeof(double) * (size_t)ng);
+    memcpy(gg, cfg->grades, sizeof(double) * (size_t)ng);
+    rc_grade_cumulate(gd, gg, ng, gc);
+    if (ns) {
+        memcpy(sd, cfg->speed_distances, sizeof(double) * (size_t)ns);
+        memcpy(sv, cfg->speeds, sizeof(double) * (size_t)ns);
+    }
+    c->cfg = *cfg;
+    c->cfg.grade_distances = gd;
+    c->cfg.grades = gg;
+    c->cfg.speed_distances = ns ? sd : NULL;
+    c->cfg.speeds = ns ? sv : NULL;
+    c->grade.distances = gd;
+    c->grade.grades = gg;
+    c->grade.cum = gc;
+    c->grade.n = ng;
+    c->speed.distances = ns ? sd : NULL;
+    c->speed.speeds = ns ? sv : NULL;
+    c->speed.n = ns;
+    c->last_track_time = -INFINITY;
+    double heaviest = MASS_RANGE * cfg->identifier.mass_initial * 1000.0;   /* [kg] */
+    c->force_limit = FORCE_LIMIT_FACTOR * 0.4 * RC_G * heaviest;
+    c->started = 0;
+    c->has_time = 0;
+    return RC_OK;
+}
+
+void rc_estchain_free(rc_estchain *c)
+{
+    if (c->started)
+        rc_estimator_free(&c->est);
+    c->started = 0;
+    free(c->profiles);
+    c->profiles = NULL;
+}
+
+/* models.chain.TrackSensorConfig.speed_std(v) [m/s] */
+static double track_speed_std(const rc_estchain_config *t, double v)
+{
+    double var = t->track_resolution * t->track_resolution / 6.0
+                 + 2.0 * t->track_jitter * t->track_jitter;
+    return v * v / t->track_base * sqrt(var);
+}
+
+static const char FORCE_WHY[] = "10 x the adhesion limit 0.4 g of 5 x est.mass_initial";
+
+rc_status rc_estchain_step(rc_estchain *c, double current_time, double step_size, double traction,
+                           double brake, double speed_meas, double position_meas,
+                           double track_speed, double track_time, rc_error *err)
+{
+    rc_status s;
+    if (err)
+        err->msg[0] = '\0';
+    if ((s = rc_check_step(err, current_time, step_size))
+            || (s = rc_check_finite(err, "sensor.track_speed", track_speed, "m/s"))
+            || (s = rc_check_finite(err, "sensor.track_time", track_time, "s"))
+            || (s = rc_check_force(err, "traction_force", traction))
+            || (s = rc_check_force(err, "brake_force", brake))
+            || (s = rc_check_bounded(err, "traction_force", traction, c->force_limit, "N", FORCE_WHY))
+            || (s = rc_check_bounded(err, "brake_force", brake, c->force_limit, "N", FORCE_WHY))
+            || (s = rc_check_finite(err, "sensor.speed", speed_meas, "m/s"))
+            || (s = rc_check_finite(err, "sensor.position", position_meas, "m"))
+            || (s = rc_check_bounded(err, "sensor.speed", speed_meas, MAX_MEASURED_SPEED, "m/s",
+                                     "no rail car is that fast"))
+            || (s = rc_check_bounded(err, "sensor.position", position_meas, MAX_MEASURED_DISTANCE,
+                                     "m", "no line is that long")))
+        return s;
+    if (c->has_time && fabs(current_time - c->time) > 1e-9 * rc_max(1.0, fabs(current_time))) {
+        char a[40], b[40];
+        rc_repr(current_time, a, sizeof a);
+        rc_repr(c->time, b, sizeof b);
+        if (err)
+            snprintf(err->msg, sizeof err->msg,
+                     "current time %s s does not continue the FMU's time %s s", a, b);
+        return RC_REJECTED;
+    }
+    if (!c->started) {
+        if (rc_estimator_init(&c->est, &c->cfg.identifier, &c->cfg.filter, &c->cfg.station,
+                              &c->grade, c->speed.n ? &c->speed : NULL, step_size) != 0) {
+            if (err)
+                snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
+            return RC_BAD_CONFIG;
+        }
+        c->started = 1;
+    }
+    rc_estimator_measure(&c->est, speed_meas, position_meas);
+    if (c->last_track_time < track_time && track_time <= current_time + 1e-9 && track_speed > 0.0) {
+        rc_estimator_measure_track_speed(&c->est, track_speed, current_time - track_time,
+                                         track_speed_std(&c->cfg, track_speed), c->cfg.track_base);
+        c->last_track_time = track_time;
+    }
+    rc_estimator_propagate(&c->est, traction, brake, step_size);
+    c->has_time = 1;
+    c->time = current_time + step_size;
+    return RC_OK;
+}
+
+int rc_estchain_outputs(rc_estchain *c, double *out)
+{
+    if (!c->started)
+        return 0;
+    rc_estimator_raw_outputs(&c->est, 1, out);
+    rc_estimator_finish_outputs(&c->est, out, RC_EST_RAW, 0);
+    return 1;
+}

@@ -1,0 +1,271 @@
+/* estimator.c -- see estimator.h; the bodies of models/estimator.py's StationDetector and
+ * OnlineEstimator (est.method 0), same expressions in the same order. */
+#include "estimator.h"
+
+#include <stddef.h>
+
+#include "rc_common.h"
+
+/* OnlineEstimator's class constants */
+#define STEADY_SPEED 0.1         /* [m/s] */
+#define STEADY_FORCE 2.0         /* [N/kN] of est.mass_initial's weight */
+#define STEADY_TIME 20.0         /* [s] */
+#define FORCE_SMOOTHING 10.0     /* [s] */
+#define MASS_RANGE 5.0
+#define ACCEL_STD 0.1            /* [m/s^2] */
+
+/* ------------------------------------------------------------------ StationDetector */
+
+static void station_init(rc_station *s, const rc_station_config *cfg, double speed_std,
+                         double position_std)
+{
+    s->v_thr = cfg->speed_threshold != 0.0 ? cfg->speed_threshold : rc_max(3.0 * speed_std, 0.05);
+    s->x_thr = cfg->position_threshold != 0.0 ? cfg->position_threshold
+                                              : rc_max(5.0 * position_std, 2.0);
+    s->dwell = cfg->dwell;
+    s->still_time = 0.0;
+    s->fast_run = 0;
+    s->moving = 0;
+    s->restarted = 0;
+}
+
+/* StationDetector.observe: 1 when a station stop is confirmed at this sample */
+static int station_observe(rc_station *s, double speed_meas, double position_meas, double dt)
+{
+    s->fast_run = speed_meas > s->v_thr ? s->fast_run + 1 : 0;
+    s->moving = s->fast_run >= RC_MOVING_RUN;
+    if (s->moving) {
+        s->still_time = 0.0;
+        s->restarted = 0;
+        return 0;
+    }
+    s->still_time += dt;
+    if (s->still_time >= s->dwell && !s->restarted && fabs(position_meas) < s->x_thr) {
+        s->restarted = 1;
+        return 1;
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------------------ OnlineEstimator */
+
+int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
+                      const rc_station_config *station, const rc_grade_profile *grade,
+                      const rc_speed_profile *speed, double dt)
+{
+    rc_ident_config ic = *id_cfg;          /* build_estimator's private copies */
+    rc_filter_config fc = *filt;
+    ic.dt = dt;
+    ic.speed_std = fc.speed_std;
+    fc.dt = dt;
+    fc.gamma = ic.gamma;
+    if (rc_ident_init(&e->ident, &ic) != 0)
+        return -1;
+    rc_filter_init(&e->filter, &fc, grade, speed);
+    station_init(&e->station, station, fc.speed_std, fc.position_std);
+    e->grade = grade;
+    e->length = fc.length;
+    e->gamma = ic.gamma;
+    e->dt_nominal = ic.dt;
+    e->station_stops = 0;
+    e->track_speeds = 0;
+    e->has_prev = 0;
+    e->prev_speed = e->prev_position = 0.0;
+    e->pair_used = 0;
+    e->force_traction = e->force_brake = 0.0;
+    e->dt = ic.dt;
+    e->prev_fit = 1;
+    e->net_force = 0.0;
+    e->steady_speed = 0.0;
+    e->steady_force = 0.0;
+    e->steady_time = 0.0;
+    e->force_band = STEADY_FORCE * ic.mass_initial * RC_G;
+    e->mass_initial = ic.mass_initial;
+    e->mass_low = ic.mass_initial / MASS_RANGE;
+    e->mass_high = ic.mass_initial * MASS_RANGE;
+    e->mass_std_initial = ic.mass_std_initial;
+    e->has_last_good = 0;
+    return 0;
+}
+
+void rc_estimator_free(rc_estimator *e)
+{
+    rc_ident_free(&e->ident);
+}
+
+/* OnlineEstimator.model_theta for method 0 without est.physical: the identifier's */
+static void model_theta(const rc_estimator *e, double *theta)
+{
+    rc_ident_model_theta(&e->ident, theta);
+}
+
+/* OnlineEstimator.process_noise */
+static double process_noise(rc_estimator *e, double traction, double brake, double dt)
+{
+    double v = rc_filter_speed(&e->filter);
+    double k = RC_G * dt / 1000.0 / (1.0 + e->gamma);
+    double phi[4] = {traction - brake, -1.0, -v, -v * v};
+    double var = rc_ident_model_variance_along(&e->ident, phi);
+    return rc_ident_sigma2(&e->ident) * dt / e->dt_nominal + k * k * var;
+}
+
+/* OnlineEstimator._excited */
+static int excited(rc_estimator *e, double dt)
+{
+    double net = e->force_traction - e->force_brake;
+    e->net_force += dt / (FORCE_SMOOTHING + dt) * (net - e->net_force);
+    double v = rc_filter_speed(&e->filter);
+    if (!e->station.moving || fabs(v - e->steady_speed) > STEADY_SPEED
+            || fabs(e->net_force - e->steady_force) > e->force_band) {
+        e->steady_speed = v;
+        e->steady_force = e->net_force;
+        e->steady_time = 0.0;
+        return 1;
+    }
+    e->steady_time += dt;
+    return e->steady_time <= STEADY_TIME;
+}
+
+/* OnlineEstimator.restart_filter */
+static void restart_filter(rc_estimator *e, double speed_meas, double position_meas)
+{
+    double theta[4];
+    int use_v, use_x;
+    rc_filter_restart(&e->filter);
+    double traction = e->force_traction, brake = e->force_brake;
+    model_theta(e, theta);
+    double q = process_noise(e, traction, brake, e->dt);
+    rc_filter_predict(&e->filter, traction, brake, theta, q, e->dt);
+    rc_filter_gate(&e->filter, speed_meas, position_meas, &use_v, &use_x);
+    rc_filter_update(&e->filter, speed_meas, position_meas);
+}
+
+void rc_estimator_measure(rc_estimator *e, double speed_meas, double position_meas)
+{
+    double dt = e->dt;
+    int moving_before = e->station.moving;
+    int stop = station_observe(&e->station, speed_meas, position_meas, dt);
+    int use_v, use_x, fit;
+    if (stop || !e->has_prev) {
+        use_v = use_x = fit = 1;
+    } else {
+        rc_filter_gate(&e->filter, speed_meas, position_meas, &use_v, &use_x);
+        fit = e->filter.speed_fit;
+    }
+    if (!e->has_prev && !(fabs(speed_meas) < e->station.v_thr
+                          && fabs(position_meas) < e->station.x_thr)) {
+        rc_filter_start_from_measurement(&e->filter, speed_meas, position_meas);
+        e->has_prev = 1;
+        e->prev_speed = speed_meas;
+        e->prev_position = position_meas;
+        return;
+    }
+    int exc = excited(e, dt);
+    int used = e->has_prev && fit && e->prev_fit && exc && moving_before && e->station.moving
+               && position_meas >= e->prev_position - 10.0 * e->filter.cfg.position_std - 1.0;
+    if (used) {
+        double grade = rc_grade_average(e->grade, e->prev_position, e->length);
+        rc_ident_update(&e->ident, e->force_traction, e->force_brake, e->prev_speed, speed_meas,
+                        grade, dt, e->pair_used);
+    }
+    e->pair_used = used;
+    /* a refused distance would pick the next pair's grade: its prediction stands in */
+    e->has_prev = 1;
+    e->prev_speed = speed_meas;
+    e->prev_position = use_x ? position_meas : rc_filter_predicted_position(&e->filter);
+    e->prev_fit = fit;
+    if (stop) {
+        e->station_stops += 1;
+        rc_ident_restart_mass(&e->ident);
+        restart_filter(e, speed_meas, position_meas);
+    } else {
+        rc_filter_update(&e->filter, speed_meas, position_meas);
+    }
+}
+
+void rc_estimator_propagate(rc_estimator *e, double traction, double brake, double dt)
+{
+    double theta[4];
+    model_theta(e, theta);
+    double q = process_noise(e, traction, brake, dt);
+    rc_filter_predict(&e->filter, traction, brake, theta, q, dt);
+    e->force_traction = traction;
+    e->force_brake = brake;
+    e->dt = dt;
+}
+
+void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double age,
+                                      double speed_std, double base)
+{
+    if (!(isfinite(speed_meas) && speed_meas > 0.0 && age >= 0.0))
+        return;
+    age += 0.5 * base / speed_meas;
+    double th[4];
+    rc_ident_model_theta(&e->ident, th);
+    double traction = e->force_traction, brake = e->force_brake;
+    double v = rc_filter_speed(&e->filter);
+    double accel = RC_G / 1000.0 / (1.0 + e->gamma) * (
+        th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
+        - rc_grade_average(e->grade, rc_filter_position(&e->filter), e->length));
+    double var = rc_square(speed_std) + rc_square(ACCEL_STD * age);
+    rc_filter_update_speed(&e->filter, rc_max(speed_meas + accel * age, 0.0), var);
+    e->track_speeds += 1;
+}
+
+void rc_estimator_raw_outputs(rc_estimator *e, int predicted, double *out)
+{
+    const rc_filter *f = &e->filter;
+    const double *th = e->ident.theta;   /* OnlineEstimator.theta() for method 0 */
+    double sd[4];
+    rc_ident_stds(&e->ident, sd);
+    out[0] = rc_ident_mass(&e->ident);
+    out[1] = rc_ident_mass_std(&e->ident);
+    out[2] = th[1];
+    out[3] = th[2];
+    out[4] = th[3];
+    out[5] = sd[1];
+    out[6] = sd[2];
+    out[7] = sd[3];
+    out[8] = rc_ident_sigma2(&e->ident);
+    out[9] = (double)rc_ident_samples(&e->ident);
+    out[10] = (double)e->station_stops;
+    if (predicted) {
+        out[11] = rc_filter_predicted_speed(f);
+        out[12] = rc_filter_predicted_position(f);
+        out[13] = rc_filter_predicted_speed_std(f);
+        out[14] = rc_filter_predicted_position_std(f);
+    } else {
+        out[11] = rc_filter_speed(f);
+        out[12] = rc_filter_position(f);
+        out[13] = rc_filter_speed_std(f);
+        out[14] = rc_filter_position_std(f);
+    }
+}
+
+void rc_estimator_finish_outputs(rc_estimator *e, double *out, int n, int mass_index)
+{
+    double sum = 0.0;                    /* Python's sum(out.values()), finite or not */
+    for (int k = 0; k < n; k++)
+        sum += out[k];
+    double *mass = &out[mass_index], *mass_std = &out[mass_index + 1];
+    int status;
+    if (e->mass_low <= *mass && *mass <= e->mass_high && isfinite(sum)) {
+        status = e->pair_used ? RC_STATUS_IDENTIFYING
+                 : rc_ident_samples(&e->ident) ? RC_STATUS_HOLDING : RC_STATUS_PRIOR;
+        for (int k = 0; k < n; k++)
+            e->last_good[k] = out[k];
+        e->has_last_good = 1;
+    } else {
+        const double *good = e->has_last_good ? e->last_good : NULL;
+        if (!(e->mass_low <= *mass && *mass <= e->mass_high && isfinite(*mass_std))) {
+            *mass = good ? good[mass_index] : e->mass_initial;
+            *mass_std = rc_max(good ? good[mass_index + 1] : 0.0, e->mass_std_initial);
+        }
+        for (int k = 0; k < n; k++)
+            if (!isfinite(out[k]))
+                out[k] = good ? good[k] : 0.0;
+        status = RC_STATUS_DEGRADED;
+    }
+    out[n] = (double)status;
+    out[n + 1] = (double)e->filter.rejected;
+}

@@ -1,0 +1,71 @@
+/* estimator.h -- models.estimator: StationDetector and OnlineEstimator for est.method 0 (the
+ * paper's LS), est.sigma2_method 0, est.physical 0, filter kinds 1-3: per sample, measure()
+ * (identification of the pair, station logic, the filter's gate and update), then propagate()
+ * (the filter's prediction with the forces applied until the next sample), and the outputs with
+ * finish_outputs' guarantees (every value finite, est.mass plausible, est.status). */
+#ifndef RAILCAR_ESTIMATOR_H
+#define RAILCAR_ESTIMATOR_H
+
+#include "filter.h"
+#include "ident.h"
+#include "track.h"
+
+#define RC_MOVING_RUN 3          /* StationDetector.MOVING_RUN */
+
+typedef struct {                 /* models.estimator.StationConfig */
+    double dwell;                /* [s] */
+    double speed_threshold;      /* [m/s], 0 = automatic */
+    double position_threshold;   /* [m], 0 = automatic */
+} rc_station_config;
+
+typedef struct {                 /* models.estimator.StationDetector */
+    double v_thr, x_thr, dwell, still_time;
+    long fast_run;
+    int moving, restarted;       /* bools */
+} rc_station;
+
+enum { RC_STATUS_PRIOR = 0, RC_STATUS_IDENTIFYING = 1, RC_STATUS_HOLDING = 2, RC_STATUS_DEGRADED = 3 };
+
+/* OnlineEstimator.outputs(): est.mass, est.mass_std, est.A0, est.A1, est.A2, est.A0_std,
+ * est.A1_std, est.A2_std, est.sigma2, est.samples, est.station_stops, filter.speed,
+ * filter.position, filter.speed_std, filter.position_std (RC_EST_RAW values, in this order, the
+ * integers as doubles), then finish_outputs appends est.status and filter.rejected. */
+#define RC_EST_RAW 15
+#define RC_EST_OUTPUTS 17
+#define RC_FINISH_MAX 40         /* values finish_outputs can guard (the chain's 12 + 15) */
+
+typedef struct {                 /* models.estimator.OnlineEstimator (method 0) */
+    rc_ident ident;
+    rc_filter filter;
+    rc_station station;
+    const rc_grade_profile *grade;   /* the chain's */
+    double length, gamma, dt_nominal;
+    long station_stops, track_speeds;
+    int has_prev;  double prev_speed, prev_position;   /* _prev */
+    int pair_used, prev_fit;     /* bools */
+    double force_traction, force_brake;  /* _forces [N] */
+    double dt;                   /* _dt [s] */
+    double net_force, steady_speed, steady_force, steady_time, force_band;
+    double mass_initial, mass_low, mass_high, mass_std_initial;
+    int has_last_good;  double last_good[RC_FINISH_MAX];   /* _last_good */
+} rc_estimator;
+
+/* models.chain.build_estimator + OnlineEstimator.__init__, sampling every dt [s] (configs
+ * validated by the caller; private copies are taken): 0, or -1 when the identifier's buffers
+ * cannot be allocated. The estimator points at grade and speed: they must outlive it. */
+int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
+                      const rc_station_config *station, const rc_grade_profile *grade,
+                      const rc_speed_profile *speed, double dt);
+void rc_estimator_free(rc_estimator *e);
+void rc_estimator_measure(rc_estimator *e, double speed_meas, double position_meas);
+void rc_estimator_propagate(rc_estimator *e, double traction, double brake, double dt);
+/* OnlineEstimator.measure_track_speed */
+void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double age,
+                                      double speed_std, double base);
+/* OnlineEstimator.outputs(predicted) without finish_outputs: out[RC_EST_RAW] */
+void rc_estimator_raw_outputs(rc_estimator *e, int predicted, double *out);
+/* OnlineEstimator.finish_outputs on out[n] (n <= RC_FINISH_MAX; est.mass at out[mass_index],
+ * est.mass_std right after it): writes est.status at out[n] and filter.rejected at out[n + 1] */
+void rc_estimator_finish_outputs(rc_estimator *e, double *out, int n, int mass_index);
+
+#endif

@@ -1,0 +1,236 @@
+/* railcar.c -- see railcar.h; the bodies of models/chain.py's RailCarChain, same expressions in
+ * the same order. */
+#include "railcar.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "checks.h"
+
+/* RailCarChain._check_inputs: the first input that is bad or beyond physics */
+static rc_status check_inputs(const rc_chain *c, rc_error *err, double current_time,
+                              double step_size, double traction, double brake, double wind,
+                              double payload)
+{
+    rc_status s;
+    if ((s = rc_check_step(err, current_time, step_size))
+            || (s = rc_check_force(err, "traction_force_demand", traction))
+            || (s = rc_check_force(err, "brake_force_demand", brake))
+            || (s = rc_check_bounded(err, "traction_force_demand", traction, c->traction_limit, "N",
+                                  "10 x car.traction_force_max"))
+            || (s = rc_check_bounded(err, "brake_force_demand", brake, c->brake_limit, "N",
+                                  "10 x car.brake_force_max"))
+            || (s = rc_check_finite(err, "wind_speed", wind, "m/s"))
+            || (s = rc_check_bounded(err, "wind_speed", wind, MAX_WIND, "m/s", "no wind blows that hard"))
+            || (s = rc_check_finite(err, "car.payload", payload, "t"))
+            || (s = rc_check_bounded(err, "car.payload", payload, c->payload_limit, "t", "10 x car.mass")))
+        return s;
+    return RC_OK;
+}
+
+/* ------------------------------------------------------------------ the chain */
+
+static rc_status refuse(rc_error *err, const char *what)
+{
+    if (err)
+        snprintf(err->msg, sizeof err->msg, "the C core does not cover %s (the Python chain runs it)",
+                 what);
+    return RC_BAD_CONFIG;
+}
+
+/* RailCarChain._take_sample */
+static void take_sample(rc_chain *c)
+{
+    const rc_plant_state *s = &c->plant.state;
+    const rc_filter_config *f = &c->cfg.filter;
+    c->sensor_speed = s->speed + f->speed_std * rc_stream_normal(&c->streams[RC_SPEED_SENSOR]);
+    c->sensor_position = s->position + (f->position_std + f->position_std_rel * fabs(s->position))
+                         * rc_stream_normal(&c->streams[RC_POSITION_SENSOR]);
+    rc_estimator_measure(&c->est, c->sensor_speed, c->sensor_position);
+}
+
+/* Everything RailCarChain.__init__ does after the profiles are in place (init and reset) */
+static rc_status start(rc_chain *c, rc_error *err)
+{
+    c->start_time = c->cfg.start_time;
+    for (int k = 0; k < RC_STREAMS; k++)
+        rc_stream_seed(&c->streams[k], (uint64_t)c->cfg.seed, (uint32_t)k);
+    c->track_speed = c->track_time = 0.0;
+    c->base_mass = c->cfg.vehicle.mass;
+    c->traction_limit = FORCE_LIMIT_FACTOR * rc_max(c->cfg.vehicle.traction_force_max, 1.0);
+    c->brake_limit = FORCE_LIMIT_FACTOR * rc_max(c->cfg.vehicle.brake_force_max, 1.0);
+    c->payload_limit = FORCE_LIMIT_FACTOR * c->cfg.vehicle.mass;
+    rc_plant_init(&c->plant, &c->cfg.vehicle, &c->grade, c->cfg.solver_step, c->cfg.process_noise_psd,
+                  c->cfg.station.dwell, &c->streams[RC_PROCESS]);
+    c->plant.state.speed = c->cfg.initial_speed;
+    c->plant.state.position = c->cfg.initial_position;
+    rc_plant_refresh_outputs(&c->plant, 0.0, 0.0, 0.0);
+    rc_filter_config filt = c->cfg.filter;
+    filt.length = c->cfg.vehicle.length;
+    if (rc_estimator_init(&c->est, &c->cfg.identifier, &filt, &c->cfg.station, &c->grade,
+                          c->speed.n ? &c->speed : NULL, c->cfg.sample_period) != 0) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
+        return RC_BAD_CONFIG;
+    }
+    c->sample_index = 0;
+    c->sensor_speed = c->sensor_position = 0.0;
+    take_sample(c);
+    return RC_OK;
+}
+
+rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
+{
+    memset(c, 0, sizeof *c);
+    if (err)
+        err->msg[0] = '\0';
+    if (cfg->track_spacing != 0.0)
+        return refuse(err, "track sensors (sensor.track_spacing > 0)");
+    if (cfg->filter.kind == RC_SINGER)
+        return refuse(err, "the Singer filter (filter.kind 4)");
+    if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0)
+        return refuse(err, "est.method, est.physical or est.sigma2_method other than 0");
+    if (cfg->grade_n < 1 || cfg->speed_n < 0) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "track.grade_profile must have at least one row");
+        return RC_BAD_CONFIG;
+    }
+    long ng = cfg->grade_n, ns = cfg->speed_n;
+    c->profiles = malloc(sizeof(double) * (size_t)(3 * ng + 2 * ns));
+    if (!c->profiles) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "out of memory for the profiles");
+        return RC_BAD_CONFIG;
+    }
+    double *gd = c->profiles, *gg = gd + ng, *gc = gg + ng, *sd = gc + ng, *sv = sd + ns;
+    memcpy(gd, cfg->grade_distances, sizeof(double) * (size_t)ng);
+    memcpy(gg, cfg->grades, sizeof(double) * (size_t)ng);
+    rc_grade_cumulate(gd, gg, ng, gc);
+    if (ns) {
+        memcpy(sd, cfg->speed_distances, sizeof(double) * (size_t)ns);
+        memcpy(sv, cfg->speeds, sizeof(double) * (size_t)ns);
+    }
+    c->cfg = *cfg;
+    c->cfg.grade_distances = gd;
+    c->cfg.grades = gg;
+    c->cfg.speed_distances = ns ? sd : NULL;
+    c->cfg.speeds = ns ? sv : NULL;
+    c->grade.distances = gd;
+    c->grade.grades = gg;
+    c->grade.cum = gc;
+    c->grade.n = ng;
+    c->speed.distances = ns ? sd : NULL;
+    c->speed.speeds = ns ? sv : NULL;
+    c->speed.n = ns;
+    rc_status st = start(c, err);
+    if (st != RC_OK) {
+        free(c->profiles);
+        c->profiles = NULL;
+    }
+    return st;
+}
+
+rc_status rc_chain_reset(rc_chain *c, rc_error *err)
+{
+    if (err)
+        err->msg[0] = '\0';
+    if (!c->profiles)
+        return refuse(err, "a chain that was never initialised");
+    rc_estimator_free(&c->est);
+    rc_status st = start(c, err);
+    if (st != RC_OK) {
+        free(c->profiles);
+        c->profiles = NULL;
+    }
+    return st;
+}
+
+
+void rc_chain_free(rc_chain *c)
+{
+    if (c->profiles) {
+        rc_estimator_free(&c->est);
+        free(c->profiles);
+        c->profiles = NULL;
+    }
+}
+
+double rc_chain_next_sample_time(const rc_chain *c)
+{
+    return (double)(c->sample_index + 1) * c->cfg.sample_period;
+}
+
+rc_status rc_chain_step(rc_chain *c, double current_time, double step_size, double traction_demand,
+                        double brake_demand, double wind_speed, double payload, rc_error *err)
+{
+    if (err)
+        err->msg[0] = '\0';
+    if (!(0.0 < step_size && step_size <= MAX_STEP && 0.0 <= traction_demand
+          && traction_demand <= c->traction_limit && 0.0 <= brake_demand
+          && brake_demand <= c->brake_limit && -MAX_WIND <= wind_speed && wind_speed <= MAX_WIND
+          && -c->payload_limit <= payload && payload <= c->payload_limit
+          && -INFINITY < current_time && current_time < INFINITY)) {
+        rc_status s = check_inputs(c, err, current_time, step_size, traction_demand, brake_demand,
+                                   wind_speed, payload);
+        if (s)
+            return s;
+    }
+    current_time -= c->start_time;           /* internal time starts at 0 */
+    double mass = c->base_mass + payload;
+    if (mass <= 0.0) {
+        char p[40], m[40];
+        rc_repr(payload, p, sizeof p);
+        rc_repr(c->base_mass, m, sizeof m);
+        if (err)
+            snprintf(err->msg, sizeof err->msg,
+                     "car.payload %s t leaves a mass <= 0 (car.mass %s t)", p, m);
+        return RC_REJECTED;
+    }
+    c->plant.p.mass = mass;
+    double t_end = current_time + step_size;
+    double eps = 1e-9 * rc_max(1.0, fabs(t_end));
+    if (fabs(current_time - c->plant.time) > eps) {
+        char a[40], b[40];
+        rc_repr(current_time + c->start_time, a, sizeof a);
+        rc_repr(c->plant.time + c->start_time, b, sizeof b);
+        if (err)
+            snprintf(err->msg, sizeof err->msg,
+                     "current time %s s does not continue the FMU's time %s s", a, b);
+        return RC_REJECTED;
+    }
+    for (;;) {
+        double t_sample = rc_chain_next_sample_time(c);
+        if (t_sample > t_end + eps) {
+            if (c->plant.time < t_end - eps)
+                rc_plant_advance(&c->plant, t_end, traction_demand, brake_demand, wind_speed);
+            return RC_OK;
+        }
+        rc_plant_advance(&c->plant, t_sample, traction_demand, brake_demand, wind_speed);
+        /* forces applied over the last sample interval, then the new measurement */
+        double ts = c->cfg.sample_period;
+        rc_estimator_propagate(&c->est, c->plant.traction_impulse / ts, c->plant.brake_impulse / ts, ts);
+        c->plant.traction_impulse = c->plant.brake_impulse = 0.0;
+        c->sample_index += 1;
+        take_sample(c);
+    }
+}
+
+void rc_chain_outputs(rc_chain *c, double *out)
+{
+    const rc_plant_state *s = &c->plant.state;
+    out[0] = s->speed;
+    out[1] = s->position;
+    out[2] = s->acceleration;
+    out[3] = s->traction_force;
+    out[4] = s->brake_force;
+    out[5] = s->grade;
+    out[6] = (double)s->mode;
+    out[7] = c->plant.p.mass;
+    out[8] = c->sensor_speed;
+    out[9] = c->sensor_position;
+    out[10] = c->track_speed;
+    out[11] = c->track_time;
+    rc_estimator_raw_outputs(&c->est, 0, out + 12);
+    rc_estimator_finish_outputs(&c->est, out + 12, RC_EST_RAW, 0);
+}
