@@ -1,10 +1,18 @@
 /* ident.h -- models.identification.ParameterIdentifier for the paper's differenced rows
- * (est.method 0 and the LS part of the others' rows is not here): the first batch with its
- * prior, the running estimate before it, the recursive step (8), (9), (11) with mu = 1/n or a
- * constant forgetting mu0, the sandwich covariance, sigma^2 from LAG sums, the mass restart at a
- * station (with est.run_forgetting) and the positive-definiteness repair. */
+ * (est.method 0; the other methods' rows are not here): the first batch with its prior, the
+ * running estimate before it, the recursive step (8), (9), (11) with mu = 1/n or a constant
+ * forgetting mu0 (J kept), the sandwich covariance, sigma^2 from LAG sums, the mass restart at a
+ * station (with est.run_forgetting) and the positive-definiteness repair. The rare paths use
+ * linalg4.c, the twin of models/linalg4.py, so every number is bit-identical to the Python.
+ *
+ * Where Python raises (a singular matrix: SingularMatrixError; a division by zero; sqrt of a
+ * negative: ValueError), the C code computes on with inf/NaN and the call returns RC_MATH
+ * (singular matrices); divisions by zero are not reported (they need degenerate input: dt = 0,
+ * theta[0] = 0 in mass_std, R[0][0] = 0 at a restart, a repaired S that stays indefinite). */
 #ifndef RAILCAR_IDENT_H
 #define RAILCAR_IDENT_H
+
+#include "rc_common.h"
 
 #define RC_LAG 50              /* ParameterIdentifier.LAG */
 
@@ -33,7 +41,7 @@ typedef struct {               /* models.identification.ParameterIdentifier */
     int has_S;  double S[16];
     long n;
     double q_e, s2;
-    double (*batch_phi)[4];    /* batch_size rows, allocated by rc_ident_init */
+    double *batch_phi;         /* batch_size rows of 4, row-major, allocated by rc_ident_init */
     double *batch_y;
     int *batch_contiguous;
     long batch_len;
@@ -49,14 +57,19 @@ typedef struct {               /* models.identification.ParameterIdentifier */
     int has_J;  double J[16];                          /* with forgetting */
 } rc_ident;
 
-/* ParameterIdentifier.__init__; allocates the batch buffers (0, or -1 out of memory) */
+/* ParameterIdentifier.__init__ (cfg as IdentifierConfig.validate accepts it); allocates the
+ * batch buffers: 0, or -1 out of memory (nothing to free then) */
 int rc_ident_init(rc_ident *id, const rc_ident_config *cfg);
 void rc_ident_free(rc_ident *id);
 void rc_ident_reset(rc_ident *id);
-void rc_ident_update(rc_ident *id, double traction, double brake, double speed, double speed_next,
-                     double grade, double dt, int contiguous);
-void rc_ident_restart_mass(rc_ident *id);
-/* model_theta, theta -> out[4]; covariance (flat 4x4), model covariance */
+/* update(traction, brake, speed, speed_next, grade, dt, contiguous); dt == 0 means cfg.dt
+ * (Python's `dt or cfg.dt`). RC_OK, or RC_MATH where Python raises (see above) */
+int rc_ident_update(rc_ident *id, double traction, double brake, double speed, double speed_next,
+                    double grade, double dt, int contiguous);
+int rc_ident_restart_mass(rc_ident *id);
+/* the theta setter (before any data it moves the prior's centre too) */
+void rc_ident_set_theta(rc_ident *id, const double *theta);
+/* model_theta -> out[4]; covariance (flat 4x4), model covariance: pointers into the caches */
 void rc_ident_model_theta(const rc_ident *id, double *out);
 const double *rc_ident_covariance(rc_ident *id);
 const double *rc_ident_model_covariance(rc_ident *id);
@@ -65,6 +78,9 @@ void rc_ident_stds(rc_ident *id, double *out);
 double rc_ident_mass(const rc_ident *id);
 double rc_ident_mass_std(rc_ident *id);
 double rc_ident_sigma2(rc_ident *id);
+void rc_ident_noise_split(const rc_ident *id, double *a, double *b);
 long rc_ident_samples(const rc_ident *id);
+/* _quadratic4: phi^T C phi */
+double rc_ident_quadratic4(const double *c, const double *phi);
 
 #endif
