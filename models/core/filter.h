@@ -1,13 +1,23 @@
 /* filter.h -- models.filters.MotionFilter for kinds 1-3 (linearised, EKF, paper verbatim):
  * the innovation gate, the update ((15), (17), (18) with H = I, or one measurement alone), the
- * prediction ((16), (19) or the EKF's) and the outputs. Singer (kind 4) is not here. */
+ * prediction ((16), (19) or the EKF's) and the outputs. Singer (kind 4) is not here.
+ *
+ * Where Python raises (ZeroDivisionError, OverflowError of x ** 2), the C function returns
+ * RC_MATH and leaves the state as Python leaves it at the raise (mostly unchanged; the few
+ * assignments Python makes before it are made too). Otherwise RC_OK. NaN measurements behave as
+ * in Python (comparisons false, so the gate refuses them). */
 #ifndef RAILCAR_FILTER_H
 #define RAILCAR_FILTER_H
 
+#include "rc_common.h"
 #include "track.h"
 
 enum { RC_LINEARISED = 1, RC_EKF = 2, RC_PAPER = 3, RC_SINGER = 4 };   /* filter.kind */
 enum { RC_REACQUIRE_BOTH = 1, RC_REACQUIRE_DISTANCE = 2 };
+
+#define RC_GATE_SIGMAS 6.0     /* MotionFilter.GATE_SIGMAS */
+#define RC_FIT_SIGMAS 4.5      /* MotionFilter.FIT_SIGMAS */
+#define RC_REACQUIRE 50        /* MotionFilter.REACQUIRE [samples] */
 
 typedef struct {               /* models.filters.FilterConfig (the fields kinds 1-3 use) */
     double dt;                 /* [s] */
@@ -34,19 +44,31 @@ typedef struct {               /* models.filters.MotionFilter */
     int reacquire;             /* 0, RC_REACQUIRE_BOTH or RC_REACQUIRE_DISTANCE */
 } rc_filter;
 
-/* MotionFilter.__init__ (config validated by the caller; kind 4 is refused by the chain) */
+/* What MotionFilter.__init__ refuses: FilterConfig.validate(has_speed_profile) for kinds 0-3
+ * (kind 4, Singer, is refused here: not in the C core), and speed_std ** 2 or
+ * position_std ** 2 overflowing (Python's OverflowError). RC_BAD_CONFIG with the first bad one
+ * named in err (Python's message, the value printed with %.17g), else RC_OK. err may be NULL. */
+rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed_profile, rc_error *err);
+/* MotionFilter.__init__ (config validated by the caller, e.g. with rc_filter_validate): the
+ * config is copied, the profiles are the caller's and must outlive the filter. */
 void rc_filter_init(rc_filter *f, const rc_filter_config *cfg, const rc_grade_profile *grade,
                     const rc_speed_profile *speed);
 void rc_filter_restart(rc_filter *f);
-void rc_filter_start_from_measurement(rc_filter *f, double speed_meas, double position_meas);
-/* MotionFilter.gate: *use_v, *use_x (bools) */
-void rc_filter_gate(rc_filter *f, double speed_meas, double position_meas, int *use_v, int *use_x);
+/* RC_MATH: position_noise_std(position_meas) ** 2 overflows (after the restart and the state
+ * set, p00 and p11 left at 0, as Python leaves them) */
+rc_status rc_filter_start_from_measurement(rc_filter *f, double speed_meas, double position_meas);
+/* MotionFilter.gate: *use_v, *use_x (bools). RC_MATH: the distance's variance overflows
+ * (nothing changed) */
+rc_status rc_filter_gate(rc_filter *f, double speed_meas, double position_meas, int *use_v,
+                         int *use_x);
 void rc_filter_hold(rc_filter *f);
-void rc_filter_update(rc_filter *f, double speed_meas, double position_meas);
-void rc_filter_update_speed(rc_filter *f, double speed_meas, double variance);
-/* MotionFilter.predict with theta[4] = (1/(Pg), A0, A1, A2), process noise q [(m/s)^2] */
-void rc_filter_predict(rc_filter *f, double traction, double brake, const double *theta, double q,
-                       double dt);
+rc_status rc_filter_update(rc_filter *f, double speed_meas, double position_meas);
+/* RC_MATH: p00 + variance == 0 (nothing changed) */
+rc_status rc_filter_update_speed(rc_filter *f, double speed_meas, double variance);
+/* MotionFilter.predict with theta[4] = (1/(Pg), A0, A1, A2), process noise q [(m/s)^2].
+ * RC_MATH: 1 + gamma == 0 (nothing changed) */
+rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const double *theta,
+                            double q, double dt);
 /* The properties: speed, position, their stds, and the predicted ones */
 double rc_filter_speed(const rc_filter *f);
 double rc_filter_position(const rc_filter *f);
