@@ -3,7 +3,7 @@ from pythonfmu import Fmi2Slave
 
 from fmu_src.adapter import chain_config, guarded_step, initialise, not_initialised, load_profiles, register_variables
 from fmu_src.variables import RAILCAR
-from models.chain import RailCarChain
+from models.compiled import open_chain
 
 
 class RailCar(Fmi2Slave):
@@ -23,7 +23,7 @@ class RailCar(Fmi2Slave):
         v = self.values
         cfg = chain_config(v)
         grade, speed = load_profiles(v, self.resources)
-        chain = RailCarChain(cfg, grade, speed, start_time=self.start_time)
+        chain = open_chain(cfg, grade, speed, start_time=self.start_time)   # C where covered
         self.values.update(chain.outputs())
         return chain
 

@@ -3,7 +3,7 @@ from pythonfmu import Fmi2Slave
 
 from fmu_src.adapter import estimator_settings, track_settings, guarded_step, initialise, not_initialised, load_profiles, register_variables
 from fmu_src.variables import ESTIMATOR
-from models.chain import EstimatorChain
+from models.compiled import open_estimator_chain
 
 
 class RailCarEstimator(Fmi2Slave):
@@ -19,7 +19,7 @@ class RailCarEstimator(Fmi2Slave):
         v = self.values
         ident, filt, station = estimator_settings(v)
         grade, speed = load_profiles(v, self.resources)
-        return EstimatorChain(ident, filt, station, grade, speed, track_settings(v))
+        return open_estimator_chain(ident, filt, station, grade, speed, track_settings(v))
 
     def exit_initialization_mode(self):
         self.chain = initialise(self._build)

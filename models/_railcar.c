@@ -147,21 +147,59 @@ static int ready(ChainObject *self)
     return 0;
 }
 
-/* do_step(current_time, step_size, traction_demand, brake_demand, wind_speed, payload=0.0) */
-static PyObject *chain_do_step(ChainObject *self, PyObject *const *args, Py_ssize_t nargs)
+/* Positional numbers (the fast path), or keywords: x[0..max) from args and kwnames by `names` */
+static int numbers(PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames, double *x,
+                   Py_ssize_t least, Py_ssize_t most, const char *const *names, const char *what)
 {
-    double x[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
-    if (nargs < 5 || nargs > 6) {
-        PyErr_SetString(PyExc_TypeError, "do_step takes 5 or 6 numbers");
-        return NULL;
+    Py_ssize_t nkw = kwnames ? PyTuple_GET_SIZE(kwnames) : 0;
+    PyObject *given[8] = {NULL};
+    if (nargs > most) {
+        PyErr_Format(PyExc_TypeError, "%s takes at most %zd arguments", what, most);
+        return -1;
     }
-    if (!ready(self))
-        return NULL;
-    for (Py_ssize_t k = 0; k < nargs; k++) {
-        x[k] = PyFloat_AsDouble(args[k]);
+    for (Py_ssize_t k = 0; k < nargs; k++)
+        given[k] = args[k];
+    for (Py_ssize_t j = 0; j < nkw; j++) {
+        const char *key = PyUnicode_AsUTF8(PyTuple_GET_ITEM(kwnames, j));
+        Py_ssize_t k = 0;
+        if (!key)
+            return -1;
+        while (k < most && strcmp(names[k], key) != 0)
+            k++;
+        if (k == most || given[k]) {
+            PyErr_Format(PyExc_TypeError, "%s got %s argument '%s'", what,
+                         k == most ? "an unexpected" : "a second", key);
+            return -1;
+        }
+        given[k] = args[nargs + j];
+    }
+    for (Py_ssize_t k = 0; k < most; k++) {
+        if (!given[k]) {
+            if (k < least) {
+                PyErr_Format(PyExc_TypeError, "%s missing argument '%s'", what, names[k]);
+                return -1;
+            }
+            x[k] = 0.0;
+            continue;
+        }
+        x[k] = PyFloat_AsDouble(given[k]);
         if (x[k] == -1.0 && PyErr_Occurred())
-            return NULL;
+            return -1;
     }
+    return 0;
+}
+
+static const char *const STEP_NAMES[] = {"current_time", "step_size", "traction_demand",
+                                         "brake_demand", "wind_speed", "payload"};
+
+/* do_step(current_time, step_size, traction_demand, brake_demand, wind_speed, payload=0.0) */
+static PyObject *chain_do_step(ChainObject *self, PyObject *const *args, size_t nargsf,
+                               PyObject *kwnames)
+{
+    double x[6];
+    if (!ready(self) || numbers(args, PyVectorcall_NARGS(nargsf), kwnames, x, 5, 6, STEP_NAMES,
+                                "do_step") < 0)
+        return NULL;
     rc_error err;
     if (rc_chain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], &err) != RC_OK) {
         PyErr_SetString(self->error, err.msg);
@@ -321,7 +359,7 @@ static PyObject *chain_state(ChainObject *self, PyObject *Py_UNUSED(ignored))
 }
 
 static PyMethodDef chain_methods[] = {
-    {"do_step", (PyCFunction)(void (*)(void))chain_do_step, METH_FASTCALL,
+    {"do_step", (PyCFunction)(void (*)(void))chain_do_step, METH_FASTCALL | METH_KEYWORDS,
      "do_step(current_time, step_size, traction_demand, brake_demand, wind_speed, payload=0.0)"},
     {"outputs", (PyCFunction)chain_outputs, METH_NOARGS, "outputs() -> dict"},
     {"run", (PyCFunction)chain_run, METH_VARARGS,
@@ -448,24 +486,23 @@ static int estimator_traverse(EstimatorObject *self, visitproc visit, void *arg)
     return 0;
 }
 
+static const char *const ESTIMATOR_STEP_NAMES[] = {"current_time", "step_size", "traction", "brake",
+                                                   "speed_meas", "position_meas", "track_speed",
+                                                   "track_time"};
+
 /* do_step(current_time, step_size, traction, brake, speed_meas, position_meas, track_speed=0.0,
  * track_time=0.0) */
-static PyObject *estimator_do_step(EstimatorObject *self, PyObject *const *args, Py_ssize_t nargs)
+static PyObject *estimator_do_step(EstimatorObject *self, PyObject *const *args, size_t nargsf,
+                                   PyObject *kwnames)
 {
-    double x[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
-    if (nargs < 6 || nargs > 8) {
-        PyErr_SetString(PyExc_TypeError, "do_step takes 6 to 8 numbers");
-        return NULL;
-    }
+    double x[8];
     if (!self->chain) {
         PyErr_SetString(PyExc_RuntimeError, "Estimator was not initialised");
         return NULL;
     }
-    for (Py_ssize_t k = 0; k < nargs; k++) {
-        x[k] = PyFloat_AsDouble(args[k]);
-        if (x[k] == -1.0 && PyErr_Occurred())
-            return NULL;
-    }
+    if (numbers(args, PyVectorcall_NARGS(nargsf), kwnames, x, 6, 8, ESTIMATOR_STEP_NAMES,
+                "do_step") < 0)
+        return NULL;
     rc_error err;
     if (rc_estchain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], &err) != RC_OK) {
         PyErr_SetString(self->error, err.msg);
@@ -488,7 +525,7 @@ static PyObject *estimator_outputs(EstimatorObject *self, PyObject *Py_UNUSED(ig
 }
 
 static PyMethodDef estimator_methods[] = {
-    {"do_step", (PyCFunction)(void (*)(void))estimator_do_step, METH_FASTCALL,
+    {"do_step", (PyCFunction)(void (*)(void))estimator_do_step, METH_FASTCALL | METH_KEYWORDS,
      "do_step(current_time, step_size, traction, brake, speed_meas, position_meas, "
      "track_speed=0.0, track_time=0.0)"},
     {"outputs", (PyCFunction)estimator_outputs, METH_NOARGS, "outputs() -> dict"},
