@@ -3,14 +3,17 @@
     python benchmarks/benchmark.py [--steps 3000] [--repeat 3]
 
 Prints, measured in one run on one core (best of --repeat):
-  - the models/ chain alone (plant + sensors + identification + filter), outputs read each step,
-    compiled (models/_fastcore.c) and pure Python (the reference), interleaved, and their ratio;
+  - the models/ chain alone (plant + sensors + identification + filter), outputs read each step:
+    the C core per step (models/compiled.py's CompiledChain: do_step + outputs dict), batched
+    (CompiledChain.run, 10,000 steps per call, every output of every step into a reused buffer)
+    and the Python reference (models/chain.py), interleaved, and their ratios;
   - RailCar through fmpy (low-level FMU2Slave), all contract outputs read each step, step 0.1 s;
   - the same through libcosimpy;
   - the floor: a no-op pythonfmu FMU with RailCar's variables, built here, through fmpy,
     and RailCar's time per step as a multiple of it;
   - RailCarEstimator replaying a logged run: samples per second.
-Targets (issue 7): RailCar via fmpy >= 20,000 steps/s and <= 2x the floor; models >= 100,000.
+Targets: RailCar via fmpy >= 20,000 steps/s and <= 2x the floor; models per step >= 100,000
+(issue 7); the batched call >= 1,000,000 steps/s (issue 17).
 
 The host's speed varies between runs (seen here: the same code at 50k and 100k steps/s minutes
 apart), so compare the ratios, which are measured in one run: compiled / Python and RailCar /
@@ -52,33 +55,52 @@ def best_rate(fn, n: int, repeat: int) -> float:
     return n / best
 
 
-def bench_models(n: int, solver_step: float = 0.05) -> None:
+def bench_models(n: int, solver_step: float = 0.05, engine: str = "c") -> None:
+    """n steps of the models chain with its outputs read each step, on one engine: "c"
+    (models/compiled.py's CompiledChain) or "python" (the reference, models/chain.py)."""
     from models.chain import ChainConfig, RailCarChain
+    from models.compiled import CompiledChain
     from models.track import GradeProfile
-    chain = RailCarChain(ChainConfig(solver_step=solver_step),
-                         GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
+    kind = CompiledChain if engine == "c" else RailCarChain
+    chain = kind(ChainConfig(solver_step=solver_step),
+                 GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
     for k in range(n):
-        f, b = demands(k * STEP)
+        f, b = demands((k * STEP) % 300.0)
         chain.do_step(k * STEP, STEP, f, b, 0.0)
         chain.outputs()
 
 
-def models_rates(n: int, repeat: int) -> tuple[float, float]:
-    """(compiled, pure Python) steps/s of the models chain, runs interleaved so that both see
-    the same machine."""
-    from models import _fast
-    core = _fast.core
-    best_c = best_py = 0.0
-    try:
-        for _ in range(repeat):
-            if core is not None:
-                _fast.core = core
-                best_c = max(best_c, best_rate(bench_models, n, 1))
-            _fast.core = None
-            best_py = max(best_py, best_rate(bench_models, max(n // 4, 1), 1))
-    finally:
-        _fast.core = core
-    return best_c, best_py
+BATCH = 10_000   # steps per batched call; the output buffer is reused (a sweep's streaming use)
+
+
+def bench_batched(n: int) -> None:
+    """n steps through CompiledChain.run in calls of BATCH steps, every output of every step
+    written to one reused float64 buffer."""
+    import numpy as np
+    from models.chain import ChainConfig
+    from models.compiled import OUTPUT_NAMES, CompiledChain
+    from models.track import GradeProfile
+    chain = CompiledChain(ChainConfig(), GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
+    k = np.arange(BATCH)
+    out = np.empty((BATCH, len(OUTPUT_NAMES)))
+    for start in range(0, n, BATCH):
+        t = (start + k) * STEP
+        tm = t % 300.0
+        x = np.column_stack([t, np.full(BATCH, STEP), np.where(tm < 20.0, 40e3, 0.0),
+                             np.where((tm > 120.0) & (tm < 150.0), 30e3, 0.0), np.zeros(BATCH),
+                             np.zeros(BATCH)])
+        chain.run(x, out)
+
+
+def models_rates(n: int, repeat: int) -> tuple[float, float, float]:
+    """(C per step, C batched, Python reference) steps/s of the models chain, interleaved so that
+    all three see the same machine."""
+    best_c = best_batch = best_py = 0.0
+    for _ in range(repeat):
+        best_c = max(best_c, best_rate(bench_models, n, 1))
+        best_batch = max(best_batch, best_rate(bench_batched, 100 * BATCH, 1))
+        best_py = max(best_py, best_rate(lambda k: bench_models(k, engine="python"), max(n // 4, 1), 1))
+    return best_c, best_batch, best_py
 
 
 def contract_outputs(md) -> tuple[list[int], list[int]]:
@@ -187,13 +209,15 @@ def bench_replay(estimator_fmu: Path, n: int, repeat: int) -> float:
     import numpy as np
     from harness.replay import Log
     from harness.runner import FmuRunner
-    from models.chain import ChainConfig, RailCarChain
+    from models.chain import ChainConfig
+    from models.compiled import open_chain
     from models.track import GradeProfile
-    chain = RailCarChain(ChainConfig(), GradeProfile.level())
+    chain = open_chain(ChainConfig(), GradeProfile.level())
     rows = []
     for k in range(n):
         f, b = demands(k * STEP)
-        rows.append((k * STEP, f, b, chain.sensor_speed, chain.sensor_position))
+        out = chain.outputs()
+        rows.append((k * STEP, f, b, out["sensor.speed"], out["sensor.position"]))
         chain.do_step(k * STEP, STEP, f, b, 0.0)
     a = np.array(rows)
     log = Log("bench", a[:, 0], {"traction_force": a[:, 1], "brake_force": a[:, 2],
@@ -212,10 +236,12 @@ def main() -> None:
     fmus = ensure_built(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
         floor = build_floor(Path(tmp))
-        compiled, python = models_rates(n, rep)
-        rows = [("models/ chain alone", compiled, "steps/s", 100_000),
-                ("  same, pure Python", python, "steps/s", None),
-                ("  same, solver.step 0.1 s", best_rate(lambda k: bench_models(k, 0.1), n, rep), "steps/s", None)]
+        compiled, batched, python = models_rates(max(n, 20_000), rep)
+        rows = [("models/ chain, C, per step", compiled, "steps/s", 100_000),
+                ("  same, batched run()", batched, "steps/s", 1_000_000),
+                ("  same, Python reference", python, "steps/s", None),
+                ("  C per step, solver.step 0.1", best_rate(lambda k: bench_models(k, 0.1), max(n, 20_000), rep),
+                 "steps/s", None)]
         railcar_fmpy = best_rate(fmpy_stepper(fmus["RailCar"]), n, rep)
         rows.append(("RailCar via fmpy", railcar_fmpy, "steps/s", 20_000))
         rows.append(("RailCar via libcosimpy", best_rate(libcosim_stepper(fmus["RailCar"]), n, rep), "steps/s", None))
@@ -226,14 +252,8 @@ def main() -> None:
     for name, rate, unit, target in rows:
         t = f"target >= {target:,}: {'met' if rate >= target else 'MISSED'}" if target else ""
         print(f"  {name:<26} {rate:>10,.0f} {unit:<10} {1e6 / rate:8.1f} us/step  {t}")
-    from models import _fast
-    if _fast.core is None:
-        print("  (models/_fastcore.c is not compiled: the compiled rows above ran in Python)")
-    else:
-        done, declined = _fast.core.step_counts()
-        print(f"  compiled / pure-Python models chain: {compiled / python:.1f}x "
-              f"({done:,} steps compiled, {declined:,} left to Python; "
-              f"{_fast.core.guard_walks():,} dict walks looking for replaced methods)")
+    print(f"  C / Python reference: {compiled / python:.1f}x per step, {batched / python:.0f}x batched "
+          f"(batched / per step {batched / compiled:.1f}x)")
     ratio = floor_rate / railcar_fmpy
     print(f"  RailCar time per step / floor's: {ratio:.2f}x  (target <= 2x: {'met' if ratio <= 2 else 'MISSED'})")
 

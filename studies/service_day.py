@@ -22,7 +22,8 @@ The driver sees the TRUE speed and distance (as harness.driver.PhaseDriver); the
 step is 0.1 s (= sensor.sample_period), so 864,000 steps for 24 h.
 
 Two estimators are scored on the same run:
-- clean  = models.chain.RailCarChain's own estimator (its sensors, no faults);
+- clean  = models.chain.RailCarChain's own estimator (its sensors, no faults), run by the C core
+  (models/compiled.py: bit-identical, ~40x faster);
 - faulty = a models.chain.EstimatorChain built from the same configs (as RailCarEstimator.fmu
   builds it, fmu_src.adapter.estimator_settings), fed each step with RailCar's sensor.speed and
   sensor.position at t, corrupted by spikes (one sample off by 5-100 m/s, either sign, 4 per hour;
@@ -68,7 +69,8 @@ import numpy as np  # noqa: E402
 from fmu_src.adapter import chain_config, estimator_settings  # noqa: E402
 from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
 from harness.driver import CRUISE_GAIN  # noqa: E402
-from models.chain import EstimatorChain, RailCarChain, StepRejected  # noqa: E402
+from models.chain import StepRejected  # noqa: E402
+from models.compiled import open_chain, open_estimator_chain  # noqa: E402
 from models.track import GradeProfile  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
 
@@ -429,8 +431,8 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
     schedule = fault_schedule(faults, n_steps, h, rng_faults)
     v = fmu_parameters(day, seed, overrides)
     cfg = chain_config(v)
-    plant_chain = RailCarChain(cfg, grade)
-    est_chain = EstimatorChain(*estimator_settings(v), grade)
+    plant_chain = open_chain(cfg, grade)            # the C core (same numbers as the Python chain)
+    est_chain = open_estimator_chain(*estimator_settings(v), grade)
     sensors = FaultySensors(schedule)
     driver = ServiceDriver(day, rng_driver, v["car.traction_force_max"], v["car.brake_force_max"])
     batch = int(v["est.batch_size"])
