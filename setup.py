@@ -11,8 +11,6 @@ from setuptools import Extension, setup
 CORE = sorted(glob("models/core/*.c"))
 
 setup(ext_modules=[
-    Extension("models._fastcore", ["models/_fastcore.c"], optional=True,
-              extra_compile_args=["-O2", "-ffp-contract=off", "-fno-fast-math"]),
     Extension("models._railcar", ["models/_railcar.c", *CORE], optional=True,
               extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off", "-fno-fast-math"]),
 ])

@@ -10,10 +10,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-from . import _fast
 from .dynamics import CarPlant, VehicleParams
 from .estimator import OnlineEstimator, StationConfig
-from .filters import EKF, FilterConfig
+from .filters import FilterConfig
 from .identification import IdentifierConfig
 from .noise import noise_streams
 from .track import GradeProfile, SpeedProfile
@@ -185,17 +184,6 @@ class RailCarChain:
         self.sensor_speed = 0.0
         self.sensor_position = 0.0
         self._take_sample()
-        # models/_fastcore.c's do_step and outputs, bound now: the whole step for the FMU's
-        # default configuration (EKF, no track sensors, est.method 0, no forgetting)
-        core = _fast.core_for_new_object()
-        self._core_guard = bytearray()   # the core's record of replaced methods (_fastcore.c)
-        # the core knows the paper's estimator only (and reports Theta-hat as identified)
-        paper = (cfg.identifier.method == 0 and not cfg.identifier.physical
-                 and cfg.identifier.sigma2_method == 0)
-        compiled = (self.estimator.filter.kind == EKF and not cfg.track.spacing
-                    and paper and cfg.identifier.forgetting == 0.0)
-        self._core_step = core.chain_step if core is not None and compiled else None
-        self._core_outputs = core.chain_outputs if core is not None and paper else None
 
     def _take_sample(self) -> None:
         s = self.plant.state
@@ -275,11 +263,6 @@ class RailCarChain:
                 and -math.inf < current_time < math.inf):
             self._check_inputs(current_time, step_size, traction_demand, brake_demand, wind_speed,
                                payload)
-        step = self._core_step
-        if step is not None and step(self, current_time, step_size, traction_demand, brake_demand,
-                                     wind_speed, payload):
-            return      # compiled; False (bad input, or a method replaced on an instance,
-                        # nothing changed): the Python step below raises or runs
         current_time -= self.start_time          # internal time starts at 0
         mass = self.base_mass + payload
         if mass <= 0.0:
@@ -309,10 +292,6 @@ class RailCarChain:
 
     def outputs(self) -> dict[str, float]:
         """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*)."""
-        if self._core_outputs is not None:
-            out = self._core_outputs(self)        # the same dict, compiled
-            if out is not None:
-                return self.estimator.finish_outputs(out)
         s = self.plant.state
         out = {
             "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,
@@ -391,6 +370,3 @@ class EstimatorChain:
         if self.estimator is None:
             return {}
         return self.estimator.outputs(predicted=True)
-
-
-_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

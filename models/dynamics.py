@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from . import _fast
 from .track import GradeProfile
 from .units import G, mps_to_kmh
 
@@ -214,8 +213,6 @@ class CarPlant:
     def __init__(self, params: VehicleParams, grade_profile: GradeProfile, *, step: float,
                  noise_psd: float, station_dwell: float, normal_draws):
         params.validate()
-        self._core = _fast.core_for_new_object()   # the compiled advance, unless patched
-        self._core_guard = bytearray()             # its record of replaced methods (_fastcore.c)
         if not (step > 0 and math.isfinite(step)):
             raise ValueError(f"solver.step must be > 0, got {step}")
         if not (noise_psd >= 0 and math.isfinite(noise_psd)):
@@ -263,9 +260,6 @@ class CarPlant:
 
         Steps are cut at the internal grid; noise is added at each grid point reached.
         """
-        core = self._core
-        if core is not None and core.plant_advance(self, t_end, traction_demand, brake_demand, wind):
-            return                           # the same loop compiled (models/_fastcore.c)
         s = self.state
         eps = 1e-9 * max(1.0, abs(t_end))
         forces, accel = held_input_dynamics(self.p, self.grade_profile, traction_demand, brake_demand, wind)
@@ -295,6 +289,3 @@ class CarPlant:
             else:
                 s.still_time = 0.0
         self._update_outputs(traction_demand, brake_demand, wind, (forces, accel))
-
-
-_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

@@ -16,7 +16,6 @@ from .differentiation import centred_slope_weights
 from .filters import FilterConfig, MotionFilter, ProcessNoiseBank
 from .identification import IdentifierConfig, ParameterIdentifier, project_physical
 from .track import GradeProfile, SpeedProfile
-from . import _fast
 from .units import G
 
 
@@ -509,6 +508,3 @@ class OnlineEstimator:
             out["est.status"] = self.DEGRADED
         out["filter.rejected"] = self.filter.rejected
         return out
-
-
-_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

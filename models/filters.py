@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .track import GradeProfile, SpeedProfile
-from . import _fast
 from .units import G
 
 LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
@@ -517,6 +516,3 @@ class ProcessNoiseBank:
     def estimate(self) -> float:
         """sigma^2 [(m/s)^2]: q0 until the first moving pair."""
         return self._estimate
-
-
-_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _fast
 from . import linalg4
 from .differentiation import centred_slope_weights
 from .units import G
@@ -280,9 +279,6 @@ class ParameterIdentifier:
         self._end_factor = (2.0 * sum(x * x for x in centred_slope_weights([cfg.dt] * (int(cfg.slope_window) - 1))[1])
                             if self._slope_rows else 2.0)
         self._end_weight = math.sqrt(0.5 * self._end_factor)   # scales a run's end row in D
-        # the compiled update, unless patched; it knows the paper's differenced rows only
-        self._core = _fast.core_for_new_object() if not self._slope_rows else None
-        self._core_guard = bytearray()             # its record of replaced methods (_fastcore.c)
         self.theta0 = theta_from_params(cfg.mass_initial, cfg.A0_initial, cfg.A1_initial,
                                         cfg.A2_initial)
         self._scale = 1000.0 * (1.0 + cfg.gamma) / (G * cfg.dt)   # y per (m/s) of speed change
@@ -442,10 +438,6 @@ class ParameterIdentifier:
         ``contiguous``: this pair directly follows the last one used (they share a sample)."""
         if self.cfg.frozen:
             return
-        core = self._core
-        if core is not None and core.ident_update(self, traction, brake, speed, speed_next, grade,
-                                                  dt, contiguous):
-            return                           # the recursive step below, compiled
         phi = (traction - brake, -1.0, -speed, -speed * speed)                       # (4)
         y = 1000.0 * (1.0 + self.cfg.gamma) * (speed_next - speed) / (G * (dt or self.cfg.dt)) + grade
         self._cov = self._sigma2 = self._model_cov = None
@@ -706,11 +698,6 @@ class ParameterIdentifier:
     def _covariance_flat(self) -> list[float]:
         if self._cov is not None:
             return self._cov
-        core = self._core
-        if core is not None:
-            cov = core.ident_covariance(self)    # the mu = 1/n sandwich below, compiled
-            if cov is not None:
-                return cov
         if self.cfg.frozen:
             self._cov = [0.0] * 16
             return self._cov
@@ -831,6 +818,3 @@ class ParameterIdentifier:
         if self.cL is not None and self._n_cL >= self.LAG:
             return max((self.cL - self._end_factor * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
         return b
-
-
-_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

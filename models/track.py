@@ -9,7 +9,6 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass
 
-from . import _fast
 
 GRADE_COLUMNS = ("distance_m", "grade_permille")
 SPEED_COLUMNS = ("distance_m", "speed_mps")
@@ -151,6 +150,3 @@ class SpeedProfile:
         x0, x1 = d[k - 1], d[k]
         v0, v1 = self.speeds[k - 1], self.speeds[k]
         return v0 + (v1 - v0) * (x - x0) / (x1 - x0)
-
-
-_fast.remember(__name__)   # the compiled core replicates this module (models/_fast.py)

@@ -2,8 +2,9 @@
 inputs refused (models/filters.py MotionFilter.gate, models/estimator.py _excited and
 finish_outputs, models/chain.py input checks).
 
-Every run is seeded; the compiled and the Python path give the same numbers (tests/test_fastcore.py
-checks that bit for bit on these same faults).
+Every run is seeded and runs the Python chain (models/chain.py, the reference); the C core
+(models/core via models/compiled.py) is checked against it bit for bit through faults of the same
+kinds (spikes, a stuck speed sensor, a distance jump, station stops) in tests/test_core_chain.py.
 """
 from __future__ import annotations
 
