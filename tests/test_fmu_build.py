@@ -10,6 +10,7 @@ import os
 import shutil
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import fmpy
@@ -109,6 +110,21 @@ def test_validate_fmu_reports_no_problem(built_fmus, name):
 
 
 @pytest.mark.parametrize("name", FMU_NAMES)
+def test_built_fmu_bundles_the_c_core(built_fmus, name):
+    """build.py bundles the models folder as it is, so the C core that pip install -e . built in
+    place (models/_railcar*.so) travels in the FMU, with its sources (models/_railcar.c and
+    models/core/*.c, *.h): the FMU runs the C chain where it covers the configuration."""
+    with zipfile.ZipFile(built_fmus[name]) as z:
+        names = set(z.namelist())
+    assert any(n.startswith("resources/models/_railcar") and n.endswith(".so") for n in names), \
+        f"{name}.fmu lacks the compiled core models/_railcar*.so"
+    assert "resources/models/_railcar.c" in names
+    core = sorted(p.name for p in (ROOT / "models" / "core").iterdir() if p.suffix in (".c", ".h"))
+    missing = [c for c in core if f"resources/models/core/{c}" not in names]
+    assert len(core) >= 20 and not missing, f"{name}.fmu lacks models/core/{missing}"
+
+
+@pytest.mark.parametrize("name", FMU_NAMES)
 def test_every_real_has_a_declared_unit_with_a_consistent_base_unit(fmus, name):
     md = fmus[name].md
     declared = {u.name for u in md.unitDefinitions}
@@ -197,15 +213,17 @@ def test_guid_is_reproducible_and_follows_the_sources(built_fmus, tmp_path):
 
 
 # A fresh interpreter (cwd outside the project, no PYTHONPATH) loads the FMU, runs it and reports
-# where its Python modules came from. In the pytest process other test files import the source
-# tree's ``models``/``fmu_src`` at collection, and an FMU instance created afterwards silently
-# reuses those cached modules instead of its bundled copies; this test checks the bundle itself.
+# where its Python modules and the C core (models._railcar) came from. In the pytest process
+# other test files import the source tree's ``models``/``fmu_src`` at collection, and an FMU
+# instance created afterwards silently reuses those cached modules instead of its bundled
+# copies; this test checks the bundle itself.
 _FRESH_RUN = r"""
 import pythonfmu, json, sys, fmpy
 unzipdir, start_values, outputs = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3])
 r = fmpy.simulate_fmu(unzipdir, stop_time=10.0, output_interval=0.1, start_values=start_values,
                       output=outputs)
 print(json.dumps({"modules": {m: sys.modules[m].__file__ for m in ("models", "models.chain",
+                                                                   "models._railcar",
                                                                    "fmu_src.adapter")},
                   "time": r["time"].tolist(), "values": {n: r[n].tolist() for n in outputs}}))
 """
