@@ -7,7 +7,7 @@ Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs 
 ``ENGINES`` counts the chains opened with each.
 
 The C core covers filter kinds 0-3, est.method 0, est.physical 0, est.sigma2_method 0, any
-forgetting, car length and odometry drift; track sensors, the Singer filter and the other
+forgetting, car length, odometry drift and track sensors; the Singer filter and the other
 estimation methods run in Python. ``RAILCAR_PURE_PYTHON=1`` runs Python always (and a machine
 without a C compiler installs without the core and does the same).
 """
@@ -66,8 +66,6 @@ def estimator_not_covered(identifier: IdentifierConfig, filt: FilterConfig) -> s
 
 def not_covered(cfg: ChainConfig) -> str | None:
     """Why the C core does not run this chain, or None when it does."""
-    if cfg.track.spacing:
-        return "track sensors (sensor.track_spacing > 0)"
     return estimator_not_covered(cfg.identifier, cfg.filter)
 
 
@@ -90,7 +88,8 @@ def _config_values(cfg: ChainConfig, start_time: float) -> list[float]:
             cfg.solver_step, cfg.process_noise_psd, cfg.sample_period, int(cfg.seed),
             cfg.initial_speed, cfg.initial_position,
             st.dwell, st.speed_threshold, st.position_threshold,
-            *_estimator_values(cfg.identifier, cfg.filter), cfg.track.spacing, start_time]
+            *_estimator_values(cfg.identifier, cfg.filter), cfg.track.spacing, cfg.track.base,
+            cfg.track.resolution, cfg.track.jitter, start_time]
 
 
 def validate(cfg: ChainConfig, speed_profile: SpeedProfile | None, start_time: float) -> ChainConfig:

@@ -24,7 +24,8 @@ long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
         NULL /* sigma2_method */,
         &c->filter.dt, &c->filter.speed_std, &c->filter.position_std,
         &c->filter.position_std_rel, &c->filter.gamma, NULL /* kind */, &c->filter.length,
-        &c->track_spacing, &c->start_time,
+        &c->track_spacing, &c->track_base, &c->track_resolution, &c->track_jitter,
+        &c->start_time,
     };
     const long count = (long)(sizeof f / sizeof f[0]);
     if (n != count)

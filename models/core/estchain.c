@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "checks.h"
+#include "track_sensors.h"
 
 #define MASS_RANGE 5.0                 /* OnlineEstimator.MASS_RANGE */
 
@@ -70,14 +71,6 @@ void rc_estchain_free(rc_estchain *c)
     c->profiles = NULL;
 }
 
-/* models.chain.TrackSensorConfig.speed_std(v) [m/s] */
-static double track_speed_std(const rc_estchain_config *t, double v)
-{
-    double var = t->track_resolution * t->track_resolution / 6.0
-                 + 2.0 * t->track_jitter * t->track_jitter;
-    return v * v / t->track_base * sqrt(var);
-}
-
 static const char FORCE_WHY[] = "10 x the adhesion limit 0.4 g of 5 x est.mass_initial";
 
 rc_status rc_estchain_step(rc_estchain *c, double current_time, double step_size, double traction,
@@ -122,7 +115,9 @@ rc_status rc_estchain_step(rc_estchain *c, double current_time, double step_size
     rc_estimator_measure(&c->est, speed_meas, position_meas);
     if (c->last_track_time < track_time && track_time <= current_time + 1e-9 && track_speed > 0.0) {
         rc_estimator_measure_track_speed(&c->est, track_speed, current_time - track_time,
-                                         track_speed_std(&c->cfg, track_speed), c->cfg.track_base);
+                                         rc_track_speed_std(track_speed, c->cfg.track_base,
+                                                            c->cfg.track_resolution,
+                                                            c->cfg.track_jitter), c->cfg.track_base);
         c->last_track_time = track_time;
     }
     rc_estimator_propagate(&c->est, traction, brake, step_size);

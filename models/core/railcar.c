@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "checks.h"
+#include "track_sensors.h"
 
 /* RailCarChain._check_inputs: the first input that is bad or beyond physics */
 static rc_status check_inputs(const rc_chain *c, rc_error *err, double current_time,
@@ -39,6 +40,43 @@ static rc_status refuse(rc_error *err, const char *what)
     return RC_BAD_CONFIG;
 }
 
+/* TrackSensorConfig.validate with its messages */
+static rc_status check_track(const rc_chain_config *cfg, rc_error *err)
+{
+    const char *names[] = {"spacing", "jitter"};
+    const double values[] = {cfg->track_spacing, cfg->track_jitter};
+    char a[40], b[40];
+    for (int k = 0; k < 2; k++)
+        if (!(values[k] >= 0 && isfinite(values[k]))) {
+            rc_repr(values[k], a, sizeof a);
+            if (err)
+                snprintf(err->msg, sizeof err->msg, "sensor.track_%s must be >= 0, got %s",
+                         names[k], a);
+            return RC_BAD_CONFIG;
+        }
+    if (!(cfg->track_base > 0 && isfinite(cfg->track_base))) {
+        rc_repr(cfg->track_base, a, sizeof a);
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "sensor.track_base must be > 0, got %s", a);
+        return RC_BAD_CONFIG;
+    }
+    if (!(cfg->track_resolution >= 0 && isfinite(cfg->track_resolution))) {
+        rc_repr(cfg->track_resolution, a, sizeof a);
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "sensor.track_resolution must be >= 0, got %s", a);
+        return RC_BAD_CONFIG;
+    }
+    if (cfg->track_spacing != 0.0 && cfg->track_spacing <= cfg->track_base) {
+        rc_repr(cfg->track_spacing, a, sizeof a);
+        rc_repr(cfg->track_base, b, sizeof b);
+        if (err)
+            snprintf(err->msg, sizeof err->msg,
+                     "sensor.track_spacing (%s) must exceed sensor.track_base (%s)", a, b);
+        return RC_BAD_CONFIG;
+    }
+    return RC_OK;
+}
+
 /* RailCarChain._take_sample */
 static void take_sample(rc_chain *c)
 {
@@ -48,6 +86,66 @@ static void take_sample(rc_chain *c)
     c->sensor_position = s->position + (f->position_std + f->position_std_rel * fabs(s->position))
                          * rc_stream_normal(&c->streams[RC_POSITION_SENSOR]);
     rc_estimator_measure(&c->est, c->sensor_speed, c->sensor_position);
+    if (c->has_pending_track) {
+        double v = c->pending_speed;
+        rc_estimator_measure_track_speed(&c->est, v, c->pending_age,
+                                         rc_track_speed_std(v, c->cfg.track_base,
+                                                            c->cfg.track_resolution,
+                                                            c->cfg.track_jitter),
+                                         c->cfg.track_base);
+        c->has_pending_track = 0;
+    }
+}
+
+/* RailCarChain._track_reading: the pair's passages at t_first and t_second [s] */
+static void track_reading(rc_chain *c, double t_first, double t_second)
+{
+    const rc_chain_config *tc = &c->cfg;
+    double j1 = tc->track_jitter * rc_stream_normal(&c->streams[RC_TRACK_SENSOR]);
+    double j2 = tc->track_jitter * rc_stream_normal(&c->streams[RC_TRACK_SENSOR]);
+    double v = rc_track_speed_from_times(t_first, t_second, tc->track_base, tc->track_resolution,
+                                         j1, j2);
+    double stamp = tc->track_resolution != 0.0 ? rc_track_quantise(t_second + j2, tc->track_resolution)
+                                               : t_second + j2;
+    if (!isfinite(v))
+        return;                              /* both stamps on one tick: no reading */
+    c->track_speed = v;
+    c->track_time = stamp + c->start_time;
+    c->has_pending_track = 1;
+    c->pending_speed = v;
+    c->pending_age = c->plant.time - stamp;
+}
+
+/* RailCarChain._track_passages: track sensors passed since (t0, x0, v0); a pair's second sensor
+ * yields a speed */
+static void track_passages(rc_chain *c, double t0, double x0, double v0)
+{
+    const rc_plant_state *s = &c->plant.state;
+    double t1 = c->plant.time, x1 = s->position, v1 = s->speed;
+    if (x1 < x0) {                           /* the distance restarted at a station */
+        c->has_track_t1 = 0;
+        return;
+    }
+    const double spacing = c->cfg.track_spacing, base = c->cfg.track_base;
+    double k = floor(x0 / spacing);          /* Python's int: whole, exact in a double */
+    for (;;) {                               /* sensors at k*spacing (first) and +base (second) */
+        for (int second = 0; second < 2; second++) {
+            double d = second ? k * spacing + base : k * spacing;
+            if (k >= 1.0 && x0 < d && d <= x1) {
+                double t = rc_track_hermite_crossing(t0, x0, v0, t1, x1, v1, d);
+                if (!second) {
+                    c->has_track_t1 = 1;
+                    c->track_t1 = t;
+                } else if (c->has_track_t1) {
+                    track_reading(c, c->track_t1, t);
+                    c->has_track_t1 = 0;
+                }
+            }
+        }
+        k += 1.0;
+        if (k * spacing > x1)
+            return;
+    }
 }
 
 /* Everything RailCarChain.__init__ does after the profiles are in place (init and reset) */
@@ -57,6 +155,10 @@ static rc_status start(rc_chain *c, rc_error *err)
     for (int k = 0; k < RC_STREAMS; k++)
         rc_stream_seed(&c->streams[k], (uint64_t)c->cfg.seed, (uint32_t)k);
     c->track_speed = c->track_time = 0.0;
+    c->has_track_t1 = 0;
+    c->track_t1 = 0.0;
+    c->has_pending_track = 0;
+    c->pending_speed = c->pending_age = 0.0;
     c->base_mass = c->cfg.vehicle.mass;
     c->traction_limit = FORCE_LIMIT_FACTOR * rc_max(c->cfg.vehicle.traction_force_max, 1.0);
     c->brake_limit = FORCE_LIMIT_FACTOR * rc_max(c->cfg.vehicle.brake_force_max, 1.0);
@@ -85,8 +187,9 @@ rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
     memset(c, 0, sizeof *c);
     if (err)
         err->msg[0] = '\0';
-    if (cfg->track_spacing != 0.0)
-        return refuse(err, "track sensors (sensor.track_spacing > 0)");
+    rc_status bad = check_track(cfg, err);
+    if (bad)
+        return bad;
     if (cfg->filter.kind == RC_SINGER)
         return refuse(err, "the Singer filter (filter.kind 4)");
     if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0)
@@ -206,7 +309,10 @@ rc_status rc_chain_step(rc_chain *c, double current_time, double step_size, doub
                 rc_plant_advance(&c->plant, t_end, traction_demand, brake_demand, wind_speed);
             return RC_OK;
         }
+        double t0 = c->plant.time, x0 = c->plant.state.position, v0 = c->plant.state.speed;
         rc_plant_advance(&c->plant, t_sample, traction_demand, brake_demand, wind_speed);
+        if (c->cfg.track_spacing != 0.0)
+            track_passages(c, t0, x0, v0);
         /* forces applied over the last sample interval, then the new measurement */
         double ts = c->cfg.sample_period;
         rc_estimator_propagate(&c->est, c->plant.traction_impulse / ts, c->plant.brake_impulse / ts, ts);

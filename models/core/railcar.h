@@ -9,9 +9,9 @@
  *
  * The struct points into itself (the plant at its noise stream and profiles): initialise it
  * where it stays, never copy it. Covered: filter kinds 0-3, est.method 0, est.physical 0,
- * est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length, odometry drift; not
- * covered (rc_chain_init answers RC_BAD_CONFIG, the Python chain runs): track sensors, the
- * Singer filter, est.method 1-3, est.physical 1, est.sigma2_method 1.
+ * est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length, odometry drift,
+ * track sensors (track_sensors.h); not covered (rc_chain_init answers RC_BAD_CONFIG, the Python
+ * chain runs): the Singer filter, est.method 1-3, est.physical 1, est.sigma2_method 1.
  */
 #ifndef RAILCAR_RAILCAR_H
 #define RAILCAR_RAILCAR_H
@@ -32,7 +32,8 @@ typedef struct {                       /* models.chain.ChainConfig + the profile
     rc_station_config station;
     rc_ident_config identifier;
     rc_filter_config filter;
-    double track_spacing;              /* [m]; must be 0 (track sensors run in Python) */
+    double track_spacing;              /* [m]: a sensor pair every spacing from a station; 0 none */
+    double track_base, track_resolution, track_jitter;   /* [m], [s], [s] (TrackSensorConfig) */
     int method, physical, sigma2_method;      /* est.*: must be 0 */
     const double *grade_distances, *grades;   /* [m], [permille] */
     long grade_n;
@@ -57,6 +58,9 @@ typedef struct {
     rc_stream streams[RC_STREAMS];
     double start_time;
     double track_speed, track_time;    /* [m/s], [s] */
+    int has_track_t1;  double track_t1;        /* _track_t1 (None: has_track_t1 0) [s] */
+    int has_pending_track;                     /* _pending_track is not None */
+    double pending_speed, pending_age;         /* _pending_track's (v, age) [m/s], [s] */
     double base_mass;                  /* [t] */
     double traction_limit, brake_limit, payload_limit;   /* [N], [N], [t] */
     rc_plant plant;
