@@ -344,6 +344,9 @@ static PyObject *chain_state(ChainObject *self, PyObject *Py_UNUSED(ignored))
     v[n++] = p->traction_impulse; v[n++] = p->brake_impulse;
     v[n++] = p->state.still_time; v[n++] = (double)p->state.stops;
     v[n++] = (double)c->sample_index;
+    v[n++] = c->has_track_t1 ? c->track_t1 : NAN;
+    v[n++] = c->has_pending_track ? c->pending_speed : NAN;
+    v[n++] = c->has_pending_track ? c->pending_age : NAN;
     PyObject *t = PyTuple_New(n);
     if (!t)
         return NULL;

@@ -66,7 +66,9 @@ def python_state(chain: RailCarChain) -> tuple:
               ident.c1, math.nan if ident.cL is None else ident.cL, ident._n_cL, ident._n_c1,
               f._xb0, f._xb1, f._m00, f._m01, f._m11, f._xh0, f._xh1, f._p00, f._p01, f._p11,
               st.still_time, st._fast_run, p.time, p._grid_index, p.traction_impulse,
-              p.brake_impulse, p.state.still_time, p.state.stops, chain._sample_index]
+              p.brake_impulse, p.state.still_time, p.state.stops, chain._sample_index,
+              math.nan if chain._track_t1 is None else chain._track_t1,
+              *(chain._pending_track or (math.nan, math.nan))]
     return tuple(float(x) for x in values)
 
 
@@ -309,15 +311,15 @@ def test_open_chain_runs_c_where_covered_and_python_elsewhere():
     grade = GradeProfile.level()
     before = dict(compiled.ENGINES)
     assert open_chain(ChainConfig(), grade).engine == "c"
-    for cfg in (ChainConfig(track=TrackSensorConfig(spacing=200.0)),
-                ChainConfig(filter=FilterConfig(kind=4)),
+    assert open_chain(ChainConfig(track=TrackSensorConfig(spacing=200.0)), grade).engine == "c"
+    for cfg in (ChainConfig(filter=FilterConfig(kind=4)),
                 ChainConfig(identifier=IdentifierConfig(method=2)),
                 ChainConfig(identifier=IdentifierConfig(physical=1)),
                 ChainConfig(identifier=IdentifierConfig(sigma2_method=1))):
         chain = open_chain(cfg, grade)
         assert chain.engine == "python" and isinstance(chain, RailCarChain)
-    assert compiled.ENGINES["c"] == before.get("c", 0) + 1
-    assert compiled.ENGINES["python"] == before.get("python", 0) + 5
+    assert compiled.ENGINES["c"] == before.get("c", 0) + 2
+    assert compiled.ENGINES["python"] == before.get("python", 0) + 4
     assert open_estimator_chain(IdentifierConfig(), FilterConfig(), StationConfig(), grade).engine == "c"
     assert open_estimator_chain(IdentifierConfig(method=1), FilterConfig(), StationConfig(),
                                 grade).engine == "python"
