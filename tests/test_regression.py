@@ -4,6 +4,8 @@ All library scenarios run once per session on the freshly built RailCar (fixture
 each matches its reference (explicit tolerances + fmpy's band test), the stored inputs are
 those the driver applied, and every target of the library table is met.
 """
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -50,7 +52,7 @@ def test_stored_inputs_are_what_the_driver_applied(library_results, name):
 def test_a_deliberate_model_change_fails_naming_scenario_and_signal(built_fmus):
     """A 10 % change of car.A0 in level_run is caught, and the message says where."""
     s = load_scenario(next(p for p in library_scenarios() if p.stem == "level_run"))
-    changed = type(s)(**{**s.__dict__, "parameters": {**s.parameters, "car.A0": 1.1 * s.parameter("car.A0")}})
+    changed = replace(s, parameters={**s.parameters, "car.A0": 1.1 * s.parameter("car.A0")})
     with FmuRunner(built_fmus["RailCar"]) as runner:
         c = compare(runner.run(changed))
     assert not c.ok
