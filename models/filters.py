@@ -175,17 +175,18 @@ class MotionFilter:
                         p_x: float = 0.0) -> None:
         from .singer import SingerFilter
         sp = self._singer_params
-        self._singer = SingerFilter(sp, x0=[sp.m_w, speed, position],
-                                    P0=np.diag([sp.sigma_w ** 2, p_v, p_x]))
+        self._singer = SingerFilter(sp, x0=(sp.m_w, speed, position),
+                                    P0=(sp.sigma_w ** 2, 0.0, 0.0, 0.0, p_v, 0.0, 0.0, 0.0, p_x))
         self._singer_copy(posterior=True)
         self._singer_copy(posterior=False)
 
     def _singer_copy(self, posterior: bool) -> None:
-        x, P = self._singer.x, self._singer.P
+        """The Singer filter's (v, r) block into the posterior's (or the prediction's) fields."""
+        x, P = self._singer._x, self._singer._P        # [w, v, r]; 3x3 row-major
         if posterior:
-            self._xh0, self._xh1, self._p00, self._p01, self._p11 = x[1], x[2], P[1, 1], P[1, 2], P[2, 2]
+            self._xh0, self._xh1, self._p00, self._p01, self._p11 = x[1], x[2], P[4], P[5], P[8]
         else:
-            self._xb0, self._xb1, self._m00, self._m01, self._m11 = x[1], x[2], P[1, 1], P[1, 2], P[2, 2]
+            self._xb0, self._xb1, self._m00, self._m01, self._m11 = x[1], x[2], P[4], P[5], P[8]
 
     def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
         """A run that does not start at a station: state = first measurement, P = its noise."""
@@ -321,8 +322,8 @@ class MotionFilter:
                 if use_v:
                     self._singer.update_speed(speed_meas, self.cfg.speed_std)
                 elif use_x:
-                    self._singer.update(np.array([position_meas]), np.array([[0.0, 0.0, 1.0]]),
-                                        np.array([[self.cfg.position_noise_std(position_meas) ** 2]]))
+                    self._singer.update_distance(position_meas,
+                                                 self.cfg.position_noise_std(position_meas))
                 self._singer_copy(posterior=True)
             elif use_v or use_x:
                 self._update_one(speed_meas, position_meas, use_v)

@@ -40,7 +40,10 @@ e^(-x) inherits the x * 1e-16 relative rounding of x = alpha dt). tests/test_sin
 at alpha dt = 10, so it serves only as a cross-check in the tests.)
 
 Filter: ``singer_predict`` / ``singer_update`` are pure (filterpy style, they return new x, P);
-``SingerFilter`` is the thin stateful wrapper. Measurements: speed only (``H_SPEED``) or speed
+``SingerFilter`` is the stateful filter (models.filters.MotionFilter's kind 4). One state runs
+on a scalar path (``_predict``, ``_update``, ``_project``: plain floats, every sum in a fixed
+order, no BLAS/LAPACK), which models/core/singer.c mirrors bit for bit; numpy serves (N, 3)
+batches only. Measurements: speed only (``H_SPEED``) or speed
 and distance (``H_SPEED_DISTANCE``), e.g. from two point track sensors (seed 002 eqs. (15),
 (16): y = [0 1 0] z + eta) and an odometer. A non-zero mean m_w is handled in the prediction:
 the centred part w - m_w decays with rho and the mean m_w acts as a known input. The speed is
@@ -224,6 +227,38 @@ def _check_step(alpha: float, dt: float) -> float:
     return alpha * dt
 
 
+def _transition(alpha: float, dt: float) -> tuple:
+    """Phi of ``singer_transition`` as a flat row-major tuple of 9 floats."""
+    x = _check_step(alpha, dt)
+    return (math.exp(-x), 0.0, 0.0,
+            dt * _f("phi1", x), 1.0, 0.0,
+            dt * dt * _f("phi2", x), dt, 1.0)
+
+
+def _process_noise(alpha: float, dt: float, sigma_w: float) -> tuple:
+    """Q of ``singer_process_noise`` as a flat row-major tuple of 9 floats: entry (i, j), j >= i,
+    is ((k scale_i) scale_j) J_ij(x), k = (2 x) sigma_w sigma_w, scale = (1, dt, dt dt); (j, i)
+    the same float."""
+    x = _check_step(alpha, dt)
+    if not (sigma_w >= 0.0 and math.isfinite(sigma_w)):
+        raise ValueError(f"sigma_w must be >= 0 and finite [m/s^2], got {sigma_w}")
+    scale = (1.0, dt, dt * dt)
+    names = (("ww", "wv", "wr"), ("wv", "vv", "vr"), ("wr", "vr", "rr"))
+    k = 2.0 * x * sigma_w * sigma_w
+    Q = [0.0] * 9
+    for i in range(3):
+        for j in range(i, 3):
+            Q[3 * i + j] = Q[3 * j + i] = k * scale[i] * scale[j] * _f(names[i][j], x)
+    return tuple(Q)
+
+
+def _mean_input(alpha: float, dt: float, m_w: float) -> tuple:
+    """u of ``singer_mean_input`` as a tuple of 3 floats (m_w times each entry)."""
+    x = _check_step(alpha, dt)
+    return (m_w * -math.expm1(-x), m_w * (dt * x * _f("phi2", x)),
+            m_w * (dt * dt * x * _f("phi3", x)))
+
+
 def singer_transition(alpha: float, dt: float) -> np.ndarray:
     """Exact 3x3 transition Phi = expm(A dt) of z = [w, v, r] ([m/s^2], [m/s], [m]).
 
@@ -231,10 +266,7 @@ def singer_transition(alpha: float, dt: float) -> np.ndarray:
     Phi = [[rho, 0, 0], [dt phi1(-x), 1, 0], [dt^2 phi2(-x), dt, 1]], rho = exp(-x) (seed 002
     eq. (9)); for x -> 0 it tends to the constant-acceleration [[1,0,0],[dt,1,0],[dt^2/2,dt,1]].
     """
-    x = _check_step(alpha, dt)
-    return np.array([[math.exp(-x), 0.0, 0.0],
-                     [dt * _f("phi1", x), 1.0, 0.0],
-                     [dt * dt * _f("phi2", x), dt, 1.0]])
+    return np.array(_transition(alpha, dt)).reshape(3, 3)
 
 
 def singer_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray:
@@ -246,17 +278,7 @@ def singer_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray:
     the seed's q = sqrt(1 - rho^2) (seed 002 eq. (10)). Accurate to ~1e-15 relative per element
     for every alpha dt >= 0 (series below ``SERIES_SWITCH``, see the module docstring).
     """
-    x = _check_step(alpha, dt)
-    if not (sigma_w >= 0.0 and math.isfinite(sigma_w)):
-        raise ValueError(f"sigma_w must be >= 0 and finite [m/s^2], got {sigma_w}")
-    scale = [1.0, dt, dt * dt]
-    names = (("ww", "wv", "wr"), ("wv", "vv", "vr"), ("wr", "vr", "rr"))
-    k = 2.0 * x * sigma_w * sigma_w
-    Q = np.empty((3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            Q[i, j] = Q[j, i] = k * scale[i] * scale[j] * _f(names[i][j], x)
-    return Q
+    return np.array(_process_noise(alpha, dt, sigma_w)).reshape(3, 3)
 
 
 def seed002_transition(alpha: float, dt: float) -> np.ndarray:
@@ -289,11 +311,102 @@ def singer_mean_input(alpha: float, dt: float, m_w: float) -> np.ndarray:
     u = m_w [1 - rho, dt x phi2(-x), dt^2 x phi3(-x)] ([m/s^2], [m/s], [m]), x = alpha dt,
     phi3(z) = (e^z - 1 - z - z^2/2)/z^3 (the same expressions without cancellation).
     """
-    x = _check_step(alpha, dt)
-    return m_w * np.array([-math.expm1(-x), dt * x * _f("phi2", x), dt * dt * x * _f("phi3", x)])
+    return np.array(_mean_input(alpha, dt, m_w))
 
 
 # ------------------------------------------------------------------------------- filter
+#
+# The filter's arithmetic is scalar Python with a fixed operation order, so that the C core
+# (models/core/singer.c) reproduces it bit for bit: numpy's matrix products and
+# np.linalg.solve go through BLAS/LAPACK (fused multiply-adds, blocked sums), which C cannot
+# reproduce. Matrices are flat row-major lists (3x3: 9 floats; H: m rows of 3; R: m x m),
+# vectors lists. Every sum of products runs left to right starting with the first product
+# (``_dot``: ((a0 b0 + a1 b1) + a2 b2)); the order of each step is written at its function.
+# The numpy forms below (``singer_predict``/``singer_update`` for (N, 3) batches) stay for
+# Monte-Carlo batches; a single state goes through the scalar path.
+
+
+def _dot(a, b) -> float:
+    """a[0] b[0] + a[1] b[1] + ... left to right, starting with the first product."""
+    s = a[0] * b[0]
+    for i in range(1, len(a)):
+        s += a[i] * b[i]
+    return s
+
+
+def _project(x: list, P) -> list:
+    """``project_speed`` of one state x (3 floats), P flat: if v < 0, x_i - (P[i, v] / P[v, v]) v
+    for i = w, v, r when P[v, v] > 0, then v = 0 (only v = 0 when P[v, v] is not > 0)."""
+    v = x[I_V]
+    if not v < 0.0:
+        return x
+    pvv = P[4]
+    if pvv > 0.0:
+        x = [x[0] - P[1] / pvv * v, x[1] - P[4] / pvv * v, x[2] - P[7] / pvv * v]
+    else:
+        x = list(x)
+    x[I_V] = 0.0
+    return x
+
+
+def _symmetric(M: list) -> list:
+    """0.5 (M + M^T) of a flat 3x3: entry (i, j) is 0.5 * (M[i, j] + M[j, i])."""
+    return [0.5 * (M[3 * i + j] + M[3 * j + i]) for i in range(3) for j in range(3)]
+
+
+def _predict(x: list, P, Phi, Q, u, clip: bool) -> tuple[list, list]:
+    """x' = Phi x + u (entry i: _dot(Phi row i, x) + u_i); P' = sym((Phi P) Phi^T + Q) with
+    (Phi P)[i, j] = _dot(Phi row i, P column j), ((Phi P) Phi^T)[i, j] = _dot((Phi P) row i,
+    Phi row j), Q added entry by entry; then the clip (``_project``) when ``clip``."""
+    xp = [_dot(Phi[3 * i:3 * i + 3], x) + u[i] for i in range(3)]
+    T = [_dot(Phi[3 * i:3 * i + 3], P[j::3]) for i in range(3) for j in range(3)]
+    M = [_dot(T[3 * i:3 * i + 3], Phi[3 * j:3 * j + 3]) + Q[3 * i + j]
+         for i in range(3) for j in range(3)]
+    Pp = _symmetric(M)
+    return (_project(xp, Pp) if clip else xp), Pp
+
+
+def _update(x: list, P, z, H, R, clip: bool) -> tuple[list, list, float]:
+    """Kalman update with m = 1 or 2 measurements z = H [w, v, r] + eta, cov(eta) = R (flat
+    m x m). Returns (x', P', NIS). Order:
+
+    - G = P H^T (3 x m): G[i, a] = _dot(P row i, H row a);
+      S = H G + R: S[a, b] = _dot(H row a, G column b) + R[a, b]; y_a = z_a - _dot(H row a, x);
+    - m = 1: K_i = G_i / S, NIS = y (y / S);
+      m = 2: det = S00 S11 - S01 S10, S^-1 = (S11/det, -S01/det, -S10/det, S00/det),
+      K[i, a] = _dot(G row i, S^-1 column a), NIS = _dot(y, S^-1 y) (S^-1 y by rows);
+    - x'_i = x_i + _dot(K row i, y);
+    - Joseph form: A = I - K H (A[i, j] = delta_ij - _dot(K row i, H column j)),
+      P' = sym((A P) A^T + (K R) K^T), each product as in ``_predict``, the two sums entry by
+      entry; then the clip (``_project``).
+
+    A singular S (S = 0, det = 0) raises ZeroDivisionError before anything is returned.
+    """
+    m = len(z)
+    G = [_dot(P[3 * i:3 * i + 3], H[a]) for i in range(3) for a in range(m)]
+    S = [_dot(H[a], G[b::m]) + R[m * a + b] for a in range(m) for b in range(m)]
+    y = [z[a] - _dot(H[a], x) for a in range(m)]
+    if m == 1:
+        s = S[0]
+        K = [G[0] / s, G[1] / s, G[2] / s]
+        nis = y[0] * (y[0] / s)
+    elif m == 2:
+        det = S[0] * S[3] - S[1] * S[2]
+        inv = [S[3] / det, -S[1] / det, -S[2] / det, S[0] / det]
+        K = [_dot(G[2 * i:2 * i + 2], inv[a::2]) for i in range(3) for a in range(2)]
+        nis = _dot(y, [_dot(inv[0:2], y), _dot(inv[2:4], y)])
+    else:
+        raise ValueError(f"the Singer filter takes 1 or 2 measurements at a time, got {m}")
+    xn = [x[i] + _dot(K[m * i:m * i + m], y) for i in range(3)]
+    A = [(1.0 if i == j else 0.0) - _dot(K[m * i:m * i + m], [H[a][j] for a in range(m)])
+         for i in range(3) for j in range(3)]
+    T = [_dot(A[3 * i:3 * i + 3], P[j::3]) for i in range(3) for j in range(3)]
+    KR = [_dot(K[m * i:m * i + m], R[b::m]) for i in range(3) for b in range(m)]
+    Pn = [_dot(T[3 * i:3 * i + 3], A[3 * j:3 * j + 3]) + _dot(KR[m * i:m * i + m], K[m * j:m * j + m])
+          for i in range(3) for j in range(3)]
+    Pn = _symmetric(Pn)
+    return (_project(xn, Pn) if clip else xn), Pn, nis
+
 
 def project_speed(x: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Clip the speed at 0: a state with v < 0 [m/s] is replaced by its projection onto v = 0.
@@ -301,33 +414,51 @@ def project_speed(x: np.ndarray, P: np.ndarray) -> np.ndarray:
     The projection is the minimum-variance one (Simon & Chia 2002, "estimate projection"):
     x - P[:, v] v / P[v, v], i.e. the conditional mean given v = 0, so w and r move with their
     correlation to v (a car found at rest was braking less than predicted); if P[v, v] = 0 only
-    v is set to 0. The covariance is left unchanged (conservative). ``x`` may be (3,) or (N, 3)
-    (N states sharing P); rows with v >= 0 are returned unchanged. A new array is returned.
+    v is set to 0. The covariance is left unchanged (conservative). ``x`` may be (3,) (the
+    scalar ``_project``) or (N, 3) (N states sharing P); rows with v >= 0 are returned
+    unchanged. A new array is returned.
     """
     x = np.array(x, dtype=float, copy=True)
+    if x.ndim == 1:
+        return np.array(_project(x.tolist(), np.asarray(P, dtype=float).reshape(9).tolist()))
     v = x[..., I_V]
     neg = v < 0.0
     if not np.any(neg):
         return x
     pvv = P[I_V, I_V]
-    gain = P[:, I_V] / pvv if pvv > 0.0 else np.eye(3)[I_V]
-    if x.ndim == 1:
-        x = x - gain * v
-        x[I_V] = 0.0
-    else:
-        x[neg] -= np.outer(v[neg], gain)
-        x[neg, I_V] = 0.0
+    if pvv > 0.0:
+        x[neg] -= np.outer(v[neg], P[:, I_V] / pvv)
+    x[neg, I_V] = 0.0
     return x
 
 
 @lru_cache(maxsize=256)
+def _discretisation_flat(alpha: float, dt: float, sigma_w: float, m_w: float):
+    """(Phi, Q, u) as flat tuples, cached: a filter run at a constant step computes them once."""
+    return (_transition(alpha, dt), _process_noise(alpha, dt, sigma_w),
+            _mean_input(alpha, dt, m_w))
+
+
+@lru_cache(maxsize=256)
 def _discretisation(alpha: float, dt: float, sigma_w: float, m_w: float):
-    """(Phi, Q, u) cached: a filter run at a constant step computes them once."""
-    out = (singer_transition(alpha, dt), singer_process_noise(alpha, dt, sigma_w),
-           singer_mean_input(alpha, dt, m_w))
+    """(Phi, Q, u) as read-only numpy arrays, for the (N, 3) batches."""
+    Phi, Q, u = _discretisation_flat(alpha, dt, sigma_w, m_w)
+    out = (np.array(Phi).reshape(3, 3), np.array(Q).reshape(3, 3), np.array(u))
     for a in out:
         a.setflags(write=False)
     return out
+
+
+def _flat_state(x, P) -> tuple[list, list]:
+    return (np.asarray(x, dtype=float).reshape(3).tolist(),
+            np.asarray(P, dtype=float).reshape(9).tolist())
+
+
+def _flat_measurement(z, H, R) -> tuple[list, list, list]:
+    H = np.atleast_2d(np.asarray(H, dtype=float))
+    m = H.shape[0]
+    return (np.asarray(z, dtype=float).reshape(m).tolist(), H.reshape(m, 3).tolist(),
+            np.atleast_2d(np.asarray(R, dtype=float)).reshape(m * m).tolist())
 
 
 def singer_predict(x: np.ndarray, P: np.ndarray, dt: float, params: SingerParams,
@@ -335,11 +466,16 @@ def singer_predict(x: np.ndarray, P: np.ndarray, dt: float, params: SingerParams
     """Predict z = [w, v, r] ([m/s^2], [m/s], [m]) and its covariance over dt [s].
 
     x_pred = Phi (x - m_w e_w) + m_w [1, dt, dt^2/2], P_pred = Phi P Phi^T + Q (exact Phi, Q of
-    this module; seed 002 eqs. (8)-(14) in exact form). ``x`` may be (3,) or (N, 3). With
-    ``clip`` a negative predicted speed is projected onto 0 (``project_speed``).
+    this module; seed 002 eqs. (8)-(14) in exact form). ``x`` may be (3,) (the scalar path,
+    ``_predict``) or (N, 3) (numpy). With ``clip`` a negative predicted speed is projected onto 0
+    (``project_speed``).
     """
-    Phi, Q, u = _discretisation(params.alpha, float(dt), params.sigma_w, params.m_w)
     x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        Phi, Q, u = _discretisation_flat(params.alpha, float(dt), params.sigma_w, params.m_w)
+        xs, Ps = _predict(*_flat_state(x, P), Phi, Q, u, clip)
+        return np.array(xs), np.array(Ps).reshape(3, 3)
+    Phi, Q, u = _discretisation(params.alpha, float(dt), params.sigma_w, params.m_w)
     x_pred = x @ Phi.T + u
     P_pred = Phi @ P @ Phi.T + Q
     P_pred = 0.5 * (P_pred + P_pred.T)
@@ -361,88 +497,122 @@ def singer_update(x: np.ndarray, P: np.ndarray, z, H: np.ndarray, R,
     H: ``H_SPEED`` (z = speed [m/s], R [(m/s)^2]) or ``H_SPEED_DISTANCE`` (z = [speed [m/s],
     distance [m]], R 2x2), or any m x 3. Gain K = P H^T S^-1; the covariance in Joseph form
     (I - K H) P (I - K H)^T + K R K^T (symmetric, positive semi-definite in floating point).
-    ``x`` may be (3,) with z (m,), or (N, 3) with z (N, m). With ``clip`` a negative speed is
-    projected onto 0 (``project_speed``).
+    ``x`` may be (3,) with z (m,), m = 1 or 2 (the scalar path, ``_update``), or (N, 3) with
+    z (N, m) (numpy). With ``clip`` a negative speed is projected onto 0 (``project_speed``).
     """
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        xs, Ps, _ = _update(*_flat_state(x, P), *_flat_measurement(z, H, R), clip)
+        return np.array(xs), np.array(Ps).reshape(3, 3)
     H = np.atleast_2d(np.asarray(H, dtype=float))
     R = np.atleast_2d(np.asarray(R, dtype=float))
     y, S = innovation(x, P, z, H, R)
     K = np.linalg.solve(S, H @ P).T          # P H^T S^-1 (S, P symmetric)
-    x_new = np.asarray(x, dtype=float) + y @ K.T
+    x_new = x + y @ K.T
     IKH = np.eye(3) - K @ H
     P_new = IKH @ P @ IKH.T + K @ R @ K.T
     P_new = 0.5 * (P_new + P_new.T)
     return (project_speed(x_new, P_new) if clip else x_new), P_new
 
 
+H_DISTANCE_ROW = (0.0, 0.0, 1.0)
+H_SPEED_ROW = (0.0, 1.0, 0.0)
+
+
 class SingerFilter:
-    """Stateful wrapper of ``singer_predict`` / ``singer_update`` for z = [w, v, r].
+    """Stateful filter of z = [w, v, r] on the scalar path (``_predict``, ``_update``).
 
     ``x0`` defaults to [m_w, 0, 0] (at rest at the origin, acceleration at its mean) and ``P0``
     to diag(sigma_w^2, 0, 0) (rest known exactly, as the paper's P~[0] = 0; acceleration from
-    its stationary distribution). Units [m/s^2], [m/s], [m], [s].
+    its stationary distribution). Units [m/s^2], [m/s], [m], [s]. The state is held as plain
+    floats (``_x``: 3, ``_P``: 9 row-major); ``x`` and ``P`` give numpy copies (and set them).
     """
 
     def __init__(self, params: SingerParams, x0=None, P0=None, clip: bool = True):
         self.params = params
         self.clip = clip
-        self.x = (np.array([params.m_w, 0.0, 0.0]) if x0 is None
-                  else np.array(x0, dtype=float).reshape(3))
-        self.P = (np.diag([params.sigma_w ** 2, 0.0, 0.0]) if P0 is None
-                  else np.array(P0, dtype=float).reshape(3, 3))
+        self._x = ([params.m_w, 0.0, 0.0] if x0 is None
+                   else np.asarray(x0, dtype=float).reshape(3).tolist())
+        self._P = ([params.sigma_w ** 2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0] if P0 is None
+                   else np.asarray(P0, dtype=float).reshape(9).tolist())
         if clip:
-            self.x = project_speed(self.x, self.P)
+            self._x = _project(self._x, self._P)
         self.nis = math.nan   # normalised innovation squared of the last update [-]
+
+    @property
+    def x(self) -> np.ndarray:
+        """[w, v, r] ([m/s^2], [m/s], [m]), a copy."""
+        return np.array(self._x)
+
+    @x.setter
+    def x(self, value) -> None:
+        self._x = np.asarray(value, dtype=float).reshape(3).tolist()
+
+    @property
+    def P(self) -> np.ndarray:
+        """3x3 covariance of x, a copy."""
+        return np.array(self._P).reshape(3, 3)
+
+    @P.setter
+    def P(self, value) -> None:
+        self._P = np.asarray(value, dtype=float).reshape(9).tolist()
 
     def predict(self, dt: float) -> None:
         """Advance by dt [s]."""
-        self.x, self.P = singer_predict(self.x, self.P, dt, self.params, self.clip)
+        p = self.params
+        Phi, Q, u = _discretisation_flat(p.alpha, float(dt), p.sigma_w, p.m_w)
+        self._x, self._P = _predict(self._x, self._P, Phi, Q, u, self.clip)
+
+    def _take(self, z, H, R) -> None:
+        self._x, self._P, self.nis = _update(self._x, self._P, z, H, R, self.clip)
 
     def update(self, z, H, R) -> None:
-        """Take measurement z = H z + eta, cov R (see ``singer_update``)."""
-        y, S = innovation(self.x, self.P, z, H, R)
-        self.nis = float(y @ np.linalg.solve(S, y))
-        self.x, self.P = singer_update(self.x, self.P, z, H, R, self.clip)
+        """Take measurement z = H z + eta, cov R (m = 1 or 2 rows; see ``singer_update``)."""
+        self._take(*_flat_measurement(z, H, R))
 
     def update_speed(self, speed: float, speed_std: float) -> None:
         """Speed measurement [m/s] with noise std [m/s] (e.g. two track sensors)."""
-        self.update(np.array([speed]), H_SPEED, np.array([[speed_std ** 2]]))
+        self._take([float(speed)], [H_SPEED_ROW], [speed_std ** 2])
+
+    def update_distance(self, distance: float, distance_std: float) -> None:
+        """Distance measurement [m] with noise std [m] (H = [0 0 1])."""
+        self._take([float(distance)], [H_DISTANCE_ROW], [distance_std ** 2])
 
     def update_speed_distance(self, speed: float, distance: float, speed_std: float,
                               distance_std: float) -> None:
         """Speed [m/s] and distance [m] with independent noise stds [m/s], [m]."""
-        self.update(np.array([speed, distance]), H_SPEED_DISTANCE,
-                    np.diag([speed_std ** 2, distance_std ** 2]))
+        self._take([float(speed), float(distance)], [H_SPEED_ROW, H_DISTANCE_ROW],
+                   [speed_std ** 2, 0.0, 0.0, distance_std ** 2])
 
     @property
     def acceleration(self) -> float:
         """Estimated acceleration [m/s^2]."""
-        return float(self.x[I_W])
+        return self._x[I_W]
 
     @property
     def speed(self) -> float:
         """Estimated speed [m/s], >= 0 when ``clip``."""
-        return float(self.x[I_V])
+        return self._x[I_V]
 
     @property
     def distance(self) -> float:
         """Estimated distance [m]."""
-        return float(self.x[I_R])
+        return self._x[I_R]
 
     @property
     def acceleration_std(self) -> float:
         """[m/s^2]"""
-        return math.sqrt(max(self.P[I_W, I_W], 0.0))
+        return math.sqrt(max(self._P[0], 0.0))
 
     @property
     def speed_std(self) -> float:
         """[m/s]"""
-        return math.sqrt(max(self.P[I_V, I_V], 0.0))
+        return math.sqrt(max(self._P[4], 0.0))
 
     @property
     def distance_std(self) -> float:
         """[m]"""
-        return math.sqrt(max(self.P[I_R, I_R], 0.0))
+        return math.sqrt(max(self._P[8], 0.0))
 
 
 def singer_step(z: np.ndarray, dt: float, params: SingerParams, xi: np.ndarray) -> np.ndarray:
