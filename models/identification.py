@@ -7,9 +7,10 @@ gamma (gamma = 0 is the paper exactly):
     phi(n) = (F[n] - B[n], -1, -V[n], -V[n]^2)
     y(n)   = 1000 (1 + gamma) (V[n+1] - V[n]) / (g dt) + i[n]          [N/kN]   (4)
 
-The functional core (``regressor``, ``regression_target``, ``batch_ls``, ``rls_step``,
-``sigma2_from_residual``) is the paper's algorithm verbatim. ``ParameterIdentifier`` wraps it
-for a running car and adds what a product needs and the paper leaves open:
+The algorithm is written once, as pure functions (below: ``regressor``, ``regression_target``,
+``batch_ls``, ``rls_step``, ``regularised_forgetting``, the covariance's ``meat`` and
+``sandwich`` ...), which take the state and return the new one. ``ParameterIdentifier`` holds
+the state of a running car, calls them, and adds what a product needs and the paper leaves open:
 
 - a weak Gaussian prior on Theta (the configured initial values), added to Phi^T Phi at the
   batch start, so coasting-only data (F = B = 0: 1/(Pg) unobservable) still gives the A's
@@ -24,6 +25,14 @@ for a running car and adds what a product needs and the paper leaves open:
 - the covariance of Theta-hat, a sandwich J^-1 M J^-1 whose meat separates the differenced
   measurement noise from the process noise (see covariance()), from which est.mass_std follows
   by the delta method.
+
+4x4 matrices (S, R, J, the meats W and D, covariances) are flat row-major lists of 16 floats,
+entry (i, j) at [4 i + j], as in models/linalg4.py; vectors are sequences of 4 floats. The
+arithmetic is scalar Python with a fixed operation order (numpy's per-call overhead on 4x4
+arrays dominated the step, and its BLAS/LAPACK kernels cannot be reproduced bit for bit):
+models/core/ident.c repeats every expression here in the same order and gives the same doubles
+(tests/test_core_ident.py). Rewriting an expression, even into an algebraically equal one,
+changes the bits; change ident.c with it.
 """
 from __future__ import annotations
 
@@ -36,12 +45,35 @@ from . import linalg4
 from .differentiation import centred_slope_weights
 from .units import G
 
+LAG = 50
+"""Residuals summed for the process-noise estimate (ParameterIdentifier.sigma2)."""
 
-# ---------------------------------------------------------------- functional core (paper)
 
-def regressor(traction: float, brake: float, speed: float) -> np.ndarray:
+# ---------------------------------------------------------------- 4x4 kernels
+
+def _plus_outer(M, u) -> list[float]:
+    """M + u u^T for a flat row-major 4x4 M (a new list): entry (i, j) is M[i, j] + u[i] u[j]."""
+    u0, u1, u2, u3 = u
+    return [M[0] + u0 * u0, M[1] + u0 * u1, M[2] + u0 * u2, M[3] + u0 * u3,
+            M[4] + u1 * u0, M[5] + u1 * u1, M[6] + u1 * u2, M[7] + u1 * u3,
+            M[8] + u2 * u0, M[9] + u2 * u1, M[10] + u2 * u2, M[11] + u2 * u3,
+            M[12] + u3 * u0, M[13] + u3 * u1, M[14] + u3 * u2, M[15] + u3 * u3]
+
+
+def _quadratic4(c: list, phi) -> float:
+    """phi^T C phi for a flat row-major 4x4 C."""
+    p0, p1, p2, p3 = phi
+    return (p0 * (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3)
+            + p1 * (c[4] * p0 + c[5] * p1 + c[6] * p2 + c[7] * p3)
+            + p2 * (c[8] * p0 + c[9] * p1 + c[10] * p2 + c[11] * p3)
+            + p3 * (c[12] * p0 + c[13] * p1 + c[14] * p2 + c[15] * p3))
+
+
+# ---------------------------------------------------------------- the paper's algorithm
+
+def regressor(traction: float, brake: float, speed: float) -> tuple[float, float, float, float]:
     """phi(n) = (F - B, -1, -V, -V^2) for forces [N] and speed [m/s], eq. (4)."""
-    return np.array([traction - brake, -1.0, -speed, -speed * speed])
+    return (traction - brake, -1.0, -speed, -speed * speed)
 
 
 def regression_target(speed: float, speed_next: float, grade: float, dt: float,
@@ -50,26 +82,69 @@ def regression_target(speed: float, speed_next: float, grade: float, dt: float,
     return 1000.0 * (1.0 + gamma) * (speed_next - speed) / (G * dt) + grade
 
 
-def batch_ls(phi_rows: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Theta(N) = (Phi^T Phi)^-1 Phi^T Y and R(N) = Phi^T Phi / N (eqs. after (7), (10))."""
-    phi_rows = np.asarray(phi_rows, dtype=float)
-    info = phi_rows.T @ phi_rows
-    theta = np.linalg.solve(info, phi_rows.T @ np.asarray(y, dtype=float))
-    return theta, info / len(phi_rows)
+def batch_ls(rows, y, j0=None, prior_mean=None) -> tuple[list[float], list[float]]:
+    """Batch LS of the first N pairs (the equations after (7)): returns (Theta, J).
+
+    Without a prior, J = Phi^T Phi and Theta = J^-1 Phi^T Y; R(N) = J / N (eq. (10)). With the
+    prior information j0 (the diagonal of J0) centred on prior_mean, the regularised LS:
+    J = Phi^T Phi + J0, Theta = J^-1 (Phi^T Y + J0 Theta0). Sums in row order (linalg4.gram,
+    gram_t_vec), Gaussian elimination (linalg4.solve; SingularMatrixError when J is singular)."""
+    info = linalg4.gram(rows)
+    rhs = linalg4.gram_t_vec(rows, y)
+    if j0 is not None:
+        for i in range(4):
+            info[5 * i] += j0[i]
+        rhs = [rhs[i] + j0[i] * prior_mean[i] for i in range(4)]
+    return linalg4.solve(info, rhs), info
 
 
-def rls_step(theta: np.ndarray, S: np.ndarray, phi: np.ndarray, y: float,
-             mu: float) -> tuple[np.ndarray, np.ndarray]:
-    """One recursive step, eqs. (8), (9), (11): returns Theta(n), S(n) = R(n)^-1.
+def rls_step(theta, S, phi, y: float, mu: float, *, check: bool = True):
+    """One recursive step, eqs. (8), (9), (11): returns (Theta(n), S(n), e, d), or None when
+    ``check`` and phi^T S phi is not > 0 (S has lost positive definiteness to rounding: repair S
+    and call again with check=False).
 
-    ``mu`` = 1/n gives ordinary least squares; a constant mu0 forgets with factor 1 - mu0.
+    S = R^-1 (eq. (10)); ``mu`` = 1/n gives ordinary least squares, a constant mu0 forgets with
+    factor 1 - mu0. e = y - Theta(n-1)^T phi is the prediction error and d = 1 + mu/(1-mu)
+    phi^T S(n-1) phi its variance in units of the residual variance (e / sqrt(d) has the
+    variance of e(n); for mu = 1/n, d = 1 + phi^T (Phi^T Phi)^-1 phi):
+
+        K(n)     = S(n-1) phi / (1 + mu (phi^T S(n-1) phi - 1))                        (9)
+        Theta(n) = Theta(n-1) + mu K(n) e                                              (8)
+        S(n)     = (S(n-1) - S phi phi^T S / ((1 - mu)/mu + phi^T S phi)) / (1 - mu)   (11)
     """
-    S_phi = S @ phi
-    phi_S_phi = float(phi @ S_phi)
-    K = S_phi / (1.0 + mu * (phi_S_phi - 1.0))                                  # (9)
-    theta_new = theta + mu * K * (y - float(theta @ phi))                       # (8)
-    S_new = (S - np.outer(S_phi, S_phi) / ((1.0 - mu) / mu + phi_S_phi)) / (1.0 - mu)  # (11)
-    return theta_new, S_new
+    p0, p1, p2, p3 = phi
+    Sp = [S[0] * p0 + S[1] * p1 + S[2] * p2 + S[3] * p3,
+          S[4] * p0 + S[5] * p1 + S[6] * p2 + S[7] * p3,
+          S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
+          S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3]
+    pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3]
+    if check and not pSp > 0.0:
+        return None
+    th = theta
+    e = y - (th[0] * p0 + th[1] * p1 + th[2] * p2 + th[3] * p3)
+    g = mu * e / (1.0 + mu * (pSp - 1.0))                                      # (8), (9)
+    theta_new = [th[0] + g * Sp[0], th[1] + g * Sp[1], th[2] + g * Sp[2], th[3] + g * Sp[3]]
+    c = 1.0 / ((1.0 - mu) / mu + pSp)                                          # (11)
+    inv = 1.0 / (1.0 - mu)
+    S_new = [(S[4 * i + j] - Sp[i] * Sp[j] * c) * inv for i in range(4) for j in range(4)]
+    return theta_new, S_new, e, 1.0 + mu / (1.0 - mu) * pSp
+
+
+def regularised_forgetting(J, S, phi, mu: float, j0) -> tuple[list[float], list[float]]:
+    """After a step with constant forgetting mu0 = ``mu``: returns (J(n), S(n)) with the prior's
+    information kept (anti-windup). The information J = R / mu0 forgets its data's share,
+    J(n) = (1 - mu0) (J - J0) + J0 + phi phi^T, and R = S^-1 (just updated by (11)) gets the
+    prior back, R + mu0^2 J0 -- exactly so: S(n) = (S^-1 + mu0^2 J0)^-1 (linalg4.inverse)."""
+    lam = 1.0 - mu
+    J_new = []
+    for i in range(4):
+        for j in range(4):
+            d = j0[i] if i == j else 0.0
+            J_new.append(lam * (J[4 * i + j] - d) + d + phi[i] * phi[j])
+    R = linalg4.inverse(S)
+    for i in range(4):
+        R[5 * i] += mu * mu * j0[i]
+    return J_new, linalg4.inverse(R)
 
 
 def residual_variance(q_e: float, n: int) -> float:
@@ -90,6 +165,150 @@ def mass_from_theta(theta1: float) -> float:
 def theta_from_params(mass: float, a0: float, a1: float, a2: float) -> np.ndarray:
     """Theta for mass [t] and resistance coefficients."""
     return np.array([1.0 / (G * mass), a0, a1, a2])
+
+
+# ---------------------------------------------------------------- the covariance (sandwich)
+
+def end_row(phi, end_weight: float):
+    """A run's first or last regressor as it enters D: phi times end_weight (phi itself for 1)."""
+    return phi if end_weight == 1.0 else [end_weight * x for x in phi]
+
+
+def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
+                     end_weight: float) -> tuple[list[float], list[float]]:
+    """The meats after one more regressor: returns (W, D).
+
+    W = sum phi phi^T (white noise); D = sum over runs of consecutive pairs of the differenced
+    regressors (phi(n) - phi(n-1)) (...)^T, plus each run's two ends, where one sample's
+    measurement noise enters alone (the paper's differences: weight 1; seed 004's slopes spread
+    it over the window: end_weight^2 = sum c_j^2). A new run closes the previous one's end
+    (last_phi) and opens its own. With forgetting, both are first weighted by lam^2 = (1 -
+    mu0)^2. ``contiguous``: phi's pair directly follows last_phi's (None: no open run)."""
+    if lam < 1.0:
+        l2 = lam * lam
+        W = [w * l2 for w in W]
+        D = [d * l2 for d in D]
+    if contiguous and last_phi is not None:
+        last = last_phi
+        D = _plus_outer(D, (phi[0] - last[0], phi[1] - last[1], phi[2] - last[2], phi[3] - last[3]))
+    else:
+        if last_phi is not None:
+            D = _plus_outer(D, end_row(last_phi, end_weight))   # close the previous run
+        D = _plus_outer(D, end_row(phi, end_weight))            # open a new one
+    return _plus_outer(W, phi), D
+
+
+def meat(a: float, b: float, D, W, last_phi, end_weight: float, j0, s2) -> list[float]:
+    """M = a D + b W (+ a times the open run's end, last_phi end_weight) + diag(s2) J0: the
+    covariance of the score for measurement-noise variance a and process-noise variance b
+    [(N/kN)^2], the prior's pseudo-observations (information j0 for noise s2) included."""
+    M = [a * d + b * w for d, w in zip(D, W)]
+    if last_phi is not None:                 # the open run's end
+        sa = math.sqrt(a) * end_weight
+        last = last_phi
+        M = _plus_outer(M, (sa * last[0], sa * last[1], sa * last[2], sa * last[3]))
+    M[0] += s2[0] * j0[0]
+    M[5] += s2[1] * j0[1]
+    M[10] += s2[2] * j0[2]
+    M[15] += s2[3] * j0[3]
+    return M
+
+
+def sandwich(Ji, M) -> list[float]:
+    """cov(Theta-hat) = J^-1 M J^-1 for the estimator's information J (Ji = J^-1, symmetric) and
+    the symmetric meat M (see ``meat``): flat row-major, unrolled; the result is symmetric."""
+    (j00, j01, j02, j03, _, j11, j12, j13, _, _, j22, j23, _, _, _, j33) = Ji
+    (m00, m01, m02, m03, _, m11, m12, m13, _, _, m22, m23, _, _, _, m33) = M
+    t00 = m00 * j00 + m01 * j01 + m02 * j02 + m03 * j03
+    t01 = m00 * j01 + m01 * j11 + m02 * j12 + m03 * j13
+    t02 = m00 * j02 + m01 * j12 + m02 * j22 + m03 * j23
+    t03 = m00 * j03 + m01 * j13 + m02 * j23 + m03 * j33
+    t10 = m01 * j00 + m11 * j01 + m12 * j02 + m13 * j03
+    t11 = m01 * j01 + m11 * j11 + m12 * j12 + m13 * j13
+    t12 = m01 * j02 + m11 * j12 + m12 * j22 + m13 * j23
+    t13 = m01 * j03 + m11 * j13 + m12 * j23 + m13 * j33
+    t20 = m02 * j00 + m12 * j01 + m22 * j02 + m23 * j03
+    t21 = m02 * j01 + m12 * j11 + m22 * j12 + m23 * j13
+    t22 = m02 * j02 + m12 * j12 + m22 * j22 + m23 * j23
+    t23 = m02 * j03 + m12 * j13 + m22 * j23 + m23 * j33
+    t30 = m03 * j00 + m13 * j01 + m23 * j02 + m33 * j03
+    t31 = m03 * j01 + m13 * j11 + m23 * j12 + m33 * j13
+    t32 = m03 * j02 + m13 * j12 + m23 * j22 + m33 * j23
+    t33 = m03 * j03 + m13 * j13 + m23 * j23 + m33 * j33
+    c00 = j00 * t00 + j01 * t10 + j02 * t20 + j03 * t30
+    c01 = j00 * t01 + j01 * t11 + j02 * t21 + j03 * t31
+    c02 = j00 * t02 + j01 * t12 + j02 * t22 + j03 * t32
+    c03 = j00 * t03 + j01 * t13 + j02 * t23 + j03 * t33
+    c11 = j01 * t01 + j11 * t11 + j12 * t21 + j13 * t31
+    c12 = j01 * t02 + j11 * t12 + j12 * t22 + j13 * t32
+    c13 = j01 * t03 + j11 * t13 + j12 * t23 + j13 * t33
+    c22 = j02 * t02 + j12 * t12 + j22 * t22 + j23 * t32
+    c23 = j02 * t03 + j12 * t13 + j22 * t23 + j23 * t33
+    c33 = j03 * t03 + j13 * t13 + j23 * t23 + j33 * t33
+    return [c00, c01, c02, c03, c01, c11, c12, c13, c02, c12, c22, c23, c03, c13, c23, c33]
+
+
+def noise_split_lag1(c0: float, c1: float) -> tuple[float, float]:
+    """(a, b) [(N/kN)^2] from the residuals' lag-0 and lag-1 autocovariance: e(n) = u(n+1) -
+    u(n) + p(n), var(u) = a, var(p) = b, gives c0 = 2a + b, c1 = -a; a >= 0, b >= 1e-12 c0."""
+    a = max(-c1, 0.0)
+    b = max(c0 - 2.0 * a, 1e-12 * c0)
+    return a, b
+
+
+def process_share_lag(a: float, cL: float, c0: float, end_factor: float, lag: int = LAG) -> float:
+    """b [(N/kN)^2] from the mean square cL of sums of ``lag`` consecutive residuals: cL =
+    end_factor a + lag b (the measurement part telescopes), floored at 1e-3 c0 / lag."""
+    return max((cL - end_factor * a) / lag, 1e-3 * c0 / lag)
+
+
+# ---------------------------------------------------------------- mass restart, repair
+
+def marginalise_meat(M, t, lam: float) -> list[float]:
+    """The meat of the A's estimator A - t Theta1 after 1/(Pg) is marginalised out (t = J_A0 /
+    J_00, 3 entries): T M T^T with T = [-t, I], symmetrised, times lam (run-to-run forgetting);
+    Theta1's row and column zero."""
+    M = list(M)
+    m00 = M[0]
+    M_AA = [((M[4 * i + j] - t[i - 1] * M[j]) - M[4 * i] * t[j - 1]) + t[i - 1] * t[j - 1] * m00
+            for i in (1, 2, 3) for j in (1, 2, 3)]          # 3x3, row-major
+    for i in range(3):
+        for j in range(3):
+            M[4 * (i + 1) + j + 1] = 0.5 * (M_AA[3 * i + j] + M_AA[3 * j + i]) * lam
+    for k in range(4):
+        M[k] = 0.0
+        M[4 * k] = 0.0
+    return M
+
+
+def marginalise_mass(R, lam: float, j0) -> list[float]:
+    """An information matrix R with Theta1 marginalised out of the A's block (R_AA - R_A0 R_0A /
+    R_00), the data's share of it forgotten (lam (R_AA - j0_A) + j0_A, when lam < 1), and Theta1
+    reopened with its prior information j0[0] alone."""
+    R = list(R)
+    r00 = R[0]
+    for i in (1, 2, 3):
+        for j in (1, 2, 3):
+            R[4 * i + j] -= R[4 * i] * R[j] / r00
+    if lam < 1.0:
+        for i in (1, 2, 3):
+            for j in (1, 2, 3):
+                d = j0[i] if i == j else 0.0
+                R[4 * i + j] = lam * (R[4 * i + j] - d) + d
+    for k in (1, 2, 3):
+        R[k] = 0.0
+        R[4 * k] = 0.0
+    R[0] = j0[0]
+    return R
+
+
+def positive_definite_S(S, floor: float) -> list[float]:
+    """S with R = S^-1 made positive definite: R symmetrised, its eigenvalues lifted to at least
+    ``floor`` (Jacobi, linalg4.eigh), S = V diag(w)^-1 V^T."""
+    R = linalg4.inverse(S)
+    w, V = linalg4.eigh([0.5 * (R[4 * i + j] + R[4 * j + i]) for i in range(4) for j in range(4)])
+    w = [max(x, floor) for x in w]
+    return linalg4.inverse_from_eigen(w, V)
 
 
 PHYSICAL = (1, 3)
@@ -204,69 +423,14 @@ class IdentifierConfig:
             raise ValueError(f"est.gamma must be >= 0, got {self.gamma}")
 
 
-def _add_outer(M: list, u) -> None:
-    """M += u u^T for a flat row-major 4x4 M."""
-    u0, u1, u2, u3 = u
-    for i in range(4):
-        ui = u[i]
-        r = 4 * i
-        M[r] += ui * u0
-        M[r + 1] += ui * u1
-        M[r + 2] += ui * u2
-        M[r + 3] += ui * u3
-
-
-def _quadratic4(c: list, phi) -> float:
-    """phi^T C phi for a flat row-major 4x4 C."""
-    p0, p1, p2, p3 = phi
-    return (p0 * (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3)
-            + p1 * (c[4] * p0 + c[5] * p1 + c[6] * p2 + c[7] * p3)
-            + p2 * (c[8] * p0 + c[9] * p1 + c[10] * p2 + c[11] * p3)
-            + p3 * (c[12] * p0 + c[13] * p1 + c[14] * p2 + c[15] * p3))
-
-
-def _sandwich4(Ji: list, M: list) -> list:
-    """Ji M Ji for symmetric 4x4 matrices stored flat (row-major): symmetric result, unrolled."""
-    (j00, j01, j02, j03, _, j11, j12, j13, _, _, j22, j23, _, _, _, j33) = Ji
-    (m00, m01, m02, m03, _, m11, m12, m13, _, _, m22, m23, _, _, _, m33) = M
-    t00 = m00 * j00 + m01 * j01 + m02 * j02 + m03 * j03
-    t01 = m00 * j01 + m01 * j11 + m02 * j12 + m03 * j13
-    t02 = m00 * j02 + m01 * j12 + m02 * j22 + m03 * j23
-    t03 = m00 * j03 + m01 * j13 + m02 * j23 + m03 * j33
-    t10 = m01 * j00 + m11 * j01 + m12 * j02 + m13 * j03
-    t11 = m01 * j01 + m11 * j11 + m12 * j12 + m13 * j13
-    t12 = m01 * j02 + m11 * j12 + m12 * j22 + m13 * j23
-    t13 = m01 * j03 + m11 * j13 + m12 * j23 + m13 * j33
-    t20 = m02 * j00 + m12 * j01 + m22 * j02 + m23 * j03
-    t21 = m02 * j01 + m12 * j11 + m22 * j12 + m23 * j13
-    t22 = m02 * j02 + m12 * j12 + m22 * j22 + m23 * j23
-    t23 = m02 * j03 + m12 * j13 + m22 * j23 + m23 * j33
-    t30 = m03 * j00 + m13 * j01 + m23 * j02 + m33 * j03
-    t31 = m03 * j01 + m13 * j11 + m23 * j12 + m33 * j13
-    t32 = m03 * j02 + m13 * j12 + m23 * j22 + m33 * j23
-    t33 = m03 * j03 + m13 * j13 + m23 * j23 + m33 * j33
-    c00 = j00 * t00 + j01 * t10 + j02 * t20 + j03 * t30
-    c01 = j00 * t01 + j01 * t11 + j02 * t21 + j03 * t31
-    c02 = j00 * t02 + j01 * t12 + j02 * t22 + j03 * t32
-    c03 = j00 * t03 + j01 * t13 + j02 * t23 + j03 * t33
-    c11 = j01 * t01 + j11 * t11 + j12 * t21 + j13 * t31
-    c12 = j01 * t02 + j11 * t12 + j12 * t22 + j13 * t32
-    c13 = j01 * t03 + j11 * t13 + j12 * t23 + j13 * t33
-    c22 = j02 * t02 + j12 * t12 + j22 * t22 + j23 * t32
-    c23 = j02 * t03 + j12 * t13 + j22 * t23 + j23 * t33
-    c33 = j03 * t03 + j13 * t13 + j23 * t23 + j33 * t33
-    return [c00, c01, c02, c03, c01, c11, c12, c13, c02, c12, c22, c23, c03, c13, c23, c33]
-
-
 class ParameterIdentifier:
-    """Running identification of Theta and sigma^2 (thin stateful wrapper of the core above).
-
-    The per-sample path is scalar Python on flat 4x4 lists (numpy's per-call overhead on 4x4
-    arrays dominated the step); it computes eqs. (8), (9), (11) exactly as ``rls_step`` does,
-    which tests check. Rare events (the first batch, a mass restart, regularised forgetting,
-    the positive-definiteness repair) use models/linalg4.py, scalar code with a fixed operation
-    order that models/core/linalg4.c reproduces bit for bit (not numpy/LAPACK: est.method 2's
-    _reweight_prior is the one numpy path left).
+    """Running identification of Theta and sigma^2: the state of a car's identification, moved
+    on by the pure functions above (update: ``regressor``, ``regression_target``, ``rls_step``,
+    ``regularised_forgetting``, ``accumulate_meats``; the first batch and the running estimate
+    before it: ``batch_ls``; restart_mass: ``marginalise_meat``, ``marginalise_mass``; the
+    covariance: ``meat``, ``sandwich``). Flat 4x4 lists inside (see the module's docstring); S,
+    W, D, covariance() give 4x4 numpy arrays. est.method 2's _reweight_prior is the one numpy
+    path (models/core has no method 2).
     """
 
     def __init__(self, cfg: IdentifierConfig):
@@ -385,31 +549,11 @@ class ParameterIdentifier:
 
     def _accumulate(self, phi, contiguous: bool, lam: float) -> None:
         """Add one regressor to W and D (weights of exponential forgetting lam = 1 - mu0)."""
-        W, D = self._W, self._D
-        if lam < 1.0:
-            l2 = lam * lam
-            for i in range(16):
-                W[i] *= l2
-                D[i] *= l2
-        last = self._last_phi
-        if contiguous and last is not None:
-            _add_outer(D, (phi[0] - last[0], phi[1] - last[1], phi[2] - last[2], phi[3] - last[3]))
-        else:
-            # a run's ends: its first and last rows carry one sample's measurement noise alone
-            # (the paper's differences: weight 1; seed 004's slopes spread it over the window,
-            # weight sum c_j^2 = end_factor / 2)
-            if last is not None:
-                _add_outer(D, self._end_row(last))   # close the previous run
-            _add_outer(D, self._end_row(phi))        # open a new one
-        _add_outer(W, phi)
+        self._W, self._D = accumulate_meats(self._W, self._D, phi, self._last_phi, contiguous, lam,
+                                            self._end_weight)
         self._last_phi = phi
 
-    def _end_row(self, phi):
-        """A run's first or last regressor as it enters D: phi times _end_weight."""
-        e = self._end_weight
-        return phi if e == 1.0 else [e * x for x in phi]
-
-    LAG = 50   # samples summed for the process-noise estimate (see sigma2)
+    LAG = LAG   # samples summed for the process-noise estimate (see sigma2)
 
     def _residual_stats(self, err: float, contiguous: bool, mu: float) -> None:
         w = self._window
@@ -438,8 +582,8 @@ class ParameterIdentifier:
         ``contiguous``: this pair directly follows the last one used (they share a sample)."""
         if self.cfg.frozen:
             return
-        phi = (traction - brake, -1.0, -speed, -speed * speed)                       # (4)
-        y = 1000.0 * (1.0 + self.cfg.gamma) * (speed_next - speed) / (G * (dt or self.cfg.dt)) + grade
+        phi = regressor(traction, brake, speed)                                          # (4)
+        y = regression_target(speed, speed_next, grade, dt or self.cfg.dt, self.cfg.gamma)
         self._cov = self._sigma2 = self._model_cov = None
         if self._S is None:
             self._batch_phi.append(phi)
@@ -454,45 +598,18 @@ class ParameterIdentifier:
         n = self.n + 1
         forgetting = self.cfg.forgetting
         mu = forgetting if forgetting > 0.0 else 1.0 / n
-        S, th = self._S, self._theta
-        p0, p1, p2, p3 = phi
-        Sp = [S[0] * p0 + S[1] * p1 + S[2] * p2 + S[3] * p3,
-              S[4] * p0 + S[5] * p1 + S[6] * p2 + S[7] * p3,
-              S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
-              S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3]
-        pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3]
-        if not pSp > 0.0:                    # S is no longer positive definite (rounding)
+        step = rls_step(self._theta, self._S, phi, y, mu)                     # (8), (9), (11)
+        if step is None:                     # S is no longer positive definite (rounding)
             self._restore_positive_definite()
-            S = self._S
-            Sp = [S[0] * p0 + S[1] * p1 + S[2] * p2 + S[3] * p3,
-                  S[4] * p0 + S[5] * p1 + S[6] * p2 + S[7] * p3,
-                  S[8] * p0 + S[9] * p1 + S[10] * p2 + S[11] * p3,
-                  S[12] * p0 + S[13] * p1 + S[14] * p2 + S[15] * p3]
-            pSp = p0 * Sp[0] + p1 * Sp[1] + p2 * Sp[2] + p3 * Sp[3]
-        pred_err = y - (th[0] * p0 + th[1] * p1 + th[2] * p2 + th[3] * p3)
-        g = mu * pred_err / (1.0 + mu * (pSp - 1.0))                              # (8), (9)
-        self._theta = [th[0] + g * Sp[0], th[1] + g * Sp[1], th[2] + g * Sp[2], th[3] + g * Sp[3]]
-        c = 1.0 / ((1.0 - mu) / mu + pSp)                                          # (11)
-        inv = 1.0 / (1.0 - mu)
-        self._S = [(S[4 * i + j] - Sp[i] * Sp[j] * c) * inv for i in range(4) for j in range(4)]
-        gain_den = 1.0 + mu / (1.0 - mu) * pSp
+            step = rls_step(self._theta, self._S, phi, y, mu, check=False)
+        self._theta, self._S, err, d = step
         self._accumulate(phi, contiguous, 1.0 - forgetting)
-        self._residual_stats(pred_err / math.sqrt(gain_den), contiguous, mu)
+        self._residual_stats(err / math.sqrt(d), contiguous, mu)
         if forgetting > 0.0:
-            # regularised forgetting: keep the prior's information (anti-windup)
-            lam = 1.0 - forgetting
-            J, j0 = self._J, self._j0
-            for i in range(4):
-                for j in range(4):
-                    d = j0[i] if i == j else 0.0
-                    J[4 * i + j] = lam * (J[4 * i + j] - d) + d + phi[i] * phi[j]
-            R = linalg4.inverse(self._S)
-            for i in range(4):
-                R[5 * i] += mu * mu * j0[i]
-            self._S = linalg4.inverse(R)
-            self.s2 = (1.0 - mu) * self.s2 + mu * pred_err ** 2 / gain_den
+            self._J, self._S = regularised_forgetting(self._J, self._S, phi, mu, self._j0)
+            self.s2 = (1.0 - mu) * self.s2 + mu * err ** 2 / d
         else:
-            self.q_e += pred_err ** 2 / gain_den
+            self.q_e += err ** 2 / d
             self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
         self.n = n
 
@@ -516,13 +633,7 @@ class ParameterIdentifier:
         prior_var0 = s2p[0] / j0[0]
         s2p[0] = b + self._end_factor * a / n
         j0[0] = s2p[0] / prior_var0
-        info = linalg4.gram(rows)                        # Phi^T Phi + J0
-        for i in range(4):
-            info[5 * i] += j0[i]
-        pty = linalg4.gram_t_vec(rows, self._batch_y)    # Phi^T Y + J0 Theta0
-        pm = self._prior_mean
-        rhs = [pty[i] + j0[i] * pm[i] for i in range(4)]
-        self._running_theta = linalg4.solve(info, rhs)
+        self._running_theta, info = batch_ls(rows, self._batch_y, j0, self._prior_mean)
         self._batch_info_inv = linalg4.inverse(info)
         self._batch_prior = (j0, s2p)
 
@@ -536,15 +647,9 @@ class ParameterIdentifier:
         rows = self._batch_phi
         y = self._batch_y
         n = len(y)
-        j0 = self._j0
-        info = linalg4.gram(rows)                        # Phi^T Phi + J0
-        for i in range(4):
-            info[5 * i] += j0[i]
-        pty = linalg4.gram_t_vec(rows, y)
-        pm = self._prior_mean
-        theta = linalg4.solve(info, [pty[i] + j0[i] * pm[i] for i in range(4)])
+        theta, info = batch_ls(rows, y, self._j0, self._prior_mean)      # J = Phi^T Phi + J0
         self._theta = theta
-        self._S = linalg4.inverse([x / n for x in info])
+        self._S = linalg4.inverse([x / n for x in info])                   # R(N) = J / N
         if self.cfg.forgetting > 0.0:
             self._J = list(info)
         resid = [y[k] - linalg4.dot(rows[k], theta) for k in range(n)]
@@ -572,11 +677,7 @@ class ParameterIdentifier:
         unexcited, near the prior's J0 / n): in a 10 h service day an eigenvalue went to -2e-3,
         then the LS ran away (A0 -32 N/kN) and sqrt(gain) failed. R is symmetrised and its
         eigenvalues lifted to the prior's information min(J0) / n, the least any direction has."""
-        R = linalg4.inverse(self._S)
-        w, V = linalg4.eigh([0.5 * (R[4 * i + j] + R[4 * j + i]) for i in range(4) for j in range(4)])
-        floor = min(self._j0) / self._n_info()
-        w = [max(x, floor) for x in w]
-        self._S = linalg4.inverse_from_eigen(w, V)
+        self._S = positive_definite_S(self._S, min(self._j0) / self._n_info())
         self.repairs += 1
         self._cov = self._sigma2 = self._model_cov = None
 
@@ -602,45 +703,16 @@ class ParameterIdentifier:
         # ResistanceCarryOver's information form (est.method 1).
         lam = 1.0 - self.cfg.run_forgetting
         if self._last_phi is not None:
-            _add_outer(self._D, self._end_row(self._last_phi))
+            self._D = _plus_outer(self._D, end_row(self._last_phi, self._end_weight))
         t = [R[4 * i] / R[0] for i in (1, 2, 3)]
-        for meat in (self._W, self._D):
-            M = meat
-            m00 = M[0]
-            M_AA = [((M[4 * i + j] - t[i - 1] * M[j]) - M[4 * i] * t[j - 1]) + t[i - 1] * t[j - 1] * m00
-                    for i in (1, 2, 3) for j in (1, 2, 3)]          # 3x3, row-major
-            for i in range(3):
-                for j in range(3):
-                    M[4 * (i + 1) + j + 1] = 0.5 * (M_AA[3 * i + j] + M_AA[3 * j + i]) * lam
-            for k in range(4):
-                M[k] = 0.0
-                M[4 * k] = 0.0
+        self._W = marginalise_meat(self._W, t, lam)
+        self._D = marginalise_meat(self._D, t, lam)
         n_info = self._n_info()
-        self._marginalise_mass(R, lam, [x / n_info for x in self._j0])
-        self._S = linalg4.inverse(R)
+        self._S = linalg4.inverse(marginalise_mass(R, lam, [x / n_info for x in self._j0]))
         if self._J is not None:
-            self._marginalise_mass(self._J, lam, self._j0)
+            self._J = marginalise_mass(self._J, lam, self._j0)
         self._last_phi = None
         self._cov = None
-
-    @staticmethod
-    def _marginalise_mass(R: list, lam: float, j0: list) -> None:
-        """In place on a flat 4x4 information matrix R: Theta1 marginalised out of the A's block
-        (R_AA - R_A0 R_0A / R_00), the data's share of it forgotten (lam (R_AA - j0_A) + j0_A,
-        when lam < 1), and Theta1 reopened with its prior information j0[0] alone."""
-        r00 = R[0]
-        for i in (1, 2, 3):
-            for j in (1, 2, 3):
-                R[4 * i + j] -= R[4 * i] * R[j] / r00
-        if lam < 1.0:
-            for i in (1, 2, 3):
-                for j in (1, 2, 3):
-                    d = j0[i] if i == j else 0.0
-                    R[4 * i + j] = lam * (R[4 * i + j] - d) + d
-        for k in (1, 2, 3):
-            R[k] = 0.0
-            R[4 * k] = 0.0
-        R[0] = j0[0]
 
     def _reweight_prior(self) -> None:
         """est.method 2, at a mass restart: the prior's weight follows the identified process
@@ -691,9 +763,7 @@ class ParameterIdentifier:
         LAG sums give it (_process_share)."""
         if self._slope_rows:
             return self._configured_noise()
-        a = max(-self.c1, 0.0)
-        b = max(self.c0 - 2.0 * a, 1e-12 * self.c0)
-        return a, b
+        return noise_split_lag1(self.c0, self.c1)
 
     def _covariance_flat(self) -> list[float]:
         if self._cov is not None:
@@ -720,16 +790,7 @@ class ParameterIdentifier:
 
     def _sandwich(self, Ji: list, a: float, b: float, j0: list, s2: list) -> list[float]:
         """J^-1 M J^-1 with M = a D + b W (+ the open run's end) + diag(s2) J0 (see covariance)."""
-        D, W, last = self._D, self._W, self._last_phi
-        M = [a * d + b * w for d, w in zip(D, W)]
-        if last is not None:                     # the open run's end
-            sa = math.sqrt(a) * self._end_weight
-            _add_outer(M, (sa * last[0], sa * last[1], sa * last[2], sa * last[3]))
-        M[0] += s2[0] * j0[0]
-        M[5] += s2[1] * j0[1]
-        M[10] += s2[2] * j0[2]
-        M[15] += s2[3] * j0[3]
-        return _sandwich4(Ji, M)
+        return sandwich(Ji, meat(a, b, self._D, self._W, self._last_phi, self._end_weight, j0, s2))
 
     def _model_covariance_flat(self) -> list[float]:
         """Covariance of model_theta: before the batch, the running estimate's sandwich with the
@@ -816,5 +877,5 @@ class ParameterIdentifier:
         residual sums once there are LAG of them (cL = 2a + LAG b: the measurement part
         telescopes), else the lag-0/lag-1 split's b as given."""
         if self.cL is not None and self._n_cL >= self.LAG:
-            return max((self.cL - self._end_factor * a) / self.LAG, 1e-3 * self.c0 / self.LAG)
+            return process_share_lag(a, self.cL, self.c0, self._end_factor, self.LAG)
         return b

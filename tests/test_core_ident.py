@@ -1,9 +1,7 @@
 """The C identification (models/core/ident.c, linalg4.c) against models.identification, bit for bit.
 
 ParameterIdentifier for est.method 0 is driven in C (through tests/core_cases/ident_shim.c) and
-in Python alike -- the Python object as the library builds it (its compiled kernel for the mu =
-1/n step, models/_fastcore.c) and one forced to pure Python -- and after every call the whole
-state (theta, S, W, D, J, q_e, s2, c0, c1, cL, the LAG window, counters, the running estimate,
+in Python alike, and after every call the whole state (theta, S, W, D, J, q_e, s2, c0, c1, cL, the LAG window, counters, the running estimate,
 the open run's regressor and residual) and every output (model theta and covariance, the
 covariance, stds, mass, mass_std, sigma2, samples, the noise split) are compared by their bits.
 The rows come from a simulated car (traction, coasting, braking, station stops, grades, speed
@@ -193,11 +191,8 @@ def random_events(seed: int, steps: int) -> list[tuple]:
 
 # ---------------------------------------------------------------- the comparison
 
-def make_pair(lib, cfg: IdentifierConfig, pure: bool = False):
-    p = ParameterIdentifier(cfg)
-    if pure:
-        p._core = None                                   # the Python code, not _fastcore
-    return p, CIdent(lib, cfg)
+def make_pair(lib, cfg: IdentifierConfig):
+    return ParameterIdentifier(cfg), CIdent(lib, cfg)
 
 
 def apply(p, c, ev) -> None:
@@ -235,8 +230,8 @@ def assert_same(p, c, step, phi) -> None:
                              f"python {py_outputs(p, phi)[i]!r}, C {c.outputs(phi)[i]!r}")
 
 
-def run_pair(lib, cfg, events, pure=False, check_every=1):
-    p, c = make_pair(lib, cfg, pure)
+def run_pair(lib, cfg, events, check_every=1):
+    p, c = make_pair(lib, cfg)
     assert_same(p, c, -1, (1e4, -1.0, -10.0, -100.0))
     for k, ev in enumerate(events):
         apply(p, c, ev)
@@ -271,13 +266,13 @@ def test_the_simulated_car_gives_the_same_bits_in_c(lib, name):
 
 
 @pytest.mark.parametrize("forgetting", [0.0, 0.002])
-def test_pure_python_and_random_rows(lib, forgetting):
-    """The identifier without its compiled kernel, random rows (dt None and others, skipped
-    pairs, restarts), and a prior centre moved before any data."""
+def test_random_rows(lib, forgetting):
+    """Random rows (dt None and others, skipped pairs, restarts) after a prior centre moved
+    before any data, and a simulated car checked every third event."""
     cfg = IdentifierConfig(speed_std=0.05, forgetting=forgetting, run_forgetting=0.2, batch_size=30)
     events = [("theta", [1.0 / (G * 40.0), 1.1, 0.02, 0.008])] + random_events(7, 1500)
-    run_pair(lib, cfg, events, pure=True)
-    run_pair(lib, cfg, car_events(3, 2500), pure=True, check_every=3)
+    run_pair(lib, cfg, events)
+    run_pair(lib, cfg, car_events(3, 2500), check_every=3)
 
 
 def negative_S(p) -> list[float]:

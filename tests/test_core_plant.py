@@ -91,7 +91,6 @@ class Twin:
             return stream()
         self.py = CarPlant(params, GradeProfile(*profile), step=step, noise_psd=noise_psd,
                            station_dwell=dwell, normal_draws=normal)
-        self.py._core = None                   # the Python code itself, not its compiled copy
         d, g = profile
         vals = [veh_value(veh, f) for f in VEH_FIELDS]
         self.header = vals + [step, noise_psd, dwell, float(seed), float(len(d)), *d, *g]
