@@ -98,6 +98,22 @@ def batch_ls(rows, y, j0=None, prior_mean=None) -> tuple[list[float], list[float
     return linalg4.solve(info, rhs), info
 
 
+def batch_residuals(rows, y, theta, contiguous) -> tuple[list[float], float, float, int]:
+    """The batch's residuals e(k) = y(k) - Theta^T phi(k) (eq. (5)): returns (e, Q_e = sum e^2,
+    the sum of e(k) e(k-1) over the pairs k contiguous with k-1, their number)."""
+    n = len(y)
+    resid = [y[k] - linalg4.dot(rows[k], theta) for k in range(n)]
+    q_e = 0.0
+    for r in resid:
+        q_e += r * r
+    lagged_sum, n_lagged = 0.0, 0
+    for k in range(1, n):
+        if contiguous[k]:
+            lagged_sum += resid[k] * resid[k - 1]
+            n_lagged += 1
+    return resid, q_e, lagged_sum, n_lagged
+
+
 def rls_step(theta, S, phi, y: float, mu: float, *, check: bool = True):
     """One recursive step, eqs. (8), (9), (11): returns (Theta(n), S(n), e, d), or None when
     ``check`` and phi^T S phi is not > 0 (S has lost positive definiteness to rounding: repair S
@@ -556,6 +572,9 @@ class ParameterIdentifier:
     LAG = LAG   # samples summed for the process-noise estimate (see sigma2)
 
     def _residual_stats(self, err: float, contiguous: bool, mu: float) -> None:
+        """Running residual statistics from the standardised prediction error err: c0 and c1
+        (lag-0, lag-1 autocovariance; weights mu, or 1/n for c1 without forgetting), and cL, the
+        mean square of sums of LAG consecutive residuals within a run (see sigma2)."""
         w = self._window
         if not contiguous:
             w.clear()
@@ -644,6 +663,9 @@ class ParameterIdentifier:
                 self._scale ** 2 * max(self.cfg.sigma2_initial, 1e-12))
 
     def _solve_batch(self) -> None:
+        """The first N pairs: Theta by the prior-regularised batch LS, S = R(N)^-1 (R = J / N),
+        the residual statistics (Q_e, s^2, the lag-0/lag-1 autocovariance c0, c1) from its
+        residuals; then the recursive steps take over."""
         rows = self._batch_phi
         y = self._batch_y
         n = len(y)
@@ -652,19 +674,10 @@ class ParameterIdentifier:
         self._S = linalg4.inverse([x / n for x in info])                   # R(N) = J / N
         if self.cfg.forgetting > 0.0:
             self._J = list(info)
-        resid = [y[k] - linalg4.dot(rows[k], theta) for k in range(n)]
-        q_e = 0.0
-        for r in resid:
-            q_e += r * r
-        self.q_e = q_e
+        resid, self.q_e, lagged_sum, n_lagged = batch_residuals(rows, y, theta, self._batch_contiguous)
         self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
         self._running_theta = self._batch_info_inv = self._model_cov = None   # W, D hold the batch
         self.c0 = self.q_e / max(n - 4, 1)
-        lagged_sum, n_lagged = 0.0, 0
-        for k in range(1, n):
-            if self._batch_contiguous[k]:
-                lagged_sum += resid[k] * resid[k - 1]
-                n_lagged += 1
         self._n_c1 = n_lagged
         self.c1 = lagged_sum / n_lagged if n_lagged else 0.0
         self._last_err = resid[-1]

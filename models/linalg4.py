@@ -1,10 +1,10 @@
 """Small dense linear algebra in scalar Python with a fixed operation order.
 
-models/identification.py's rare paths (the first batch, the running estimate before it, a mass
-restart, regularised forgetting, the positive-definiteness repair) used numpy/LAPACK, whose
-blocked, FMA-using kernels no C code can reproduce bit for bit. These routines are the reference
-instead: every sum runs in the order written here (left to right, no fused multiply-add), so
-models/core/linalg4.c, which mirrors this file line by line, gives the very same doubles.
+The solves, inverses and eigen-decompositions of models/identification.py (the first batch and
+the running estimate before it, a mass restart, regularised forgetting, the positive-definiteness
+repair). numpy/LAPACK's blocked, FMA-using kernels could not be reproduced bit for bit; here every
+sum runs in the order written (left to right, no fused multiply-add), so models/core/linalg4.c,
+which repeats this file line by line, gives the very same doubles.
 
 Matrices are flat row-major lists of n*n floats (n = 4 for the identifier), vectors lists of n.
 Singular input: ``solve`` and ``inverse`` raise ``SingularMatrixError`` (a ZeroDivisionError)

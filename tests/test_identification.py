@@ -12,10 +12,10 @@ import pytest
 
 from models import linalg4
 from models.identification import (
-    IdentifierConfig, ParameterIdentifier, accumulate_meats, batch_ls, marginalise_mass,
-    marginalise_meat, mass_from_theta, meat, noise_split_lag1, positive_definite_S,
-    process_share_lag, regression_target, regressor, regularised_forgetting, residual_variance,
-    rls_step, sandwich, sigma2_from_residual, theta_from_params,
+    IdentifierConfig, ParameterIdentifier, accumulate_meats, batch_ls, batch_residuals,
+    marginalise_mass, marginalise_meat, mass_from_theta, meat, noise_split_lag1,
+    positive_definite_S, process_share_lag, regression_target, regressor, regularised_forgetting,
+    residual_variance, rls_step, sandwich, sigma2_from_residual, theta_from_params,
 )
 from models.units import G
 
@@ -138,6 +138,20 @@ def test_batch_ls_with_a_prior_is_the_regularised_ls():
     np.testing.assert_allclose(mat(J), J_np, rtol=1e-13)              # sums of 12 products
     expected = np.linalg.solve(J_np, phi.T @ y + np.diag(j0) @ prior)
     np.testing.assert_allclose(theta, expected, rtol=1e-11, atol=1e-12)   # cond(J) ~ 10: rounding
+
+
+def test_batch_residuals_and_their_lagged_sum():
+    """e = y - Phi Theta, Q_e = e^T e, and the lag-1 products only within runs."""
+    rng = np.random.default_rng(6)
+    phi, y, theta = rng.standard_normal((8, 4)), rng.standard_normal(8), rng.standard_normal(4)
+    contiguous = [False, True, True, False, True, True, True, False]
+    e, q_e, lagged, n_lagged = batch_residuals(phi, y, theta, contiguous)
+    e_np = y - phi @ theta
+    np.testing.assert_allclose(e, e_np, rtol=1e-13, atol=1e-15)            # 4 products each
+    assert q_e == pytest.approx(float(e_np @ e_np), rel=1e-13)               # 8 squares
+    pairs = [k for k in range(1, 8) if contiguous[k]]
+    assert n_lagged == len(pairs) == 5
+    assert lagged == pytest.approx(sum(e_np[k] * e_np[k - 1] for k in pairs), rel=1e-12, abs=1e-14)
 
 
 def _rls_from_batch(phi, y, N):
