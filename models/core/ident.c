@@ -6,7 +6,7 @@
 #include "ident.h"
 #include "linalg4.h"
 
-static void add_outer(double *M, const double *u)          /* _add_outer */
+static void add_outer(double *M, const double *u)          /* _plus_outer, in place */
 {
     for (int i = 0; i < 4; i++) {
         double ui = u[i];
@@ -27,7 +27,7 @@ double rc_ident_quadratic4(const double *c, const double *phi)     /* _quadratic
             + p3 * (c[12] * p0 + c[13] * p1 + c[14] * p2 + c[15] * p3));
 }
 
-/* _sandwich4: Ji M Ji for symmetric flat 4x4 matrices */
+/* sandwich: Ji M Ji for symmetric flat 4x4 matrices */
 static void sandwich4(const double *J, const double *M, double *c)
 {
     double j00 = J[0], j01 = J[1], j02 = J[2], j03 = J[3], j11 = J[5], j12 = J[6], j13 = J[7];
@@ -152,7 +152,7 @@ void rc_ident_set_theta(rc_ident *id, const double *theta)
     id->has_cov = 0;
 }
 
-/* _end_row: phi times _end_weight (phi itself for weight 1) */
+/* end_row: phi times _end_weight (phi itself for weight 1) */
 static void end_row(const rc_ident *id, const double *phi, double *out)
 {
     double e = id->end_weight;
@@ -409,7 +409,7 @@ int rc_ident_update(rc_ident *id, double traction, double brake, double speed, d
     return st;
 }
 
-/* _marginalise_mass, in place on a flat 4x4 information matrix */
+/* marginalise_mass, in place on a flat 4x4 information matrix */
 static void marginalise_mass(double *R, double lam, const double *j0)
 {
     double r00 = R[0];
