@@ -13,7 +13,7 @@ from models.filters import (
     EKF, LINEARISED, PAPER, FilterConfig, MotionFilter, ekf_model, kf_predict, kf_update,
     linearised_model,
 )
-from models.identification import theta_from_params
+from models.least_squares import theta_from_params
 from models.track import GradeProfile, SpeedProfile
 from models.units import G
 

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from models import linalg4
-from models.identification import (
-    IdentifierConfig, ParameterIdentifier, accumulate_meats, batch_ls, batch_residuals,
-    marginalise_mass, marginalise_meat, mass_from_theta, meat, noise_split_lag1,
-    positive_definite_S, process_share_lag, regression_target, regressor, regularised_forgetting,
-    residual_variance, rls_step, sandwich, sigma2_from_residual, theta_from_params,
+from models.identification import IdentifierConfig, ParameterIdentifier
+from models.least_squares import (
+    accumulate_meats, batch_ls, batch_residuals, marginalise_mass, marginalise_meat,
+    mass_from_theta, meat, noise_split_lag1, positive_definite_S, process_share_lag,
+    regression_target, regressor, regularised_forgetting, residual_variance, rls_step, sandwich,
+    sigma2_from_residual, theta_from_params,
 )
 from models.units import G
 

@@ -6,7 +6,7 @@
 #include "ident.h"
 #include "linalg4.h"
 
-static void add_outer(double *M, const double *u)          /* _plus_outer, in place */
+static void add_outer(double *M, const double *u)          /* plus_outer, in place */
 {
     for (int i = 0; i < 4; i++) {
         double ui = u[i];
@@ -18,7 +18,7 @@ static void add_outer(double *M, const double *u)          /* _plus_outer, in pl
     }
 }
 
-double rc_ident_quadratic4(const double *c, const double *phi)     /* _quadratic4 */
+double rc_ident_quadratic4(const double *c, const double *phi)     /* quadratic4 */
 {
     double p0 = phi[0], p1 = phi[1], p2 = phi[2], p3 = phi[3];
     return (p0 * (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3)
