@@ -6,8 +6,8 @@ Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs 
 (tests/test_core_chain.py). Which one runs is visible: ``chain.engine`` is "c" or "python", and
 ``ENGINES`` counts the chains opened with each.
 
-The C core covers filter kinds 0-3, est.method 0, est.physical 0, est.sigma2_method 0, any
-forgetting, car length, odometry drift and track sensors; the Singer filter and the other
+The C core covers filter kinds 0-4 (the Singer filter included), est.method 0, est.physical 0,
+est.sigma2_method 0, any forgetting, car length, odometry drift and track sensors; the other
 estimation methods run in Python. ``RAILCAR_PURE_PYTHON=1`` runs Python always (and a machine
 without a C compiler installs without the core and does the same).
 """
@@ -57,8 +57,6 @@ def enabled() -> bool:
 
 def estimator_not_covered(identifier: IdentifierConfig, filt: FilterConfig) -> str | None:
     """Why the C core does not run this estimator, or None when it does."""
-    if filt.kind == SINGER:
-        return "the Singer filter (filter.kind 4)"
     if identifier.method != 0 or identifier.physical or identifier.sigma2_method != 0:
         return "est.method, est.physical or est.sigma2_method other than 0"
     return None
@@ -77,7 +75,8 @@ def _estimator_values(ic: IdentifierConfig, fc: FilterConfig) -> list[float]:
             1.0 if ic.frozen else 0.0, ic.run_forgetting, int(ic.method), int(ic.physical),
             int(ic.sigma2_method),
             fc.dt, fc.speed_std, fc.position_std, fc.position_std_rel, fc.gamma, int(fc.kind),
-            fc.length]
+            fc.length, fc.singer_tau, fc.singer_p0, fc.singer_p_plus, fc.singer_p_minus,
+            fc.singer_w_max_plus, fc.singer_w_max_minus]
 
 
 def _config_values(cfg: ChainConfig, start_time: float) -> list[float]:

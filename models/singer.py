@@ -472,7 +472,7 @@ def singer_predict(x: np.ndarray, P: np.ndarray, dt: float, params: SingerParams
     """
     x = np.asarray(x, dtype=float)
     if x.ndim == 1:
-        Phi, Q, u = _discretisation_flat(params.alpha, float(dt), params.sigma_w, params.m_w)
+        Phi, Q, u = _discretisation_flat(params.alpha, float(dt) + 0.0, params.sigma_w, params.m_w)
         xs, Ps = _predict(*_flat_state(x, P), Phi, Q, u, clip)
         return np.array(xs), np.array(Ps).reshape(3, 3)
     Phi, Q, u = _discretisation(params.alpha, float(dt), params.sigma_w, params.m_w)
@@ -560,7 +560,9 @@ class SingerFilter:
     def predict(self, dt: float) -> None:
         """Advance by dt [s]."""
         p = self.params
-        Phi, Q, u = _discretisation_flat(p.alpha, float(dt), p.sigma_w, p.m_w)
+        # + 0.0 turns a step of -0.0 into 0.0: the cache holds them as one key (they compare
+        # equal), so -0.0 would get whichever came first (a zero's sign in Phi and u)
+        Phi, Q, u = _discretisation_flat(p.alpha, float(dt) + 0.0, p.sigma_w, p.m_w)
         self._x, self._P = _predict(self._x, self._P, Phi, Q, u, self.clip)
 
     def _take(self, z, H, R) -> None:

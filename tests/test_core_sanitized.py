@@ -149,12 +149,12 @@ def test_driver_reports_a_rejected_step_and_a_refused_configuration(runs, saniti
     assert proc.stderr.startswith("step 10 rejected: traction_force_demand must be finite"), proc.stderr
     written = np.fromfile(tmp_path / "bad.out", dtype="<f8").reshape(-1, len(compiled.OUTPUT_NAMES))
     assert not differences(written, run.expected[:11])   # the start and the 10 steps before it
-    run.file_data(replace(run.cfg, filter=replace(run.cfg.filter, kind=4))).tofile(path)
+    run.file_data(replace(run.cfg, identifier=replace(run.cfg.identifier, method=1))).tofile(path)
     proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "refused.out")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
-    assert proc.stderr.startswith("configuration refused: the C core does not cover the Singer "
-                                  "filter"), proc.stderr
+    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method"), \
+        proc.stderr
     path.write_bytes(run.data[:-1].tobytes())           # one value short
     proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "short.out")],
                           capture_output=True, text=True, timeout=60)

@@ -15,11 +15,10 @@ rc_status rc_estchain_init(rc_estchain *c, const rc_estchain_config *cfg, rc_err
     memset(c, 0, sizeof *c);
     if (err)
         err->msg[0] = '\0';
-    if (cfg->filter.kind == RC_SINGER || cfg->method != 0 || cfg->physical != 0
-            || cfg->sigma2_method != 0) {
+    if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0) {
         if (err)
-            snprintf(err->msg, sizeof err->msg, "the C core does not cover the Singer filter, "
-                     "est.method, est.physical or est.sigma2_method other than 0");
+            snprintf(err->msg, sizeof err->msg, "the C core does not cover est.method, "
+                     "est.physical or est.sigma2_method other than 0");
         return RC_BAD_CONFIG;
     }
     long ng = cfg->grade_n, ns = cfg->speed_n;

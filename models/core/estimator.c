@@ -200,13 +200,16 @@ void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double
     if (!(isfinite(speed_meas) && speed_meas > 0.0 && age >= 0.0))
         return;
     age += 0.5 * base / speed_meas;
-    double th[4];
-    rc_ident_model_theta(&e->ident, th);
-    double traction = e->force_traction, brake = e->force_brake;
-    double v = rc_filter_speed(&e->filter);
-    double accel = RC_G / 1000.0 / (1.0 + e->gamma) * (
-        th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
-        - rc_grade_average(e->grade, rc_filter_position(&e->filter), e->length));
+    double accel;
+    if (!rc_filter_acceleration(&e->filter, &accel)) {   /* the Singer filter's own, else: */
+        double th[4];
+        rc_ident_model_theta(&e->ident, th);
+        double traction = e->force_traction, brake = e->force_brake;
+        double v = rc_filter_speed(&e->filter);
+        accel = RC_G / 1000.0 / (1.0 + e->gamma) * (
+            th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
+            - rc_grade_average(e->grade, rc_filter_position(&e->filter), e->length));
+    }
     double var = rc_square(speed_std) + rc_square(ACCEL_STD * age);
     rc_filter_update_speed(&e->filter, rc_max(speed_meas + accel * age, 0.0), var);
     e->track_speeds += 1;

@@ -1,5 +1,6 @@
-/* filter.c -- see filter.h; the bodies of models/filters.py's MotionFilter (kinds 1-3) with
- * linearised_model, ekf_model and specific_net_force inlined in the same operand order. */
+/* filter.c -- see filter.h; the bodies of models/filters.py's MotionFilter (kinds 1-4) with
+ * linearised_model, ekf_model and specific_net_force inlined in the same operand order; the
+ * Singer branches call singer.c. */
 #include <stdio.h>
 
 #include "filter.h"
@@ -45,14 +46,17 @@ rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed, rc_erro
     if (!(cfg->position_std > 0 && isfinite(cfg->position_std)))
         return bad(err, "sensor.position_std must be > 0 for the filter, got %.17g",
                    cfg->position_std);
-    if (cfg->kind == RC_SINGER) {
-        if (err)
-            snprintf(err->msg, sizeof err->msg, "filter.kind = 4 (Singer) is not in the C core");
-        return RC_BAD_CONFIG;
-    }
-    if (!(cfg->kind >= 0 && cfg->kind <= RC_PAPER))
+    if (!(cfg->kind >= 0 && cfg->kind <= RC_SINGER))
         return bad(err, "filter.kind must be 0 (auto), 1 (linearised), 2 (EKF), 3 (paper "
                         "verbatim) or 4 (Singer), got %.17g", cfg->kind);
+    if (cfg->kind == RC_SINGER) {             /* FilterConfig.singer_params() */
+        double m_w, sigma_w;
+        rc_status st = rc_singer_params(cfg->singer_tau, cfg->singer_p0, cfg->singer_p_plus,
+                                        cfg->singer_p_minus, cfg->singer_w_max_plus,
+                                        cfg->singer_w_max_minus, &m_w, &sigma_w, err);
+        if (st != RC_OK)
+            return st;
+    }
     if ((cfg->kind == RC_LINEARISED || cfg->kind == RC_PAPER) && !has_speed) {
         if (err)
             snprintf(err->msg, sizeof err->msg, "filter.kind = %d (linearised around V_zad, "
@@ -83,12 +87,52 @@ void rc_filter_init(rc_filter *f, const rc_filter_config *cfg, const rc_grade_pr
     f->speed_fit = 1;
     f->use_speed = f->use_position = 1;
     f->reacquire = 0;
+    f->singer_m_w = f->singer_sigma_w = 0.0;
+    if (f->kind == RC_SINGER)
+        rc_singer_params(cfg->singer_tau, cfg->singer_p0, cfg->singer_p_plus, cfg->singer_p_minus,
+                         cfg->singer_w_max_plus, cfg->singer_w_max_minus, &f->singer_m_w,
+                         &f->singer_sigma_w, NULL);
     rc_filter_restart(f);
 }
 
 static double vzad_at(const rc_filter *f, double x)      /* MotionFilter._vzad */
 {
     return has_speed_profile(f) ? rc_speed_at(f->speed, x) : 0.0;
+}
+
+/* MotionFilter._singer_copy: the (v, r) block of the Singer state into the posterior's
+ * (posterior true) or the prediction's fields */
+static void singer_copy(rc_filter *f, int posterior)
+{
+    const double *x = f->singer.x, *P = f->singer.P;
+    if (posterior) {
+        f->xh0 = x[1];
+        f->xh1 = x[2];
+        f->p00 = P[4];
+        f->p01 = P[5];
+        f->p11 = P[8];
+    } else {
+        f->xb0 = x[1];
+        f->xb1 = x[2];
+        f->m00 = P[4];
+        f->m01 = P[5];
+        f->m11 = P[8];
+    }
+}
+
+/* MotionFilter._singer_restart: x0 = [m_w, speed, position], P0 = diag(sigma_w^2, p_v, p_x) */
+static void singer_restart(rc_filter *f, double speed, double position, double p_v, double p_x)
+{
+    double x0[3], P0[9] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+    x0[0] = f->singer_m_w;
+    x0[1] = speed;
+    x0[2] = position;
+    P0[0] = rc_square(f->singer_sigma_w);
+    P0[4] = p_v;
+    P0[8] = p_x;
+    rc_singer_init(&f->singer, f->cfg.singer_tau, f->singer_sigma_w, f->singer_m_w, x0, P0, 1);
+    singer_copy(f, 1);
+    singer_copy(f, 0);
 }
 
 void rc_filter_restart(rc_filter *f)
@@ -99,6 +143,8 @@ void rc_filter_restart(rc_filter *f)
     f->use_speed = f->use_position = 1;
     f->reacquire = 0;
     f->vzad_hat = f->vzad_bar = around_vzad(f) ? vzad_at(f, 0.0) : 0.0;
+    if (f->kind == RC_SINGER)
+        singer_restart(f, 0.0, 0.0, 0.0, 0.0);
 }
 
 /* cfg.position_noise_std(x) ** 2 */
@@ -111,6 +157,13 @@ rc_status rc_filter_start_from_measurement(rc_filter *f, double speed_meas, doub
 {
     double vzad, p11;
     rc_filter_restart(f);
+    if (f->kind == RC_SINGER) {
+        double speed = rc_max(speed_meas, 0.0), p_v = rc_square(f->cfg.speed_std), p_x;
+        if (position_noise_var(f, position_meas, &p_x) != RC_OK)
+            return RC_MATH;
+        singer_restart(f, speed, position_meas, p_v, p_x);
+        return RC_OK;
+    }
     vzad = around_vzad(f) ? vzad_at(f, position_meas) : 0.0;
     f->vzad_hat = f->vzad_bar = vzad;
     f->xh0 = rc_max(speed_meas, 0.0) - vzad;
@@ -174,6 +227,10 @@ rc_status rc_filter_gate(rc_filter *f, double speed_meas, double position_meas, 
 
 void rc_filter_hold(rc_filter *f)
 {
+    if (f->kind == RC_SINGER) {
+        singer_copy(f, 1);
+        return;
+    }
     f->xh0 = f->xb0;
     f->xh1 = f->xb1;
     f->p00 = f->m00;
@@ -227,7 +284,7 @@ rc_status rc_filter_update(rc_filter *f, double speed_meas, double position_meas
         int what = f->reacquire;
         f->reacquire = 0;
         f->reacquired += 1;
-        if (what == RC_REACQUIRE_BOTH)
+        if (what == RC_REACQUIRE_BOTH || f->kind == RC_SINGER)
             return rc_filter_start_from_measurement(f, speed_meas, position_meas);
         /* the distance alone: the update with the speed, then the distance restarted */
         if (update_one(f, speed_meas, position_meas, 1) != RC_OK)
@@ -240,9 +297,29 @@ rc_status rc_filter_update(rc_filter *f, double speed_meas, double position_meas
     use_x = f->use_position;
     if (!(use_v && use_x)) {
         f->use_speed = f->use_position = 1;
+        if (f->kind == RC_SINGER) {
+            if (use_v) {
+                if (rc_singer_update_speed(&f->singer, speed_meas, f->cfg.speed_std) != RC_OK)
+                    return RC_MATH;
+            } else if (use_x) {
+                double std = f->cfg.position_std + f->cfg.position_std_rel * fabs(position_meas);
+                if (rc_singer_update_distance(&f->singer, position_meas, std) != RC_OK)
+                    return RC_MATH;
+            }
+            singer_copy(f, 1);
+            return RC_OK;
+        }
         if (use_v || use_x)
             return update_one(f, speed_meas, position_meas, use_v);
         rc_filter_hold(f);
+        return RC_OK;
+    }
+    if (f->kind == RC_SINGER) {
+        double std = f->cfg.position_std + f->cfg.position_std_rel * fabs(position_meas);
+        if (rc_singer_update_speed_distance(&f->singer, speed_meas, position_meas,
+                                            f->cfg.speed_std, std) != RC_OK)
+            return RC_MATH;
+        singer_copy(f, 1);
         return RC_OK;
     }
     vzad = vzad_predicted(f);
@@ -289,6 +366,13 @@ rc_status rc_filter_update_speed(rc_filter *f, double speed_meas, double varianc
 {
     double p00 = f->p00, p01 = f->p01, p11 = f->p11;
     double s = p00 + variance, k0, k1, e, xh0;
+    if (f->kind == RC_SINGER) {               /* math.sqrt(variance): ValueError below 0 */
+        if (variance < 0.0
+                || rc_singer_update_speed(&f->singer, speed_meas, sqrt(variance)) != RC_OK)
+            return RC_MATH;
+        singer_copy(f, 1);
+        return RC_OK;
+    }
     if (s == 0.0)
         return RC_MATH;
     k0 = p00 / s;
@@ -311,9 +395,27 @@ static double specific_net_force(double traction, double brake, double speed, do
            - grade;
 }
 
+int rc_filter_acceleration(const rc_filter *f, double *out)
+{
+    if (f->kind != RC_SINGER)
+        return 0;
+    *out = f->singer.x[0];
+    return 1;
+}
+
+static rc_status singer_predict(rc_filter *f, double dt)
+{
+    if (rc_singer_predict(&f->singer, dt) != RC_OK)
+        return RC_MATH;
+    singer_copy(f, 0);
+    return RC_OK;
+}
+
 rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const double *theta,
                             double q, double dt)
 {
+    if (f->kind == RC_SINGER)                 /* model-free: forces and theta are not used */
+        return singer_predict(f, dt);
     double speed_hat = rc_filter_speed(f);
     double x_pos = f->xh1;
     double grade = rc_grade_average(f->grade, x_pos, f->cfg.length);

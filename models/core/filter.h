@@ -1,6 +1,8 @@
-/* filter.h -- models.filters.MotionFilter for kinds 1-3 (linearised, EKF, paper verbatim):
- * the innovation gate, the update ((15), (17), (18) with H = I, or one measurement alone), the
- * prediction ((16), (19) or the EKF's) and the outputs. Singer (kind 4) is not here.
+/* filter.h -- models.filters.MotionFilter for kinds 1-4 (linearised, EKF, paper verbatim,
+ * Singer): the innovation gate, the update ((15), (17), (18) with H = I, or one measurement
+ * alone), the prediction ((16), (19) or the EKF's) and the outputs. Kind 4 runs the Singer
+ * filter of singer.h on [w, v, r] and copies its (v, r) block into the posterior's and the
+ * prediction's fields, as MotionFilter._singer_copy does.
  *
  * Where Python raises (ZeroDivisionError, OverflowError of x ** 2), the C function returns
  * RC_MATH and leaves the state as Python leaves it at the raise (mostly unchanged; the few
@@ -10,6 +12,7 @@
 #define RAILCAR_FILTER_H
 
 #include "rc_common.h"
+#include "singer.h"
 #include "track.h"
 
 enum { RC_LINEARISED = 1, RC_EKF = 2, RC_PAPER = 3, RC_SINGER = 4 };   /* filter.kind */
@@ -19,21 +22,24 @@ enum { RC_REACQUIRE_BOTH = 1, RC_REACQUIRE_DISTANCE = 2 };
 #define RC_FIT_SIGMAS 4.5      /* MotionFilter.FIT_SIGMAS */
 #define RC_REACQUIRE 50        /* MotionFilter.REACQUIRE [samples] */
 
-typedef struct {               /* models.filters.FilterConfig (the fields kinds 1-3 use) */
+typedef struct {               /* models.filters.FilterConfig */
     double dt;                 /* [s] */
     double speed_std;          /* [m/s] */
     double position_std;       /* [m] */
     double position_std_rel;   /* [-] */
     double gamma;              /* [-] */
-    int kind;                  /* 0 auto, 1, 2, 3 */
+    int kind;                  /* 0 auto, 1, 2, 3, 4 */
     double length;             /* [m] */
+    double singer_tau;         /* [s]: the Singer filter's settings (kind 4) */
+    double singer_p0, singer_p_plus, singer_p_minus;   /* [-] */
+    double singer_w_max_plus, singer_w_max_minus;      /* [m/s^2] */
 } rc_filter_config;
 
 typedef struct {               /* models.filters.MotionFilter */
     rc_filter_config cfg;
     const rc_grade_profile *grade;   /* the chain's */
     const rc_speed_profile *speed;   /* the chain's; NULL or n == 0: none */
-    int kind;                  /* resolved: 1, 2 or 3 */
+    int kind;                  /* resolved: 1, 2, 3 or 4 */
     double r0, r1;             /* speed_std^2, position_std^2 */
     double xb0, xb1, m00, m01, m11;   /* prediction and its covariance */
     double xh0, xh1, p00, p01, p11;   /* posterior and its covariance */
@@ -42,10 +48,12 @@ typedef struct {               /* models.filters.MotionFilter */
     int speed_fit;             /* bool */
     int use_speed, use_position;      /* bool: what the next update takes */
     int reacquire;             /* 0, RC_REACQUIRE_BOTH or RC_REACQUIRE_DISTANCE */
+    double singer_m_w, singer_sigma_w;   /* kind 4: _singer_params' m_w, sigma_w [m/s^2] */
+    rc_singer singer;          /* kind 4: _singer */
 } rc_filter;
 
-/* What MotionFilter.__init__ refuses: FilterConfig.validate(has_speed_profile) for kinds 0-3
- * (kind 4, Singer, is refused here: not in the C core), and speed_std ** 2 or
+/* What MotionFilter.__init__ refuses: FilterConfig.validate(has_speed_profile) for kinds 0-4
+ * (the filter.singer_* settings for kind 4, rc_singer_params), and speed_std ** 2 or
  * position_std ** 2 overflowing (Python's OverflowError). RC_BAD_CONFIG with the first bad one
  * named in err (Python's message, the value printed with %.17g), else RC_OK. err may be NULL. */
 rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed_profile, rc_error *err);
@@ -63,12 +71,15 @@ rc_status rc_filter_gate(rc_filter *f, double speed_meas, double position_meas, 
                          int *use_x);
 void rc_filter_hold(rc_filter *f);
 rc_status rc_filter_update(rc_filter *f, double speed_meas, double position_meas);
-/* RC_MATH: p00 + variance == 0 (nothing changed) */
+/* RC_MATH: p00 + variance == 0 (nothing changed); kind 4: variance < 0, or the Singer update's */
 rc_status rc_filter_update_speed(rc_filter *f, double speed_meas, double variance);
 /* MotionFilter.predict with theta[4] = (1/(Pg), A0, A1, A2), process noise q [(m/s)^2].
- * RC_MATH: 1 + gamma == 0 (nothing changed) */
+ * RC_MATH: 1 + gamma == 0 (nothing changed); kind 4 (forces and theta unused): a bad dt */
 rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const double *theta,
                             double q, double dt);
+/* MotionFilter.acceleration: 1 with the Singer filter's acceleration [m/s^2] in *out (kind 4),
+ * else 0 (Python's None) and *out untouched */
+int rc_filter_acceleration(const rc_filter *f, double *out);
 /* The properties: speed, position, their stds, and the predicted ones */
 double rc_filter_speed(const rc_filter *f);
 double rc_filter_position(const rc_filter *f);

@@ -190,8 +190,6 @@ rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
     rc_status bad = check_track(cfg, err);
     if (bad)
         return bad;
-    if (cfg->filter.kind == RC_SINGER)
-        return refuse(err, "the Singer filter (filter.kind 4)");
     if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0)
         return refuse(err, "est.method, est.physical or est.sigma2_method other than 0");
     if (cfg->grade_n < 1 || cfg->speed_n < 0) {

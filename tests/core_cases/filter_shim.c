@@ -18,7 +18,8 @@ shim *shim_new(double dt, double speed_std, double position_std, double position
                double gamma, int kind, double length, const double *gd, const double *gg, long gn,
                const double *sd, const double *ss, long sn, char *msg)
 {
-    rc_filter_config cfg = {dt, speed_std, position_std, position_std_rel, gamma, kind, length};
+    rc_filter_config cfg = {dt, speed_std, position_std, position_std_rel, gamma, kind, length,
+                            10.0, 0.3, 0.1, 0.1, 1.3, -1.5};   /* FilterConfig's singer_* */
     rc_error err;
     shim *s;
     if (rc_filter_validate(&cfg, sn > 0, &err) != RC_OK) {
