@@ -23,7 +23,7 @@ import numpy as np
 from .chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected, TrackSensorConfig,
                     build_estimator)
 from .estimator import StationConfig
-from .filters import SINGER, FilterConfig
+from .filters import FilterConfig
 from .identification import IdentifierConfig
 from .track import GradeProfile, SpeedProfile
 

@@ -1,5 +1,5 @@
 /* estimator.h -- models.estimator: StationDetector and OnlineEstimator for est.method 0 (the
- * paper's LS), est.sigma2_method 0, est.physical 0, filter kinds 1-3: per sample, measure()
+ * paper's LS), est.sigma2_method 0, est.physical 0, filter kinds 1-4: per sample, measure()
  * (identification of the pair, station logic, the filter's gate and update), then propagate()
  * (the filter's prediction with the forces applied until the next sample), and the outputs with
  * finish_outputs' guarantees (every value finite, est.mass plausible, est.status). */
