@@ -4,9 +4,9 @@ State (x, X): x = V - V_zad (speed deviation [m/s]) for the linearised filter, x
 EKF; X distance from the previous station [m]. Measurements z = (V_meas - V_zad, X_meas)
 (eq. (14), H = I), noise covariance Rm = diag(sigma_V^2, sigma_X^2).
 
-Functional core: ``linearised_model`` (13), ``kf_update`` (15), (17), (18), ``kf_predict``
-(16), (19), ``ekf_model`` (eq. (2) and its Jacobian). ``MotionFilter`` runs them sample by
-sample. Matrices are 2x2 numpy arrays.
+The algebra -- the model (2), (13), the update (15), (17), (18), the prediction (16), (19) --
+is pure functions in models/kalman2.py on small tuples; ``MotionFilter`` runs them sample by
+sample and keeps V_zad, the innovation gate and the Singer kind (models/singer.py).
 """
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kalman2
 from .track import GradeProfile, SpeedProfile
-from .units import G
 
 LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
 """Values of ``filter.kind``: 0 = automatic (LINEARISED when a speed profile is given, else EKF);
@@ -25,48 +25,6 @@ white-acceleration process noise; EKF = eq. (2) relinearised at the estimate, sa
 update; PAPER = eqs. (13)-(19) verbatim (Euler distance, Q = diag(sigma^2, 0)), the baseline;
 SINGER = seed 002's model-free filter on [acceleration, speed, distance] (models/singer.py),
 which uses neither the forces nor the identified parameters."""
-
-
-def specific_net_force(traction: float, brake: float, speed: float, grade: float,
-                       theta: np.ndarray) -> float:
-    """(F-B)/(Pg) - A0 - A1 V - A2 V^2 - i [N/kN] with Theta = (1/(Pg), A0, A1, A2)."""
-    return theta[0] * (traction - brake) - theta[1] - theta[2] * speed - theta[3] * speed * speed - grade
-
-
-def linearised_model(vzad: float, vzad_next: float, traction: float, brake: float, grade: float,
-                     theta: np.ndarray, dt: float, gamma: float = 0.0) -> tuple[float, float, float]:
-    """(a[n], c[n], C[n]) of eq. (13) around the reference speeds V_zad[n], V_zad[n+1] [m/s]."""
-    k = G / 1000.0 / (1.0 + gamma) * dt
-    c = vzad - vzad_next + k * specific_net_force(traction, brake, vzad, grade, theta)
-    a = 1.0 - k * (theta[2] + 2.0 * theta[3] * vzad)
-    return a, c, vzad * dt
-
-
-def kf_update(x_bar: np.ndarray, M: np.ndarray, z: np.ndarray, Rm: np.ndarray):
-    """Eqs. (15), (17), (18) with H = I: returns (x_hat, P, K).
-
-    P = M - M (M + R)^-1 M (18), K = P R^-1 (17), x_hat = x_bar + K (z - x_bar) (15).
-    """
-    P = M - M @ np.linalg.solve(M + Rm, M)
-    P = 0.5 * (P + P.T)
-    K = P @ np.linalg.inv(Rm)
-    return x_bar + K @ (z - x_bar), P, K
-
-
-def kf_predict(x_hat: np.ndarray, P: np.ndarray, Phi: np.ndarray, u: np.ndarray, q: float):
-    """Eqs. (16), (19): x_bar = u + Phi x_hat, M = Phi P Phi^T + diag(q, 0)."""
-    M = Phi @ P @ Phi.T
-    M[0, 0] += q
-    return u + Phi @ x_hat, M
-
-
-def ekf_model(speed: float, traction: float, brake: float, grade: float, theta: np.ndarray,
-              dt: float, gamma: float = 0.0) -> tuple[float, float]:
-    """Eq. (2) without noise for a moving car: (V[n+1], dV[n+1]/dV[n]), V >= 0."""
-    k = G / 1000.0 / (1.0 + gamma) * dt
-    v_next = speed + k * specific_net_force(traction, brake, speed, grade, theta)
-    dv = 1.0 - k * (theta[2] + 2.0 * theta[3] * speed)
-    return max(v_next, 0.0), dv
 
 
 @dataclass
@@ -127,8 +85,10 @@ class MotionFilter:
     Call ``update`` with each measurement and ``predict`` with the forces applied until the
     next one. ``speed``/``position`` and their stds are the posterior after ``update``;
     ``predicted_speed``/``predicted_position`` the one-step prediction after ``predict``.
-    The per-sample path is scalar 2x2 algebra (numpy's overhead on 2x2 arrays dominated the
-    step); it computes what ``kf_update``/``kf_predict`` compute, which tests check.
+    State (models/kalman2.py's shapes): the prediction ``x_bar``, ``M`` and the posterior
+    ``x_hat``, ``P``, x = (speed part, distance) and covariances ((c00, c01), (c01, c11));
+    ``R`` = (sigma_V^2, sigma_X^2), the diagonal of R. The algebra is kalman2's; this class
+    keeps V_zad, the gate and the Singer kind.
     """
 
     def __init__(self, cfg: FilterConfig, grade_profile: GradeProfile,
@@ -138,8 +98,7 @@ class MotionFilter:
         self.grade_profile = grade_profile
         self.speed_profile = speed_profile
         self.kind = cfg.kind or (LINEARISED if speed_profile is not None else EKF)
-        self._r0 = cfg.speed_std ** 2
-        self._r1 = cfg.position_std ** 2
+        self.R = (cfg.speed_std ** 2, cfg.position_std ** 2)
         self._singer_params = cfg.singer_params() if self.kind == SINGER else None
         self._singer = None
         self.rejected = 0             # measurements (speeds and distances) the gate refused
@@ -150,26 +109,9 @@ class MotionFilter:
         self._reacquire = 0           # REACQUIRE_BOTH / _DISTANCE: the next update restarts
         self.restart()
 
-    # state: x_bar = (xb0, xb1), M = [[m00, m01], [m01, m11]]; x_hat, P likewise
     @property
     def Rm(self) -> np.ndarray:
-        return np.diag([self._r0, self._r1])
-
-    @property
-    def x_bar(self) -> np.ndarray:
-        return np.array([self._xb0, self._xb1])
-
-    @property
-    def M(self) -> np.ndarray:
-        return np.array([[self._m00, self._m01], [self._m01, self._m11]])
-
-    @property
-    def x_hat(self) -> np.ndarray:
-        return np.array([self._xh0, self._xh1])
-
-    @property
-    def P(self) -> np.ndarray:
-        return np.array([[self._p00, self._p01], [self._p01, self._p11]])
+        return np.diag(self.R)
 
     def _singer_restart(self, speed: float = 0.0, position: float = 0.0, p_v: float = 0.0,
                         p_x: float = 0.0) -> None:
@@ -181,12 +123,13 @@ class MotionFilter:
         self._singer_copy(posterior=False)
 
     def _singer_copy(self, posterior: bool) -> None:
-        """The Singer filter's (v, r) block into the posterior's (or the prediction's) fields."""
+        """The Singer filter's (v, r) block into the posterior (or the prediction)."""
         x, P = self._singer._x, self._singer._P        # [w, v, r]; 3x3 row-major
+        xy, C = (x[1], x[2]), ((P[4], P[5]), (P[5], P[8]))
         if posterior:
-            self._xh0, self._xh1, self._p00, self._p01, self._p11 = x[1], x[2], P[4], P[5], P[8]
+            self.x_hat, self.P = xy, C
         else:
-            self._xb0, self._xb1, self._m00, self._m01, self._m11 = x[1], x[2], P[4], P[5], P[8]
+            self.x_bar, self.M = xy, C
 
     def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
         """A run that does not start at a station: state = first measurement, P = its noise."""
@@ -197,13 +140,14 @@ class MotionFilter:
             return
         vzad = self._vzad(position_meas) if self.kind in (LINEARISED, PAPER) else 0.0
         self.vzad_hat = self.vzad_bar = vzad
-        self._xh0, self._xh1 = max(speed_meas, 0.0) - vzad, position_meas
-        self._p00, self._p11 = self.cfg.speed_std ** 2, self.cfg.position_noise_std(position_meas) ** 2
+        self.x_hat = (max(speed_meas, 0.0) - vzad, position_meas)
+        self.P = ((self.cfg.speed_std ** 2, 0.0),
+                  (0.0, self.cfg.position_noise_std(position_meas) ** 2))
 
     def restart(self) -> None:
         """The car stands at the station: V = 0, X = 0 known exactly (P~[0] = 0)."""
-        self._xb0 = self._xb1 = self._m00 = self._m01 = self._m11 = 0.0
-        self._xh0 = self._xh1 = self._p00 = self._p01 = self._p11 = 0.0
+        self.x_bar = self.x_hat = (0.0, 0.0)
+        self.M = self.P = ((0.0, 0.0), (0.0, 0.0))
         self.speed_run = self.position_run = 0
         self._use_speed = self._use_position = True
         self._reacquire = 0
@@ -238,7 +182,7 @@ class MotionFilter:
 
     def _position_variance(self, position_meas: float) -> float:
         """Variance of the measured distance [m^2] at ``position_meas`` [m]."""
-        return self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self._r1
+        return self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self.R[1]
 
     def gate(self, speed_meas: float, position_meas: float) -> tuple[bool, bool]:
         """(use the speed, use the distance) [m/s, m] at this sample, against the prediction;
@@ -248,8 +192,9 @@ class MotionFilter:
         when the speed is refused too (counted in ``reacquired``)."""
         vzad = self._vzad_predicted()
         r1 = self._position_variance(position_meas)
-        e0, e1 = speed_meas - vzad - self._xb0, position_meas - self._xb1
-        s00, s11 = self._m00 + self._r0, self._m11 + r1
+        (xb0, xb1), ((m00, _), (_, m11)) = self.x_bar, self.M
+        e0, e1 = speed_meas - vzad - xb0, position_meas - xb1
+        s00, s11 = m00 + self.R[0], m11 + r1
         g2 = self.GATE_SIGMAS * self.GATE_SIGMAS
         use_v, use_x = e0 * e0 <= g2 * s00, e1 * e1 <= g2 * s11     # False for NaN
         self.speed_fit = use_v and e0 * e0 <= self.FIT_SIGMAS * self.FIT_SIGMAS * s00
@@ -276,28 +221,18 @@ class MotionFilter:
         if self.kind == SINGER:
             self._singer_copy(posterior=True)
             return
-        self._xh0, self._xh1 = self._xb0, self._xb1
-        self._p00, self._p01, self._p11 = self._m00, self._m01, self._m11
+        self.x_hat, self.P = self.x_bar, self.M
         self.vzad_hat = self._vzad_predicted()
 
     def _update_one(self, speed_meas: float, position_meas: float, speed: bool) -> None:
         """The update with the speed alone (H = [1 0]) or the distance alone (H = [0 1])."""
         vzad = self._vzad_predicted()
-        m00, m01, m11 = self._m00, self._m01, self._m11
         if speed:
-            s = m00 + self._r0
-            e = speed_meas - vzad - self._xb0
-            k0, k1 = m00 / s, m01 / s
-            self._p00, self._p01, self._p11 = m00 - k0 * m00, m01 - k0 * m01, m11 - k1 * m01
+            x, self.P = kalman2.update_one(self.x_bar, self.M, speed_meas - vzad, self.R[0], 0)
         else:
             r1 = self._position_variance(position_meas)
-            s = m11 + r1
-            e = position_meas - self._xb1
-            k0, k1 = m01 / s, m11 / s
-            self._p00, self._p01, self._p11 = m00 - k0 * m01, m01 - k0 * m11, m11 - k1 * m11
-        xh0 = self._xb0 + k0 * e
-        self._xh1 = self._xb1 + k1 * e
-        self._xh0 = -vzad if xh0 + vzad < 0.0 else xh0   # a car never moves backwards
+            x, self.P = kalman2.update_one(self.x_bar, self.M, position_meas, r1, 1)
+        self.x_hat = kalman2.forward(x, vzad)
         self.vzad_hat = vzad
 
     def update(self, speed_meas: float, position_meas: float) -> None:
@@ -310,10 +245,13 @@ class MotionFilter:
                 self.start_from_measurement(speed_meas, position_meas)
                 return
             # the distance alone: the update with the speed, then the distance restarted from
-            # its measurement (uncorrelated with the speed, its noise's variance)
+            # its measurement (uncorrelated with the speed, its noise's variance; when that
+            # overflows, P[1][1] stays as models/core/filter.c leaves it)
             self._update_one(speed_meas, position_meas, True)
-            self._xh1, self._p01 = position_meas, 0.0
-            self._p11 = self._position_variance(position_meas)
+            self.x_hat = (self.x_hat[0], position_meas)
+            (p00, _), (_, p11) = self.P
+            self.P = ((p00, 0.0), (0.0, p11))
+            self.P = ((p00, 0.0), (0.0, self._position_variance(position_meas)))
             return
         use_v, use_x = self._use_speed, self._use_position
         if not (use_v and use_x):
@@ -336,25 +274,9 @@ class MotionFilter:
             self._singer_copy(posterior=True)
             return
         vzad = self._vzad_predicted()
-        r0 = self._r0
-        r1 = self._position_variance(position_meas)
-        m00, m01, m11 = self._m00, self._m01, self._m11
-        s00, s11 = m00 + r0, m11 + r1                     # M + R and its inverse
-        det = s00 * s11 - m01 * m01
-        i00, i01, i11 = s11 / det, -m01 / det, s00 / det
-        a00 = m00 * i00 + m01 * i01                       # A = M (M + R)^-1
-        a01 = m00 * i01 + m01 * i11
-        a10 = m01 * i00 + m11 * i01
-        a11 = m01 * i01 + m11 * i11
-        p00 = m00 - (a00 * m00 + a01 * m01)               # (18) P = M - A M
-        p01 = m01 - 0.5 * ((a00 * m01 + a01 * m11) + (a10 * m00 + a11 * m01))
-        p11 = m11 - (a10 * m01 + a11 * m11)
-        e0, e1 = speed_meas - vzad - self._xb0, position_meas - self._xb1
-        k00, k01, k10, k11 = p00 / r0, p01 / r1, p01 / r0, p11 / r1   # (17) K = P R^-1
-        xh0 = self._xb0 + k00 * e0 + k01 * e1             # (15)
-        self._xh1 = self._xb1 + k10 * e0 + k11 * e1
-        self._xh0 = -vzad if xh0 + vzad < 0.0 else xh0   # a car never moves backwards
-        self._p00, self._p01, self._p11 = p00, p01, p11
+        R = (self.R[0], self._position_variance(position_meas))
+        x, self.P = kalman2.update(self.x_bar, self.M, (speed_meas - vzad, position_meas), R)
+        self.x_hat = kalman2.forward(x, vzad)
         self.vzad_hat = vzad
 
     def update_speed(self, speed_meas: float, variance: float) -> None:
@@ -364,14 +286,8 @@ class MotionFilter:
             self._singer.update_speed(speed_meas, math.sqrt(variance))
             self._singer_copy(posterior=True)
             return
-        p00, p01, p11 = self._p00, self._p01, self._p11
-        s = p00 + variance
-        k0, k1 = p00 / s, p01 / s
-        e = speed_meas - self.vzad_hat - self._xh0
-        xh0 = self._xh0 + k0 * e
-        self._xh0 = -self.vzad_hat if xh0 + self.vzad_hat < 0.0 else xh0
-        self._xh1 += k1 * e
-        self._p00, self._p01, self._p11 = p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
+        x, self.P = kalman2.update_one(self.x_hat, self.P, speed_meas - self.vzad_hat, variance, 0)
+        self.x_hat = kalman2.forward(x, self.vzad_hat)
 
     @property
     def acceleration(self) -> float | None:
@@ -385,80 +301,72 @@ class MotionFilter:
             self._singer_copy(posterior=False)
             return
         speed_hat = self.speed
-        x_pos = self._xh1
+        xh0, x_pos = self.x_hat
         grade = self.grade_profile.average(x_pos, self.cfg.length)
-        p00, p01, p11 = self._p00, self._p01, self._p11
         if self.kind in (LINEARISED, PAPER):
             vzad = self.vzad_hat
             vzad_next = self._vzad(x_pos + speed_hat * dt)
-            a, c, C = linearised_model(vzad, vzad_next, traction, brake, grade, theta, dt, self.cfg.gamma)
+            a, c, C = kalman2.linearised_model(vzad, vzad_next, traction, brake, grade, theta, dt,
+                                               self.cfg.gamma)
             self.vzad_bar = vzad_next
             if self.kind == PAPER:                          # eqs. (16), (19) verbatim
-                xb0 = c + a * self._xh0
-                self._xb0 = -vzad_next if xb0 + vzad_next < 0.0 else xb0
-                self._xb1 = C + dt * self._xh0 + x_pos
-                self._m00 = a * a * p00 + q
-                self._m01 = a * (dt * p00 + p01)
-                self._m11 = dt * dt * p00 + 2.0 * dt * p01 + p11
+                x, self.M = kalman2.predict_paper(self.x_hat, self.P, a, c, C, dt, q)
+                self.x_bar = kalman2.forward(x, vzad_next)
                 return
-            dv, v_next_minus_dv_v = a, c + vzad_next - a * vzad     # V' = c + V_zad' + a (V - V_zad)
+            dv, v0 = a, c + vzad_next - a * vzad            # V' = c + V_zad' + a (V - V_zad)
         else:
-            v_next, dv = ekf_model(speed_hat, traction, brake, grade, theta, dt, self.cfg.gamma)
-            v_next_minus_dv_v = v_next - dv * speed_hat
-        # speed row in absolute terms: V' = v0 + dv V. Distance by the trapezoid rule,
-        # X' = X + dt (V + V') / 2, and the process noise as white acceleration noise over the
-        # step, which moves the distance too: the paper's X' = X + V dt with Q = diag(sigma^2, 0)
-        # lags under acceleration and makes the distance's covariance over-confident.
+            v_next, dv = kalman2.ekf_model(speed_hat, traction, brake, grade, theta, dt,
+                                           self.cfg.gamma)
+            v0 = v_next - dv * speed_hat
+        # kalman2.predict works on absolute speed: V' = v0 + dv V, the trapezoid distance
         vzad_hat = self.vzad_hat if self.kind == LINEARISED else 0.0
         vzad_bar = self.vzad_bar if self.kind == LINEARISED else 0.0
-        v_hat = self._xh0 + vzad_hat
-        v_pred = max(v_next_minus_dv_v + dv * v_hat, 0.0)
-        f10 = 0.5 * dt * (1.0 + dv)                       # Phi = [[dv, 0], [f10, 1]]
-        self._xb0 = v_pred - vzad_bar
-        self._xb1 = x_pos + 0.5 * dt * (v_hat + v_pred)
-        self._m00 = dv * dv * p00 + q
-        self._m01 = dv * (f10 * p00 + p01) + q * 0.5 * dt
-        self._m11 = f10 * f10 * p00 + 2.0 * f10 * p01 + p11 + q * dt * dt / 3.0
+        (v_pred, x_next), self.M = kalman2.predict((xh0 + vzad_hat, x_pos), self.P, dv, v0, dt, q)
+        self.x_bar = (v_pred - vzad_bar, x_next)
 
     @property
     def speed(self) -> float:
         """Filtered speed [m/s] at the last measurement."""
-        v = self._xh0 + self.vzad_hat
+        v = self.x_hat[0] + self.vzad_hat
         return v if v > 0.0 else 0.0
 
     @property
     def position(self) -> float:
         """Filtered distance [m] at the last measurement."""
-        return self._xh1
+        return self.x_hat[1]
 
     @property
     def speed_std(self) -> float:
         """Std of the filtered speed [m/s]."""
-        return math.sqrt(self._p00) if self._p00 > 0.0 else 0.0
+        p00 = self.P[0][0]
+        return math.sqrt(p00) if p00 > 0.0 else 0.0
 
     @property
     def position_std(self) -> float:
         """Std of the filtered distance [m]."""
-        return math.sqrt(self._p11) if self._p11 > 0.0 else 0.0
+        p11 = self.P[1][1]
+        return math.sqrt(p11) if p11 > 0.0 else 0.0
 
     @property
     def predicted_speed(self) -> float:
         """One-step predicted speed [m/s]."""
-        v = self._xb0 + self.vzad_bar
+        v = self.x_bar[0] + self.vzad_bar
         return v if v > 0.0 else 0.0
 
     @property
     def predicted_position(self) -> float:
         """One-step predicted distance [m]."""
-        return self._xb1
+        return self.x_bar[1]
 
     @property
     def predicted_speed_std(self) -> float:
-        return math.sqrt(self._m00) if self._m00 > 0.0 else 0.0
+        m00 = self.M[0][0]
+        return math.sqrt(m00) if m00 > 0.0 else 0.0
 
     @property
     def predicted_position_std(self) -> float:
-        return math.sqrt(self._m11) if self._m11 > 0.0 else 0.0
+        m11 = self.M[1][1]
+        return math.sqrt(m11) if m11 > 0.0 else 0.0
 
 
 class ProcessNoiseBank:

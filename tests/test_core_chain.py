@@ -64,7 +64,7 @@ def python_state(chain: RailCarChain) -> tuple:
     S = ident._S if ident._S is not None else [math.nan] * 16
     values = [*ident._theta, *S, *ident._W, *ident._D, ident.n, ident.q_e, ident.s2, ident.c0,
               ident.c1, math.nan if ident.cL is None else ident.cL, ident._n_cL, ident._n_c1,
-              f._xb0, f._xb1, f._m00, f._m01, f._m11, f._xh0, f._xh1, f._p00, f._p01, f._p11,
+              *f.x_bar, f.M[0][0], f.M[0][1], f.M[1][1], *f.x_hat, f.P[0][0], f.P[0][1], f.P[1][1],
               st.still_time, st._fast_run, p.time, p._grid_index, p.traction_impulse,
               p.brake_impulse, p.state.still_time, p.state.stops, chain._sample_index,
               math.nan if chain._track_t1 is None else chain._track_t1,

@@ -36,9 +36,10 @@ RC_OK, RC_BAD_CONFIG, RC_MATH = 0, 2, 3
 
 RESTART, START, GATE, HOLD, UPDATE, UPDATE_SPEED, PREDICT = range(7)   # filter_shim.c's OP_*
 OP_SIZE = 9                   # code and up to 8 arguments
-# every attribute rc_filter mirrors, then the properties (filter_shim.c's shim_state order)
-FIELDS = ("kind", "_r0", "_r1", "_xb0", "_xb1", "_m00", "_m01", "_m11",
-          "_xh0", "_xh1", "_p00", "_p01", "_p11", "vzad_hat", "vzad_bar",
+# every value rc_filter mirrors, then the properties (filter_shim.c's shim_state order); the
+# covariances are symmetric: M[1][0], P[1][0] are checked against M[0][1], P[0][1] in py_fields
+FIELDS = ("kind", "R[0]", "R[1]", "x_bar[0]", "x_bar[1]", "M[0][0]", "M[0][1]", "M[1][1]",
+          "x_hat[0]", "x_hat[1]", "P[0][0]", "P[0][1]", "P[1][1]", "vzad_hat", "vzad_bar",
           "rejected", "speed_run", "position_run", "reacquired",
           "speed_fit", "_use_speed", "_use_position", "_reacquire",
           "speed", "position", "speed_std", "position_std", "predicted_speed",
@@ -122,6 +123,28 @@ def c_trace(lib, case: Case, ops: np.ndarray | None = None) -> np.ndarray:
     return out
 
 
+def py_field(f: MotionFilter, name: str) -> float:
+    """The value FIELDS' ``name`` names: an attribute, "M[0][1]" an entry of one."""
+    attr, *index = name.replace("]", "").split("[")
+    value = getattr(f, attr)
+    for i in index:
+        value = value[int(i)]
+    return float(value)
+
+
+def py_fields(f: MotionFilter) -> list[float]:
+    """FIELDS' values of a MotionFilter."""
+    for C in (f.M, f.P):
+        assert len(C) == 2 and len(C[0]) == len(C[1]) == 2
+        assert C[1][0] is C[0][1] or same_bits(C[1][0], C[0][1])
+    return [py_field(f, n) for n in FIELDS]
+
+
+def same_bits(a, b) -> bool:
+    return np.array(float(a)).view(np.uint64) == np.array(float(b)).view(np.uint64) or (
+        math.isnan(a) and math.isnan(b))
+
+
 def py_apply(f: MotionFilter, op: tuple, numpy_theta: bool) -> list[float]:
     code, use, status = op[0], (False, False), RC_OK
     try:
@@ -144,7 +167,7 @@ def py_apply(f: MotionFilter, op: tuple, numpy_theta: bool) -> list[float]:
             raise AssertionError(op)
     except (ZeroDivisionError, OverflowError):
         status = RC_MATH
-    return [float(status), float(use[0]), float(use[1]), *(float(getattr(f, n)) for n in FIELDS)]
+    return [float(status), float(use[0]), float(use[1]), *py_fields(f)]
 
 
 def py_trace(case: Case) -> np.ndarray:
@@ -381,9 +404,9 @@ def test_the_math_errors_are_where_python_raises(lib):
     col = {n: OUT_NAMES.index(n) for n in OUT_NAMES}
     assert list(theirs[:, 0]) == [RC_OK, RC_MATH, RC_MATH, RC_MATH, RC_OK, RC_OK, RC_MATH,
                                   *[RC_OK] * 50, RC_MATH]
-    assert theirs[2, col["_xh0"]] == 3.0 and theirs[2, col["_p00"]] == 0.0
+    assert theirs[2, col["x_hat[0]"]] == 3.0 and theirs[2, col["P[0][0]"]] == 0.0
     assert theirs[-2, col["_reacquire"]] == 2
-    assert theirs[-1, col["_xh1"]] == 1e200 and theirs[-1, col["reacquired"]] == 1
+    assert theirs[-1, col["x_hat[1]"]] == 1e200 and theirs[-1, col["reacquired"]] == 1
     assert_same(c_trace(lib, case), theirs, case)
     for kind in (1, 2):                                       # 1 + gamma == 0
         gamma = FilterConfig(dt=0.1, gamma=-1.0, kind=kind)

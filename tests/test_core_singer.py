@@ -40,7 +40,7 @@ from test_core_chain import ROOT, assert_identical, measurements, replay, same, 
 
 measurements = functools.lru_cache(maxsize=4)(measurements)   # the same rows for each case
 from test_core_filter import (FIELDS, GATE, HOLD, PREDICT, RESTART, START, THETA_TRUE,
-                              UPDATE, UPDATE_SPEED, bits, random_calls, station_runs)
+                              UPDATE, UPDATE_SPEED, bits, py_fields, random_calls, station_runs)
 
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "singer_shim.c"
@@ -116,7 +116,7 @@ def c_trace(lib, cfg: FilterConfig, ops: np.ndarray) -> np.ndarray:
 
 def py_state(f: MotionFilter) -> list[float]:
     g, sp = f._singer, f._singer_params
-    return [*(float(getattr(f, n)) for n in FIELDS), f.acceleration, *g._x, *g._P, g.nis,
+    return [*py_fields(f), f.acceleration, *g._x, *g._P, g.nis,
             sp.tau, sp.sigma_w, sp.m_w, float(g.clip), 0.0]
 
 

@@ -1,4 +1,5 @@
-"""Tests of models.filters: eqs. (13)-(19) of MODEL.md, their steady state (DARE), the EKF.
+"""Tests of models.filters and models.kalman2: eqs. (13)-(19) of MODEL.md, their steady state
+(DARE), the EKF.
 
 State (x, X): speed deviation or speed [m/s], distance [m]; dt [s]; process noise q [(m/s)^2].
 """
@@ -9,10 +10,8 @@ import pytest
 from scipy.linalg import solve_discrete_are
 
 from models.dynamics import CarPlant, VehicleParams
-from models.filters import (
-    EKF, LINEARISED, PAPER, FilterConfig, MotionFilter, ekf_model, kf_predict, kf_update,
-    linearised_model,
-)
+from models.filters import EKF, LINEARISED, PAPER, FilterConfig, MotionFilter
+from models.kalman2 import ekf_model, gain, linearised_model, predict_paper, update, update_one
 from models.least_squares import theta_from_params
 from models.track import GradeProfile, SpeedProfile
 from models.units import G
@@ -44,20 +43,43 @@ def test_linearised_model_is_eq13_with_exact_quadratic_remainder():
         assert C == vz * DT
 
 
-def test_kf_update_is_eqs_15_17_18():
-    """P = M - M (M+R)^-1 M = (M^-1 + R^-1)^-1, K = P R^-1 = M (M+R)^-1, x = x_bar + K (z - x_bar)."""
+def _sym(A: np.ndarray):
+    """A symmetric 2x2 array as kalman2's nested tuple."""
+    return (float(A[0, 0]), float(A[0, 1])), (float(A[0, 1]), float(A[1, 1]))
+
+
+def test_kalman2_update_is_eqs_15_17_18():
+    """P = M - M (M+R)^-1 M = (M^-1 + R^-1)^-1, K = P R^-1 = M (M+R)^-1, x = x_bar + K (z - x_bar)
+    (R diagonal: the sensors' noises are independent)."""
     rng = np.random.default_rng(15)
     for _ in range(20):
         A = rng.standard_normal((2, 2))
         M = A @ A.T + 0.1 * np.eye(2)
-        B = rng.standard_normal((2, 2))
-        R = B @ B.T + 0.1 * np.eye(2)
+        R = np.diag(rng.chisquare(2, 2) + 0.1)
         x_bar, z = rng.standard_normal(2), rng.standard_normal(2)
-        x_hat, P, K = kf_update(x_bar, M, z, R)
+        x_hat, P = update(tuple(x_bar), _sym(M), tuple(z), tuple(np.diag(R)))
+        K = np.array(gain(P, tuple(np.diag(R))))
+        x_hat, P = np.array(x_hat), np.array(P)
         # 2x2 SPD with cond <= ~1e3: inversions agree to ~1e-12
         np.testing.assert_allclose(P, np.linalg.inv(np.linalg.inv(M) + np.linalg.inv(R)), rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(K, M @ np.linalg.inv(M + R), rtol=1e-9, atol=1e-12)  # same
         np.testing.assert_allclose(x_hat, x_bar + K @ (z - x_bar), rtol=1e-12, atol=1e-12)  # same ops
+
+
+def test_kalman2_update_one_is_the_update_with_one_measurement():
+    """update_one(x, C, z, r, i) is the update with H = e_i: the limit of ``update`` when the
+    other measurement's noise grows without bound."""
+    rng = np.random.default_rng(16)
+    for i in (0, 1):
+        A = rng.standard_normal((2, 2))
+        C = _sym(A @ A.T + 0.1 * np.eye(2))
+        x, z, r = (1.0, 2.0), (0.5, -1.0), [0.3, 0.3]
+        r[1 - i] = 1e12
+        want_x, want_P = update(x, C, z, tuple(r))
+        got_x, got_P = update_one(x, C, z[i], r[i], i)
+        # 1e12 against O(1) entries: the limit within ~1e-11; rounding ~1e-15
+        np.testing.assert_allclose(got_x, want_x, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(got_P, want_P, rtol=1e-9, atol=1e-9)
 
 
 def _paper_matrices(a, q):
@@ -77,15 +99,17 @@ def test_linearised_filter_covariance_converges_to_dare():
     # Q is singular in X, so solve for the *prediction* covariance:
     # M = A M A^T - A M (M + R)^-1 M A^T + Q  <=>  solve_discrete_are(A^T, H^T, Q, R), H = I
     M_star = solve_discrete_are(A.T, np.eye(2), Q, RM)
-    x_bar, M = np.zeros(2), np.zeros((2, 2))
+    R = tuple(np.diag(RM))
+    x_bar, M = (0.0, 0.0), ((0.0, 0.0), (0.0, 0.0))
     for _ in range(3000):
-        x_hat, P, K = kf_update(x_bar, M, np.zeros(2), RM)
-        x_bar, M = kf_predict(x_hat, P, A, np.array([c, C]), q)
+        x_hat, P = update(x_bar, M, (0.0, 0.0), R)
+        x_bar, M = predict_paper(x_hat, P, a, c, C, DT, q)
     # the slowest mode (distance) contracts by ~0.99 per step: after 3000 steps the transient is
     # ~1e-13 relative (measured 2e-13), so 1e-9 leaves room for rounding only
     np.testing.assert_allclose(M, M_star, rtol=1e-9)
     P_star = M_star - M_star @ np.linalg.solve(M_star + RM, M_star)
-    x_hat, P, K = kf_update(x_bar, M, np.zeros(2), RM)
+    x_hat, P = update(x_bar, M, (0.0, 0.0), R)
+    K = gain(P, R)
     np.testing.assert_allclose(P, P_star, rtol=1e-9)                    # same argument
     np.testing.assert_allclose(K, P_star @ np.linalg.inv(RM), rtol=1e-9)  # same argument
 
@@ -103,7 +127,7 @@ def test_paper_kind_motion_filter_reaches_dare():
     for n in range(3000):
         f.update(vz, n * DT * vz)
         f.predict(20e3, 0.0, THETA_FAST, q, DT)
-    np.testing.assert_allclose(f.M, M_star, rtol=1e-9)      # as in the kf_* test above
+    np.testing.assert_allclose(f.M, M_star, rtol=1e-9)      # as in the kalman2 test above
     assert f.predicted_speed_std == pytest.approx(np.sqrt(M_star[0, 0]), rel=1e-9)     # same
     assert f.predicted_position_std == pytest.approx(np.sqrt(M_star[1, 1]), rel=1e-9)  # same
 
@@ -122,7 +146,7 @@ def test_linearised_kind_motion_filter_reaches_its_dare():
     for n in range(3000):
         f.update(vz, n * DT * vz)
         f.predict(20e3, 0.0, THETA_FAST, q, DT)
-    np.testing.assert_allclose(f.M, M_star, rtol=1e-9)      # as in the kf_* test above
+    np.testing.assert_allclose(f.M, M_star, rtol=1e-9)      # as in the kalman2 test above
 
 
 def test_ekf_model_is_eq2_and_its_derivative():
