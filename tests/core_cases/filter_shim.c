@@ -86,7 +86,8 @@ int shim_predict(shim *s, double traction, double brake, const double *theta, do
 #define SHIM_NSTATE 31
 int shim_nstate(void) { return SHIM_NSTATE; }
 
-/* Every field mirroring an attribute of MotionFilter, then the eight properties (the order of
+/* Every field mirroring an attribute of MotionFilter (r0, r1 its R; xb*, m* its x_bar and M's
+ * upper triangle; xh*, p* x_hat and P's), then the eight properties (the order of
  * tests/test_core_filter.py's FIELDS) */
 void shim_state(const shim *s, double *out)
 {
