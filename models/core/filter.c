@@ -1,5 +1,6 @@
 /* filter.c -- see filter.h; the bodies of models/filters.py's MotionFilter (kinds 1-4) with
- * linearised_model, ekf_model and specific_net_force inlined in the same operand order; the
+ * models/kalman2.py's pure functions (specific_net_force, linearised_model, ekf_model, gain,
+ * update, update_one, forward, predict_paper, predict) inlined in the same operand order; the
  * Singer branches call singer.c. */
 #include <stdio.h>
 

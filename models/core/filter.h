@@ -40,8 +40,8 @@ typedef struct {               /* models.filters.MotionFilter */
     const rc_grade_profile *grade;   /* the chain's */
     const rc_speed_profile *speed;   /* the chain's; NULL or n == 0: none */
     int kind;                  /* resolved: 1, 2, 3 or 4 */
-    double r0, r1;             /* speed_std^2, position_std^2 */
-    double xb0, xb1, m00, m01, m11;   /* prediction and its covariance */
+    double r0, r1;             /* speed_std^2, position_std^2 (MotionFilter.R) */
+    double xb0, xb1, m00, m01, m11;   /* prediction x_bar and its covariance M (upper triangle) */
     double xh0, xh1, p00, p01, p11;   /* posterior and its covariance */
     double vzad_hat, vzad_bar; /* [m/s] */
     long rejected, speed_run, position_run, reacquired;
