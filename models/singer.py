@@ -322,8 +322,6 @@ def singer_mean_input(alpha: float, dt: float, m_w: float) -> np.ndarray:
 # reproduce. Matrices are flat row-major lists (3x3: 9 floats; H: m rows of 3; R: m x m),
 # vectors lists. Every sum of products runs left to right starting with the first product
 # (``_dot``: ((a0 b0 + a1 b1) + a2 b2)); the order of each step is written at its function.
-# The numpy forms below (``singer_predict``/``singer_update`` for (N, 3) batches) stay for
-# Monte-Carlo batches; a single state goes through the scalar path.
 
 
 def _dot(a, b) -> float:
@@ -414,22 +412,11 @@ def project_speed(x: np.ndarray, P: np.ndarray) -> np.ndarray:
     The projection is the minimum-variance one (Simon & Chia 2002, "estimate projection"):
     x - P[:, v] v / P[v, v], i.e. the conditional mean given v = 0, so w and r move with their
     correlation to v (a car found at rest was braking less than predicted); if P[v, v] = 0 only
-    v is set to 0. The covariance is left unchanged (conservative). ``x`` may be (3,) (the
-    scalar ``_project``) or (N, 3) (N states sharing P); rows with v >= 0 are returned
-    unchanged. A new array is returned.
+    v is set to 0. The covariance is left unchanged (conservative). ``x`` (3,), P (3, 3); a
+    state with v >= 0 is returned unchanged, as a new array (``_project``).
     """
-    x = np.array(x, dtype=float, copy=True)
-    if x.ndim == 1:
-        return np.array(_project(x.tolist(), np.asarray(P, dtype=float).reshape(9).tolist()))
-    v = x[..., I_V]
-    neg = v < 0.0
-    if not np.any(neg):
-        return x
-    pvv = P[I_V, I_V]
-    if pvv > 0.0:
-        x[neg] -= np.outer(v[neg], P[:, I_V] / pvv)
-    x[neg, I_V] = 0.0
-    return x
+    return np.array(_project(np.asarray(x, dtype=float).reshape(3).tolist(),
+                             np.asarray(P, dtype=float).reshape(9).tolist()))
 
 
 @lru_cache(maxsize=256)
@@ -441,7 +428,7 @@ def _discretisation_flat(alpha: float, dt: float, sigma_w: float, m_w: float):
 
 @lru_cache(maxsize=256)
 def _discretisation(alpha: float, dt: float, sigma_w: float, m_w: float):
-    """(Phi, Q, u) as read-only numpy arrays, for the (N, 3) batches."""
+    """(Phi, Q, u) as read-only numpy arrays, for the simulator ``singer_step``."""
     Phi, Q, u = _discretisation_flat(alpha, dt, sigma_w, m_w)
     out = (np.array(Phi).reshape(3, 3), np.array(Q).reshape(3, 3), np.array(u))
     for a in out:
@@ -466,53 +453,25 @@ def singer_predict(x: np.ndarray, P: np.ndarray, dt: float, params: SingerParams
     """Predict z = [w, v, r] ([m/s^2], [m/s], [m]) and its covariance over dt [s].
 
     x_pred = Phi (x - m_w e_w) + m_w [1, dt, dt^2/2], P_pred = Phi P Phi^T + Q (exact Phi, Q of
-    this module; seed 002 eqs. (8)-(14) in exact form). ``x`` may be (3,) (the scalar path,
-    ``_predict``) or (N, 3) (numpy). With ``clip`` a negative predicted speed is projected onto 0
-    (``project_speed``).
+    this module; seed 002 eqs. (8)-(14) in exact form), computed by ``_predict``. With ``clip``
+    a negative predicted speed is projected onto 0 (``project_speed``).
     """
-    x = np.asarray(x, dtype=float)
-    if x.ndim == 1:
-        Phi, Q, u = _discretisation_flat(params.alpha, float(dt) + 0.0, params.sigma_w, params.m_w)
-        xs, Ps = _predict(*_flat_state(x, P), Phi, Q, u, clip)
-        return np.array(xs), np.array(Ps).reshape(3, 3)
-    Phi, Q, u = _discretisation(params.alpha, float(dt), params.sigma_w, params.m_w)
-    x_pred = x @ Phi.T + u
-    P_pred = Phi @ P @ Phi.T + Q
-    P_pred = 0.5 * (P_pred + P_pred.T)
-    return (project_speed(x_pred, P_pred) if clip else x_pred), P_pred
-
-
-def innovation(x: np.ndarray, P: np.ndarray, z, H: np.ndarray, R) -> tuple[np.ndarray, np.ndarray]:
-    """Innovation y = z - H x and its covariance S = H P H^T + R (units of z)."""
-    H = np.atleast_2d(np.asarray(H, dtype=float))
-    R = np.atleast_2d(np.asarray(R, dtype=float))
-    y = np.asarray(z, dtype=float) - np.asarray(x, dtype=float) @ H.T
-    return y, H @ P @ H.T + R
+    Phi, Q, u = _discretisation_flat(params.alpha, float(dt) + 0.0, params.sigma_w, params.m_w)
+    xs, Ps = _predict(*_flat_state(x, P), Phi, Q, u, clip)
+    return np.array(xs), np.array(Ps).reshape(3, 3)
 
 
 def singer_update(x: np.ndarray, P: np.ndarray, z, H: np.ndarray, R,
                   clip: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update with measurement z = H [w, v, r] + eta, cov(eta) = R.
+    """Kalman update with measurement z = H [w, v, r] + eta, cov(eta) = R, computed by ``_update``.
 
     H: ``H_SPEED`` (z = speed [m/s], R [(m/s)^2]) or ``H_SPEED_DISTANCE`` (z = [speed [m/s],
-    distance [m]], R 2x2), or any m x 3. Gain K = P H^T S^-1; the covariance in Joseph form
+    distance [m]], R 2x2). Gain K = P H^T S^-1; the covariance in Joseph form
     (I - K H) P (I - K H)^T + K R K^T (symmetric, positive semi-definite in floating point).
-    ``x`` may be (3,) with z (m,), m = 1 or 2 (the scalar path, ``_update``), or (N, 3) with
-    z (N, m) (numpy). With ``clip`` a negative speed is projected onto 0 (``project_speed``).
+    With ``clip`` a negative speed is projected onto 0 (``project_speed``).
     """
-    x = np.asarray(x, dtype=float)
-    if x.ndim == 1:
-        xs, Ps, _ = _update(*_flat_state(x, P), *_flat_measurement(z, H, R), clip)
-        return np.array(xs), np.array(Ps).reshape(3, 3)
-    H = np.atleast_2d(np.asarray(H, dtype=float))
-    R = np.atleast_2d(np.asarray(R, dtype=float))
-    y, S = innovation(x, P, z, H, R)
-    K = np.linalg.solve(S, H @ P).T          # P H^T S^-1 (S, P symmetric)
-    x_new = x + y @ K.T
-    IKH = np.eye(3) - K @ H
-    P_new = IKH @ P @ IKH.T + K @ R @ K.T
-    P_new = 0.5 * (P_new + P_new.T)
-    return (project_speed(x_new, P_new) if clip else x_new), P_new
+    xs, Ps, _ = _update(*_flat_state(x, P), *_flat_measurement(z, H, R), clip)
+    return np.array(xs), np.array(Ps).reshape(3, 3)
 
 
 H_DISTANCE_ROW = (0.0, 0.0, 1.0)
