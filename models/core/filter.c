@@ -26,10 +26,13 @@ static int around_vzad(const rc_filter *f)     /* self.kind in (LINEARISED, PAPE
     return f->kind == RC_LINEARISED || f->kind == RC_PAPER;
 }
 
+/* "<what>, got <repr(v)>": FilterConfig.validate's messages (f"{v}" is Python's repr) */
 static rc_status bad(rc_error *err, const char *what, double v)
 {
+    char r[40];
+    rc_repr(v, r, (int)sizeof r);
     if (err)
-        snprintf(err->msg, sizeof err->msg, what, v);
+        snprintf(err->msg, sizeof err->msg, "%s, got %s", what, r);
     return RC_BAD_CONFIG;
 }
 
@@ -39,17 +42,20 @@ rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed, rc_erro
     if (err)
         err->msg[0] = '\0';
     if (!(cfg->position_std_rel >= 0 && isfinite(cfg->position_std_rel)))
-        return bad(err, "sensor.position_std_rel must be >= 0, got %.17g", cfg->position_std_rel);
+        return bad(err, "sensor.position_std_rel must be >= 0", cfg->position_std_rel);
     if (!(cfg->length >= 0 && isfinite(cfg->length)))
-        return bad(err, "car.length must be >= 0, got %.17g", cfg->length);
+        return bad(err, "car.length must be >= 0", cfg->length);
     if (!(cfg->speed_std > 0 && isfinite(cfg->speed_std)))
-        return bad(err, "sensor.speed_std must be > 0 for the filter, got %.17g", cfg->speed_std);
+        return bad(err, "sensor.speed_std must be > 0 for the filter", cfg->speed_std);
     if (!(cfg->position_std > 0 && isfinite(cfg->position_std)))
-        return bad(err, "sensor.position_std must be > 0 for the filter, got %.17g",
+        return bad(err, "sensor.position_std must be > 0 for the filter",
                    cfg->position_std);
-    if (!(cfg->kind >= 0 && cfg->kind <= RC_SINGER))
-        return bad(err, "filter.kind must be 0 (auto), 1 (linearised), 2 (EKF), 3 (paper "
-                        "verbatim) or 4 (Singer), got %.17g", cfg->kind);
+    if (!(cfg->kind >= 0 && cfg->kind <= RC_SINGER)) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg, "filter.kind must be 0 (auto), 1 (linearised), "
+                     "2 (EKF), 3 (paper verbatim) or 4 (Singer), got %d", cfg->kind);
+        return RC_BAD_CONFIG;
+    }
     if (cfg->kind == RC_SINGER) {             /* FilterConfig.singer_params() */
         double m_w, sigma_w;
         rc_status st = rc_singer_params(cfg->singer_tau, cfg->singer_p0, cfg->singer_p_plus,
@@ -65,10 +71,10 @@ rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed, rc_erro
         return RC_BAD_CONFIG;
     }
     if (square(cfg->speed_std, &sq) != RC_OK)
-        return bad(err, "sensor.speed_std ** 2 overflows (OverflowError), got %.17g",
+        return bad(err, "sensor.speed_std ** 2 overflows (OverflowError)",
                    cfg->speed_std);
     if (square(cfg->position_std, &sq) != RC_OK)
-        return bad(err, "sensor.position_std ** 2 overflows (OverflowError), got %.17g",
+        return bad(err, "sensor.position_std ** 2 overflows (OverflowError)",
                    cfg->position_std);
     return RC_OK;
 }
