@@ -1,0 +1,82 @@
+/* profile.h -- reading the track profiles (CSV) in C, the twin of models/track.py's
+ * parse_profile_csv, GradeProfile.from_csv_text and SpeedProfile.from_csv_text: the same rules,
+ * the same doubles bit for bit, and Python's ProfileError messages byte for byte (they name the
+ * source and the 1-based line). For the native FMUs, which have no Python.
+ *
+ * Text is UTF-8 (as Python decodes the file). The rules (models/track.py):
+ *   - a UTF-8 byte-order mark at the start is skipped;
+ *   - lines are split as Python's str.splitlines() splits them: "\n", "\r\n", "\r", "\v", "\f",
+ *     "\x1c", "\x1d", "\x1e" and the Unicode ones U+0085, U+2028, U+2029 (all matched);
+ *   - each line is stripped of Python's whitespace (str.strip(): ASCII and Unicode); blank lines
+ *     and lines starting with '#' are skipped;
+ *   - cells are the line split at ',', each stripped of whitespace, then of surrounding '"';
+ *   - the first line left must be the header, exactly the two column names;
+ *   - every other line: two numbers as Python's float() reads them (underscores between digits,
+ *     "inf"/"nan", Unicode digits and spaces; no hex), finite, distance >= 0 and strictly
+ *     increasing, value >= 0 if asked, |value| <= max_abs_value.
+ *
+ * Memory: a successful parse allocates one block holding distances[] and values[] (n each);
+ * a refused one allocates the message. rc_profile_free() releases both; the caller owns the
+ * rc_profile and must call it once whatever the status (it is safe on a zeroed struct and
+ * twice). Nothing else is kept: no globals, reentrant.
+ */
+#ifndef RAILCAR_PROFILE_H
+#define RAILCAR_PROFILE_H
+
+#include <stddef.h>
+
+#include "rc_common.h"
+
+#define RC_MAX_GRADE 200.0   /* [permille] models.track.MAX_GRADE */
+#define RC_MAX_SPEED 200.0   /* [m/s] models.track.MAX_SPEED */
+
+typedef enum {
+    RC_PROFILE_GRADE = 0,    /* distance_m,grade_permille; |grade| <= RC_MAX_GRADE */
+    RC_PROFILE_SPEED = 1     /* distance_m,speed_mps; 0 <= speed <= RC_MAX_SPEED */
+} rc_profile_kind;
+
+typedef struct {
+    double *distances;       /* [m], n values, strictly increasing, >= 0; NULL when refused */
+    double *values;          /* grades [permille] or speeds [m/s], n values (same block) */
+    long n;                  /* >= 1 on success, 0 when refused */
+    char *message;           /* refused: Python's whole message, malloc'd, NUL-terminated
+                                (NULL if even that allocation failed); NULL on success */
+    size_t message_len;      /* its length in bytes: a NUL byte of the text quoted in it (a
+                                line is quoted whole, as Python quotes it) is kept */
+    rc_error err;            /* refused: the message cut to RC_MSG_SIZE - 1 bytes (at a UTF-8
+                                character boundary), or "out of memory"; "" on success */
+} rc_profile;
+
+/* parse_profile_csv(text, source, (col0, col1), nonnegative_values=..., max_abs_value=...):
+ * text[0..len) (may hold NUL bytes), source a NUL-terminated UTF-8 name for the messages.
+ * Returns RC_OK, or RC_BAD_CONFIG (out->message says why; also when memory runs out). */
+int rc_profile_parse(const char *text, size_t len, const char *source, const char *col0,
+                     const char *col1, int nonnegative_values, double max_abs_value,
+                     rc_profile *out);
+
+/* GradeProfile.from_csv_text(text, source) / SpeedProfile.from_csv_text(text, source) */
+int rc_profile_parse_kind(const char *text, size_t len, const char *source, rc_profile_kind kind,
+                          rc_profile *out);
+
+/* Read the file at `path` and parse it as a profile of `kind`; the messages are those of the
+ * Python reader that reads such a file (the path in them is str(pathlib.Path(path)): repeated
+ * and trailing '/' and "." parts dropped, "" is "."; POSIX paths):
+ *
+ *   param == NULL: the harness (harness/scenario.py: textio.read_text, then from_csv_text with
+ *     source str(path)): "PATH: cannot read: <strerror>", "PATH: is a folder, not a file",
+ *     "PATH: not UTF-8 text (byte offset N)[ (UTF-16? save it as UTF-8)| (a binary file?)]",
+ *     "PATH: not UTF-8 text (byte offset N) (a NUL byte: a binary file?)"; a leading BOM is
+ *     dropped before the parser (which drops one more);
+ *   param != NULL: the FMU (fmu_src/adapter.py load_profiles; param is "track.grade_profile" or
+ *     "track.speed_profile", raw the parameter's value, path the file it resolved it to):
+ *     "PARAM: cannot read 'RAW' (looked for PATH): <strerror>", "PARAM: PATH: not UTF-8 text
+ *     (byte offset N)", and "PARAM: " before the parser's messages. raw NULL is taken as path.
+ *
+ * Uses only C99 stdio (a folder is recognised by EISDIR from the read, as on Linux). */
+int rc_profile_read_file(const char *path, const char *param, const char *raw,
+                         rc_profile_kind kind, rc_profile *out);
+
+/* Free what a parse or read allocated and zero the struct. */
+void rc_profile_free(rc_profile *p);
+
+#endif
