@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "checks.h"
+#include "validate.h"
 #include "track_sensors.h"
 
 /* RailCarChain._check_inputs: the first input that is bad or beyond physics */
@@ -40,42 +41,6 @@ static rc_status refuse(rc_error *err, const char *what)
     return RC_BAD_CONFIG;
 }
 
-/* TrackSensorConfig.validate with its messages */
-static rc_status check_track(const rc_chain_config *cfg, rc_error *err)
-{
-    const char *names[] = {"spacing", "jitter"};
-    const double values[] = {cfg->track_spacing, cfg->track_jitter};
-    char a[40], b[40];
-    for (int k = 0; k < 2; k++)
-        if (!(values[k] >= 0 && isfinite(values[k]))) {
-            rc_repr(values[k], a, sizeof a);
-            if (err)
-                snprintf(err->msg, sizeof err->msg, "sensor.track_%s must be >= 0, got %s",
-                         names[k], a);
-            return RC_BAD_CONFIG;
-        }
-    if (!(cfg->track_base > 0 && isfinite(cfg->track_base))) {
-        rc_repr(cfg->track_base, a, sizeof a);
-        if (err)
-            snprintf(err->msg, sizeof err->msg, "sensor.track_base must be > 0, got %s", a);
-        return RC_BAD_CONFIG;
-    }
-    if (!(cfg->track_resolution >= 0 && isfinite(cfg->track_resolution))) {
-        rc_repr(cfg->track_resolution, a, sizeof a);
-        if (err)
-            snprintf(err->msg, sizeof err->msg, "sensor.track_resolution must be >= 0, got %s", a);
-        return RC_BAD_CONFIG;
-    }
-    if (cfg->track_spacing != 0.0 && cfg->track_spacing <= cfg->track_base) {
-        rc_repr(cfg->track_spacing, a, sizeof a);
-        rc_repr(cfg->track_base, b, sizeof b);
-        if (err)
-            snprintf(err->msg, sizeof err->msg,
-                     "sensor.track_spacing (%s) must exceed sensor.track_base (%s)", a, b);
-        return RC_BAD_CONFIG;
-    }
-    return RC_OK;
-}
 
 /* RailCarChain._take_sample */
 static void take_sample(rc_chain *c)
@@ -187,7 +152,8 @@ rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
     memset(c, 0, sizeof *c);
     if (err)
         err->msg[0] = '\0';
-    rc_status bad = check_track(cfg, err);
+    rc_status bad = rc_track_sensors_validate(cfg->track_spacing, cfg->track_base,
+                                              cfg->track_resolution, cfg->track_jitter, err);
     if (bad)
         return bad;
     if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0)
