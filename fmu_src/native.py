@@ -48,7 +48,7 @@ NATIVE_NAME = "RailCarNative"
 MODEL_IDENTIFIER = "RailCar"
 GLUE_SOURCES = ["fmi2_glue.c", "native_railcar.c"]
 GLUE_HEADERS = ["fmi2_glue.h", "native_railcar_table.h"]
-C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-ffp-contract=off", "-fPIC",
+C_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-ffp-contract=off", "-fPIC",
            "-shared", "-fvisibility=hidden", "-pthread", "-Wl,--no-undefined"]
 INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload")
 """RailCarChain.do_step's inputs, in its order (fmu_src/railcar.py)."""

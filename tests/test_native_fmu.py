@@ -297,3 +297,26 @@ def test_the_comparison_sees_a_difference(pair):
     a = _drive(pair["py"], {"seed": 1}, 0.0, inputs, 20)
     b = _drive(pair["c"], {"seed": 2}, 0.0, inputs, 20)
     assert a[0][0] == b[0][0] and a[0][-1] != b[0][-1]
+
+
+def test_clean_under_address_and_undefined_sanitizers(pair, tmp_path):
+    """The backend, glue and core linked into a C host under ASan/UBSan (fmu_cases/native_host.c):
+    steps, a discarded step and its retry, failed initialisations, reset, strings, free."""
+    build = native._build_py()
+    exe = tmp_path / "native_host"
+    cmd = [*build.find_compiler(), "-std=c99", "-O1", "-g", "-ffp-contract=off",
+           "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-pthread",
+           "-I", str(native.C_DIR), "-I", str(native.CORE_DIR), "-I", str(build.fmi2_headers()),
+           str(ROOT / "tests" / "fmu_cases" / "native_host.c"),
+           *[str(s) for s in native.c_sources()], "-o", str(exe), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    f = pair["c"]
+    uri = (Path(f.unzipdir).resolve() / "resources").as_uri()
+    args = [str(f.vr[n]) for n in ("car.mass", "traction_force_demand", "track.grade_profile",
+                                   "track.speed_profile", "car.speed")]
+    run = subprocess.run([str(exe), uri, f.md.guid, *args], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 0 and run.stdout.rstrip().endswith("ok"), run.stdout + run.stderr
+    assert "runtime error" not in run.stderr and "Sanitizer" not in run.stderr, run.stderr
+    assert "step discarded: " in run.stdout and "car.mass" in run.stdout
