@@ -34,28 +34,26 @@ import sys
 import tempfile
 import uuid
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 from xml.etree import ElementTree as ET
 
 from .adapter import chain_config
-from .variables import RAILCAR, variables_for
+from .adapter import estimator_settings, track_settings
+from .variables import ESTIMATOR, RAILCAR, variables_for
 
 ROOT = Path(__file__).resolve().parent.parent
 C_DIR = ROOT / "fmu_src" / "c"
 CORE_DIR = ROOT / "models" / "core"
-TABLE_HEADER = C_DIR / "native_railcar_table.h"
-NATIVE_NAME = "RailCarNative"
-MODEL_IDENTIFIER = "RailCar"
-GLUE_SOURCES = ["fmi2_glue.c", "native_railcar.c"]
-GLUE_HEADERS = ["fmi2_glue.h", "native_railcar_table.h"]
 C_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-ffp-contract=off", "-fPIC",
            "-shared", "-fvisibility=hidden", "-pthread", "-Wl,--no-undefined"]
-INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload")
-"""RailCarChain.do_step's inputs, in its order (fmu_src/railcar.py)."""
 LOG_CATEGORIES = ("logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal",
                   "logAll")
 """pythonfmu's LogCategories (RailCar.fmu's modelDescription.xml); build_native_fmu checks them."""
 CONFIG_CONSTANT, CONFIG_START_TIME = -1, -2
+COMMON_SOURCES = ["fmi2_glue.c", "native_common.c"]
+COMMON_HEADERS = ["fmi2_glue.h", "native_common.h"]
 
 _GLUE = {"Real": "GLUE_REAL", "Integer": "GLUE_INTEGER", "String": "GLUE_STRING"}
 _CAUSALITY = {"parameter": "GLUE_PARAMETER", "input": "GLUE_INPUT", "output": "GLUE_OUTPUT"}
@@ -69,17 +67,66 @@ def _config(values: dict, start_time: float) -> list:
     return list(_config_values(chain_config(values), start_time))
 
 
-def config_sources() -> tuple[list[int], list[float]]:
-    """For each index of _config_values: the vr it comes from, CONFIG_START_TIME or
+def estimator_config_values(values: dict, start_time: float = 0.0) -> list:
+    """RailCarEstimator's parameter values -> the numbers models.compiled.CompiledEstimatorChain
+    hands the C core (rc_estchain_config_from_values), as fmu_src/railcar_estimator.py builds
+    its chain (estimator_settings, track_settings). The start time is not one of them."""
+    from models.compiled import _estimator_values
+    ident, filt, station = estimator_settings(values)
+    track = track_settings(values)
+    return [*_estimator_values(ident, filt), station.dwell, station.speed_threshold,
+            station.position_threshold, track.base, track.resolution, track.jitter]
+
+
+def _output_names(fmu: str) -> tuple:
+    from models.compiled import ESTIMATOR_OUTPUT_NAMES, OUTPUT_NAMES
+    return OUTPUT_NAMES if fmu == RAILCAR else ESTIMATOR_OUTPUT_NAMES
+
+
+@dataclass(frozen=True)
+class NativeSpec:
+    """One native FMU: its variable table, flat configuration, inputs, outputs and files."""
+    fmu: str                    # fmu_src/variables.py's name = modelIdentifier
+    native_name: str            # <native_name>.fmu
+    prefix: str                 # of the generated C names
+    header: str                 # the generated table header in fmu_src/c
+    backend: str                # the backend's C file in fmu_src/c
+    inputs: tuple               # the chain's do_step inputs, in its order
+    outside: tuple              # parameters the flat configuration does not carry
+    config: Callable            # (values, start_time) -> the flat configuration
+
+
+RAILCAR_SPEC = NativeSpec(
+    RAILCAR, "RailCarNative", "NRC", "native_railcar_table.h", "native_railcar.c",
+    ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload"),
+    ("est.slope_window", "track.grade_profile", "track.speed_profile"), _config)
+ESTIMATOR_SPEC = NativeSpec(
+    ESTIMATOR, "RailCarEstimatorNative", "NES", "native_estimator_table.h", "native_estimator.c",
+    ("traction_force", "brake_force", "sensor.speed", "sensor.position", "sensor.track_speed",
+     "sensor.track_time"),
+    ("est.slope_window", "track.grade_profile", "track.speed_profile"), estimator_config_values)
+SPECS = (RAILCAR_SPEC, ESTIMATOR_SPEC)
+
+# RailCar's names, as the first slice had them
+TABLE_HEADER = C_DIR / RAILCAR_SPEC.header
+ESTIMATOR_TABLE_HEADER = C_DIR / ESTIMATOR_SPEC.header
+NATIVE_NAME = RAILCAR_SPEC.native_name
+MODEL_IDENTIFIER = RAILCAR
+INPUTS = RAILCAR_SPEC.inputs
+"""RailCarChain.do_step's inputs, in its order (fmu_src/railcar.py)."""
+
+
+def config_sources(spec: NativeSpec = RAILCAR_SPEC) -> tuple[list[int], list[float]]:
+    """For each index of the flat configuration: the vr it comes from, CONFIG_START_TIME or
     CONFIG_CONSTANT; and the constants (0.0 where a vr or the start time is the source).
     Derived by perturbing each parameter alone; AssertionError if an index is unexplained."""
-    table = variables_for(RAILCAR)
+    table = variables_for(spec.fmu)
     base_values = {v.name: v.start for v in table}
-    base = _config(base_values, 0.0)
+    base = spec.config(base_values, 0.0)
     source: list[int | None] = [None] * len(base)
 
     def changed(values: dict, start_time: float, marker, what: str) -> list[int]:
-        cfg = _config(values, start_time)
+        cfg = spec.config(values, start_time)
         assert len(cfg) == len(base), what
         idx = [k for k, (a, b) in enumerate(zip(base, cfg)) if not (a == b and type(a) is type(b))]
         for k in idx:
@@ -108,11 +155,11 @@ def config_sources() -> tuple[list[int], list[float]]:
     return [int(s) for s in source], constants
 
 
-def _vr(name: str, causality: str) -> int:
-    for vr, v in enumerate(variables_for(RAILCAR)):
+def _vr(name: str, causality: str, fmu: str = RAILCAR) -> int:
+    for vr, v in enumerate(variables_for(fmu)):
         if v.name == name and v.causality == causality:
             return vr
-    raise KeyError(f"RailCar has no {causality} '{name}'")
+    raise KeyError(f"{fmu} has no {causality} '{name}'")
 
 
 def _c_string(s: str) -> str:
@@ -133,88 +180,94 @@ def _c_double(x: float) -> str:
     return f"{x.hex()} /* {x!r} */" if x != 0.0 else ("-0.0" if math.copysign(1, x) < 0 else "0.0")
 
 
-def generate_header() -> str:
-    from models.compiled import INTEGER_OUTPUTS, OUTPUT_NAMES
-    table = variables_for(RAILCAR)
-    sources, constants = config_sources()
+def generate_header(spec: NativeSpec = RAILCAR_SPEC) -> str:
+    """The table header of ``spec`` (default RailCar's native_railcar_table.h)."""
+    from models.compiled import INTEGER_OUTPUTS
+    P, fmu = spec.prefix, spec.fmu
+    output_names = _output_names(fmu)
+    table = variables_for(fmu)
+    sources, constants = config_sources(spec)
     outputs = [v.name for v in table if v.causality == "output"]
-    assert sorted(outputs) == sorted(OUTPUT_NAMES), "RailCar's outputs are not OUTPUT_NAMES"
-    for name in OUTPUT_NAMES:
-        assert (table[_vr(name, "output")].type == "Integer") == (name in INTEGER_OUTPUTS), name
+    assert sorted(outputs) == sorted(output_names), f"{fmu}'s outputs are not the core's"
+    for name in output_names:
+        assert (table[_vr(name, "output", fmu)].type == "Integer") == (name in INTEGER_OUTPUTS), name
     inputs = [v.name for v in table if v.causality == "input"]
-    assert sorted(inputs) == sorted(INPUTS), "RailCar's inputs are not do_step's"
+    assert sorted(inputs) == sorted(spec.inputs), f"{fmu}'s inputs are not do_step's"
     used = {s for s in sources if s >= 0}
     unused = [v.name for vr, v in enumerate(table)
               if v.causality == "parameter" and vr not in used]
-    assert sorted(unused) == ["est.slope_window", "track.grade_profile", "track.speed_profile"], (
+    assert sorted(unused) == sorted(spec.outside), (
         f"parameters the flat configuration does not carry: {unused}")
+    guard = spec.header.upper().replace(".", "_")
+    config_what = ("models/compiled.py _config_values" if fmu == RAILCAR else
+                   "models/compiled.py CompiledEstimatorChain's configuration")
 
     lines = [
-        "/* native_railcar_table.h -- GENERATED by `python -m fmu_src.native` from",
-        " * fmu_src/variables.py and models/compiled.py (_config_values, OUTPUT_NAMES). Do not edit:",
-        " * `python -m fmu_src.native --check` (tests/test_native_fmu.py) fails when it is stale. */",
-        "#ifndef NATIVE_RAILCAR_TABLE_H",
-        "#define NATIVE_RAILCAR_TABLE_H",
+        f"/* {spec.header} -- GENERATED by `python -m fmu_src.native` from",
+        " * fmu_src/variables.py and models/compiled.py. Do not edit:",
+        " * `python -m fmu_src.native --check` (tests/test_native_*fmu.py) fails when it is stale. */",
+        f"#ifndef {guard}",
+        f"#define {guard}",
         "",
-        '#include "fmi2_glue.h"',
+        '#include "native_common.h"',
         "",
-        "typedef struct {",
-        "    const char *name;",
-        "    GlueType type;",
-        "    GlueCausality causality;",
-        "    GlueVariability variability;",
-        "    double start;               /* Real and Integer */",
-        "    const char *start_string;   /* String */",
-        "} nrc_var;",
-        "",
-        f"#define NRC_NVARS {len(table)}",
+        f"#define {P}_NVARS {len(table)}",
         "",
         "/* indexed by value reference */",
-        "static const nrc_var NRC_VARS[NRC_NVARS] = {",
+        f"static const native_var {P}_VARS[{P}_NVARS] = {{",
     ]
     for vr, v in enumerate(table):
         start = "0.0, " + _c_string(v.start) if v.type == "String" else f"{_c_double(v.start)}, NULL"
         lines.append(f"    /* {vr:2d} */ {{{_c_string(v.name)}, {_GLUE[v.type]}, "
                      f"{_CAUSALITY[v.causality]}, {_VARIABILITY[v.variability]}, {start}}},")
     lines += ["};", "",
-              "/* models/compiled.py _config_values: index -> value reference of the parameter it is,",
-              " * NRC_CONFIG_START_TIME (fmi2SetupExperiment's startTime) or NRC_CONFIG_CONSTANT",
-              " * (NRC_CONFIG_CONST[index]) */",
-              f"#define NRC_CONFIG_CONSTANT ({CONFIG_CONSTANT})",
-              f"#define NRC_CONFIG_START_TIME ({CONFIG_START_TIME})",
-              f"#define NRC_NCONFIG {len(sources)}",
-              "static const int NRC_CONFIG_VR[NRC_NCONFIG] = {"]
+              f"/* {config_what}: index -> value reference of the parameter",
+              " * it is, NATIVE_CONFIG_START_TIME (fmi2SetupExperiment's startTime) or",
+              f" * NATIVE_CONFIG_CONSTANT ({P}_CONFIG_CONST[index]) */",
+              f"#define {P}_NCONFIG {len(sources)}",
+              f"static const int {P}_CONFIG_VR[{P}_NCONFIG] = {{"]
     for k, s in enumerate(sources):
         what = (table[s].name if s >= 0 else "start time" if s == CONFIG_START_TIME else "constant")
-        name = "NRC_CONFIG_CONSTANT" if s == CONFIG_CONSTANT else (
-            "NRC_CONFIG_START_TIME" if s == CONFIG_START_TIME else str(s))
+        name = "NATIVE_CONFIG_CONSTANT" if s == CONFIG_CONSTANT else (
+            "NATIVE_CONFIG_START_TIME" if s == CONFIG_START_TIME else str(s))
         lines.append(f"    /* {k:2d} */ {name},   /* {what} */")
-    lines += ["};", "static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {"]
+    lines += ["};", f"static const double {P}_CONFIG_CONST[{P}_NCONFIG] = {{"]
     for k, c in enumerate(constants):
         lines.append(f"    /* {k:2d} */ {_c_double(c)},")
     lines += ["};", "",
-              "/* RailCarChain.do_step's inputs: traction_force_demand, brake_force_demand, "
-              "wind_speed, car.payload */",
-              "static const int NRC_INPUT_VRS[4] = {"
-              + ", ".join(str(_vr(n, "input")) for n in INPUTS) + "};",
+              f"/* the chain's do_step inputs: {', '.join(spec.inputs)} */",
+              f"#define {P}_NINPUTS {len(spec.inputs)}",
+              f"static const int {P}_INPUT_VRS[{P}_NINPUTS] = {{"
+              + ", ".join(str(_vr(n, "input", fmu)) for n in spec.inputs) + "};",
               "",
-              "/* rc_chain_outputs' order (models/compiled.py OUTPUT_NAMES) -> value reference */",
-              f"#define NRC_NOUTPUTS {len(OUTPUT_NAMES)}",
-              "static const int NRC_OUTPUT_VRS[NRC_NOUTPUTS] = {"]
-    for name in OUTPUT_NAMES:
-        lines.append(f"    {_vr(name, 'output')},   /* {name} */")
+              "/* the core's output order (models/compiled.py) -> value reference */",
+              f"#define {P}_NOUTPUTS {len(output_names)}",
+              f"static const int {P}_OUTPUT_VRS[{P}_NOUTPUTS] = {{"]
+    for name in output_names:
+        lines.append(f"    {_vr(name, 'output', fmu)},   /* {name} */")
     lines += ["};", "",
               "/* parameters outside the flat configuration */",
-              f"#define NRC_VR_SLOPE_WINDOW {_vr('est.slope_window', 'parameter')}",
-              f"#define NRC_VR_GRADE_PROFILE {_vr('track.grade_profile', 'parameter')}",
-              f"#define NRC_VR_SPEED_PROFILE {_vr('track.speed_profile', 'parameter')}",
-              f"#define NRC_VR_FILTER_REJECTED {_vr('filter.rejected', 'output')}",
+              f"#define {P}_VR_SLOPE_WINDOW {_vr('est.slope_window', 'parameter', fmu)}",
+              f"#define {P}_VR_GRADE_PROFILE {_vr('track.grade_profile', 'parameter', fmu)}",
+              f"#define {P}_VR_SPEED_PROFILE {_vr('track.speed_profile', 'parameter', fmu)}",
+              f"#define {P}_VR_FILTER_REJECTED {_vr('filter.rejected', 'output', fmu)}",
               "",
-              f"#define NRC_NCATEGORIES {len(LOG_CATEGORIES)}",
-              "static const char *const NRC_LOG_CATEGORIES[NRC_NCATEGORIES] = {"
+              f"#define {P}_NCATEGORIES {len(LOG_CATEGORIES)}",
+              f"static const char *const {P}_LOG_CATEGORIES[{P}_NCATEGORIES] = {{"
               + ", ".join(_c_string(c) for c in LOG_CATEGORIES) + "};",
+              "",
+              f"static const native_model {P}_MODEL = {{",
+              f"    {_c_string(fmu)}, {P}_VARS, {P}_NVARS, {P}_LOG_CATEGORIES, {P}_NCATEGORIES,",
+              f"    {P}_CONFIG_VR, {P}_CONFIG_CONST, {P}_NCONFIG,",
+              f"    {P}_VR_GRADE_PROFILE, {P}_VR_SPEED_PROFILE, {P}_OUTPUT_VRS, {P}_NOUTPUTS,",
+              f"    {P}_VR_FILTER_REJECTED",
+              "};",
               "", "#endif", ""]
     return "\n".join(lines)
+
+
+def generate_estimator_header() -> str:
+    return generate_header(ESTIMATOR_SPEC)
 
 
 # -------------------------------------------------------------------------------- building
@@ -226,23 +279,25 @@ def _build_py():
     return mod
 
 
-def c_sources() -> list[Path]:
-    """What the binary is compiled from: the glue, the backend, every models/core/*.c."""
-    return [C_DIR / s for s in GLUE_SOURCES] + sorted(CORE_DIR.glob("*.c"))
+def c_sources(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
+    """What the binary is compiled from: the glue, the shared backend part, the FMU's backend,
+    every models/core/*.c."""
+    return ([C_DIR / s for s in [*COMMON_SOURCES, spec.backend]]
+            + sorted(CORE_DIR.glob("*.c")))
 
 
-def c_headers() -> list[Path]:
-    return [C_DIR / h for h in GLUE_HEADERS] + sorted(CORE_DIR.glob("*.h"))
+def c_headers(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
+    return [C_DIR / h for h in [*COMMON_HEADERS, spec.header]] + sorted(CORE_DIR.glob("*.h"))
 
 
-def compile_native(out: Path) -> Path:
-    """binaries/linux64/RailCar.so from the C sources; RuntimeError with the compiler's output."""
+def compile_native(out: Path, spec: NativeSpec = RAILCAR_SPEC) -> Path:
+    """binaries/linux64/<id>.so from the C sources; RuntimeError with the compiler's output."""
     build = _build_py()
     cc = build.find_compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set CC or install gcc)")
     cmd = [*cc, *C_FLAGS, "-I", str(C_DIR), "-I", str(CORE_DIR), "-I", str(build.fmi2_headers()),
-           *[str(s) for s in c_sources()], "-o", str(out), "-lm"]
+           *[str(s) for s in c_sources(spec)], "-o", str(out), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling the native FMU failed:\n{shlex.join(cmd)}\n"
@@ -250,68 +305,80 @@ def compile_native(out: Path) -> Path:
     return out
 
 
-def native_model_description(xml: bytes, guid: str) -> bytes:
-    """RailCar.fmu's description for the native binary: new GUID, no Python tool needed, the
-    sources listed; variables, value references and modelIdentifier unchanged."""
+def native_model_description(xml: bytes, guid: str, spec: NativeSpec = RAILCAR_SPEC) -> bytes:
+    """The pythonfmu FMU's description for the native binary: new GUID, no Python tool needed,
+    the sources listed; variables, value references and modelIdentifier unchanged."""
     root = ET.fromstring(xml)
     cosim = root.find("CoSimulation")
-    assert cosim is not None and cosim.get("modelIdentifier") == MODEL_IDENTIFIER
+    assert cosim is not None and cosim.get("modelIdentifier") == spec.fmu
     cats = tuple(c.get("name") for c in root.iter("Category"))
     if cats != LOG_CATEGORIES:
-        raise RuntimeError(f"RailCar.fmu's LogCategories {cats} are not {LOG_CATEGORIES} "
-                           "(fmu_src/native.py LOG_CATEGORIES, then regenerate the header)")
+        raise RuntimeError(f"{spec.fmu}.fmu's LogCategories {cats} are not {LOG_CATEGORIES} "
+                           "(fmu_src/native.py LOG_CATEGORIES, then regenerate the headers)")
     names = [sv.get("name") for sv in root.find("ModelVariables")]
     vrs = [int(sv.get("valueReference")) for sv in root.find("ModelVariables")]
-    table = variables_for(RAILCAR)
+    table = variables_for(spec.fmu)
     if names != [v.name for v in table] or vrs != list(range(len(table))):
-        raise RuntimeError("RailCar.fmu's variables are not fmu_src/variables.py's (stale build?)")
+        raise RuntimeError(f"{spec.fmu}.fmu's variables are not fmu_src/variables.py's "
+                           "(stale build?)")
     root.set("guid", guid)
     root.set("generationTool", "fmu_src/native.py (C core, no Python)")
     cosim.set("needsExecutionTool", "false")
     for old in cosim.findall("SourceFiles"):
         cosim.remove(old)
     files = ET.SubElement(cosim, "SourceFiles")
-    for src in c_sources():
+    for src in c_sources(spec):
         ET.SubElement(files, "File", name=src.name)
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
-def native_guid(xml: bytes) -> str:
-    h = hashlib.sha256(f"{NATIVE_NAME}|".encode() + xml)
-    for p in [*c_sources(), *c_headers()]:
+def native_guid(xml: bytes, spec: NativeSpec = RAILCAR_SPEC) -> str:
+    h = hashlib.sha256(f"{spec.native_name}|".encode() + xml)
+    for p in [*c_sources(spec), *c_headers(spec)]:
         h.update(p.name.encode())
         h.update(p.read_bytes())
     return "{" + str(uuid.UUID(bytes=h.digest()[:16], version=5)) + "}"
 
 
-def build_native_fmu(dest_dir, railcar_fmu=None) -> Path:
-    """Compile and zip ``dest_dir/RailCarNative.fmu``; ``railcar_fmu`` is the pythonfmu
-    RailCar.fmu whose description it takes (default: dist/, built by harness.fmus.ensure_built
-    when missing or stale). Refuses to build when the table header is out of date."""
-    if not TABLE_HEADER.is_file() or TABLE_HEADER.read_text(encoding="utf-8") != generate_header():
-        raise RuntimeError(f"{TABLE_HEADER.relative_to(ROOT)} is out of date: run "
-                           "python -m fmu_src.native")
-    if railcar_fmu is None:
+def _header_path(spec: NativeSpec) -> Path:
+    return TABLE_HEADER if spec is RAILCAR_SPEC else ESTIMATOR_TABLE_HEADER
+
+
+def _rel(p: Path) -> Path:
+    try:
+        return p.relative_to(ROOT)
+    except ValueError:
+        return p
+
+
+def build_native(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
+    """Compile and zip ``dest_dir/<spec.native_name>.fmu``; ``python_fmu`` is the pythonfmu FMU
+    whose description it takes (default: dist/, built by harness.fmus.ensure_built when missing
+    or stale). Refuses to build when the table header is out of date."""
+    header = _header_path(spec)
+    if not header.is_file() or header.read_text(encoding="utf-8") != generate_header(spec):
+        raise RuntimeError(f"{_rel(header)} is out of date: run python -m fmu_src.native")
+    if python_fmu is None:
         from harness.fmus import ensure_built
-        railcar_fmu = ensure_built(quiet=True)["RailCar"]
+        python_fmu = ensure_built(quiet=True)[spec.fmu]
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
-    target = dest / f"{NATIVE_NAME}.fmu"
-    names = [p.name for p in [*c_sources(), *c_headers()]]
+    target = dest / f"{spec.native_name}.fmu"
+    names = [p.name for p in [*c_sources(spec), *c_headers(spec)]]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binary = compile_native(Path(tmp) / f"{MODEL_IDENTIFIER}.so")
-        with zipfile.ZipFile(railcar_fmu) as src:
+        binary = compile_native(Path(tmp) / f"{spec.fmu}.so", spec)
+        with zipfile.ZipFile(python_fmu) as src:
             xml = src.read("modelDescription.xml")
             profiles = [(i.filename, src.read(i.filename)) for i in src.infolist()
                         if i.filename.startswith("resources/profiles/") and not i.is_dir()]
-        xml = native_model_description(xml, native_guid(xml))
+        xml = native_model_description(xml, native_guid(xml, spec), spec)
         tmp_fmu = Path(tmp) / target.name
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("modelDescription.xml", xml)
-            z.writestr(f"binaries/linux64/{MODEL_IDENTIFIER}.so", binary.read_bytes())
-            for p in [*c_sources(), *c_headers()]:
+            z.writestr(f"binaries/linux64/{spec.fmu}.so", binary.read_bytes())
+            for p in [*c_sources(spec), *c_headers(spec)]:
                 z.writestr(f"sources/{p.name}", p.read_bytes())
             for name, data in profiles:          # relative profile paths resolve here first
                 z.writestr(name, data)
@@ -319,24 +386,42 @@ def build_native_fmu(dest_dir, railcar_fmu=None) -> Path:
     return target
 
 
+def build_native_fmu(dest_dir, railcar_fmu=None) -> Path:
+    """``dest_dir/RailCarNative.fmu`` from the pythonfmu ``railcar_fmu`` (see build_native)."""
+    return build_native(RAILCAR_SPEC, dest_dir, railcar_fmu)
+
+
+def build_native_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
+    """``dest_dir/RailCarEstimatorNative.fmu`` from the pythonfmu ``estimator_fmu``."""
+    return build_native(ESTIMATOR_SPEC, dest_dir, estimator_fmu)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--check", action="store_true", help="exit 1 if the header is out of date")
-    ap.add_argument("--build", metavar="DEST", help="build DEST/RailCarNative.fmu")
+    ap.add_argument("--check", action="store_true", help="exit 1 if a header is out of date")
+    ap.add_argument("--build", metavar="DEST",
+                    help="build DEST/RailCarNative.fmu and DEST/RailCarEstimatorNative.fmu")
     args = ap.parse_args(argv)
-    text = generate_header()
-    rel = TABLE_HEADER.relative_to(ROOT)
+    stale = 0
+    for spec in SPECS:
+        header = _header_path(spec)
+        text = generate_header(spec)
+        current = header.is_file() and header.read_text(encoding="utf-8") == text
+        if args.check:
+            if not current:
+                print(f"{_rel(header)} is out of date: run python -m fmu_src.native",
+                      file=sys.stderr)
+                stale = 1
+            else:
+                print(f"{_rel(header)} is up to date")
+        elif not current:
+            header.write_text(text, encoding="utf-8")
+            print(f"wrote {_rel(header)}")
     if args.check:
-        if not TABLE_HEADER.is_file() or TABLE_HEADER.read_text(encoding="utf-8") != text:
-            print(f"{rel} is out of date: run python -m fmu_src.native", file=sys.stderr)
-            return 1
-        print(f"{rel} is up to date")
-        return 0
-    if not TABLE_HEADER.is_file() or TABLE_HEADER.read_text(encoding="utf-8") != text:
-        TABLE_HEADER.write_text(text, encoding="utf-8")
-        print(f"wrote {rel}")
+        return stale
     if args.build:
-        print(f"built {build_native_fmu(args.build)}")
+        for spec in SPECS:
+            print(f"built {build_native(spec, args.build)}")
     return 0
 
 

@@ -1,0 +1,261 @@
+/* native_common.c -- see native_common.h: the parts of the native FMU backends that are the
+ * same for RailCar and RailCarEstimator (fmu_src/adapter.py's behaviour, without Python). */
+#define _POSIX_C_SOURCE 200809L
+
+#include "native_common.h"
+
+#include <limits.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+GLUE_EXPORT const char *railcar_fmu_binary_id(void) { return NATIVE_BINARY_ID; }
+
+const char *native_string(const native_values *v, int vr) {
+    return v->string[vr] ? v->string[vr] : v->md->vars[vr].start_string;
+}
+
+void native_start_values(native_values *v) {
+    int vr;
+    for (vr = 0; vr < v->md->nvars; vr++) {
+        const native_var *var = &v->md->vars[vr];
+        free(v->string[vr]);
+        v->string[vr] = NULL;
+        v->real[vr] = var->type == GLUE_REAL ? var->start : 0.0;
+        v->integer[vr] = var->type == GLUE_INTEGER ? (fmi2Integer)var->start : 0;
+    }
+    v->start_time = 0.0;
+}
+
+static fmi2Status out_of_memory(GlueInstance *g, const char *where) {
+    glue_log(g, fmi2Error, "logStatusError", "%s: out of memory", where);
+    return fmi2Error;
+}
+
+fmi2Status native_instantiate(GlueInstance *g, const native_model *md, native_values *v) {
+    int vr, k;
+    size_t n = (size_t)md->nvars;
+    v->md = md;
+    v->real = calloc(n, sizeof *v->real);
+    v->integer = calloc(n, sizeof *v->integer);
+    v->string = calloc(n, sizeof *v->string);
+    if (!v->real || !v->integer || !v->string || !glue_set_model_name(g, md->model_name)
+        || !glue_alloc_vars(g, n))
+        return out_of_memory(g, "fmi2Instantiate");
+    for (vr = 0; vr < md->nvars; vr++) {
+        GlueVar *gv = &g->vars[vr];
+        size_t len = strlen(md->vars[vr].name) + 1;
+        if (!(gv->name = malloc(len))) return out_of_memory(g, "fmi2Instantiate");
+        memcpy(gv->name, md->vars[vr].name, len);
+        gv->type = md->vars[vr].type;
+        gv->causality = md->vars[vr].causality;
+        gv->variability = md->vars[vr].variability;
+        gv->settable = gv->causality == GLUE_PARAMETER || gv->causality == GLUE_INPUT;
+    }
+    for (k = 0; k < md->ncategories; k++)
+        if (!glue_add_category(g, md->categories[k])) return out_of_memory(g, "fmi2Instantiate");
+    native_start_values(v);
+    return fmi2OK;
+}
+
+void native_free(native_values *v) {
+    int vr;
+    if (v->string)
+        for (vr = 0; vr < v->md->nvars; vr++) free(v->string[vr]);
+    free(v->string);
+    free(v->integer);
+    free(v->real);
+    v->string = NULL;
+    v->integer = NULL;
+    v->real = NULL;
+}
+
+fmi2Status native_get(GlueInstance *g, const native_values *v, GlueType type,
+                      const fmi2ValueReference vr[], size_t nvr, void *values) {
+    size_t i, total = 0;
+    char *space;
+    switch (type) {
+    case GLUE_REAL:
+        for (i = 0; i < nvr; i++) ((fmi2Real *)values)[i] = v->real[vr[i]];
+        return fmi2OK;
+    case GLUE_INTEGER:
+        for (i = 0; i < nvr; i++) ((fmi2Integer *)values)[i] = v->integer[vr[i]];
+        return fmi2OK;
+    case GLUE_STRING:
+        for (i = 0; i < nvr; i++) total += strlen(native_string(v, (int)vr[i])) + 1;
+        space = glue_string_space(g, total ? total : 1);
+        if (!space) return out_of_memory(g, "fmi2GetString");
+        for (i = 0; i < nvr; i++) {   /* valid until the next call on this instance */
+            const char *s = native_string(v, (int)vr[i]);
+            size_t n = strlen(s) + 1;
+            memcpy(space, s, n);
+            ((fmi2String *)values)[i] = space;
+            space += n;
+        }
+        return fmi2OK;
+    case GLUE_BOOLEAN:
+        break;                        /* no Boolean variables: the glue refused the call */
+    }
+    return fmi2Error;
+}
+
+fmi2Status native_set(GlueInstance *g, native_values *v, GlueType type,
+                      const fmi2ValueReference vr[], size_t nvr, const void *values) {
+    size_t i;
+    switch (type) {
+    case GLUE_REAL:
+        for (i = 0; i < nvr; i++) v->real[vr[i]] = ((const fmi2Real *)values)[i];
+        return fmi2OK;
+    case GLUE_INTEGER:
+        for (i = 0; i < nvr; i++) v->integer[vr[i]] = ((const fmi2Integer *)values)[i];
+        return fmi2OK;
+    case GLUE_STRING:
+        for (i = 0; i < nvr; i++) {
+            const char *s = ((const fmi2String *)values)[i];
+            size_t n = strlen(s) + 1;
+            char *copy = malloc(n);
+            if (!copy) return out_of_memory(g, "fmi2SetString");
+            memcpy(copy, s, n);
+            free(v->string[vr[i]]);
+            v->string[vr[i]] = copy;
+        }
+        return fmi2OK;
+    case GLUE_BOOLEAN:
+        break;
+    }
+    return fmi2Error;
+}
+
+void native_config_values(const native_values *v, double *out) {
+    const native_model *md = v->md;
+    int k;
+    for (k = 0; k < md->nconfig; k++) {
+        int vr = md->config_vr[k];
+        out[k] = vr == NATIVE_CONFIG_CONSTANT ? md->config_const[k]
+               : vr == NATIVE_CONFIG_START_TIME ? v->start_time
+               : md->vars[vr].type == GLUE_INTEGER ? (double)v->integer[vr]
+               : v->real[vr];
+    }
+}
+
+void native_store_outputs(native_values *v, const double *outputs) {
+    int i;
+    for (i = 0; i < v->md->noutputs; i++) {
+        int vr = v->md->output_vrs[i];
+        if (v->md->vars[vr].type == GLUE_INTEGER) v->integer[vr] = (fmi2Integer)outputs[i];
+        else v->real[vr] = outputs[i];
+    }
+}
+
+/* ------------------------------------------------------------------------------ profiles */
+
+static char *join_path(const char *a, const char *b) {
+    size_t na = strlen(a), nb = strlen(b);
+    char *p = malloc(na + 1 + nb + 1);
+    if (!p) return NULL;
+    memcpy(p, a, na);
+    p[na] = '/';
+    memcpy(p + na + 1, b, nb + 1);
+    return p;
+}
+
+static int is_file(const char *path) {
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* adapter.resolve_profile_path: absolute as it is; else resources/<raw> if that is a file;
+   else <cwd>/<raw>. malloc'd; NULL when out of memory. */
+static char *resolve_profile_path(const char *raw, const char *resources) {
+    char *candidate, *cwd;
+    size_t size;
+    if (raw[0] == '/') {
+        size = strlen(raw) + 1;
+        candidate = malloc(size);
+        if (candidate) memcpy(candidate, raw, size);
+        return candidate;
+    }
+    if (resources && resources[0]) {
+        candidate = join_path(resources, raw);
+        if (!candidate || is_file(candidate)) return candidate;
+        free(candidate);
+    }
+    for (size = 256;; size *= 2) {
+        cwd = malloc(size);
+        if (!cwd) return NULL;
+        if (getcwd(cwd, size)) break;
+        free(cwd);
+        if (size > 1 << 20) return join_path(".", raw);   /* no working directory to name */
+    }
+    candidate = join_path(cwd, raw);
+    free(cwd);
+    return candidate;
+}
+
+/* load_profiles' reading of one parameter: RC_OK with the profile (n 0: the parameter is empty),
+   or RC_BAD_CONFIG with the profile's message. */
+static int read_profile(GlueInstance *g, const native_values *v, int vr, rc_profile_kind kind,
+                        rc_profile *out) {
+    const char *raw = native_string(v, vr);
+    const char *name = v->md->vars[vr].name;
+    char *path;
+    int status;
+    memset(out, 0, sizeof *out);
+    if (!raw[0]) return RC_OK;
+    path = resolve_profile_path(raw, g->resources);
+    if (!path) {
+        snprintf(out->err.msg, sizeof out->err.msg, "%s: out of memory", name);
+        return RC_BAD_CONFIG;
+    }
+    status = rc_profile_read_file(path, name, raw, kind, out);
+    free(path);
+    return status;
+}
+
+void native_log_init_failure(GlueInstance *g, const char *message) {
+    glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: initialisation failed: "
+             "%s", message);
+}
+
+fmi2Status native_read_profiles(GlueInstance *g, const native_values *v, rc_profile *grade,
+                                rc_profile *speed) {
+    memset(speed, 0, sizeof *speed);
+    if (read_profile(g, v, v->md->vr_grade_profile, RC_PROFILE_GRADE, grade) != RC_OK) {
+        native_log_init_failure(g, grade->message ? grade->message : grade->err.msg);
+        return fmi2Error;
+    }
+    if (read_profile(g, v, v->md->vr_speed_profile, RC_PROFILE_SPEED, speed) != RC_OK) {
+        native_log_init_failure(g, speed->message ? speed->message : speed->err.msg);
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------------------- stepping */
+
+fmi2Status native_not_initialised(GlueInstance *g) {
+    glue_log(g, fmi2Error, "logStatusError", "doStep refused: the instance is not "
+             "initialised (call exitInitializationMode first; after a failed "
+             "initialisation, reset or free the instance)");
+    return fmi2Error;
+}
+
+fmi2Status native_step_status(GlueInstance *g, rc_status s, const rc_error *err) {
+    if (s == RC_OK) return fmi2OK;
+    if (s == RC_REJECTED) {
+        glue_log(g, fmi2Discard, "logStatusDiscard", "step discarded: %s", err->msg);
+        return fmi2Discard;
+    }
+    glue_log(g, fmi2Error, "logStatusError", "step failed: %s", err->msg);
+    return fmi2Error;
+}
+
+void native_gate_warning(GlueInstance *g, const native_values *v, fmi2Integer before) {
+    fmi2Integer now = v->integer[v->md->vr_rejected];
+    if (now != before)
+        glue_log(g, fmi2Warning, "logStatusWarning", "%ld measurement(s) refused by the "
+                 "innovation gate in this step (a spike, a dropout; filter.rejected = %ld)",
+                 (long)now - (long)before, (long)now);
+}

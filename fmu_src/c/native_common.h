@@ -1,0 +1,82 @@
+/* native_common.h -- what the native FMU backends (native_railcar.c, native_estimator.c) share:
+ * the variables' storage by value reference with their start values, instantiate / reset /
+ * free, fmi2Get* and fmi2Set*, the flat configuration from the generated tables, the profiles
+ * (fmu_src/adapter.py load_profiles) and the messages fmu_src/adapter.py logs (initialise,
+ * not_initialised, guarded_step). No Python; reentrant (the state lives in native_values). */
+#ifndef NATIVE_COMMON_H
+#define NATIVE_COMMON_H
+
+#include "fmi2_glue.h"
+#include "profile.h"
+#include "rc_common.h"
+
+/* Marker: which binary this is (pyslave.c exports the same function). */
+#define NATIVE_BINARY_ID "railcar-fmu fmi2 binary 1: C99 FMI 2.0 glue + native C core backend"
+
+typedef struct {                 /* one variable of a generated table, indexed by vr */
+    const char *name;
+    GlueType type;
+    GlueCausality causality;
+    GlueVariability variability;
+    double start;                /* Real and Integer */
+    const char *start_string;    /* String */
+} native_var;
+
+/* A flat configuration entry's source: a vr, the start time or a constant */
+#define NATIVE_CONFIG_CONSTANT (-1)
+#define NATIVE_CONFIG_START_TIME (-2)
+
+typedef struct {                 /* one FMU, from its generated table header */
+    const char *model_name;      /* modelIdentifier */
+    const native_var *vars;
+    int nvars;
+    const char *const *categories;
+    int ncategories;
+    const int *config_vr;        /* index -> vr / NATIVE_CONFIG_* */
+    const double *config_const;
+    int nconfig;
+    int vr_grade_profile, vr_speed_profile;
+    const int *output_vrs;       /* the core's output order -> vr */
+    int noutputs;
+    int vr_rejected;             /* filter.rejected */
+} native_model;
+
+typedef struct {                 /* the variables' values of one instance */
+    const native_model *md;
+    double *real;                /* by vr */
+    fmi2Integer *integer;
+    char **string;               /* malloc'd; NULL = the start value */
+    double start_time;           /* fmi2SetupExperiment's startTime */
+} native_values;
+
+/* fmi2Instantiate: allocate v's arrays, the glue's variable table and categories, start values.
+   fmi2Error (logged) when out of memory; native_free copes with the half-made result. */
+fmi2Status native_instantiate(GlueInstance *g, const native_model *md, native_values *v);
+void native_free(native_values *v);
+/* every variable back to its start value, start time 0 (a fresh pythonfmu slave) */
+void native_start_values(native_values *v);
+const char *native_string(const native_values *v, int vr);
+fmi2Status native_get(GlueInstance *g, const native_values *v, GlueType type,
+                      const fmi2ValueReference vr[], size_t nvr, void *values);
+fmi2Status native_set(GlueInstance *g, native_values *v, GlueType type,
+                      const fmi2ValueReference vr[], size_t nvr, const void *values);
+
+/* the flat configuration (md->nconfig numbers) from the parameters and the start time */
+void native_config_values(const native_values *v, double *out);
+/* load_profiles: the grade profile, then the speed profile (n 0: the parameter is empty).
+   fmi2OK, or fmi2Error logged as adapter.initialise words it; free both whatever the status. */
+fmi2Status native_read_profiles(GlueInstance *g, const native_values *v, rc_profile *grade,
+                                rc_profile *speed);
+/* "fmi2ExitInitializationMode: initialisation failed: <message>" */
+void native_log_init_failure(GlueInstance *g, const char *message);
+/* the core's outputs (md->noutputs, integers as doubles) into the variables */
+void native_store_outputs(native_values *v, const double *outputs);
+/* adapter.not_initialised */
+fmi2Status native_not_initialised(GlueInstance *g);
+/* a step's status as adapter.guarded_step reports it: RC_REJECTED -> fmi2Discard "step
+   discarded: ...", other failures fmi2Error "step failed: ..." (logged); RC_OK -> fmi2OK */
+fmi2Status native_step_status(GlueInstance *g, rc_status s, const rc_error *err);
+/* guarded_step's warning when filter.rejected moved from `before` */
+void native_gate_warning(GlueInstance *g, const native_values *v, fmi2Integer before);
+
+#endif

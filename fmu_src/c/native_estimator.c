@@ -1,0 +1,191 @@
+/* native_estimator.c -- the glue's backend for a RailCarEstimator FMU without Python (issue 18):
+ * the model_* functions of fmi2_glue.h on the C core's rc_estchain (models/core/railcar.h, the
+ * twin of models.chain.EstimatorChain).
+ *
+ * It behaves as the pythonfmu slave fmu_src/railcar_estimator.py behind pyslave.c does:
+ * - every variable holds its start value (native_estimator_table.h, generated from
+ *   fmu_src/variables.py) after fmi2Instantiate and fmi2Reset; the outputs keep their start
+ *   values until the first step (EstimatorChain has none before it);
+ * - fmi2ExitInitializationMode builds the chain as RailCarEstimator._build does, in its order:
+ *   the profiles (adapter.load_profiles), then the whole configuration checked by
+ *   rc_estchain_validate (EstimatorChain's messages; the options only the pythonfmu
+ *   RailCarEstimator.fmu runs are refused naming the parameter and value), then
+ *   rc_estchain_init. A failure is fmi2Error with "initialisation failed: <message>";
+ * - fmi2DoStep is rc_estchain_step with the inputs (forces, measurements, a track-sensor speed
+ *   and its time stamp); a rejected step is fmi2Discard logged as "step discarded: <message>",
+ *   nothing changed; a step that let the innovation gate refuse measurements logs
+ *   guarded_step's warning.
+ * The variables, get/set, the profiles and the messages are native_common.c's (shared with
+ * native_railcar.c).
+ *
+ * Differences from the pythonfmu FMU: a step the core cannot compute (RC_MATH) is fmi2Error.
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2_glue.h"
+#include "native_common.h"
+#include "native_estimator_table.h"
+#include "profile.h"
+#include "railcar.h"
+#include "validate.h"
+
+typedef char nes_outputs_match_the_core[NES_NOUTPUTS == RC_EST_OUTPUTS ? 1 : -1];
+typedef char nes_inputs_are_six[NES_NINPUTS == 6 ? 1 : -1];
+
+typedef struct {
+    native_values v;                   /* the variables (native_common.h) */
+    rc_estchain *chain;                /* after a successful fmi2ExitInitializationMode */
+    double outputs[RC_EST_OUTPUTS];
+} Native;
+
+#define MODEL(g) ((Native *)(g)->model)
+
+static void drop_chain(Native *m) {
+    if (m->chain) {
+        rc_estchain_free(m->chain);
+        free(m->chain);
+        m->chain = NULL;
+    }
+}
+
+fmi2Status model_instantiate(GlueInstance *g) {
+    Native *m = calloc(1, sizeof *m);
+    g->model = m;
+    if (!m) {
+        glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+        return fmi2Error;
+    }
+    return native_instantiate(g, &NES_MODEL, &m->v);
+}
+
+void model_free(GlueInstance *g) {
+    Native *m = MODEL(g);
+    if (!m) return;
+    drop_chain(m);
+    native_free(&m->v);
+    free(m);
+    g->model = NULL;
+}
+
+fmi2Status model_reset(GlueInstance *g) {
+    drop_chain(MODEL(g));
+    native_start_values(&MODEL(g)->v);
+    return fmi2OK;
+}
+
+fmi2Status model_setup_experiment(GlueInstance *g, int tolerance_defined, double tolerance,
+                                  double start_time, int stop_time_defined, double stop_time) {
+    (void)tolerance_defined;
+    (void)tolerance;
+    (void)stop_time_defined;
+    (void)stop_time;
+    MODEL(g)->v.start_time = start_time;   /* EstimatorChain does not use it */
+    return fmi2OK;
+}
+
+fmi2Status model_enter_initialization_mode(GlueInstance *g) {
+    (void)g;
+    return fmi2OK;
+}
+
+fmi2Status model_terminate(GlueInstance *g) {
+    (void)g;
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------------- initialisation */
+
+fmi2Status model_exit_initialization_mode(GlueInstance *g) {
+    Native *m = MODEL(g);
+    double values[NES_NCONFIG];
+    rc_estchain_config cfg;
+    rc_profile grade, speed;
+    rc_error err;
+    static const double level_distance = 0.0, level_grade = 0.0;   /* GradeProfile.level() */
+    fmi2Status status = fmi2Error;
+    long expected;
+
+    drop_chain(m);
+    native_config_values(&m->v, values);
+    memset(&cfg, 0, sizeof cfg);
+    expected = rc_estchain_config_from_values(&cfg, values, NES_NCONFIG);
+    if (expected != 0) {
+        glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: the C core expects "
+                 "%ld configuration values, this FMU has %d (rebuild it)", expected, NES_NCONFIG);
+        return fmi2Error;
+    }
+
+    /* load_profiles: the grade profile first, then the speed profile */
+    if (native_read_profiles(g, &m->v, &grade, &speed) != fmi2OK) {
+        rc_profile_free(&speed);
+        rc_profile_free(&grade);
+        return fmi2Error;
+    }
+    if (grade.n > 0) {
+        cfg.grade_distances = grade.distances;
+        cfg.grades = grade.values;
+        cfg.grade_n = grade.n;
+    } else {
+        cfg.grade_distances = &level_distance;
+        cfg.grades = &level_grade;
+        cfg.grade_n = 1;
+    }
+    cfg.speed_distances = speed.n > 0 ? speed.distances : NULL;
+    cfg.speeds = speed.n > 0 ? speed.values : NULL;
+    cfg.speed_n = speed.n;
+
+    err.msg[0] = '\0';
+    if (rc_estchain_validate(&cfg, (long)m->v.integer[NES_VR_SLOPE_WINDOW], speed.n > 0, &err)
+        != RC_OK) {
+        native_log_init_failure(g, err.msg);
+    } else if (!(m->chain = malloc(sizeof *m->chain))) {
+        native_log_init_failure(g, "out of memory");
+    } else if (rc_estchain_init(m->chain, &cfg, &err) != RC_OK) {   /* copies the profiles */
+        free(m->chain);
+        m->chain = NULL;
+        native_log_init_failure(g, err.msg);
+    } else {
+        if (rc_estchain_outputs(m->chain, m->outputs))     /* none before the first step */
+            native_store_outputs(&m->v, m->outputs);
+        status = fmi2OK;
+    }
+    rc_profile_free(&speed);
+    rc_profile_free(&grade);
+    return status;
+}
+
+/* -------------------------------------------------------------------------------- stepping */
+
+fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size) {
+    Native *m = MODEL(g);
+    const double *in = m->v.real;
+    rc_error err;
+    rc_status s;
+    fmi2Integer rejected;
+    if (!m->chain)                /* the glue allows doStep only after a successful init */
+        return native_not_initialised(g);
+    rejected = m->v.integer[NES_VR_FILTER_REJECTED];
+    err.msg[0] = '\0';
+    /* EstimatorChain.do_step(t, h, traction, brake, speed, position, track_speed, track_time) */
+    s = rc_estchain_step(m->chain, current_time, step_size, in[NES_INPUT_VRS[0]],
+                         in[NES_INPUT_VRS[1]], in[NES_INPUT_VRS[2]], in[NES_INPUT_VRS[3]],
+                         in[NES_INPUT_VRS[4]], in[NES_INPUT_VRS[5]], &err);
+    if (s != RC_OK) return native_step_status(g, s, &err);
+    if (rc_estchain_outputs(m->chain, m->outputs))
+        native_store_outputs(&m->v, m->outputs);
+    native_gate_warning(g, &m->v, rejected);
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------- getting and setting */
+
+fmi2Status model_get(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
+                     void *values) {
+    return native_get(g, &MODEL(g)->v, type, vr, nvr, values);
+}
+
+fmi2Status model_set(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
+                     const void *values) {
+    return native_set(g, &MODEL(g)->v, type, vr, nvr, values);
+}
