@@ -1,0 +1,218 @@
+"""The native RailCar FMU for FMI 3.0 co-simulation (issue 18): the C core, no Python.
+
+    python -m fmu_src.native_fmi3 DEST     build DEST/RailCarNative3.fmu
+
+The binary is the FMI 2 native FMU's backend (``fmu_src/c/native_railcar.c`` and what it needs,
+as ``fmu_src.native.c_sources()`` lists them) and ``models/core/*.c`` behind the FMI 3.0 glue
+``fmu_src/c/fmi3_glue.c`` instead of ``fmi2_glue.c``: the backend links unchanged.
+
+``modelDescription.xml`` (FMI 3.0) is written from ``fmu_src/variables.py``: the variables of
+``RailCar.fmu`` with the same names and value references (= their order), Real as Float64,
+Integer as Int32, String as String, each with its description, unit (UnitDefinitions), min/max,
+causality and variability; parameters and inputs carry their start values; "time", the
+independent variable FMI 3 requires, follows them (value reference = their number). Outputs are
+``initial="calculated"`` (the chain computes them in fmi3ExitInitializationMode; FMI 3 allows no
+start value then) and are listed in ModelStructure as Output and InitialUnknown. The binary is
+``binaries/x86_64-linux/RailCar.so``; ``sources/`` holds the C sources with an FMI 3
+``sources/buildDescription.xml`` (and the FMI 2 headers the backend's types come from, so that an
+FMI 3 importer needs only its own FMI 3 headers).
+"""
+from __future__ import annotations
+
+import hashlib
+import shlex
+import subprocess
+import sys
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+from . import native
+from .variables import RAILCAR, UNITS, variables_for
+
+ROOT = native.ROOT
+C_DIR = native.C_DIR
+CORE_DIR = native.CORE_DIR
+NATIVE3_NAME = "RailCarNative3"
+MODEL_IDENTIFIER = "RailCar"
+PLATFORM = "x86_64-linux"
+GLUE3_SOURCE, GLUE3_HEADER = "fmi3_glue.c", "fmi3_glue.h"
+FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+FMI3_TYPE = {"Real": "Float64", "Integer": "Int32", "String": "String"}
+DESCRIPTION = ("Rail-car motion: dynamics eq. (2), sensors, least-squares identification, Kalman "
+               "filter (native C core, FMI 3.0 co-simulation)")
+CATEGORY_TEXT = {
+    "logStatusWarning": "Log messages with fmi3Warning status.",
+    "logStatusDiscard": "Log messages with fmi3Discard status.",
+    "logStatusError": "Log messages with fmi3Error status.",
+    "logStatusFatal": "Log messages with fmi3Fatal status.",
+    "logAll": "Log all messages.",
+}
+
+
+def fmi_headers() -> Path:
+    """fmpy's copy of the FMI 2 and 3 headers (fmpy/c-code)."""
+    return native._build_py().fmi2_headers()
+
+
+def c_sources() -> list[Path]:
+    """The FMI 3 glue, then the native backend's sources without the FMI 2 glue, then the core."""
+    backend = [p for p in native.c_sources() if p.name != "fmi2_glue.c"]
+    return [C_DIR / GLUE3_SOURCE, *backend]
+
+
+def c_headers() -> list[Path]:
+    """Our headers (fmi2_glue.h stays: it is the backend interface) and the FMI 2 headers."""
+    ours = [C_DIR / GLUE3_HEADER, *native.c_headers()]
+    return ours + [fmi_headers() / h for h in FMI2_HEADERS]
+
+
+def compile_binary(out: Path) -> Path:
+    """binaries/x86_64-linux/RailCar.so; RuntimeError with the compiler's output."""
+    cc = native._build_py().find_compiler()
+    if cc is None:
+        raise RuntimeError("no C compiler found (set CC or install gcc)")
+    cmd = [*cc, *native.C_FLAGS, "-I", str(C_DIR), "-I", str(CORE_DIR), "-I", str(fmi_headers()),
+           *[str(s) for s in c_sources()], "-o", str(out), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling the FMI 3 native FMU failed:\n{shlex.join(cmd)}\n"
+                           f"{proc.stdout}{proc.stderr}")
+    return out
+
+
+def instantiation_token() -> str:
+    """Derived from the variable table and every source (same sources => same token)."""
+    h = hashlib.sha256(f"{NATIVE3_NAME}|fmi3|".encode())
+    for v in variables_for(RAILCAR):
+        h.update(repr((v.name, v.causality, v.type, v.unit, v.start, v.min, v.max)).encode())
+    for p in [*c_sources(), *c_headers()]:
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return "{" + str(uuid.UUID(bytes=h.digest()[:16], version=5)) + "}"
+
+
+def _number(x) -> str:
+    return repr(float(x)) if isinstance(x, float) else str(int(x))
+
+
+def model_description(token: str) -> bytes:
+    """The FMI 3.0 modelDescription.xml of RailCarNative3.fmu."""
+    table = variables_for(RAILCAR)
+    default = native._build_py().DEFAULT_EXPERIMENT
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": MODEL_IDENTIFIER, "instantiationToken": token,
+        "description": DESCRIPTION, "author": "rail-car FMU team",
+        "generationTool": "fmu_src/native_fmi3.py (C core, no Python)",
+        "variableNamingConvention": "structured"})
+    ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": MODEL_IDENTIFIER, "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "false",
+        "canSerializeFMUState": "false", "providesDirectionalDerivatives": "false",
+        "providesAdjointDerivatives": "false", "providesPerElementDependencies": "false",
+        "canHandleVariableCommunicationStepSize": "true", "maxOutputDerivativeOrder": "0",
+        "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
+        "canReturnEarlyAfterIntermediateUpdate": "false", "hasEventMode": "false",
+        "providesEvaluateDiscreteStates": "false"})
+    units = ET.SubElement(root, "UnitDefinitions")
+    for name in sorted({v.unit for v in table if v.unit and v.type == "Real"} | {"s"}):
+        exps, factor = UNITS[name]
+        base = {k: str(e) for k, e in exps.items()}
+        if factor != 1.0:
+            base["factor"] = repr(factor)
+        ET.SubElement(ET.SubElement(units, "Unit", name=name), "BaseUnit", base)
+    cats = ET.SubElement(root, "LogCategories")
+    for name in native.LOG_CATEGORIES:
+        ET.SubElement(cats, "Category", name=name, description=CATEGORY_TEXT[name])
+    ET.SubElement(root, "DefaultExperiment", default)
+    mv = ET.SubElement(root, "ModelVariables")
+    outputs = []
+    for vr, v in enumerate(table):
+        attrs = {"name": v.name, "valueReference": str(vr), "description": v.description,
+                 "causality": v.causality, "variability": v.variability}
+        if v.causality == "output":
+            attrs["initial"] = "calculated"
+            outputs.append(vr)
+        elif v.type != "String":
+            attrs["start"] = _number(v.start)
+        if v.type == "Real":
+            if v.unit:
+                attrs["unit"] = v.unit
+            if v.min is not None:
+                attrs["min"] = repr(float(v.min))
+            if v.max is not None:
+                attrs["max"] = repr(float(v.max))
+        el = ET.SubElement(mv, FMI3_TYPE[v.type], attrs)
+        if v.type == "String" and v.causality != "output":
+            ET.SubElement(el, "Start", value=str(v.start))
+    assert "time" not in [v.name for v in table]
+    ET.SubElement(mv, "Float64", {          # fmi3_glue.c: vr = the backend's number of variables
+        "name": "time", "valueReference": str(len(table)), "causality": "independent",
+        "variability": "continuous", "unit": "s",
+        "description": "simulation time (the independent variable)"})
+    ms = ET.SubElement(root, "ModelStructure")
+    for vr in outputs:
+        ET.SubElement(ms, "Output", valueReference=str(vr))
+    for vr in outputs:
+        ET.SubElement(ms, "InitialUnknown", valueReference=str(vr))
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+def build_description() -> bytes:
+    """sources/buildDescription.xml (FMI 3.0): one configuration, every .c file, flat folder."""
+    root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
+    conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=MODEL_IDENTIFIER,
+                         description="C99; link with -lm -pthread")
+    files = ET.SubElement(conf, "SourceFileSet", language="C99",
+                          compilerOptions="-ffp-contract=off")
+    for src in c_sources():
+        ET.SubElement(files, "SourceFile", name=src.name)
+    ET.SubElement(conf, "Library", name="m")
+    ET.SubElement(conf, "Library", name="pthread")
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+def build_native3_fmu(dest_dir, railcar_fmu=None) -> Path:
+    """Compile and zip ``dest_dir/RailCarNative3.fmu``. ``railcar_fmu`` (the pythonfmu
+    RailCar.fmu, default dist/ via harness.fmus.ensure_built) only supplies the profiles under
+    resources/. Refuses to build when the backend's table header is out of date."""
+    if (not native.TABLE_HEADER.is_file()
+            or native.TABLE_HEADER.read_text(encoding="utf-8") != native.generate_header()):
+        raise RuntimeError(f"{native.TABLE_HEADER.name} is out of date: run "
+                           "python -m fmu_src.native")
+    if railcar_fmu is None:
+        from harness.fmus import ensure_built
+        railcar_fmu = ensure_built(quiet=True)["RailCar"]
+    dest = Path(dest_dir)
+    dest.mkdir(parents=True, exist_ok=True)
+    target = dest / f"{NATIVE3_NAME}.fmu"
+    files = [*c_sources(), *c_headers()]
+    names = [p.name for p in files]
+    assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
+    with tempfile.TemporaryDirectory() as tmp:
+        binary = compile_binary(Path(tmp) / f"{MODEL_IDENTIFIER}.so")
+        with zipfile.ZipFile(railcar_fmu) as src:
+            profiles = [(i.filename, src.read(i.filename)) for i in src.infolist()
+                        if i.filename.startswith("resources/profiles/") and not i.is_dir()]
+        tmp_fmu = Path(tmp) / target.name
+        with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("modelDescription.xml", model_description(instantiation_token()))
+            z.writestr(f"binaries/{PLATFORM}/{MODEL_IDENTIFIER}.so", binary.read_bytes())
+            z.writestr("sources/buildDescription.xml", build_description())
+            for p in files:
+                z.writestr(f"sources/{p.name}", p.read_bytes())
+            for name, data in profiles:          # relative profile paths resolve here first
+                z.writestr(name, data)
+        target.write_bytes(tmp_fmu.read_bytes())
+    return target
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
+        print(__doc__.splitlines()[2].strip(), file=sys.stderr)
+        sys.exit(2)
+    print(f"built {build_native3_fmu(sys.argv[1])}")
