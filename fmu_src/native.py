@@ -1,26 +1,31 @@
-"""The native RailCar FMU (issue 18): the C core behind our FMI 2.0 glue, no Python at run time.
+"""The native RailCar and RailCarEstimator FMUs (issue 18): the C core behind our FMI 2.0 glue.
 
-    python -m fmu_src.native            write fmu_src/c/native_railcar_table.h
-    python -m fmu_src.native --check    exit 1 if that header is out of date
-    python -m fmu_src.native --build D  build D/RailCarNative.fmu
+    python -m fmu_src.native            write fmu_src/c/native_railcar_table.h and
+                                        fmu_src/c/native_estimator_table.h
+    python -m fmu_src.native --check    exit 1 if one of them is out of date
+    python -m fmu_src.native --build D  build D/RailCarNative.fmu and D/RailCarEstimatorNative.fmu
 
-The header is generated from the one variable table (``fmu_src/variables.py``) and from the Python
-chain's own configuration path, so that the C backend (``fmu_src/c/native_railcar.c``) cannot
-drift from the pythonfmu FMU:
+Each FMU is a ``NativeSpec`` (RAILCAR_SPEC, ESTIMATOR_SPEC). Its header is generated from the
+one variable table (``fmu_src/variables.py``) and from the Python chain's own configuration
+path, so that the C backends (``fmu_src/c/native_railcar.c``, ``native_estimator.c``, sharing
+``native_common.c``) cannot drift from the pythonfmu FMUs:
 
-- the RailCar variables by value reference (= their order in ``variables_for("RailCar")``):
-  name, type, causality, variability, start value;
-- for every number of ``models.compiled._config_values`` (the flat configuration the C core's
-  ``rc_chain_config_from_values`` reads), the parameter it comes from, or the start time, or the
+- the variables by value reference (= their order in ``variables_for(...)``): name, type,
+  causality, variability, start value;
+- for every number of the flat configuration the C core reads (RailCar:
+  ``models.compiled._config_values``, read by ``rc_chain_config_from_values``; RailCarEstimator:
+  ``estimator_config_values``, what ``CompiledEstimatorChain`` hands
+  ``rc_estchain_config_from_values``), the parameter it comes from, or the start time, or the
   constant it always is. This is found by construction, not written by hand: each parameter is
-  set to a marker value, ``fmu_src.adapter.chain_config`` + ``_config_values`` are run, and the
-  one index that changes must hold the marker itself; every index must be explained;
-- the inputs in ``RailCarChain.do_step``'s order and the outputs in ``OUTPUT_NAMES`` order.
+  set to a marker value, the configuration is rebuilt, and the one index that changes must
+  hold the marker itself; every index must be explained;
+- the inputs in the chain's do_step order and the outputs in the core's order.
 
-``build_native_fmu(dest)`` compiles the glue, the backend and ``models/core/*.c`` into
-``binaries/linux64/RailCar.so`` and zips ``RailCarNative.fmu``: the modelDescription.xml of the
-pythonfmu ``RailCar.fmu`` (same modelIdentifier, variables and value references) with a new GUID,
-``needsExecutionTool="false"``, and its C sources under ``sources/`` (listed in SourceFiles).
+``build_native_fmu(dest)`` / ``build_native_estimator_fmu(dest)`` compile the glue, the backend
+and ``models/core/*.c`` into ``binaries/linux64/<modelIdentifier>.so`` and zip the FMU: the
+modelDescription.xml of the pythonfmu FMU (same modelIdentifier, variables and value references)
+with a new GUID, ``needsExecutionTool="false"``, and its C sources under ``sources/`` (listed in
+SourceFiles).
 """
 from __future__ import annotations
 
