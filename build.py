@@ -1,6 +1,6 @@
-"""Build dist/RailCar.fmu and dist/RailCarEstimator.fmu and validate them.
+"""Build dist/RailCar.fmu and dist/RailCarEstimator.fmu, the native FMUs, and validate them.
 
-    python build.py [--dest dist] [--pythonfmu-binary]
+    python build.py [--dest dist] [--pythonfmu-binary] [--no-native]
 
 Each FMU is built by pythonfmu in a subprocess (a Python process caches the FMU's modules, so
 building and loading in one process can run stale code). The model description is then
@@ -12,7 +12,11 @@ here from ``fmu_src/c/`` (C99, the Python C API, FMI 2 headers from fmpy): it re
 fmi2Error instead of crashing the host after fmi2Fatal. Without a C compiler (or with
 ``--pythonfmu-binary``) pythonfmu's binary stays, with a loud warning. The win64 DLL is always
 pythonfmu's (it cannot be built or tested here).
-The build fails unless ``fmpy.validation.validate_fmu`` reports no problem.
+With a C compiler the native FMUs (no Python at run time, docs/native_fmus.md) are built beside
+them into ``dist/native/``: RailCarNative.fmu and RailCarEstimatorNative.fmu (FMI 2.0) and
+RailCarNative3.fmu (FMI 3.0), from the C model core (``fmu_src/native.py``,
+``fmu_src/native_fmi3.py``); ``--no-native`` skips them.
+The build fails unless ``fmpy.validation.validate_fmu`` reports no problem for every FMU.
 """
 from __future__ import annotations
 
@@ -203,6 +207,8 @@ def main(argv=None) -> int:
     ap.add_argument("--dest", default=str(ROOT / "dist"), help="output folder (default: dist/)")
     ap.add_argument("--pythonfmu-binary", action="store_true",
                     help="keep pythonfmu's linux64 binary instead of compiling ours (for comparisons)")
+    ap.add_argument("--no-native", action="store_true",
+                    help="skip the native FMUs (dist/native/, built from the C model core)")
     args = ap.parse_args(argv)
     dest = Path(args.dest)
     failed = False
@@ -215,17 +221,28 @@ def main(argv=None) -> int:
             binary = compile_binary(Path(tmp))
         which = ("our FMI 2 binary (fmu_src/c)" if binary is not None
                  else "pythonfmu's binary (WARNING: see above)")
+        built = {}
         for name, script in FMUS.items():
-            path = build_one(name, script, dest, binary)
-            problems = validate(path)
-            if problems:
-                failed = True
-                print(f"{path}: fmpy.validation found {len(problems)} problem(s):")
-                for p in problems:
-                    print(f"  - {p}")
-            else:
-                print(f"built {path} (validate_fmu: no problems; linux64: {which})")
+            path = built[name] = build_one(name, script, dest, binary)
+            failed |= not report(path, validate(path), f"linux64: {which}")
+        if binary is not None and not args.no_native:
+            from fmu_src import native, native_fmi3
+            for path in (native.build_native_fmu(dest / "native", built["RailCar"]),
+                         native.build_native_estimator_fmu(dest / "native", built["RailCarEstimator"]),
+                         native_fmi3.build_native3_fmu(dest / "native", built["RailCar"])):
+                failed |= not report(path, validate(path), "native: no Python at run time")
     return 1 if failed else 0
+
+
+def report(path: Path, problems: list[str], what: str) -> bool:
+    """Print the FMU's validation; True when it has no problem."""
+    if problems:
+        print(f"{path}: fmpy.validation found {len(problems)} problem(s):")
+        for p in problems:
+            print(f"  - {p}")
+        return False
+    print(f"built {path} (validate_fmu: no problems; {what})")
+    return True
 
 
 if __name__ == "__main__":

@@ -42,10 +42,12 @@ STATUS_LABEL = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: 
 
 # ------------------------------------------------------------------------------------ building
 
-def build_fmus(dest: Path) -> dict[str, Path]:
-    """Run ``build.py --dest dest`` in a subprocess (fresh interpreter, current sources)."""
+def build_fmus(dest: Path, native: bool = True) -> dict[str, Path]:
+    """Run ``build.py --dest dest`` in a subprocess (fresh interpreter, current sources); without
+    ``native`` it skips the native FMUs (``--no-native``: tests of the pythonfmu FMUs alone)."""
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
-    proc = subprocess.run([sys.executable, "build.py", "--dest", str(dest)], cwd=ROOT, env=env,
+    flags = [] if native else ["--no-native"]
+    proc = subprocess.run([sys.executable, "build.py", "--dest", str(dest), *flags], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, f"build.py failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
     paths = {name: dest / f"{name}.fmu" for name in FMU_NAMES}

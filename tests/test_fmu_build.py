@@ -109,6 +109,22 @@ def test_validate_fmu_reports_no_problem(built_fmus, name):
     assert problems == [], f"{name}: validate_fmu found problems:\n" + "\n".join(problems)
 
 
+@pytest.mark.parametrize("name, fmi", [("RailCarNative", "2.0"), ("RailCarEstimatorNative", "2.0"),
+                                       ("RailCarNative3", "3.0")])
+def test_build_writes_the_native_fmus_beside_and_validates_them(built_fmus, name, fmi):
+    """build.py also writes dist/native/ (docs/native_fmus.md): the native FMUs, each validated
+    by fmpy, with the same variables as their pythonfmu twin (their own tests compare outputs)."""
+    path = built_fmus["RailCar"].parent / "native" / f"{name}.fmu"
+    assert path.is_file(), f"build.py did not write {path}"
+    assert list(validate_fmu(str(path))) == []
+    md = read_model_description(str(path))
+    assert md.fmiVersion == fmi
+    twin = read_model_description(str(built_fmus[name.replace("Native3", "").replace("Native", "")]))
+    names = {v.name: v.valueReference for v in twin.modelVariables}
+    native = {v.name: v.valueReference for v in md.modelVariables if v.name != "time"}
+    assert native == names
+
+
 @pytest.mark.parametrize("name", FMU_NAMES)
 def test_built_fmu_bundles_the_c_core(built_fmus, name):
     """build.py bundles the models folder as it is, so the C core that pip install -e . built in
@@ -186,8 +202,8 @@ def test_default_experiment(fmus, name):
 
 def test_guid_is_reproducible_and_follows_the_sources(built_fmus, tmp_path):
     """Same sources => same GUID (two more builds, other folders); changed source => new GUID."""
-    first = build_fmus(tmp_path / "a")
-    second = build_fmus(tmp_path / "b")
+    first = build_fmus(tmp_path / "a", native=False)
+    second = build_fmus(tmp_path / "b", native=False)
     guids = {}
     for name in FMU_NAMES:
         g = {read_model_description(str(paths[name])).guid for paths in (built_fmus, first, second)}
@@ -203,7 +219,8 @@ def test_guid_is_reproducible_and_follows_the_sources(built_fmus, tmp_path):
         shutil.copytree(ROOT / folder, copy / folder, ignore=shutil.ignore_patterns("__pycache__"))
     noise = copy / "models" / "noise.py"
     noise.write_text(noise.read_text() + "\n# touched\n")
-    proc = subprocess.run([sys.executable, "build.py", "--dest", str(tmp_path / "c")], cwd=copy,
+    proc = subprocess.run([sys.executable, "build.py", "--dest", str(tmp_path / "c"), "--no-native"],
+                          cwd=copy,
                           env=dict(os.environ, PYTHONDONTWRITEBYTECODE="1"),
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
