@@ -1,19 +1,24 @@
-"""The native RailCar FMU for FMI 3.0 co-simulation (issue 18): the C core, no Python.
+"""The native RailCar and RailCarEstimator FMUs for FMI 3.0 co-simulation (issue 18): the C
+core, no Python.
 
-    python -m fmu_src.native_fmi3 DEST     build DEST/RailCarNative3.fmu
+    python -m fmu_src.native_fmi3 DEST     build DEST/RailCarNative3.fmu and
+                                           DEST/RailCarEstimatorNative3.fmu
 
-The binary is the FMI 2 native FMU's backend (``fmu_src/c/native_railcar.c`` and what it needs,
-as ``fmu_src.native.c_sources()`` lists them) and ``models/core/*.c`` behind the FMI 3.0 glue
-``fmu_src/c/fmi3_glue.c`` instead of ``fmi2_glue.c``: the backend links unchanged.
+Each is one ``fmu_src.native.NativeSpec`` (RAILCAR_SPEC, ESTIMATOR_SPEC; default RailCar). The
+binary is the FMI 2 native FMU's backend (``fmu_src/c/native_railcar.c`` or
+``native_estimator.c`` and what it needs, as ``fmu_src.native.c_sources(spec)`` lists them) and
+``models/core/*.c`` behind the FMI 3.0 glue ``fmu_src/c/fmi3_glue.c`` instead of
+``fmi2_glue.c``: the backend links unchanged.
 
 ``modelDescription.xml`` (FMI 3.0) is written from ``fmu_src/variables.py``: the variables of
-``RailCar.fmu`` with the same names and value references (= their order), Real as Float64,
-Integer as Int32, String as String, each with its description, unit (UnitDefinitions), min/max,
-causality and variability; parameters and inputs carry their start values; "time", the
-independent variable FMI 3 requires, follows them (value reference = their number). Outputs are
-``initial="calculated"`` (the chain computes them in fmi3ExitInitializationMode; FMI 3 allows no
-start value then) and are listed in ModelStructure as Output and InitialUnknown. The binary is
-``binaries/x86_64-linux/RailCar.so``; ``sources/`` holds the C sources with an FMI 3
+``RailCar.fmu`` / ``RailCarEstimator.fmu`` with the same names and value references (= their
+order), Real as Float64, Integer as Int32, String as String, each with its description, unit
+(UnitDefinitions), min/max, causality and variability; parameters and inputs carry their start
+values; "time", the independent variable FMI 3 requires, follows them (value reference = their
+number). Outputs are ``initial="calculated"`` (set in fmi3ExitInitializationMode: RailCar's chain
+computes them, RailCarEstimator's hold the table's start values until the first step, as the
+FMI 2 FMUs do; FMI 3 allows no start value then) and are listed in ModelStructure as Output and InitialUnknown. The binary is
+``binaries/x86_64-linux/<modelIdentifier>.so``; ``sources/`` holds the C sources with an FMI 3
 ``sources/buildDescription.xml`` (and the FMI 2 headers the backend's types come from, so that an
 FMI 3 importer needs only its own FMI 3 headers).
 """
@@ -30,19 +35,26 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from . import native
-from .variables import RAILCAR, UNITS, variables_for
+from .native import ESTIMATOR_SPEC, RAILCAR_SPEC, NativeSpec
+from .variables import ESTIMATOR, RAILCAR, UNITS, variables_for
 
 ROOT = native.ROOT
 C_DIR = native.C_DIR
 CORE_DIR = native.CORE_DIR
-NATIVE3_NAME = "RailCarNative3"
-MODEL_IDENTIFIER = "RailCar"
+SPECS = (RAILCAR_SPEC, ESTIMATOR_SPEC)
+NATIVE3_NAME = "RailCarNative3"                 # RailCar's names, as the first slice had them
+MODEL_IDENTIFIER = RAILCAR
 PLATFORM = "x86_64-linux"
 GLUE3_SOURCE, GLUE3_HEADER = "fmi3_glue.c", "fmi3_glue.h"
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 FMI3_TYPE = {"Real": "Float64", "Integer": "Int32", "String": "String"}
-DESCRIPTION = ("Rail-car motion: dynamics eq. (2), sensors, least-squares identification, Kalman "
-               "filter (native C core, FMI 3.0 co-simulation)")
+DESCRIPTIONS = {
+    RAILCAR: ("Rail-car motion: dynamics eq. (2), sensors, least-squares identification, Kalman "
+              "filter (native C core, FMI 3.0 co-simulation)"),
+    ESTIMATOR: ("Rail-car parameter identification (LS, eqs. (3)-(12)) and Kalman filter on "
+                "measurements (native C core, FMI 3.0 co-simulation)"),
+}
+DESCRIPTION = DESCRIPTIONS[RAILCAR]
 CATEGORY_TEXT = {
     "logStatusWarning": "Log messages with fmi3Warning status.",
     "logStatusDiscard": "Log messages with fmi3Discard status.",
@@ -57,25 +69,30 @@ def fmi_headers() -> Path:
     return native._build_py().fmi2_headers()
 
 
-def c_sources() -> list[Path]:
+def native3_name(spec: NativeSpec = RAILCAR_SPEC) -> str:
+    """RailCarNative3, RailCarEstimatorNative3: the FMI 2 native FMU's name + 3."""
+    return f"{spec.native_name}3"
+
+
+def c_sources(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
     """The FMI 3 glue, then the native backend's sources without the FMI 2 glue, then the core."""
-    backend = [p for p in native.c_sources() if p.name != "fmi2_glue.c"]
+    backend = [p for p in native.c_sources(spec) if p.name != "fmi2_glue.c"]
     return [C_DIR / GLUE3_SOURCE, *backend]
 
 
-def c_headers() -> list[Path]:
+def c_headers(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
     """Our headers (fmi2_glue.h stays: it is the backend interface) and the FMI 2 headers."""
-    ours = [C_DIR / GLUE3_HEADER, *native.c_headers()]
+    ours = [C_DIR / GLUE3_HEADER, *native.c_headers(spec)]
     return ours + [fmi_headers() / h for h in FMI2_HEADERS]
 
 
-def compile_binary(out: Path) -> Path:
-    """binaries/x86_64-linux/RailCar.so; RuntimeError with the compiler's output."""
+def compile_binary(out: Path, spec: NativeSpec = RAILCAR_SPEC) -> Path:
+    """binaries/x86_64-linux/<modelIdentifier>.so; RuntimeError with the compiler's output."""
     cc = native._build_py().find_compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set CC or install gcc)")
     cmd = [*cc, *native.C_FLAGS, "-I", str(C_DIR), "-I", str(CORE_DIR), "-I", str(fmi_headers()),
-           *[str(s) for s in c_sources()], "-o", str(out), "-lm"]
+           *[str(s) for s in c_sources(spec)], "-o", str(out), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling the FMI 3 native FMU failed:\n{shlex.join(cmd)}\n"
@@ -83,12 +100,12 @@ def compile_binary(out: Path) -> Path:
     return out
 
 
-def instantiation_token() -> str:
+def instantiation_token(spec: NativeSpec = RAILCAR_SPEC) -> str:
     """Derived from the variable table and every source (same sources => same token)."""
-    h = hashlib.sha256(f"{NATIVE3_NAME}|fmi3|".encode())
-    for v in variables_for(RAILCAR):
+    h = hashlib.sha256(f"{native3_name(spec)}|fmi3|".encode())
+    for v in variables_for(spec.fmu):
         h.update(repr((v.name, v.causality, v.type, v.unit, v.start, v.min, v.max)).encode())
-    for p in [*c_sources(), *c_headers()]:
+    for p in [*c_sources(spec), *c_headers(spec)]:
         h.update(p.name.encode())
         h.update(p.read_bytes())
     return "{" + str(uuid.UUID(bytes=h.digest()[:16], version=5)) + "}"
@@ -98,17 +115,17 @@ def _number(x) -> str:
     return repr(float(x)) if isinstance(x, float) else str(int(x))
 
 
-def model_description(token: str) -> bytes:
-    """The FMI 3.0 modelDescription.xml of RailCarNative3.fmu."""
-    table = variables_for(RAILCAR)
+def model_description(token: str, spec: NativeSpec = RAILCAR_SPEC) -> bytes:
+    """The FMI 3.0 modelDescription.xml of RailCarNative3.fmu (or ``spec``'s FMU)."""
+    table = variables_for(spec.fmu)
     default = native._build_py().DEFAULT_EXPERIMENT
     root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "3.0", "modelName": MODEL_IDENTIFIER, "instantiationToken": token,
-        "description": DESCRIPTION, "author": "rail-car FMU team",
+        "fmiVersion": "3.0", "modelName": spec.fmu, "instantiationToken": token,
+        "description": DESCRIPTIONS[spec.fmu], "author": "rail-car FMU team",
         "generationTool": "fmu_src/native_fmi3.py (C core, no Python)",
         "variableNamingConvention": "structured"})
     ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": MODEL_IDENTIFIER, "needsExecutionTool": "false",
+        "modelIdentifier": spec.fmu, "needsExecutionTool": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "false",
         "canSerializeFMUState": "false", "providesDirectionalDerivatives": "false",
         "providesAdjointDerivatives": "false", "providesPerElementDependencies": "false",
@@ -161,14 +178,14 @@ def model_description(token: str) -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
-def build_description() -> bytes:
+def build_description(spec: NativeSpec = RAILCAR_SPEC) -> bytes:
     """sources/buildDescription.xml (FMI 3.0): one configuration, every .c file, flat folder."""
     root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
-    conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=MODEL_IDENTIFIER,
+    conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=spec.fmu,
                          description="C99; link with -lm -pthread")
     files = ET.SubElement(conf, "SourceFileSet", language="C99",
                           compilerOptions="-ffp-contract=off")
-    for src in c_sources():
+    for src in c_sources(spec):
         ET.SubElement(files, "SourceFile", name=src.name)
     ET.SubElement(conf, "Library", name="m")
     ET.SubElement(conf, "Library", name="pthread")
@@ -176,33 +193,34 @@ def build_description() -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
-def build_native3_fmu(dest_dir, railcar_fmu=None) -> Path:
-    """Compile and zip ``dest_dir/RailCarNative3.fmu``. ``railcar_fmu`` (the pythonfmu
-    RailCar.fmu, default dist/ via harness.fmus.ensure_built) only supplies the profiles under
-    resources/. Refuses to build when the backend's table header is out of date."""
-    if (not native.TABLE_HEADER.is_file()
-            or native.TABLE_HEADER.read_text(encoding="utf-8") != native.generate_header()):
-        raise RuntimeError(f"{native.TABLE_HEADER.name} is out of date: run "
-                           "python -m fmu_src.native")
-    if railcar_fmu is None:
+def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
+    """Compile and zip ``dest_dir/<spec.native_name>3.fmu``. ``python_fmu`` (the pythonfmu FMU
+    of ``spec.fmu``, default dist/ via harness.fmus.ensure_built) only supplies the profiles
+    under resources/. Refuses to build when the backend's table header is out of date."""
+    header = native._header_path(spec)
+    if (not header.is_file()
+            or header.read_text(encoding="utf-8") != native.generate_header(spec)):
+        raise RuntimeError(f"{header.name} is out of date: run python -m fmu_src.native")
+    if python_fmu is None:
         from harness.fmus import ensure_built
-        railcar_fmu = ensure_built(quiet=True)["RailCar"]
+        python_fmu = ensure_built(quiet=True)[spec.fmu]
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
-    target = dest / f"{NATIVE3_NAME}.fmu"
-    files = [*c_sources(), *c_headers()]
+    target = dest / f"{native3_name(spec)}.fmu"
+    files = [*c_sources(spec), *c_headers(spec)]
     names = [p.name for p in files]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binary = compile_binary(Path(tmp) / f"{MODEL_IDENTIFIER}.so")
-        with zipfile.ZipFile(railcar_fmu) as src:
+        binary = compile_binary(Path(tmp) / f"{spec.fmu}.so", spec)
+        with zipfile.ZipFile(python_fmu) as src:
             profiles = [(i.filename, src.read(i.filename)) for i in src.infolist()
                         if i.filename.startswith("resources/profiles/") and not i.is_dir()]
         tmp_fmu = Path(tmp) / target.name
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", model_description(instantiation_token()))
-            z.writestr(f"binaries/{PLATFORM}/{MODEL_IDENTIFIER}.so", binary.read_bytes())
-            z.writestr("sources/buildDescription.xml", build_description())
+            z.writestr("modelDescription.xml",
+                       model_description(instantiation_token(spec), spec))
+            z.writestr(f"binaries/{PLATFORM}/{spec.fmu}.so", binary.read_bytes())
+            z.writestr("sources/buildDescription.xml", build_description(spec))
             for p in files:
                 z.writestr(f"sources/{p.name}", p.read_bytes())
             for name, data in profiles:          # relative profile paths resolve here first
@@ -211,8 +229,20 @@ def build_native3_fmu(dest_dir, railcar_fmu=None) -> Path:
     return target
 
 
+def build_native3_fmu(dest_dir, railcar_fmu=None) -> Path:
+    """``dest_dir/RailCarNative3.fmu``; ``railcar_fmu``: the pythonfmu RailCar.fmu (profiles)."""
+    return build_native3(RAILCAR_SPEC, dest_dir, railcar_fmu)
+
+
+def build_native3_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
+    """``dest_dir/RailCarEstimatorNative3.fmu``; ``estimator_fmu``: the pythonfmu
+    RailCarEstimator.fmu (profiles)."""
+    return build_native3(ESTIMATOR_SPEC, dest_dir, estimator_fmu)
+
+
 if __name__ == "__main__":
     if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
-        print(__doc__.splitlines()[2].strip(), file=sys.stderr)
+        print("\n".join(__doc__.splitlines()[3:5]), file=sys.stderr)
         sys.exit(2)
-    print(f"built {build_native3_fmu(sys.argv[1])}")
+    for _spec in SPECS:
+        print(f"built {build_native3(_spec, sys.argv[1])}")
