@@ -14,7 +14,7 @@ fmi2Error instead of crashing the host after fmi2Fatal. Without a C compiler (or
 pythonfmu's (it cannot be built or tested here).
 With a C compiler the native FMUs (no Python at run time, docs/native_fmus.md) are built beside
 them into ``dist/native/``: RailCarNative.fmu and RailCarEstimatorNative.fmu (FMI 2.0) and
-RailCarNative3.fmu (FMI 3.0), from the C model core (``fmu_src/native.py``,
+RailCarNative3.fmu and RailCarEstimatorNative3.fmu (FMI 3.0), from the C model core (``fmu_src/native.py``,
 ``fmu_src/native_fmi3.py``); ``--no-native`` skips them.
 The build fails unless ``fmpy.validation.validate_fmu`` reports no problem for every FMU.
 """
@@ -229,7 +229,9 @@ def main(argv=None) -> int:
             from fmu_src import native, native_fmi3
             for path in (native.build_native_fmu(dest / "native", built["RailCar"]),
                          native.build_native_estimator_fmu(dest / "native", built["RailCarEstimator"]),
-                         native_fmi3.build_native3_fmu(dest / "native", built["RailCar"])):
+                         native_fmi3.build_native3_fmu(dest / "native", built["RailCar"]),
+                         native_fmi3.build_native3_estimator_fmu(dest / "native",
+                                                                 built["RailCarEstimator"])):
                 failed |= not report(path, validate(path), "native: no Python at run time")
     return 1 if failed else 0
 

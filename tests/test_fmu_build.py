@@ -110,7 +110,7 @@ def test_validate_fmu_reports_no_problem(built_fmus, name):
 
 
 @pytest.mark.parametrize("name, fmi", [("RailCarNative", "2.0"), ("RailCarEstimatorNative", "2.0"),
-                                       ("RailCarNative3", "3.0")])
+                                       ("RailCarNative3", "3.0"), ("RailCarEstimatorNative3", "3.0")])
 def test_build_writes_the_native_fmus_beside_and_validates_them(built_fmus, name, fmi):
     """build.py also writes dist/native/ (docs/native_fmus.md): the native FMUs, each validated
     by fmpy, with the same variables as their pythonfmu twin (their own tests compare outputs)."""
