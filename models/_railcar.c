@@ -38,6 +38,69 @@ static double *doubles(PyObject *seq, Py_ssize_t *n, const char *what)
     return out;
 }
 
+/* What Chain(...) and Estimator(...) are made of: the flat configuration, the profiles (copied
+ * into new arrays, freed by free_init) and the output names, integer flags and error type
+ * (borrowed references) */
+typedef struct {
+    double *values, *gd, *gg, *sd, *sv;
+    Py_ssize_t n_values, n_grade, n_speed;
+    PyObject *names, *integers, *error;
+} InitArgs;
+
+static void free_init(InitArgs *in)
+{
+    PyMem_Free(in->values);
+    PyMem_Free(in->gd);
+    PyMem_Free(in->gg);
+    PyMem_Free(in->sd);
+    PyMem_Free(in->sv);
+}
+
+/* Parse (config, grade_distances, grades, speed_distances, speeds, names, integers, error) for
+ * a type with `outputs` outputs; -1 with an exception (nothing left to free) */
+static int parse_init(PyObject *args, PyObject *kwds, const char *format, int outputs,
+                      InitArgs *in)
+{
+    PyObject *values, *gd, *gg, *sd, *sv;
+    Py_ssize_t ngg, nsv;
+    static char *kwlist[] = {"config", "grade_distances", "grades", "speed_distances", "speeds",
+                             "names", "integers", "error", NULL};
+    memset(in, 0, sizeof *in);
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, format, kwlist, &values, &gd, &gg, &sd, &sv,
+                                     &PyTuple_Type, &in->names, &PyTuple_Type, &in->integers,
+                                     &in->error))
+        return -1;
+    if (PyTuple_GET_SIZE(in->names) != outputs || PyTuple_GET_SIZE(in->integers) != outputs) {
+        PyErr_Format(PyExc_ValueError, "the C core has %d outputs", outputs);
+        return -1;
+    }
+    if (!(in->values = doubles(values, &in->n_values, "config must be a sequence of numbers"))
+            || !(in->gd = doubles(gd, &in->n_grade, "grade_distances must be a sequence of numbers"))
+            || !(in->gg = doubles(gg, &ngg, "grades must be a sequence of numbers"))
+            || !(in->sd = doubles(sd, &in->n_speed, "speed_distances must be a sequence of numbers"))
+            || !(in->sv = doubles(sv, &nsv, "speeds must be a sequence of numbers")))
+        goto fail;
+    if (in->n_grade != ngg || in->n_speed != nsv || in->n_grade < 1) {
+        PyErr_SetString(PyExc_ValueError, "a profile's distances and values must have one length (>= 1)");
+        goto fail;
+    }
+    return 0;
+fail:
+    free_init(in);
+    return -1;
+}
+
+/* Keep the names, flags and error type of a successful initialisation */
+static void keep_refs(InitArgs *in, PyObject **names, PyObject **integers, PyObject **error)
+{
+    Py_INCREF(in->names);
+    Py_INCREF(in->integers);
+    Py_INCREF(in->error);
+    *names = in->names;
+    *integers = in->integers;
+    *error = in->error;
+}
+
 typedef struct {
     PyObject_HEAD
     rc_chain *chain;
@@ -48,48 +111,28 @@ typedef struct {
 
 static int chain_init(ChainObject *self, PyObject *args, PyObject *kwds)
 {
-    PyObject *values, *gd, *gg, *sd, *sv, *names, *integers, *error;
-    static char *kwlist[] = {"config", "grade_distances", "grades", "speed_distances", "speeds",
-                             "names", "integers", "error", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOO!O!O:Chain", kwlist, &values, &gd, &gg,
-                                     &sd, &sv, &PyTuple_Type, &names, &PyTuple_Type, &integers,
-                                     &error))
-        return -1;
-    if (PyTuple_GET_SIZE(names) != RC_CHAIN_OUTPUTS || PyTuple_GET_SIZE(integers) != RC_CHAIN_OUTPUTS) {
-        PyErr_Format(PyExc_ValueError, "the C core has %d outputs", RC_CHAIN_OUTPUTS);
-        return -1;
-    }
+    InitArgs in;
     if (self->chain) {
         PyErr_SetString(PyExc_RuntimeError, "Chain is initialised once");
         return -1;
     }
-    Py_ssize_t nv, ngd, ngg, nsd, nsv;
-    double *v = NULL, *a = NULL, *b = NULL, *c = NULL, *d = NULL;
+    if (parse_init(args, kwds, "OOOOOO!O!O:Chain", RC_CHAIN_OUTPUTS, &in) < 0)
+        return -1;
     int ok = -1;
     rc_chain_config cfg;
     memset(&cfg, 0, sizeof cfg);
-    if (!(v = doubles(values, &nv, "config must be a sequence of numbers"))
-            || !(a = doubles(gd, &ngd, "grade_distances must be a sequence of numbers"))
-            || !(b = doubles(gg, &ngg, "grades must be a sequence of numbers"))
-            || !(c = doubles(sd, &nsd, "speed_distances must be a sequence of numbers"))
-            || !(d = doubles(sv, &nsv, "speeds must be a sequence of numbers")))
-        goto done;
-    if (ngd != ngg || nsd != nsv || ngd < 1) {
-        PyErr_SetString(PyExc_ValueError, "a profile's distances and values must have one length (>= 1)");
-        goto done;
-    }
-    long expected = rc_chain_config_from_values(&cfg, v, (long)nv);
+    long expected = rc_chain_config_from_values(&cfg, in.values, (long)in.n_values);
     if (expected) {
         PyErr_Format(PyExc_ValueError, "the C core takes %ld configuration values, got %zd",
-                     expected, nv);
+                     expected, in.n_values);
         goto done;
     }
-    cfg.grade_distances = a;
-    cfg.grades = b;
-    cfg.grade_n = ngd;
-    cfg.speed_distances = c;
-    cfg.speeds = d;
-    cfg.speed_n = nsd;
+    cfg.grade_distances = in.gd;
+    cfg.grades = in.gg;
+    cfg.grade_n = in.n_grade;
+    cfg.speed_distances = in.sd;
+    cfg.speeds = in.sv;
+    cfg.speed_n = in.n_speed;
     rc_chain *chain = PyMem_Malloc(sizeof *chain);
     if (!chain) {
         PyErr_NoMemory();
@@ -102,19 +145,10 @@ static int chain_init(ChainObject *self, PyObject *args, PyObject *kwds)
         goto done;
     }
     self->chain = chain;
-    Py_INCREF(names);
-    Py_INCREF(integers);
-    Py_INCREF(error);
-    self->names = names;
-    self->integers = integers;
-    self->error = error;
+    keep_refs(&in, &self->names, &self->integers, &self->error);
     ok = 0;
 done:
-    PyMem_Free(v);
-    PyMem_Free(a);
-    PyMem_Free(b);
-    PyMem_Free(c);
-    PyMem_Free(d);
+    free_init(&in);
     return ok;
 }
 
@@ -398,48 +432,28 @@ typedef struct {
 
 static int estimator_init(EstimatorObject *self, PyObject *args, PyObject *kwds)
 {
-    PyObject *values, *gd, *gg, *sd, *sv, *names, *integers, *error;
-    static char *kwlist[] = {"config", "grade_distances", "grades", "speed_distances", "speeds",
-                             "names", "integers", "error", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOOOOO!O!O:Estimator", kwlist, &values, &gd,
-                                     &gg, &sd, &sv, &PyTuple_Type, &names, &PyTuple_Type,
-                                     &integers, &error))
-        return -1;
-    if (PyTuple_GET_SIZE(names) != RC_EST_OUTPUTS || PyTuple_GET_SIZE(integers) != RC_EST_OUTPUTS) {
-        PyErr_Format(PyExc_ValueError, "the C estimator has %d outputs", RC_EST_OUTPUTS);
-        return -1;
-    }
+    InitArgs in;
     if (self->chain) {
         PyErr_SetString(PyExc_RuntimeError, "Estimator is initialised once");
         return -1;
     }
-    Py_ssize_t nv, ngd, ngg, nsd, nsv;
-    double *v = NULL, *a = NULL, *b = NULL, *c = NULL, *d = NULL;
+    if (parse_init(args, kwds, "OOOOOO!O!O:Estimator", RC_EST_OUTPUTS, &in) < 0)
+        return -1;
     int ok = -1;
     rc_estchain_config cfg;
     memset(&cfg, 0, sizeof cfg);
-    if (!(v = doubles(values, &nv, "config must be a sequence of numbers"))
-            || !(a = doubles(gd, &ngd, "grade_distances must be a sequence of numbers"))
-            || !(b = doubles(gg, &ngg, "grades must be a sequence of numbers"))
-            || !(c = doubles(sd, &nsd, "speed_distances must be a sequence of numbers"))
-            || !(d = doubles(sv, &nsv, "speeds must be a sequence of numbers")))
-        goto done;
-    if (ngd != ngg || nsd != nsv || ngd < 1) {
-        PyErr_SetString(PyExc_ValueError, "a profile's distances and values must have one length (>= 1)");
-        goto done;
-    }
-    long expected = rc_estchain_config_from_values(&cfg, v, (long)nv);
+    long expected = rc_estchain_config_from_values(&cfg, in.values, (long)in.n_values);
     if (expected) {
-        PyErr_Format(PyExc_ValueError, "the C estimator takes %ld configuration values, got %zd",
-                     expected, nv);
+        PyErr_Format(PyExc_ValueError, "the C core takes %ld configuration values, got %zd",
+                     expected, in.n_values);
         goto done;
     }
-    cfg.grade_distances = a;
-    cfg.grades = b;
-    cfg.grade_n = ngd;
-    cfg.speed_distances = c;
-    cfg.speeds = d;
-    cfg.speed_n = nsd;
+    cfg.grade_distances = in.gd;
+    cfg.grades = in.gg;
+    cfg.grade_n = in.n_grade;
+    cfg.speed_distances = in.sd;
+    cfg.speeds = in.sv;
+    cfg.speed_n = in.n_speed;
     rc_estchain *chain = PyMem_Malloc(sizeof *chain);
     if (!chain) {
         PyErr_NoMemory();
@@ -452,19 +466,10 @@ static int estimator_init(EstimatorObject *self, PyObject *args, PyObject *kwds)
         goto done;
     }
     self->chain = chain;
-    Py_INCREF(names);
-    Py_INCREF(integers);
-    Py_INCREF(error);
-    self->names = names;
-    self->integers = integers;
-    self->error = error;
+    keep_refs(&in, &self->names, &self->integers, &self->error);
     ok = 0;
 done:
-    PyMem_Free(v);
-    PyMem_Free(a);
-    PyMem_Free(b);
-    PyMem_Free(c);
-    PyMem_Free(d);
+    free_init(&in);
     return ok;
 }
 

@@ -21,38 +21,19 @@ rc_status rc_estchain_init(rc_estchain *c, const rc_estchain_config *cfg, rc_err
                      "est.physical or est.sigma2_method other than 0");
         return RC_BAD_CONFIG;
     }
-    long ng = cfg->grade_n, ns = cfg->speed_n;
-    if (ng < 1 || ns < 0) {
+    if (rc_profiles_copy(cfg->grade_distances, cfg->grades, cfg->grade_n, cfg->speed_distances,
+                         cfg->speeds, cfg->speed_n, &c->profiles, &c->grade, &c->speed) != 0) {
         if (err)
-            snprintf(err->msg, sizeof err->msg, "track.grade_profile must have at least one row");
+            snprintf(err->msg, sizeof err->msg, cfg->grade_n < 1 || cfg->speed_n < 0
+                     ? "track.grade_profile must have at least one row"
+                     : "out of memory for the profiles");
         return RC_BAD_CONFIG;
-    }
-    c->profiles = malloc(sizeof(double) * (size_t)(3 * ng + 2 * ns));
-    if (!c->profiles) {
-        if (err)
-            snprintf(err->msg, sizeof err->msg, "out of memory for the profiles");
-        return RC_BAD_CONFIG;
-    }
-    double *gd = c->profiles, *gg = gd + ng, *gc = gg + ng, *sd = gc + ng, *sv = sd + ns;
-    memcpy(gd, cfg->grade_distances, sizeof(double) * (size_t)ng);
-    memcpy(gg, cfg->grades, sizeof(double) * (size_t)ng);
-    rc_grade_cumulate(gd, gg, ng, gc);
-    if (ns) {
-        memcpy(sd, cfg->speed_distances, sizeof(double) * (size_t)ns);
-        memcpy(sv, cfg->speeds, sizeof(double) * (size_t)ns);
     }
     c->cfg = *cfg;
-    c->cfg.grade_distances = gd;
-    c->cfg.grades = gg;
-    c->cfg.speed_distances = ns ? sd : NULL;
-    c->cfg.speeds = ns ? sv : NULL;
-    c->grade.distances = gd;
-    c->grade.grades = gg;
-    c->grade.cum = gc;
-    c->grade.n = ng;
-    c->speed.distances = ns ? sd : NULL;
-    c->speed.speeds = ns ? sv : NULL;
-    c->speed.n = ns;
+    c->cfg.grade_distances = c->grade.distances;
+    c->cfg.grades = c->grade.grades;
+    c->cfg.speed_distances = c->speed.distances;
+    c->cfg.speeds = c->speed.speeds;
     c->last_track_time = -INFINITY;
     double heaviest = MASS_RANGE * cfg->identifier.mass_initial * 1000.0;   /* [kg] */
     c->force_limit = FORCE_LIMIT_FACTOR * 0.4 * RC_G * heaviest;

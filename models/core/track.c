@@ -1,6 +1,9 @@
 /* track.c -- see track.h; the bodies of models/track.py's GradeProfile and SpeedProfile. */
 #include "track.h"
 
+#include <stdlib.h>
+#include <string.h>
+
 /* bisect.bisect_right(d[0..n), x): the first index whose distance exceeds x */
 static long bisect_right(const double *d, long n, double x)
 {
@@ -54,4 +57,34 @@ double rc_speed_at(const rc_speed_profile *s, double x)
     double x0 = d[k - 1], x1 = d[k];
     double v0 = s->speeds[k - 1], v1 = s->speeds[k];
     return v0 + (v1 - v0) * (x - x0) / (x1 - x0);
+}
+
+int rc_profiles_copy(const double *grade_distances, const double *grades, long grade_n,
+                     const double *speed_distances, const double *speeds, long speed_n,
+                     double **buffer, rc_grade_profile *grade, rc_speed_profile *speed)
+{
+    long ng = grade_n, ns = speed_n;
+    *buffer = NULL;
+    if (ng < 1 || ns < 0)
+        return -1;
+    double *b = malloc(sizeof(double) * (size_t)(3 * ng + 2 * ns));
+    if (!b)
+        return -1;
+    double *gd = b, *gg = gd + ng, *gc = gg + ng, *sd = gc + ng, *sv = sd + ns;
+    memcpy(gd, grade_distances, sizeof(double) * (size_t)ng);
+    memcpy(gg, grades, sizeof(double) * (size_t)ng);
+    rc_grade_cumulate(gd, gg, ng, gc);
+    if (ns) {
+        memcpy(sd, speed_distances, sizeof(double) * (size_t)ns);
+        memcpy(sv, speeds, sizeof(double) * (size_t)ns);
+    }
+    grade->distances = gd;
+    grade->grades = gg;
+    grade->cum = gc;
+    grade->n = ng;
+    speed->distances = ns ? sd : NULL;
+    speed->speeds = ns ? sv : NULL;
+    speed->n = ns;
+    *buffer = b;
+    return 0;
 }

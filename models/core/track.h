@@ -19,6 +19,12 @@ typedef struct {
 
 /* GradeProfile.__post_init__'s _cum into cum[n] */
 void rc_grade_cumulate(const double *distances, const double *grades, long n, double *cum);
+/* The chains' own copy of the profiles in one allocation (*buffer, freed by the caller): grade
+ * distances, grades and their integral; speed distances and speeds (speed_n 0: none, speed->n 0).
+ * 0, or -1 when grade_n < 1 or speed_n < 0 or memory runs out (*buffer NULL). */
+int rc_profiles_copy(const double *grade_distances, const double *grades, long grade_n,
+                     const double *speed_distances, const double *speeds, long speed_n,
+                     double **buffer, rc_grade_profile *grade, rc_speed_profile *speed);
 /* GradeProfile.at(x) [permille] */
 double rc_grade_at(const rc_grade_profile *g, double x);
 /* GradeProfile.average(x, length) [permille] */
