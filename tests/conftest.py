@@ -40,6 +40,40 @@ OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 STATUS_LABEL = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 
 
+# ------------------------------------------------------------------------------------ layers
+
+# Every test gets one layer marker, from what it needs (pyproject.toml registers them):
+#   unit        pure Python: models/, harness/ computing, docs (the fast layer)
+#   core        compiles C (the model core, its shims, the native glue under sanitizers)
+#   fmu         loads a built FMU (build.py runs once per session)
+#   regression  compares with the references in tests/regression/
+# and "slow" on everything but the unit layer, plus the unit tests in SLOW_UNIT (long runs), so
+# that `pytest -m "not slow"` is the fast unit layer a developer runs while editing.
+FMU_FIXTURES = {"built_fmus", "fmus", "railcar", "estimator"}
+C_MODULES = ("test_core_", "test_native_")
+SLOW_UNIT = {"test_cli_errors.py", "test_service_day.py", "test_studies.py", "test_regression_variants.py",
+             "test_estimator_methods.py", "test_estimator_refit.py", "test_track_integration.py"}
+
+
+def layer_of(item) -> str:
+    module = item.path.name
+    if module.startswith("test_regression"):
+        return "regression"
+    if FMU_FIXTURES & set(item.fixturenames):
+        return "fmu"
+    if module.startswith(C_MODULES):
+        return "core"
+    return "unit"
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        layer = layer_of(item)
+        item.add_marker(getattr(pytest.mark, layer))
+        if layer != "unit" or item.path.name in SLOW_UNIT:
+            item.add_marker(pytest.mark.slow)
+
+
 # ------------------------------------------------------------------------------------ building
 
 def build_fmus(dest: Path, native: bool = True) -> dict[str, Path]:
