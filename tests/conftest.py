@@ -50,7 +50,7 @@ STATUS_LABEL = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: 
 # and "slow" on everything but the unit layer, plus the unit tests in SLOW_UNIT (long runs), so
 # that `pytest -m "not slow"` is the fast unit layer a developer runs while editing.
 FMU_FIXTURES = {"built_fmus", "fmus", "railcar", "estimator"}
-C_MODULES = ("test_core_", "test_native_")
+C_MODULES = ("test_core_", "test_native")
 SLOW_UNIT = {"test_cli_errors.py", "test_service_day.py", "test_studies.py", "test_regression_variants.py",
              "test_estimator_methods.py", "test_estimator_refit.py", "test_track_integration.py"}
 
