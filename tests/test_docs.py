@@ -121,10 +121,7 @@ def test_every_relative_link_resolves(page):
     assert broken_links(page, text, repository_files()) == []
 
 
-KNOWN_OUTSIDE = {
-    "docs/native_fmus.md": "its title says '(work in progress, issue 18)': the page's owner drops "
-                           "that, then this entry goes (strict: the fix makes this test fail)",
-}
+KNOWN_OUTSIDE: dict[str, str] = {}
 """Pages known to break the rule, each failing on purpose until fixed (xfail strict)."""
 
 
