@@ -206,7 +206,8 @@ def test_estimator_native_in_libcosim_bit_identical_to_fmpy(native, built_fmus, 
     fmpy is given libcosim's doStep arguments, t_k = k * step_ns / 1e9 and h_k = t_k+1 - t_k
     (found by trying: k * 0.1, k * step_ns * 1e-9 or h = 0.1 give other bits). The estimator's
     filter takes the step size as the host passes it, so the harness's t_k = k * h (490 of
-    etcs_noisy_sensors' 1410 times differ) gives other last bits, in both FMUs alike: checked below, that run differs."""
+    etcs_noisy_sensors' 1410 times differ) gives other last bits, in both FMUs alike: checked
+    below, that run differs."""
     py_run, _ = fmpy_runs[stem]
     sc = scenarios[stem]
     step_ns = _step_ns(sc)
