@@ -1,4 +1,5 @@
 /* checks.c -- models.chain's input checks and their messages (see checks.h). */
+#include "rc_fp_contract.h"
 #include "checks.h"
 
 #include <stdio.h>

@@ -1,5 +1,6 @@
 /* config.c -- the chains' configurations from flat arrays of numbers, the one format the
  * Python binding (models/_railcar.c) and C hosts (tests/core_cases/chain_driver.c) share. */
+#include "rc_fp_contract.h"
 #include "railcar.h"
 
 #include <stddef.h>

@@ -1,4 +1,5 @@
 /* estchain.c -- models.chain.EstimatorChain in C (see railcar.h), same checks and order. */
+#include "rc_fp_contract.h"
 #include "railcar.h"
 
 #include <stdio.h>

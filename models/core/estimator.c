@@ -1,5 +1,6 @@
 /* estimator.c -- see estimator.h; the bodies of models/estimator.py's StationDetector and
  * OnlineEstimator (est.method 0), same expressions in the same order. */
+#include "rc_fp_contract.h"
 #include "estimator.h"
 
 #include <stddef.h>

@@ -2,6 +2,7 @@
  * models/kalman2.py's pure functions (specific_net_force, linearised_model, ekf_model, gain,
  * update, update_one, forward, predict_paper, predict) inlined in the same operand order; the
  * Singer branches call singer.c. */
+#include "rc_fp_contract.h"
 #include <stdio.h>
 
 #include "filter.h"

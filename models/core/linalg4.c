@@ -1,4 +1,5 @@
 /* linalg4.c -- see linalg4.h; the bodies of models/linalg4.py. */
+#include "rc_fp_contract.h"
 #include <math.h>
 #include <string.h>
 

@@ -1,4 +1,5 @@
 /* noise.c -- see noise.h. */
+#include "rc_fp_contract.h"
 #include "noise.h"
 
 #include <math.h>

@@ -1,5 +1,6 @@
 /* plant.c -- see plant.h; the bodies of models/dynamics.py's held_input_dynamics, _rk4 and
  * CarPlant, expression for expression (operand order and association as in Python). */
+#include "rc_fp_contract.h"
 #include "plant.h"
 
 #include <stdio.h>

@@ -13,6 +13,7 @@
  * ("12.5e3" is read as "125e2"), so the locale's decimal point plays no part; strtod and
  * Python's _Py_dg_strtod both round correctly, hence the same double.
  */
+#include "rc_fp_contract.h"
 #include "profile.h"
 
 #include <errno.h>

@@ -1,5 +1,6 @@
 /* railcar.c -- see railcar.h; the bodies of models/chain.py's RailCarChain, same expressions in
  * the same order. */
+#include "rc_fp_contract.h"
 #include "railcar.h"
 
 #include <stdio.h>

@@ -1,4 +1,5 @@
 /* repr.c -- Python's repr() of a float, for messages that name a value as Python does. */
+#include "rc_fp_contract.h"
 #include "rc_common.h"
 
 #include <stdio.h>

@@ -1,5 +1,6 @@
 /* singer.c -- see singer.h; the bodies of models/singer.py's scalar path, expression for
  * expression (operands, order and association kept; x ** n is libm pow as in CPython). */
+#include "rc_fp_contract.h"
 #include <stdio.h>
 #include <string.h>
 

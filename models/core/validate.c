@@ -1,5 +1,6 @@
 /* validate.c -- see validate.h: the validate() methods of models/ in their order, with their
  * messages (floats as Python's repr(), ints as str()). */
+#include "rc_fp_contract.h"
 #include "validate.h"
 
 #include <stdarg.h>
