@@ -6,7 +6,8 @@ EKF; X distance from the previous station [m]. Measurements z = (V_meas - V_zad,
 
 The algebra -- the model (2), (13), the update (15), (17), (18), the prediction (16), (19) --
 is pure functions in models/kalman2.py on small tuples; ``MotionFilter`` runs them sample by
-sample and keeps V_zad, the innovation gate and the Singer kind (models/singer.py).
+sample and keeps V_zad and the innovation gate. What differs between the kinds (filter.kind) is
+one small class per kind (models/filter_kinds.py), chosen once when the filter is built.
 """
 from __future__ import annotations
 
@@ -15,16 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kalman2
+from .filter_kinds import EKF, LINEARISED, PAPER, SINGER, filter_kind, kind_class  # noqa: F401
 from .track import GradeProfile, SpeedProfile
-
-LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
-"""Values of ``filter.kind``: 0 = automatic (LINEARISED when a speed profile is given, else EKF);
-LINEARISED = linearised around V_zad, eq. (13), with the trapezoid distance update and
-white-acceleration process noise; EKF = eq. (2) relinearised at the estimate, same distance
-update; PAPER = eqs. (13)-(19) verbatim (Euler distance, Q = diag(sigma^2, 0)), the baseline;
-SINGER = seed 002's model-free filter on [acceleration, speed, distance] (models/singer.py),
-which uses neither the forces nor the identified parameters."""
 
 
 @dataclass
@@ -41,7 +34,7 @@ class FilterConfig:
     singer_w_max_plus: float = 1.3    # maximum acceleration [m/s^2]
     singer_w_max_minus: float = -1.5  # maximum deceleration, negative [m/s^2]
     gamma: float = 0.0          # rotating-mass factor assumed by the model [-]
-    kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF
+    kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF, 3 paper, 4 Singer
     length: float = 0.0         # car length for grade averaging [m]
 
     def singer_params(self):
@@ -69,14 +62,8 @@ class FilterConfig:
             v = getattr(self, name)
             if not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"sensor.{name} must be > 0 for the filter, got {v}")
-        if self.kind not in (0, LINEARISED, EKF, PAPER, SINGER):
-            raise ValueError(f"filter.kind must be 0 (auto), 1 (linearised), 2 (EKF), 3 "
-                             f"(paper verbatim) or 4 (Singer), got {self.kind}")
-        if self.kind == SINGER:
-            self.singer_params()      # validates the Singer settings
-        if self.kind in (LINEARISED, PAPER) and not has_speed_profile:
-            raise ValueError(f"filter.kind = {self.kind} (linearised around V_zad, eq. (13)) "
-                             f"needs track.speed_profile")
+        if self.kind != 0:                       # 0: auto, always possible
+            kind_class(self.kind).check(self, has_speed_profile)
 
 
 class MotionFilter:
@@ -87,20 +74,22 @@ class MotionFilter:
     ``predicted_speed``/``predicted_position`` the one-step prediction after ``predict``.
     State (models/kalman2.py's shapes): the prediction ``x_bar``, ``M`` and the posterior
     ``x_hat``, ``P``, x = (speed part, distance) and covariances ((c00, c01), (c01, c11));
-    ``R`` = (sigma_V^2, sigma_X^2), the diagonal of R. The algebra is kalman2's; this class
-    keeps V_zad, the gate and the Singer kind.
+    ``R`` = (sigma_V^2, sigma_X^2), the diagonal of R; ``vzad_hat``, ``vzad_bar`` V_zad at the
+    posterior's and the prediction's instant (0 for the kinds on absolute speed). This class
+    keeps the gate and the bookkeeping; the steps that differ between the kinds are
+    ``algorithm``'s, the kind object of models/filter_kinds.py (``kind`` is its number). Pass
+    ``algorithm`` to run a kind object of your own instead of cfg.kind's.
     """
 
     def __init__(self, cfg: FilterConfig, grade_profile: GradeProfile,
-                 speed_profile: SpeedProfile | None):
+                 speed_profile: SpeedProfile | None, algorithm=None):
         cfg.validate(speed_profile is not None)
         self.cfg = cfg
         self.grade_profile = grade_profile
         self.speed_profile = speed_profile
-        self.kind = cfg.kind or (LINEARISED if speed_profile is not None else EKF)
+        self.algorithm = algorithm or filter_kind(cfg, grade_profile, speed_profile)
+        self.kind = self.algorithm.kind
         self.R = (cfg.speed_std ** 2, cfg.position_std ** 2)
-        self._singer_params = cfg.singer_params() if self.kind == SINGER else None
-        self._singer = None
         self.rejected = 0             # measurements (speeds and distances) the gate refused
         self.speed_run = self.position_run = 0   # ... in a row, up to now
         self.reacquired = 0           # restarts from the measurements after REACQUIRE of them
@@ -113,36 +102,14 @@ class MotionFilter:
     def Rm(self) -> np.ndarray:
         return np.diag(self.R)
 
-    def _singer_restart(self, speed: float = 0.0, position: float = 0.0, p_v: float = 0.0,
-                        p_x: float = 0.0) -> None:
-        from .singer import SingerFilter
-        sp = self._singer_params
-        self._singer = SingerFilter(sp, x0=(sp.m_w, speed, position),
-                                    P0=(sp.sigma_w ** 2, 0.0, 0.0, 0.0, p_v, 0.0, 0.0, 0.0, p_x))
-        self._singer_copy(posterior=True)
-        self._singer_copy(posterior=False)
-
-    def _singer_copy(self, posterior: bool) -> None:
-        """The Singer filter's (v, r) block into the posterior (or the prediction)."""
-        x, P = self._singer._x, self._singer._P        # [w, v, r]; 3x3 row-major
-        xy, C = (x[1], x[2]), ((P[4], P[5]), (P[5], P[8]))
-        if posterior:
-            self.x_hat, self.P = xy, C
-        else:
-            self.x_bar, self.M = xy, C
+    # the Singer kind's own filter and parameters (tests/test_core_singer.py compares them with C)
+    _singer = property(lambda self: self.algorithm.singer)
+    _singer_params = property(lambda self: self.algorithm.params)
 
     def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
         """A run that does not start at a station: state = first measurement, P = its noise."""
         self.restart()
-        if self.kind == SINGER:
-            self._singer_restart(max(speed_meas, 0.0), position_meas, self.cfg.speed_std ** 2,
-                                 self.cfg.position_noise_std(position_meas) ** 2)
-            return
-        vzad = self._vzad(position_meas) if self.kind in (LINEARISED, PAPER) else 0.0
-        self.vzad_hat = self.vzad_bar = vzad
-        self.x_hat = (max(speed_meas, 0.0) - vzad, position_meas)
-        self.P = ((self.cfg.speed_std ** 2, 0.0),
-                  (0.0, self.cfg.position_noise_std(position_meas) ** 2))
+        self.algorithm.start(self, speed_meas, position_meas)
 
     def restart(self) -> None:
         """The car stands at the station: V = 0, X = 0 known exactly (P~[0] = 0)."""
@@ -151,13 +118,8 @@ class MotionFilter:
         self.speed_run = self.position_run = 0
         self._use_speed = self._use_position = True
         self._reacquire = 0
-        # V_zad at the posterior's / the prediction's instant [m/s]; 0 for the EKF (absolute speed)
-        self.vzad_hat = self.vzad_bar = self._vzad(0.0) if self.kind in (LINEARISED, PAPER) else 0.0
-        if self.kind == SINGER:
-            self._singer_restart()
-
-    def _vzad(self, x: float) -> float:
-        return self.speed_profile.at(x) if self.speed_profile is not None else 0.0
+        self.vzad_hat = self.vzad_bar = self.algorithm.vzad(0.0)
+        self.algorithm.restart(self)
 
     # Innovation gate, per measurement. The speed (the distance) is an outlier -- a spike, a
     # dropout, a stuck sensor -- when its innovation nu = z - x_bar exceeds GATE_SIGMAS standard
@@ -176,11 +138,7 @@ class MotionFilter:
     REACQUIRE = 50                                     # samples (5 s at 0.1 s)
     REACQUIRE_BOTH, REACQUIRE_DISTANCE = 1, 2          # what the next update restarts from
 
-    def _vzad_predicted(self) -> float:
-        """V_zad at the prediction's instant [m/s]: 0 for the filters of absolute speed."""
-        return self.vzad_bar if self.kind in (LINEARISED, PAPER) else 0.0
-
-    def _position_variance(self, position_meas: float) -> float:
+    def position_variance(self, position_meas: float) -> float:
         """Variance of the measured distance [m^2] at ``position_meas`` [m]."""
         return self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self.R[1]
 
@@ -190,8 +148,8 @@ class MotionFilter:
         what the next ``update`` takes. The REACQUIRE-th refusal in a row of the distance is
         taken instead, and the next ``update`` restarts the distance from it -- the whole filter
         when the speed is refused too (counted in ``reacquired``)."""
-        vzad = self._vzad_predicted()
-        r1 = self._position_variance(position_meas)
+        vzad = self.vzad_bar
+        r1 = self.position_variance(position_meas)
         (xb0, xb1), ((m00, _), (_, m11)) = self.x_bar, self.M
         e0, e1 = speed_meas - vzad - xb0, position_meas - xb1
         s00, s11 = m00 + self.R[0], m11 + r1
@@ -218,111 +176,36 @@ class MotionFilter:
 
     def hold(self) -> None:
         """No measurement used at this sample: the posterior is the prediction."""
-        if self.kind == SINGER:
-            self._singer_copy(posterior=True)
-            return
-        self.x_hat, self.P = self.x_bar, self.M
-        self.vzad_hat = self._vzad_predicted()
-
-    def _update_one(self, speed_meas: float, position_meas: float, speed: bool) -> None:
-        """The update with the speed alone (H = [1 0]) or the distance alone (H = [0 1])."""
-        vzad = self._vzad_predicted()
-        if speed:
-            x, self.P = kalman2.update_one(self.x_bar, self.M, speed_meas - vzad, self.R[0], 0)
-        else:
-            r1 = self._position_variance(position_meas)
-            x, self.P = kalman2.update_one(self.x_bar, self.M, position_meas, r1, 1)
-        self.x_hat = kalman2.forward(x, vzad)
-        self.vzad_hat = vzad
+        self.algorithm.hold(self)
 
     def update(self, speed_meas: float, position_meas: float) -> None:
-        """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m], H = I: the
-        measurements ``gate`` let through (both, without a gate)."""
+        """Eqs. (15), (17), (18) with z = (V_meas - V_zad, X_meas) [m/s, m], H = I (or the Singer
+        kind's update): the measurements ``gate`` let through (both, without a gate)."""
         if self._reacquire:
             what, self._reacquire = self._reacquire, 0
             self.reacquired += 1
-            if what == self.REACQUIRE_BOTH or self.kind == SINGER:
+            if what == self.REACQUIRE_BOTH:
                 self.start_from_measurement(speed_meas, position_meas)
-                return
-            # the distance alone: the update with the speed, then the distance restarted from
-            # its measurement (uncorrelated with the speed, its noise's variance; when that
-            # overflows, P[1][1] stays as models/core/filter.c leaves it)
-            self._update_one(speed_meas, position_meas, True)
-            self.x_hat = (self.x_hat[0], position_meas)
-            (p00, _), (_, p11) = self.P
-            self.P = ((p00, 0.0), (0.0, p11))
-            self.P = ((p00, 0.0), (0.0, self._position_variance(position_meas)))
+            else:
+                self.algorithm.reacquire_distance(self, speed_meas, position_meas)
             return
         use_v, use_x = self._use_speed, self._use_position
-        if not (use_v and use_x):
-            self._use_speed = self._use_position = True
-            if self.kind == SINGER:
-                if use_v:
-                    self._singer.update_speed(speed_meas, self.cfg.speed_std)
-                elif use_x:
-                    self._singer.update_distance(position_meas,
-                                                 self.cfg.position_noise_std(position_meas))
-                self._singer_copy(posterior=True)
-            elif use_v or use_x:
-                self._update_one(speed_meas, position_meas, use_v)
-            else:
-                self.hold()
-            return
-        if self.kind == SINGER:
-            self._singer.update_speed_distance(speed_meas, position_meas, self.cfg.speed_std,
-                                               self.cfg.position_noise_std(position_meas))
-            self._singer_copy(posterior=True)
-            return
-        vzad = self._vzad_predicted()
-        R = (self.R[0], self._position_variance(position_meas))
-        x, self.P = kalman2.update(self.x_bar, self.M, (speed_meas - vzad, position_meas), R)
-        self.x_hat = kalman2.forward(x, vzad)
-        self.vzad_hat = vzad
+        self._use_speed = self._use_position = True
+        self.algorithm.update(self, speed_meas, position_meas, use_v, use_x)
 
     def update_speed(self, speed_meas: float, variance: float) -> None:
         """An extra speed-only measurement [m/s] of the current instant (e.g. two track
         sensors, seed 002), noise variance [(m/s)^2]: H = [1 0]."""
-        if self.kind == SINGER:
-            self._singer.update_speed(speed_meas, math.sqrt(variance))
-            self._singer_copy(posterior=True)
-            return
-        x, self.P = kalman2.update_one(self.x_hat, self.P, speed_meas - self.vzad_hat, variance, 0)
-        self.x_hat = kalman2.forward(x, self.vzad_hat)
+        self.algorithm.update_speed(self, speed_meas, variance)
 
     @property
     def acceleration(self) -> float | None:
         """The filter's own acceleration estimate [m/s^2] (Singer only), else None."""
-        return self._singer.acceleration if self.kind == SINGER else None
+        return self.algorithm.acceleration()
 
     def predict(self, traction: float, brake: float, theta, q: float, dt: float) -> None:
-        """Eqs. (16), (19) (or the EKF's) over dt [s] with forces [N] held, process noise q [(m/s)^2]."""
-        if self.kind == SINGER:                  # model-free: forces and Theta are not used
-            self._singer.predict(dt)
-            self._singer_copy(posterior=False)
-            return
-        speed_hat = self.speed
-        xh0, x_pos = self.x_hat
-        grade = self.grade_profile.average(x_pos, self.cfg.length)
-        if self.kind in (LINEARISED, PAPER):
-            vzad = self.vzad_hat
-            vzad_next = self._vzad(x_pos + speed_hat * dt)
-            a, c, C = kalman2.linearised_model(vzad, vzad_next, traction, brake, grade, theta, dt,
-                                               self.cfg.gamma)
-            self.vzad_bar = vzad_next
-            if self.kind == PAPER:                          # eqs. (16), (19) verbatim
-                x, self.M = kalman2.predict_paper(self.x_hat, self.P, a, c, C, dt, q)
-                self.x_bar = kalman2.forward(x, vzad_next)
-                return
-            dv, v0 = a, c + vzad_next - a * vzad            # V' = c + V_zad' + a (V - V_zad)
-        else:
-            v_next, dv = kalman2.ekf_model(speed_hat, traction, brake, grade, theta, dt,
-                                           self.cfg.gamma)
-            v0 = v_next - dv * speed_hat
-        # kalman2.predict works on absolute speed: V' = v0 + dv V, the trapezoid distance
-        vzad_hat = self.vzad_hat if self.kind == LINEARISED else 0.0
-        vzad_bar = self.vzad_bar if self.kind == LINEARISED else 0.0
-        (v_pred, x_next), self.M = kalman2.predict((xh0 + vzad_hat, x_pos), self.P, dv, v0, dt, q)
-        self.x_bar = (v_pred - vzad_bar, x_next)
+        """Eqs. (16), (19) (or the kind's own) over dt [s] with forces [N] held, process noise q [(m/s)^2]."""
+        self.algorithm.predict(self, traction, brake, theta, q, dt)
 
     @property
     def speed(self) -> float:

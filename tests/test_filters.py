@@ -286,6 +286,67 @@ def test_restart_resets_to_station_exactly():
     assert (f.predicted_speed, f.predicted_position) == (0.0, 0.0)
 
 
+# ----------------------------------------------------------------- the kinds (models/filter_kinds.py)
+
+from models.filter_kinds import (  # noqa: E402
+    KINDS, SINGER, EKFKind, LinearisedKind, PaperKind, SingerKind, filter_kind,
+)
+
+RAMP = SpeedProfile((0.0, 100.0, 700.0, 850.0), (0.0, 15.0, 15.0, 0.0))
+
+
+def test_each_kind_number_makes_its_class_and_a_bad_one_the_configs_error():
+    """filter.kind 0 (auto: linearised with a speed profile, else EKF) and 1-4 build their
+    classes; a number outside 0-4 raises, from the factory, FilterConfig.validate's message."""
+    assert set(KINDS) == {LINEARISED, EKF, PAPER, SINGER}
+    for kind, profile, cls in ((0, None, EKFKind), (0, RAMP, LinearisedKind), (1, RAMP, LinearisedKind),
+                               (2, None, EKFKind), (2, RAMP, EKFKind), (3, RAMP, PaperKind),
+                               (4, None, SingerKind)):
+        f = MotionFilter(FilterConfig(dt=DT, kind=kind), GRADE, profile)
+        assert type(f.algorithm) is cls and f.kind == cls.kind
+    for bad in (5, -1, 2.5):
+        with pytest.raises(ValueError) as made:
+            filter_kind(FilterConfig(kind=bad), GRADE, None)
+        with pytest.raises(ValueError) as checked:
+            FilterConfig(kind=bad).validate(False)
+        assert str(made.value) == str(checked.value)
+        assert str(made.value).startswith("filter.kind must be 0 (auto)") and str(made.value).endswith(f"got {bad}")
+
+
+def _run_filters(filters, n=600, seed=4):
+    """The same measurements and predictions (a car ramping up along RAMP) through each filter;
+    (speed, position, their stds) per step and filter, as an array of float64."""
+    rng = np.random.default_rng(seed)
+    v = x = 0.0
+    out = []
+    for k in range(n):
+        zv, zx = v + 0.05 * rng.standard_normal(), x + rng.standard_normal()
+        row = []
+        for f in filters:
+            f.gate(zv, zx)
+            f.update(zv, zx)
+            f.predict(2e4 if k < 300 else 0.0, 0.0, THETA_FAST, 1e-5, DT)
+            row += [f.speed, f.position, f.speed_std, f.predicted_speed, f.predicted_position]
+        out.append(row)
+        a = 0.4 if k < 300 else -0.1
+        x += v * DT + 0.5 * a * DT * DT
+        v = max(v + a * DT, 0.0)
+    return np.array(out)
+
+
+def test_an_injected_kind_object_runs_instead_of_the_configured_kind():
+    """MotionFilter(kind 0, no speed profile, algorithm=PaperKind(... RAMP)) is the paper's
+    filter: bit for bit the trajectory of MotionFilter(kind 3, RAMP); the configured kind alone
+    (auto without a profile: EKF) gives another one."""
+    cfg_auto, cfg_paper = FilterConfig(dt=DT, kind=0), FilterConfig(dt=DT, kind=PAPER)
+    injected = MotionFilter(cfg_auto, GRADE, None, algorithm=PaperKind(cfg_auto, GRADE, RAMP))
+    assert injected.kind == PAPER
+    runs = _run_filters([injected, MotionFilter(cfg_paper, GRADE, RAMP), MotionFilter(cfg_auto, GRADE, None)])
+    ours, paper, auto = runs[:, :5], runs[:, 5:10], runs[:, 10:]
+    assert np.array_equal(ours.view(np.uint64), paper.view(np.uint64))
+    assert np.abs(ours[:, 0] - auto[:, 0]).max() > 1e-3
+
+
 from models.filters import ProcessNoiseBank  # noqa: E402
 
 
