@@ -137,21 +137,25 @@ class ChainConfig:
 
 def build_estimator(id_cfg: IdentifierConfig, filt: FilterConfig, station: StationConfig,
                     grade_profile: GradeProfile, speed_profile: SpeedProfile | None,
-                    dt: float) -> OnlineEstimator:
-    """The estimator both FMUs run, sampling every dt [s] (private copies of the configs)."""
+                    dt: float, method=None, noise=None) -> OnlineEstimator:
+    """The estimator both FMUs run, sampling every dt [s] (private copies of the configs);
+    ``method``, ``noise``: strategy objects instead of the configured ones (models/methods.py)."""
     id_cfg = replace(id_cfg, dt=dt, speed_std=filt.speed_std)
     filt = replace(filt, dt=dt, gamma=id_cfg.gamma)
-    return OnlineEstimator(id_cfg, filt, station, grade_profile, speed_profile)
+    return OnlineEstimator(id_cfg, filt, station, grade_profile, speed_profile, method, noise)
 
 
 class RailCarChain:
     """Plant + sensors + estimator; one instance per FMU instance. The Python reference: the
-    C core (models/compiled.py) is its bit-identical twin."""
+    C core (models/compiled.py) is its bit-identical twin. ``method``, ``noise``: the
+    estimator's strategy objects instead of the configured ones (an experiment, a study:
+    models/methods.py)."""
 
     engine = "python"
 
     def __init__(self, cfg: ChainConfig, grade_profile: GradeProfile,
-                 speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
+                 speed_profile: SpeedProfile | None = None, start_time: float = 0.0, *,
+                 method=None, noise=None):
         cfg = replace(cfg, vehicle=replace(cfg.vehicle))
         cfg.validate()     # a private copy: payload changes the mass
         if not math.isfinite(start_time):
@@ -178,7 +182,7 @@ class RailCarChain:
         self.plant.refresh_outputs()
         filt = replace(cfg.filter, length=cfg.vehicle.length)
         self.estimator = build_estimator(cfg.identifier, filt, cfg.station, grade_profile,
-                                         speed_profile, cfg.sample_period)
+                                         speed_profile, cfg.sample_period, method, noise)
         self._pending_track = None
         self._sample_index = 0
         self.sensor_speed = 0.0

@@ -11,10 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .coast_ekf import CoastEKF, CoastEKFConfig
-from .differentiation import centred_slope_weights
-from .filters import FilterConfig, MotionFilter, ProcessNoiseBank
+from .filters import FilterConfig, MotionFilter
 from .identification import IdentifierConfig, ParameterIdentifier, project_physical
+from .methods import identification_method, noise_model
 from .track import GradeProfile, SpeedProfile
 from .units import G
 
@@ -72,48 +71,32 @@ class StationDetector:
 class OnlineEstimator:
     """Identification (eqs. (3)-(12)) feeding the filter ((13)-(19) or EKF), sample by sample.
 
-    ``est.method`` (IdentifierConfig.method) chooses what identifies the resistance:
-      0  the paper's recursive LS on differenced measured speed, eqs. (3)-(12), exactly;
-      1  as 0, plus a filter-error refit of each finished run at the next station, the A's
-         carried over between runs (models/output_error.py);
-      2  the same LS fed with seed 004's speed and acceleration (first-order least-squares
-         fit over the last est.slope_window samples, MODEL.md section 8; the seed's M + 1 = 6
-         at a sampling period it does not state, 10 by default: at 0.1 s, w0 after ten runs
-         2.13 % -> 1.90 % RMS over 100 days, measured with the A's prior white-weighted, before
-         it took the process-noise weight; README) at the window's mean time, with
-         the forces and grade weighted as the slope weights the intervals
-         (differentiation.centred_slope_weights): the value and the slope of that fit are
-         uncorrelated, so the errors-in-variables bias of V in phi and in y goes away;
-      3  LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], MODEL.md section 7)
-         for the A's: it runs over every coasting interval (F = B = 0) and carries its A's and
-         their covariance from coast to coast and run to run.
+    ``est.method`` (IdentifierConfig.method) chooses what identifies the resistance, an object
+    of models/methods.py held in ``method``:
+      0  PaperLS: the paper's recursive LS on differenced measured speed, eqs. (3)-(12), exactly;
+      1  RefitLS: as 0, plus a filter-error refit of each finished run at the next station, the
+         A's carried over between runs (models/output_error.py);
+      2  SlopeLS: the same LS fed with seed 004's speed and acceleration (a first-order fit over
+         the last est.slope_window samples, MODEL.md section 8): no errors-in-variables bias;
+      3  CoastLS: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], MODEL.md
+         section 7) for the A's, over every coasting interval (F = B = 0).
 
     Independent of the method: ``est.physical`` 1 reports (and predicts with) Theta-hat projected
-    onto A0, A2 >= 0 (identification.project_physical); ``est.sigma2_method`` 1 takes the
-    filter's process noise from the innovation likelihood of a bank of speed filters
-    (filters.ProcessNoiseBank) instead of the LS's residuals.
+    onto A0, A2 >= 0 (identification.project_physical); ``est.sigma2_method`` chooses the noise
+    model held in ``noise`` (models/methods.py): 0 the LS's residuals, 1 the innovation
+    likelihood of a bank of speed filters (filters.ProcessNoiseBank). ``method``, ``noise`` and
+    the filter's kind object (``algorithm``, models/filter_kinds.py) may be passed instead of
+    the configured ones (an experiment, a study).
     """
 
     def __init__(self, id_cfg: IdentifierConfig, filt_cfg: FilterConfig, station_cfg: StationConfig,
-                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None):
-        self.slopes = None           # est.method 2: the window of (V, F, B, grade, dt)
-        if id_cfg.method == 2:
-            self.slopes = {"v": [], "i": [], "contiguous": False, "size": int(id_cfg.slope_window),
-                           "dts": None, "weights": None}
-        self.coast = None            # est.method 3: seed 003's EKF of the A's
-        if id_cfg.method == 3:
-            self.coast = CoastEKF(CoastEKFConfig(
-                A0=id_cfg.A0_initial, A1=id_cfg.A1_initial, A2=id_cfg.A2_initial,
-                A0_std=id_cfg.A0_std_initial, A1_std=id_cfg.A1_std_initial,
-                A2_std=id_cfg.A2_std_initial, speed_std=max(filt_cfg.speed_std, 1e-6),
-                process_noise_psd=id_cfg.sigma2_initial / id_cfg.dt, gamma=id_cfg.gamma))
-        self._coasting = False       # the last pair used was a coasting one (method 3)
+                 grade_profile: GradeProfile, speed_profile: SpeedProfile | None,
+                 method=None, noise=None, algorithm=None):
         self.ident = ParameterIdentifier(id_cfg)
+        self.method = method or identification_method(id_cfg, filt_cfg)
+        self.noise = noise or noise_model(id_cfg, filt_cfg)
         self.physical = bool(id_cfg.physical)
-        # est.sigma2_method 1: sigma^2 from the filter's innovations, not the LS's residuals
-        self.noise_bank = (ProcessNoiseBank(id_cfg.sigma2_initial, filt_cfg.speed_std ** 2)
-                           if id_cfg.sigma2_method == 1 else None)
-        self.filter = MotionFilter(filt_cfg, grade_profile, speed_profile)
+        self.filter = MotionFilter(filt_cfg, grade_profile, speed_profile, algorithm)
         self.station = StationDetector(station_cfg, filt_cfg.speed_std, filt_cfg.position_std)
         self.grade_profile = grade_profile
         self.length = filt_cfg.length
@@ -121,17 +104,6 @@ class OnlineEstimator:
         self.dt_nominal = id_cfg.dt
         self.station_stops = 0
         self.track_speeds = 0        # track-sensor speeds taken
-        self.refit = None            # est.method 1: A's carried over by filter-error refits
-        if id_cfg.method == 1:
-            from .output_error import Prior, ResistanceCarryOver
-            c = id_cfg
-            self.refit = ResistanceCarryOver(Prior.from_std(
-                [1.0 / (G * c.mass_initial), c.A0_initial, c.A1_initial, c.A2_initial],
-                [None, c.A0_std_initial, c.A1_std_initial, c.A2_std_initial]),
-                forgetting=c.run_forgetting)
-        self.refit_failures = 0
-        self._run = {"t": [], "v": [], "x": [], "f": [], "b": []}   # samples of the current run
-        self._t = 0.0                # time since the first sample [s]
         self._prev = None            # (V_meas, X_meas) of the previous sample
         self._pair_used = False      # the pair ending at the previous sample was identified
         self._forces = (0.0, 0.0)    # forces applied since the previous sample [N]
@@ -164,14 +136,7 @@ class OnlineEstimator:
         else:
             use_v, use_x = self.filter.gate(speed_meas, position_meas)
             fit = self.filter.speed_fit
-        if self.refit is not None:
-            run = self._run
-            if run["t"]:
-                self._t += dt
-            run["t"].append(self._t)
-            # a refused measurement enters the run's record as the filter's prediction of it
-            run["v"].append(speed_meas if use_v else self.filter.predicted_speed)
-            run["x"].append(position_meas if use_x else self.filter.predicted_position)
+        self.method.record_sample(self, dt, speed_meas, position_meas, use_v, use_x)
         if prev is None and not (abs(speed_meas) < self.station.v_thr
                                  and abs(position_meas) < self.station.x_thr):
             # the run starts away from a station (a log cut mid-line, a car already moving)
@@ -185,33 +150,19 @@ class OnlineEstimator:
         if used:
             traction, brake = self._forces
             grade = self.grade_profile.average(prev[1], self.length)
-            if self.slopes is None:
-                self.ident.update(traction, brake, prev[0], speed_meas, grade, dt,
-                                  contiguous=self._pair_used)
-            else:
-                self._update_from_slopes(traction, brake, prev[0], speed_meas, grade, dt)
-            if self.coast is not None:
-                self._coast_step(traction, brake, prev[0], speed_meas, grade, dt)
-        elif self.coast is not None:
-            self._coasting = False
+            self.method.identify(self, traction, brake, prev[0], speed_meas, grade, dt,
+                                 self._pair_used)
+        else:
+            self.method.skip(self)
         self._pair_used = used
         # a refused distance would pick the next pair's grade: its prediction stands in
         self._prev = (speed_meas, position_meas if use_x else self.filter.predicted_position)
         self._prev_fit = fit
-        if self.noise_bank is not None:
-            if not self.station.moving:
-                self.noise_bank.stand()
-            elif use_v:
-                self.noise_bank.update(speed_meas)
+        self.noise.observe(self, speed_meas, use_v)
         if stop:
             self.station_stops += 1
-            if self.refit is not None:
-                self._refit_run()
+            self.method.station_stop(self)
             self.ident.restart_mass()
-            if self.coast is not None and self.ident.cfg.run_forgetting > 0.0 and self.coast.x is not None:
-                # est.method 3: the EKF's A covariance grows by 1 / (1 - f) per stop (it keeps
-                # no separate prior, so the whole of it is forgotten alike)
-                self.coast.P[1:, 1:] /= 1.0 - self.ident.cfg.run_forgetting
             self.restart_filter(speed_meas, position_meas)
         else:
             self.filter.update(speed_meas, position_meas)
@@ -247,53 +198,6 @@ class OnlineEstimator:
             return True
         self._steady_time += dt
         return self._steady_time <= self.STEADY_TIME
-
-    def _update_from_slopes(self, traction: float, brake: float, speed: float, speed_next: float,
-                            grade: float, dt: float) -> None:
-        """est.method 2: one regression row per new sample, from seed 004's first-order fit
-        over the last est.slope_window contiguous samples, at their mean time: phi's V is the fit's
-        value V_c, y the slope a_c (passed as the pair V_c, V_c + a_c dt_nominal), forces [N]
-        and grade [permille] the slope's weighted means over the window's intervals."""
-        w = self.slopes
-        if not self._pair_used:               # a new contiguous stretch starts at the previous sample
-            w["v"] = [speed]
-            w["i"] = []
-            w["contiguous"] = False
-        w["v"].append(speed_next)
-        w["i"].append((traction, brake, grade, dt))
-        if len(w["v"]) > w["size"]:
-            del w["v"][0], w["i"][0]
-        if len(w["v"]) < w["size"]:
-            return
-        dts = [x[3] for x in w["i"]]
-        if dts != w["dts"]:                   # constant at a fixed sampling period: computed once
-            w["dts"], w["weights"] = dts, centred_slope_weights(dts)
-        slope_w, c = w["weights"]
-        v_c = sum(w["v"]) / w["size"]
-        a_c = sum(k * v for k, v in zip(slope_w, w["v"]))
-        f = sum(cj * x[0] for cj, x in zip(c, w["i"]))
-        b = sum(cj * x[1] for cj, x in zip(c, w["i"]))
-        g = sum(cj * x[2] for cj, x in zip(c, w["i"]))
-        step = self.dt_nominal
-        self.ident.update(f, b, v_c, v_c + a_c * step, g, step, contiguous=w["contiguous"])
-        w["contiguous"] = True
-
-    MIN_COAST_SAMPLES = 50   # est.method 3: coasting samples before the EKF's A's are reported
-
-    def _coast_step(self, traction: float, brake: float, speed: float, speed_next: float,
-                    grade: float, dt: float) -> None:
-        """est.method 3: a coasting interval (no force applied) goes to seed 003's EKF. A new
-        coast restarts its speed from the measurement and keeps the A's and their covariance
-        (CoastEKF.carry_over); its process noise is the identified sigma^2 per second."""
-        if traction != 0.0 or brake != 0.0:
-            self._coasting = False
-            return
-        ekf = self.coast
-        ekf.cfg.process_noise_psd = self.sigma2() / self.dt_nominal
-        if not self._coasting:
-            ekf.carry_over(speed)
-            self._coasting = True
-        ekf.step(dt, speed_next, grade)
 
     def restart_filter(self, speed_meas: float, position_meas: float) -> None:
         """Restart the filter at a confirmed station stop, then take this sample.
@@ -340,127 +244,60 @@ class OnlineEstimator:
 
     def sigma2(self) -> float:
         """Process-noise variance per sample [(m/s)^2] the filter uses and est.sigma2 reports:
-        the LS's (eq. (12) on LAG sums) or, with est.sigma2_method 1, the likelihood bank's."""
-        return self.ident.sigma2() if self.noise_bank is None else self.noise_bank.estimate()
+        the noise model's (the LS's, eq. (12) on LAG sums, or the likelihood bank's)."""
+        return self.noise.sigma2(self)
 
     def propagate(self, traction: float, brake: float, dt: float) -> None:
         """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""
         theta = self.model_theta()
         q = self.process_noise(traction, brake, dt)
-        if self.refit is not None:
-            self._run["f"].append(traction)
-            self._run["b"].append(brake)
-        bank = self.noise_bank if self.station.moving else None
-        before = self.filter.speed if bank is not None else 0.0
+        self.method.record_forces(traction, brake)
+        before = self.filter.speed
         self.filter.predict(traction, brake, theta, q, dt)
-        if bank is not None:
-            bank.predict(self.filter.predicted_speed - before, q - self.sigma2() * dt / self.dt_nominal)
+        self.noise.predicted(self, before, q, dt)
         self._forces = (traction, brake)
         self._dt = dt
 
     def theta(self) -> np.ndarray:
-        """Theta reported (est.*): the running LS's, with the refitted A's once there are any;
-        with est.physical, projected onto A0, A2 >= 0 (identification.project_physical)."""
-        th = self._with_refitted_resistance(self.ident.theta)
+        """Theta reported (est.*): the running LS's, with the method's A's once it has any
+        (RefitLS, CoastLS); with est.physical, projected onto A0, A2 >= 0
+        (identification.project_physical)."""
+        m = self.method
+        th = m.with_resistance(self.ident.theta)
         if self.physical and (th[1] < 0.0 or th[3] < 0.0):
-            th = project_physical(th, self._with_resistance_covariance(self.ident.covariance()))
+            th = project_physical(th, m.with_resistance_covariance(self.ident.covariance()))
         return th
 
     def model_theta(self) -> np.ndarray:
         """Theta the filter predicts with: as theta(), but before the first batch the running
-        estimate instead of the configured values (ParameterIdentifier.model_theta)."""
-        th = self._with_refitted_resistance(self.ident.model_theta)
+        estimate instead of the configured values (ParameterIdentifier.model_theta), and as the
+        method's filter_theta has it."""
+        m = self.method
+        th = m.with_resistance(self.ident.model_theta)
         if self.physical and (th[1] < 0.0 or th[3] < 0.0):
-            th = project_physical(th, self._with_resistance_covariance(self.ident.model_covariance()))
-        return th
-
-    def _carried_resistance(self):
-        """(A's, their 3x3 covariance) of the refit (method 1, once it has a run) or the coasting
-        EKF (method 3, once it is ready), which replace the LS's A's; else None."""
-        if self.refit is not None and self.refit.runs:
-            return self.refit.A, self.refit.cov_A
-        if self._coast_ready():
-            return self.coast.A, self.coast.cov_A
-        return None
-
-    def _with_resistance_covariance(self, c: np.ndarray) -> np.ndarray:
-        """The LS's covariance c with the A's block of _carried_resistance when its A's are
-        used (cross terms with the mass then 0)."""
-        carried = self._carried_resistance()
-        if carried is None:
-            return c
-        c = c.copy()
-        c[1:, :] = 0.0
-        c[:, 1:] = 0.0
-        c[1:, 1:] = carried[1]
-        return c
-
-    def _with_refitted_resistance(self, th: np.ndarray) -> np.ndarray:
-        carried = self._carried_resistance()
-        if carried is not None:
-            th[1:] = carried[0]
-        return th
-
-    def _coast_ready(self) -> bool:
-        """est.method 3 and the EKF has seen MIN_COAST_SAMPLES coasting samples."""
-        return self.coast is not None and self.coast.samples >= self.MIN_COAST_SAMPLES
-
-    MIN_REFIT_SAMPLES = 100   # a run shorter than this (moving samples) is not refitted
-
-    def _refit_run(self) -> None:
-        """est.method 1: fit the run that just ended by filter error (the mass fresh, the A's
-        with the weak base prior) and add its information on the A's to what earlier runs gave
-        (models/output_error.py, ResistanceCarryOver); the run's buffer is then cleared."""
-        run = self._run
-        v = np.asarray(run["v"])
-        moving = np.nonzero(np.abs(v) > self.station.v_thr)[0]
-        try:
-            if moving.size >= self.MIN_REFIT_SAMPLES:
-                a, b = max(moving[0] - 1, 0), min(moving[-1] + 2, len(v), len(run["f"]) + 1)
-                sl = slice(a, b)
-                q = self.sigma2() / self.dt_nominal
-                self.refit.fit(np.asarray(run["t"][sl]), v[sl], np.asarray(run["f"][a:b - 1]),
-                               np.asarray(run["b"][a:b - 1]), distance=np.asarray(run["x"][sl]),
-                               grade_profile=self.grade_profile, length=self.length, gamma=self.gamma,
-                               fit_mass=True, mass=self.ident.mass, mass_std=None,
-                               speed_std=self.filter.cfg.speed_std,
-                               distance_std=self.filter.cfg.position_std,
-                               process_noise_psd=q, method="filter_error")
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-            self.refit_failures += 1          # keep the A's learnt so far
-        last = (run["v"][-1], run["x"][-1])   # the current sample starts the next run
-        for k in run:
-            run[k].clear()
-        self._t = 0.0
-        run["t"].append(0.0)
-        run["v"].append(last[0])
-        run["x"].append(last[1])
+            th = project_physical(th, m.with_resistance_covariance(self.ident.model_covariance()))
+        return m.filter_theta(self, th)
 
     def process_noise(self, traction: float, brake: float, dt: float) -> float:
-        """Filter's process noise per step [(m/s)^2]: identified sigma^2 plus parameter uncertainty.
+        """Filter's process noise per step [(m/s)^2]: the noise model's, by default the
+        identified sigma^2 plus parameter_noise."""
+        return self.noise.process_noise(self, traction, brake, dt)
 
-        The model's prediction error over dt from an uncertain Theta is k phi^T cov(Theta) phi k,
-        k = g dt / 1000 / (1 + gamma); adding it keeps the filter honest while Theta is learnt.
-        """
+    def parameter_noise(self, traction: float, brake: float, dt: float) -> float:
+        """The model's prediction error over dt [s] from an uncertain Theta [(m/s)^2]:
+        k phi^T cov(Theta) phi k, k = g dt / 1000 / (1 + gamma); adding it to the process noise
+        keeps the filter honest while Theta is learnt."""
         v = self.filter.speed
         k = G * dt / 1000.0 / (1.0 + self.gamma)
         phi = (traction - brake, -1.0, -v, -v * v)
-        if self._coast_ready():   # est.method 3: the mass's variance from LS, the A's from the EKF
-            c = self._with_resistance_covariance(self.ident.model_covariance())
-            var = float(np.dot(phi, c @ phi))
-        else:
-            var = self.ident.model_variance_along(phi)
-        return self.sigma2() * dt / self.dt_nominal + k * k * var
+        return k * k * self.method.variance_along(self, phi)
 
     def outputs(self, predicted: bool = False) -> dict[str, float]:
         """est.* and filter.* values: the filter's posterior at the last measurement, or with
         ``predicted`` its one-step prediction (the estimate for the next sample's instant)."""
         f = self.filter
         th = self.theta()
-        sd = self.ident.stds()
-        carried = self._carried_resistance()
-        if carried is not None:
-            sd = (sd[0], *np.sqrt(np.maximum(np.diag(carried[1]), 0.0)))
+        sd = self.method.with_resistance_stds(self.ident.stds())
         out = {
             "est.mass": self.ident.mass, "est.mass_std": self.ident.mass_std(),
             "est.A0": float(th[1]), "est.A1": float(th[2]), "est.A2": float(th[3]),

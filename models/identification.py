@@ -99,7 +99,24 @@ def project_physical(theta, cov, components=PHYSICAL) -> np.ndarray:
 
 METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on seed 004 slopes",
            3: "LS mass + seed 003 coasting EKF"}
-"""est.method values and their short names (models.estimator implements 1-3)."""
+"""est.method values and their short names (models/methods.py has a class for each)."""
+
+
+def check_method(method) -> int:
+    """est.method as an int; ValueError naming the values it may take."""
+    if int(method) not in METHODS:
+        raise ValueError("est.method must be " + ", ".join(f"{k} ({v})" for k, v in METHODS.items())
+                         + f", got {method}")
+    return int(method)
+
+
+def check_sigma2_method(sigma2_method) -> int:
+    """est.sigma2_method as an int; ValueError naming the values it may take."""
+    if int(sigma2_method) not in (0, 1):
+        raise ValueError(f"est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
+                         f"(innovation likelihood), got {sigma2_method}")
+    return int(sigma2_method)
+
 
 @dataclass
 class IdentifierConfig:
@@ -122,8 +139,8 @@ class IdentifierConfig:
     method: int = 0                  # est.method: 0 the paper's LS; 1 LS plus a filter-error
                                      # refit of each run at the next station (models/output_error.py);
                                      # 2 LS on seed 004's centred slopes (the rows come from
-                                     # models.estimator); 3 LS for the mass, seed 003's coasting
-                                     # EKF for the A's
+                                     # models/methods.py SlopeLS); 3 LS for the mass, seed 003's
+                                     # coasting EKF for the A's
     slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
     physical: int = 0                # est.physical: 1 keeps the reported A0, A2 >= 0 (project_physical)
     run_forgetting: float = 0.0      # est.run_forgetting: share of the A's data information
@@ -135,12 +152,8 @@ class IdentifierConfig:
         """Raise ValueError naming the first invalid setting."""
         if int(self.batch_size) < 4:
             raise ValueError(f"est.batch_size must be >= 4 (4 parameters), got {self.batch_size}")
-        if int(self.method) not in METHODS:
-            raise ValueError("est.method must be " + ", ".join(f"{k} ({v})" for k, v in METHODS.items())
-                             + f", got {self.method}")
-        if int(self.sigma2_method) not in (0, 1):
-            raise ValueError(f"est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
-                             f"(innovation likelihood), got {self.sigma2_method}")
+        check_method(self.method)
+        check_sigma2_method(self.sigma2_method)
         if int(self.physical) not in (0, 1):
             raise ValueError(f"est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got {self.physical}")
         if int(self.slope_window) < 2:

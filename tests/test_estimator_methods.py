@@ -10,6 +10,7 @@ from models.differentiation import centred_slope_weights, ls_weights
 from models.estimator import OnlineEstimator, StationConfig
 from models.filters import FilterConfig
 from models.identification import IdentifierConfig
+from models.methods import KnownNoise
 from models.track import GradeProfile
 from models.units import G
 
@@ -112,8 +113,8 @@ def test_coasting_method_is_seed_003s_ekf_over_every_coast():
     id_cfg = IdentifierConfig(dt=DT, method=3, A0_std_initial=1.0, A1_std_initial=0.03,
                               A2_std_initial=0.01)
     filt = FilterConfig(dt=DT, speed_std=0.05, position_std=1.0)
-    est = OnlineEstimator(id_cfg, filt, StationConfig(dwell=20.0), GradeProfile.level(), None)
-    est.ident.sigma2 = lambda: q
+    est = OnlineEstimator(id_cfg, filt, StationConfig(dwell=20.0), GradeProfile.level(), None,
+                          noise=KnownNoise(q))
     rng = np.random.default_rng(11)
     ekf = CoastEKF(CoastEKFConfig(A0=1.0, A1=0.03, A2=0.01, A0_std=1.0, A1_std=0.03, A2_std=0.01,
                                   speed_std=0.05, process_noise_psd=q / DT))
@@ -138,7 +139,7 @@ def test_coasting_method_is_seed_003s_ekf_over_every_coast():
         x += v * DT + 0.5 * a * DT * DT
         v += a * DT
     out = est.outputs()
-    assert est.coast.samples == ekf.samples == 1 + 300 + 299   # start, then one per interval
+    assert est.method.ekf.samples == ekf.samples == 1 + 300 + 299   # start, then one per interval
     assert (out["est.A0"], out["est.A1"], out["est.A2"]) == tuple(float(a) for a in ekf.A)
     assert out["est.A0_std"] == math.sqrt(ekf.cov_A[0, 0])
     assert out["est.A0_std"] < stds[0] < 1.0     # the second coast adds to the first
@@ -242,3 +243,98 @@ def test_physical_keeps_a0_and_a2_non_negative_where_the_ls_goes_negative():
            for k, r in (("raw", raw), ("phys", phys))}
     assert err["phys"] <= err["raw"] + 1e-9
     assert np.allclose(phys["est.mass"], raw["est.mass"], rtol=1e-9, atol=0)
+
+
+# ---------------------------------------------------------------- the strategies (models/methods.py)
+
+def test_each_method_and_noise_number_makes_its_class_and_a_bad_one_the_configs_error():
+    """est.method 0-3 and est.sigma2_method 0-1 build their classes, in the factory and in the
+    estimator; a bad number raises, from the factory, IdentifierConfig.validate's message."""
+    from models.identification import METHODS as NAMES
+    from models.methods import (
+        METHODS, CoastLS, LikelihoodNoise, PaperLS, RefitLS, ResidualNoise, SlopeLS, identification_method,
+        noise_model,
+    )
+    assert set(METHODS) == set(NAMES) == {0, 1, 2, 3}
+    filt = FilterConfig(dt=DT)
+    for k, cls in ((0, PaperLS), (1, RefitLS), (2, SlopeLS), (3, CoastLS)):
+        cfg = IdentifierConfig(dt=DT, method=k)
+        assert type(identification_method(cfg, filt)) is cls
+        est = OnlineEstimator(cfg, filt, StationConfig(), GradeProfile.level(), None)
+        assert type(est.method) is cls and type(est.noise) is ResidualNoise
+    for k, cls in ((0, ResidualNoise), (1, LikelihoodNoise)):
+        assert type(noise_model(IdentifierConfig(dt=DT, sigma2_method=k), filt)) is cls
+    for field, bad, make in (("method", 4, identification_method), ("method", -1, identification_method),
+                             ("sigma2_method", 2, noise_model)):
+        cfg = IdentifierConfig(dt=DT, **{field: bad})
+        with pytest.raises(ValueError) as made:
+            make(cfg, filt)
+        with pytest.raises(ValueError) as checked:
+            cfg.validate()
+        assert str(made.value) == str(checked.value)
+        assert str(made.value).startswith(f"est.{field} must be 0 (") and str(made.value).endswith(f"got {bad}")
+
+
+def test_an_injected_method_noise_model_and_filter_kind_reach_the_filter():
+    """An estimator built with a PaperLS whose filter_theta hands the filter a fixed Theta,
+    KnownNoise(q) without the parameter term and a filter kind that records its predictions:
+    every prediction gets exactly that Theta and q dt / dt_nominal, and est.sigma2 is q; the
+    reported Theta stays the LS's. The configured estimator (same run) predicts with other
+    Thetas and q's, so the comparison can fail."""
+    from models.filter_kinds import EKFKind
+    from models.least_squares import theta_from_params
+    from models.methods import KnownNoise, PaperLS
+
+    fixed = theta_from_params(36.0, 0.9, 0.03, 0.011)
+
+    class FixedTheta(PaperLS):
+        def filter_theta(self, est, theta):
+            return np.array(fixed)
+
+    class Recording(EKFKind):
+        def __init__(self, *args):
+            super().__init__(*args)
+            self.calls = []
+
+        def predict(self, f, traction, brake, theta, q, dt):
+            self.calls.append((tuple(float(t) for t in theta), q))
+            super().predict(f, traction, brake, theta, q, dt)
+
+    q = 3e-5
+    filt = FilterConfig(dt=DT, speed_std=0.05)
+    ests = []
+    for parts in ({"method": FixedTheta(), "noise": KnownNoise(q, parameter_term=False)}, {}):
+        ests.append(OnlineEstimator(IdentifierConfig(dt=DT), filt, StationConfig(dwell=20.0),
+                                    GradeProfile.level(), None, algorithm=Recording(filt, GradeProfile.level()),
+                                    **parts))
+    rng = np.random.default_rng(2)
+    v = x = 0.0
+    for k in range(400):
+        meas = (v + 0.05 * rng.standard_normal(), x + rng.standard_normal())
+        for est in ests:
+            est.measure(*meas)
+            est.propagate(25e3 if k < 250 else 0.0, 0.0, DT)
+        a = G / 1000.0 * ((25e3 if k < 250 else 0.0) / (34.0 * G) - 0.89 - 0.0288 * v - 0.0105 * v * v)
+        x += v * DT + 0.5 * a * DT * DT
+        v += a * DT
+    ours, configured = (e.filter.algorithm.calls for e in ests)
+    assert len(ours) == len(configured) == 400
+    assert all(th == tuple(fixed) and qk == q * DT / DT for th, qk in ours)
+    assert all(th != tuple(fixed) and qk != q * DT / DT for th, qk in configured)
+    assert ests[0].outputs()["est.sigma2"] == q != ests[1].outputs()["est.sigma2"]
+    assert ests[0].ident.samples > 100 and abs(ests[0].theta()[0] - fixed[0]) > 1e-6   # the LS's own
+
+
+def test_the_chain_passes_injected_strategies_to_its_estimator():
+    """RailCarChain(..., method=, noise=) builds its estimator with those objects."""
+    from models.chain import ChainConfig, RailCarChain
+    from models.methods import KnownNoise, SlopeLS
+    method, noise = SlopeLS(10), KnownNoise(2e-5)
+    chain = RailCarChain(ChainConfig(seed=3), GradeProfile.level(), method=method, noise=noise)
+    plain = RailCarChain(ChainConfig(seed=3), GradeProfile.level())
+    assert chain.estimator.method is method and chain.estimator.noise is noise
+    for k in range(200):
+        for c in (chain, plain):
+            c.do_step(k * DT, DT, 30e3, 0.0, 0.0)
+    assert chain.outputs()["est.sigma2"] == 2e-5 != plain.outputs()["est.sigma2"]
+    assert len(method.v) == 10             # its slope window filled: SlopeLS identified the pairs
