@@ -135,10 +135,26 @@ def est_A(run: Run, row: int) -> np.ndarray:
     return np.array([run.sig["est.A0"][row], run.sig["est.A1"][row], run.sig["est.A2"][row]])
 
 
+class ForceLog:
+    """An estimator's identification method (models/methods.py) that also keeps the forces [N]
+    of every prediction (the hook OnlineEstimator.propagate calls); the rest is the method's."""
+
+    def __init__(self, method):
+        self.method = method
+        self.forces: list = []
+
+    def __getattr__(self, name):
+        return getattr(self.method, name)
+
+    def record_forces(self, traction: float, brake: float) -> None:
+        self.forces.append((traction, brake))
+        self.method.record_forces(traction, brake)
+
+
 def run_scenario(scenario: Scenario, seed: int) -> Run:
     """The scenario's driver on models.chain.RailCarChain (what the RailCar FMU runs, without
     FMI; the loop of harness.runner.FmuRunner.run). The forces the estimator is given per
-    sample interval are recorded by wrapping OnlineEstimator.propagate of this instance."""
+    sample interval are recorded by its method wrapped in a ForceLog (before the first step)."""
     v = {n: scenario.parameter(n) for n in _PARAMETERS}
     v["seed"] = int(seed)
     if abs(scenario.step_s - v["sensor.sample_period"]) > 1e-12:
@@ -146,19 +162,12 @@ def run_scenario(scenario: Scenario, seed: int) -> Run:
     cfg = chain_config(v)
     grade, speed_profile = load_profiles(v, None)
     chain = RailCarChain(cfg, grade, speed_profile)
-    forces: list = []
     est = chain.estimator
-    propagate = est.propagate
-
-    def recording_propagate(traction, brake, dt, *args, **kwargs):
-        forces.append((traction, brake))
-        propagate(traction, brake, dt, *args, **kwargs)
-
-    est.propagate = recording_propagate
+    est.method = log = ForceLog(est.method)
     h = scenario.step_s
     rows = drive_chain(chain, scenario)
     sig = {name: np.array([r[name] for r in rows]) for name in SIGNALS}
-    return Run(scenario, seed, np.arange(len(rows)) * h, sig, np.array(forces).reshape(-1, 2),
+    return Run(scenario, seed, np.arange(len(rows)) * h, sig, np.array(log.forces).reshape(-1, 2),
                grade, est.ident.theta.copy(), est.ident.covariance().copy())
 
 

@@ -6,13 +6,14 @@ Issue 5 asks for the filter's speed RMSE within 10 % of the oracle filter's (the
 fed the true mass, A's and process noise: harness.metrics.oracle_filter). This runs each
 library scenario with speed noise <= 0.05 m/s and no wind (the wind moves the A's: "true A's"
 would need the oracle's wind model) on the models chain (no FMI) and hands the
-learning filter one piece of the truth at a time, by replacing the estimator's methods on the
-instance (the compiled core then stands aside and the Python code runs):
+learning filter one piece of the truth at a time, through the estimator's strategy objects
+(models/methods.py; the compiled core then stands aside and the Python code runs):
 
   as built       the FMU's default estimator (est.method 0)
-  true sigma2    ident.sigma2() = car.process_noise_psd * dt throughout
-  true mass      model theta_1 = 1 / (g m_true) (the mass now, payload included)
-  true A's       model A0, A1, A2 = the car's
+  true sigma2    the noise model KnownNoise: sigma2 = car.process_noise_psd * dt throughout
+  true mass      the method HandedTruth: model theta_1 = 1 / (g m_true) (the mass now, payload
+                 included)
+  true A's       HandedTruth: model A0, A1, A2 = the car's
   true theta     both
   theta+sigma2   both, and the true sigma2
   = oracle       all of it and no parameter-uncertainty term in the process noise: must be 1.000
@@ -42,6 +43,7 @@ from harness.driver import chain_result  # noqa: E402
 from harness.metrics import summarise  # noqa: E402
 from harness.scenario import load_scenario  # noqa: E402
 from models.chain import RailCarChain  # noqa: E402
+from models.methods import KnownNoise, PaperLS  # noqa: E402
 from models.units import G  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
@@ -50,27 +52,35 @@ VARIANTS = ("as built", "true sigma2", "true mass", "true A's", "true theta", "t
             "= oracle", "sigma2 by ML")
 
 
-def _hand_over(chain: RailCarChain, variant: str, v: dict, dt: float) -> None:
-    """Replace the estimator's methods on the instance to give it the variant's truth."""
-    est, ident = chain.estimator, chain.estimator.ident
+class HandedTruth(PaperLS):
+    """est.method 0 whose filter predicts with the true mass (``mass()`` [t], the car's now)
+    and / or the true A's; what it reports (est.*) stays the LS's."""
+
+    def __init__(self, mass=None, A=None):
+        self.mass, self.A = mass, A
+
+    def filter_theta(self, est, theta):
+        if self.mass is not None:
+            theta[0] = 1.0 / (G * self.mass())
+        if self.A is not None:
+            theta[1:] = self.A
+        return theta
+
+
+def strategies(variant: str, v: dict, dt: float, mass) -> dict:
+    """The estimator's method and noise model (RailCarChain's keywords) that hand it the
+    variant's truth; ``mass()``: the car's mass now [t]. The configured ones (est.method 0,
+    est.sigma2_method 0 or 1) for the rest."""
     A = (v["car.A0"], v["car.A1"], v["car.A2"])
     sigma2 = v["car.process_noise_psd"] * dt
-    model_theta = est.model_theta
     true_mass = variant in ("true mass", "true theta", "theta+sigma2", "= oracle")
     true_A = variant in ("true A's", "true theta", "theta+sigma2", "= oracle")
+    out = {}
     if true_mass or true_A:
-        def theta():
-            th = model_theta()
-            if true_mass:
-                th[0] = 1.0 / (G * chain.plant.p.mass)
-            if true_A:
-                th[1:] = A
-            return th
-        est.model_theta = theta
+        out["method"] = HandedTruth(mass=mass if true_mass else None, A=A if true_A else None)
     if variant in ("true sigma2", "theta+sigma2", "= oracle"):
-        ident.sigma2 = lambda: sigma2
-    if variant == "= oracle":
-        est.process_noise = lambda traction, brake, step: sigma2 * step / est.dt_nominal
+        out["noise"] = KnownNoise(sigma2, parameter_term=variant != "= oracle")
+    return out
 
 
 def run(job) -> tuple[str, str, float, float, float]:
@@ -80,8 +90,8 @@ def run(job) -> tuple[str, str, float, float, float]:
     v = {n: scenario.parameter(n) for n in PARAMETERS}
     if variant == "sigma2 by ML":
         v["est.sigma2_method"] = 1
-    chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)))
-    _hand_over(chain, variant, v, scenario.step_s)
+    chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)),
+                         **strategies(variant, v, scenario.step_s, lambda: chain.plant.p.mass))
     result = chain_result(chain, scenario)
     s = summarise(result)
     return (scenario.name, variant, s.speed_rmse_filter / s.speed_rmse_oracle,
