@@ -183,6 +183,10 @@ def build_description(spec: NativeSpec = RAILCAR_SPEC) -> bytes:
     root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
     conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=spec.fmu,
                          description="C99; link with -lm -pthread")
+    # compilerOptions: an attribute of SourceFileSet in the FMI 3.0 standard's
+    # fmi3BuildDescription.xsd (fmpy/schema/fmi3/). -ffp-contract=off keeps a*b+c unfused, as
+    # bit-identity with the Python reference needs; the core's .c files also turn contraction
+    # off themselves (rc_fp_contract.h), for importers that drop the option.
     files = ET.SubElement(conf, "SourceFileSet", language="C99",
                           compilerOptions="-ffp-contract=off")
     for src in c_sources(spec):

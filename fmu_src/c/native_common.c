@@ -214,23 +214,98 @@ static int read_profile(GlueInstance *g, const native_values *v, int vr, rc_prof
     return status;
 }
 
-void native_log_init_failure(GlueInstance *g, const char *message) {
+/* "fmi2ExitInitializationMode: initialisation failed: <message>" */
+static void log_init_failure(GlueInstance *g, const char *message) {
     glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: initialisation failed: "
              "%s", message);
 }
 
-fmi2Status native_read_profiles(GlueInstance *g, const native_values *v, rc_profile *grade,
-                                rc_profile *speed) {
+/* load_profiles: the grade profile, then the speed profile (n 0: the parameter is empty).
+   1, or 0 logged as adapter.initialise words it; the caller frees both whatever the result. */
+static int read_profiles(GlueInstance *g, const native_values *v, rc_profile *grade,
+                         rc_profile *speed) {
     memset(speed, 0, sizeof *speed);
     if (read_profile(g, v, v->md->vr_grade_profile, RC_PROFILE_GRADE, grade) != RC_OK) {
-        native_log_init_failure(g, grade->message ? grade->message : grade->err.msg);
-        return fmi2Error;
+        log_init_failure(g, grade->message ? grade->message : grade->err.msg);
+        return 0;
     }
     if (read_profile(g, v, v->md->vr_speed_profile, RC_PROFILE_SPEED, speed) != RC_OK) {
-        native_log_init_failure(g, speed->message ? speed->message : speed->err.msg);
-        return fmi2Error;
+        log_init_failure(g, speed->message ? speed->message : speed->err.msg);
+        return 0;
     }
-    return fmi2OK;
+    return 1;
+}
+
+/* one profile into the configuration's fields at offsets `at_x`, `at_y` and `at_n` */
+static void set_profile(void *cfg, size_t at_x, size_t at_y, size_t at_n, const double *x,
+                        const double *y, long n) {
+    char *base = cfg;
+    *(const double **)(void *)(base + at_x) = x;
+    *(const double **)(void *)(base + at_y) = y;
+    *(long *)(void *)(base + at_n) = n;
+}
+
+/* the configuration built, profiles read and the result checked: a new chain, or NULL (logged) */
+static void *new_chain(GlueInstance *g, native_values *v, const native_chain_kind *kind,
+                       void *cfg, double *outputs) {
+    static const double level_distance = 0.0, level_grade = 0.0;   /* GradeProfile.level() */
+    const native_profile_offsets *at = &kind->profiles;
+    rc_profile grade, speed;
+    rc_error err;
+    void *chain = NULL;
+
+    if (!read_profiles(g, v, &grade, &speed)) {
+        rc_profile_free(&speed);
+        rc_profile_free(&grade);
+        return NULL;
+    }
+    if (grade.n > 0)
+        set_profile(cfg, at->grade_distances, at->grades, at->grade_n, grade.distances,
+                    grade.values, grade.n);
+    else
+        set_profile(cfg, at->grade_distances, at->grades, at->grade_n, &level_distance,
+                    &level_grade, 1);
+    set_profile(cfg, at->speed_distances, at->speeds, at->speed_n,
+                speed.n > 0 ? speed.distances : NULL, speed.n > 0 ? speed.values : NULL, speed.n);
+
+    err.msg[0] = '\0';
+    if (kind->validate(cfg, (long)v->integer[kind->vr_slope_window], speed.n > 0, &err) != RC_OK) {
+        log_init_failure(g, err.msg);
+    } else if (!(chain = malloc(kind->chain_size))) {
+        log_init_failure(g, "out of memory");
+    } else if (kind->init(chain, cfg, &err) != RC_OK) {           /* copies the profiles */
+        free(chain);
+        chain = NULL;
+        log_init_failure(g, err.msg);
+    } else if (kind->outputs(chain, outputs)) {         /* EstimatorChain: none before a step */
+        native_store_outputs(v, outputs);
+    }
+    rc_profile_free(&speed);
+    rc_profile_free(&grade);
+    return chain;
+}
+
+void *native_build_chain(GlueInstance *g, native_values *v, const native_chain_kind *kind,
+                         double *outputs) {
+    double *values = malloc((size_t)v->md->nconfig * sizeof *values);
+    void *cfg = calloc(1, kind->config_size);
+    void *chain = NULL;
+    long expected;
+    if (!values || !cfg) {
+        log_init_failure(g, "out of memory");
+    } else {
+        native_config_values(v, values);
+        expected = kind->config_from_values(cfg, values, v->md->nconfig);
+        if (expected != 0)
+            glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: the C core "
+                     "expects %ld configuration values, this FMU has %d (rebuild it)", expected,
+                     v->md->nconfig);
+        else
+            chain = new_chain(g, v, kind, cfg, outputs);
+    }
+    free(cfg);
+    free(values);
+    return chain;
 }
 
 /* ------------------------------------------------------------------------------- stepping */

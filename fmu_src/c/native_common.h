@@ -6,6 +6,8 @@
 #ifndef NATIVE_COMMON_H
 #define NATIVE_COMMON_H
 
+#include <stddef.h>
+
 #include "fmi2_glue.h"
 #include "profile.h"
 #include "rc_common.h"
@@ -63,12 +65,38 @@ fmi2Status native_set(GlueInstance *g, native_values *v, GlueType type,
 
 /* the flat configuration (md->nconfig numbers) from the parameters and the start time */
 void native_config_values(const native_values *v, double *out);
-/* load_profiles: the grade profile, then the speed profile (n 0: the parameter is empty).
-   fmi2OK, or fmi2Error logged as adapter.initialise words it; free both whatever the status. */
-fmi2Status native_read_profiles(GlueInstance *g, const native_values *v, rc_profile *grade,
-                                rc_profile *speed);
-/* "fmi2ExitInitializationMode: initialisation failed: <message>" */
-void native_log_init_failure(GlueInstance *g, const char *message);
+
+/* Where a chain configuration keeps its profiles: offsets of its six profile fields, which
+   rc_chain_config and rc_estchain_config both have (NATIVE_PROFILE_OFFSETS(type) fills it). */
+typedef struct {
+    size_t grade_distances, grades, grade_n, speed_distances, speeds, speed_n;
+} native_profile_offsets;
+#define NATIVE_PROFILE_OFFSETS(type)                                                          \
+    {offsetof(type, grade_distances), offsetof(type, grades), offsetof(type, grade_n),       \
+     offsetof(type, speed_distances), offsetof(type, speeds), offsetof(type, speed_n)}
+
+/* One chain type of the C core (rc_chain, rc_estchain) as native_build_chain drives it: the
+   `cfg` and `chain` pointers are the backend's configuration and chain types. */
+typedef struct {
+    size_t config_size, chain_size;
+    native_profile_offsets profiles;
+    long (*config_from_values)(void *cfg, const double *values, long n);
+    rc_status (*validate)(const void *cfg, long slope_window, int has_speed_profile,
+                          rc_error *err);
+    rc_status (*init)(void *chain, const void *cfg, rc_error *err);   /* copies the profiles */
+    int (*outputs)(void *chain, double *out);   /* 0: no outputs yet (EstimatorChain) */
+    int vr_slope_window;                        /* est.slope_window, an Integer parameter */
+} native_chain_kind;
+
+/* fmi2ExitInitializationMode of a native backend, in adapter.initialise's order: the flat
+   configuration from the parameters and the start time; load_profiles (the grade profile, then
+   the speed profile; no grade profile is GradeProfile.level()); the whole configuration checked
+   by kind->validate; then a new chain, initialised, its outputs (if it has any yet) stored in
+   the variables through `outputs` (md->noutputs doubles). Returns the chain (malloc'd; the
+   caller frees it with the core's free, then free()), or NULL after logging fmi2Error as
+   adapter.initialise words it ("fmi2ExitInitializationMode: initialisation failed: ..."). */
+void *native_build_chain(GlueInstance *g, native_values *v, const native_chain_kind *kind,
+                         double *outputs);
 /* the core's outputs (md->noutputs, integers as doubles) into the variables */
 void native_store_outputs(native_values *v, const double *outputs);
 /* adapter.not_initialised */

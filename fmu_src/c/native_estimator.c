@@ -96,63 +96,33 @@ fmi2Status model_terminate(GlueInstance *g) {
 
 /* ------------------------------------------------------------------------- initialisation */
 
+/* EstimatorChain (rc_estchain) behind native_build_chain's pointers (native_common.h) */
+static long config_from_values(void *cfg, const double *values, long n) {
+    return rc_estchain_config_from_values(cfg, values, n);
+}
+
+static rc_status validate(const void *cfg, long slope_window, int has_speed, rc_error *err) {
+    return rc_estchain_validate(cfg, slope_window, has_speed, err);
+}
+
+static rc_status init(void *chain, const void *cfg, rc_error *err) {
+    return rc_estchain_init(chain, cfg, err);
+}
+
+static int outputs(void *chain, double *out) {
+    return rc_estchain_outputs(chain, out);            /* none before the first step */
+}
+
+static const native_chain_kind CHAIN = {
+    sizeof(rc_estchain_config), sizeof(rc_estchain), NATIVE_PROFILE_OFFSETS(rc_estchain_config),
+    config_from_values, validate, init, outputs, NES_VR_SLOPE_WINDOW
+};
+
 fmi2Status model_exit_initialization_mode(GlueInstance *g) {
     Native *m = MODEL(g);
-    double values[NES_NCONFIG];
-    rc_estchain_config cfg;
-    rc_profile grade, speed;
-    rc_error err;
-    static const double level_distance = 0.0, level_grade = 0.0;   /* GradeProfile.level() */
-    fmi2Status status = fmi2Error;
-    long expected;
-
     drop_chain(m);
-    native_config_values(&m->v, values);
-    memset(&cfg, 0, sizeof cfg);
-    expected = rc_estchain_config_from_values(&cfg, values, NES_NCONFIG);
-    if (expected != 0) {
-        glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: the C core expects "
-                 "%ld configuration values, this FMU has %d (rebuild it)", expected, NES_NCONFIG);
-        return fmi2Error;
-    }
-
-    /* load_profiles: the grade profile first, then the speed profile */
-    if (native_read_profiles(g, &m->v, &grade, &speed) != fmi2OK) {
-        rc_profile_free(&speed);
-        rc_profile_free(&grade);
-        return fmi2Error;
-    }
-    if (grade.n > 0) {
-        cfg.grade_distances = grade.distances;
-        cfg.grades = grade.values;
-        cfg.grade_n = grade.n;
-    } else {
-        cfg.grade_distances = &level_distance;
-        cfg.grades = &level_grade;
-        cfg.grade_n = 1;
-    }
-    cfg.speed_distances = speed.n > 0 ? speed.distances : NULL;
-    cfg.speeds = speed.n > 0 ? speed.values : NULL;
-    cfg.speed_n = speed.n;
-
-    err.msg[0] = '\0';
-    if (rc_estchain_validate(&cfg, (long)m->v.integer[NES_VR_SLOPE_WINDOW], speed.n > 0, &err)
-        != RC_OK) {
-        native_log_init_failure(g, err.msg);
-    } else if (!(m->chain = malloc(sizeof *m->chain))) {
-        native_log_init_failure(g, "out of memory");
-    } else if (rc_estchain_init(m->chain, &cfg, &err) != RC_OK) {   /* copies the profiles */
-        free(m->chain);
-        m->chain = NULL;
-        native_log_init_failure(g, err.msg);
-    } else {
-        if (rc_estchain_outputs(m->chain, m->outputs))     /* none before the first step */
-            native_store_outputs(&m->v, m->outputs);
-        status = fmi2OK;
-    }
-    rc_profile_free(&speed);
-    rc_profile_free(&grade);
-    return status;
+    m->chain = native_build_chain(g, &m->v, &CHAIN, m->outputs);
+    return m->chain ? fmi2OK : fmi2Error;
 }
 
 /* -------------------------------------------------------------------------------- stepping */
