@@ -57,7 +57,7 @@ class Plan:
     method: str = ""
     hold_speed: float = math.nan        # V_c [m/s] (maximum-principle plans)
     lagrange: float = math.nan          # lambda [W] (maximum principle, DP)
-    commands: tuple = ()                # (s, kind, value) the simulator re-runs (DP plans)
+    commands: tuple = ()                # (s, Mode, value) the simulator re-runs (DP, manual)
 
     @property
     def traction_applications(self) -> int:
@@ -73,7 +73,7 @@ class Course:
     change + L where the averaged grade has a kink) and every limit change is a node.
     """
 
-    def __init__(self, span: Span, car: CarTraction, step: float = 2.0):
+    def __init__(self, span: Span, car: CarTraction, step: float = 5.0):
         if not (math.isfinite(step) and step > 0):
             raise ValueError(f"step must be > 0, got {step}")
         check_span_for_car(span, car)
@@ -138,29 +138,22 @@ class Course:
 
     def _envelope(self):
         """U(s)^2: backward from rest at the stop mark with the service brake, capped by the
-        limits; also the stop curve alone (qstop). Raises if U is 0 inside the span (the brakes
-        cannot keep the car to a limit/the stop on a descent)."""
+        limits (so U holds the braking curves to every lower limit ahead). Raises if U is 0
+        inside the span (the brakes cannot keep the car to a limit/the stop on a descent)."""
         car, s = self.car, self.s
         qU = np.empty(self.n)
-        qstop = np.empty(self.n)
-        qU[-1] = qstop[-1] = 0.0
+        qU[-1] = 0.0
         for i in range(self.n - 2, -1, -1):
             a, b = s[i + 1], s[i]
             q_back = free_step(car, qU[i + 1], a, b, self.gb[i], self.gm[i], self.ga[i],
                                K_SERVICE, 1.0)[0]
             qU[i] = min(max(q_back, 0.0), self.qlim[i])
-            qs = free_step(car, qstop[i + 1], a, b, self.gb[i], self.gm[i], self.ga[i],
-                           K_SERVICE, 1.0)[0]
-            qstop[i] = max(qs, 0.0)
             if qU[i] <= 0.0 and i > 0:
                 raise ValueError(f"the span cannot be run: at s = {b:.1f} m (grade {self.gm[i]} "
                                  f"permille) the service brake cannot keep the car within the "
                                  f"speed limit {math.sqrt(self.qlim[i]):.2f} m/s / stop at "
                                  f"span.stop = {self.span.stop} m")
         self.qU = qU
-        self.qstop = qstop
-        # steps on the stop braking curve: U is the stop curve there, below the limit
-        self.on_stop_curve = (qstop <= qU * (1 + 1e-12)) & (qstop < self.qlim)
 
 
 # ===================================================================== one step of motion
@@ -488,6 +481,11 @@ def _check_commands(commands, span):
             raise ValueError(f"commands[{k}]: switching point {sw} m outside [0, {span.stop}]")
         if cmds and sw < cmds[-1][0]:
             raise ValueError(f"commands[{k}]: switching points must not decrease ({sw} after {cmds[-1][0]})")
+        if val is not None and mode in (Mode.TG, Mode.RK) and not 0.0 < float(val) <= 1.0:
+            raise ValueError(f"commands[{k}]: the share u of {mode.name} must be in (0, 1], got {val}")
+        if val is not None and mode in (Mode.C, Mode.SR, Mode.ST) and not 0.0 < float(val) < math.inf:
+            raise ValueError(f"commands[{k}]: the speed {mode.name} holds must be > 0 and finite [m/s], "
+                             f"got {val}")
         cmds.append((sw, mode, val))
     if not cmds or cmds[0][0] != 0.0:
         raise ValueError("commands: the first switching point must be 0")

@@ -33,6 +33,13 @@ class _MaxPrinciple:
        the coast meets the braking curve (the VB -> RK switch of Table 2), p integrated with
        the co-state equation of the module docstring; if even the longest coast keeps
        p > eta eta_f at a limit drop, the coast that just reaches the lower limit.
+
+    Seed 003 builds the trajectory "by sections whose borders are the speed-limit changes and
+    hard grade elements", integrating the motion and p(s) with known boundary values of V and
+    p (autoreferat ch. 3, Fig. 2); our sections are the braking curves of U. What we leave
+    out: the jump of p where a state constraint (V = V_lim) starts or ends, and coasting or
+    powering ahead of a hard grade element (the cruise reacts to the grade where it is).
+    studies/ato_energy.py measures what that costs against a brute-force optimum.
     """
 
     def __init__(self, course: Course, v_c: float):
@@ -74,8 +81,8 @@ class _MaxPrinciple:
         Returns (residual = p - eta eta_f where the free coast crosses U, met, trace or None).
         The crossing inside a step is located by linear interpolation of q - U^2. Where the
         coast runs into U before that curve (another limit's braking curve, a limit on a
-        descent) it follows U (RK/SR/ST) and coasts on; p is carried over unchanged there (the
-        state constraint's jump in p is not modelled: an approximation of ours).
+        descent) it follows U (RK/SR/ST) and coasts on, p integrated on with the coasting
+        co-state equation (the state constraint's jump in p is not modelled: ours).
         """
         curve_start, s_target = curve
         c, car = self.course, self.car
@@ -233,8 +240,14 @@ def synthesize(span: Span, car: CarTraction, *, step: float = 5.0, tol: float = 
     (brentq on the running time; seed 003 ch. 3: "the iteration ends when the residual of the
     running time is below a given value") until |T - schedule| <= ``tol`` [s].
 
+    Where the speed limit drops, one long coast through the lower-limit zone can beat a coast
+    into it plus a second traction application after it (or the reverse): the iteration is run
+    for every choice of drops without a coast of their own (at most 3 drops are combined) and
+    the plan with the least energy is returned.
+
     tol = 0.01 s is 1/250 of the +-2.5 s running-time accuracy of seeds 003 and 004. Raises
-    ValueError naming both times if the schedule is shorter than the minimum-time run.
+    ValueError naming both times if the schedule is shorter than the minimum-time run, or
+    naming the schedule if it is too long to be met (a holding speed below 0.05 m/s).
     """
     course = course or Course(span, car, step)
     t_min = run(course, 0.0, 0.0, 0.0, _flat_out).t[-1]
@@ -252,7 +265,7 @@ def synthesize(span: Span, car: CarTraction, *, step: float = 5.0, tol: float = 
             if best is None or plan.energy_kwh < best.energy_kwh:
                 best = plan
     if best is None:
-        raise ValueError(failures[0])
+        raise ValueError("; ".join(dict.fromkeys(failures)))
     return best
 
 

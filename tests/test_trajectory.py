@@ -226,6 +226,19 @@ def test_maximum_principle_modes_and_holding_speeds(plans):
     assert phi(vr) == pytest.approx(phi(vc) / (CAR.eta * CAR.eta_f), rel=1e-12) and vr > vc
 
 
+def test_the_coast_point_satisfies_the_p_condition(plans):
+    """Rebuilding the flat plan's trajectory for its V_c: the coast starts where p = 1 and p
+    has fallen to eta eta_f where the coast meets the braking curve (Table 2's VB -> RK
+    switch) to within 1e-3 (measured 1e-4; the root is placed by linear interpolation between
+    5 m nodes, p falling ~2e-3 per node on this coast), and the rebuild is the plan itself."""
+    from models.trajectory_mp import _MaxPrinciple
+    p = plans["flat_mp"]
+    mp = _MaxPrinciple(Course(FLAT, CAR), p.hold_speed)
+    tr = mp.build()
+    assert len(mp.residual_at_switch) == 1 and abs(mp.residual_at_switch[0]) < 1e-3
+    assert _bits(tr.t).tolist() == _bits(p.t).tolist()
+
+
 def test_longer_schedule_costs_less_energy(plans):
     """Energy falls strictly as the schedule grows (92, 95, 100, 110 s on the flat span) and
     every plan is below the minimum-time run's energy."""
@@ -333,8 +346,12 @@ def test_infeasible_schedule_names_both_times(plans):
     # a 200 permille climb from 500 m: 59 kN of grade against 40 kN of traction
     (lambda: min_time_run(Span(1500.0, 95.0, grade=GradeProfile((0.0, 500.0), (0.0, 200.0))), CAR),
      r"stops at s ~ \d+\.\d m before the stop mark.*grade there 200\.0"),
+    (lambda: synthesize(FLAT.with_schedule(1e5), CAR), r"span\.schedule = 100000\.00 s is too long"),
     (lambda: simulate(FLAT, CAR, [(0.0, Mode.TG), (500.0, Mode.VB), (400.0, Mode.TG)]),
      r"commands\[2\]: switching points must not decrease"),
+    (lambda: simulate(FLAT, CAR, [(0.0, Mode.TG, math.nan)]), r"commands\[0\]: the share u of TG"),
+    (lambda: simulate(FLAT, CAR, [(0.0, Mode.TG), (300.0, Mode.C, -3.0)]),
+     r"commands\[1\]: the speed C holds must be > 0"),
 ])
 def test_bad_inputs_name_the_value(build, message):
     """Bad cars, spans and commands raise ValueError naming the field and the value."""
