@@ -45,7 +45,7 @@ PROJECT_FILES = ["fmu_src", "models", "scenarios/profiles"]
 DEFAULT_EXPERIMENT = {"startTime": "0", "stopTime": "200", "stepSize": "0.1"}
 
 # Our FMI 2 binary: sources, flags, and the marker string it carries (tests look for it).
-C_SOURCES = ["fmu_src/c/fmi2_glue.c", "fmu_src/c/pyslave.c"]
+C_SOURCES = ["fmu_src/c/fmi2_glue.c", "fmu_src/c/glue_common.c", "fmu_src/c/pyslave.c"]
 C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-fPIC", "-shared",
            "-fvisibility=hidden", "-pthread"]
 BINARY_MARKER = b"railcar-fmu fmi2 binary 1"

@@ -57,8 +57,8 @@ LOG_CATEGORIES = ("logStatusWarning", "logStatusDiscard", "logStatusError", "log
                   "logAll")
 """pythonfmu's LogCategories (RailCar.fmu's modelDescription.xml); build_native_fmu checks them."""
 CONFIG_CONSTANT, CONFIG_START_TIME = -1, -2
-COMMON_SOURCES = ["fmi2_glue.c", "native_common.c"]
-COMMON_HEADERS = ["fmi2_glue.h", "native_common.h"]
+COMMON_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_common.c"]
+COMMON_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_common.h"]
 
 _GLUE = {"Real": "GLUE_REAL", "Integer": "GLUE_INTEGER", "String": "GLUE_STRING"}
 _CAUSALITY = {"parameter": "GLUE_PARAMETER", "input": "GLUE_INPUT", "output": "GLUE_OUTPUT"}
@@ -331,6 +331,11 @@ def native_model_description(xml: bytes, guid: str, spec: NativeSpec = RAILCAR_S
     cosim.set("needsExecutionTool", "false")
     for old in cosim.findall("SourceFiles"):
         cosim.remove(old)
+    # FMI 2.0 <SourceFiles> has no place for compiler options (FMI 3.0's buildDescription.xml
+    # has SourceFileSet/@compilerOptions, see native_fmi3.build_description): bit-identity with
+    # the Python reference needs -ffp-contract=off (C_FLAGS). The header comment of
+    # sources/glue_common.c says so to whoever compiles them; the core's .c files also turn
+    # contraction off themselves (rc_fp_contract.h).
     files = ET.SubElement(cosim, "SourceFiles")
     for src in c_sources(spec):
         ET.SubElement(files, "File", name=src.name)

@@ -3,16 +3,13 @@
  * fmi3_glue.c exports the fmi3* entry points of a co-simulation FMU and drives a backend written
  * for fmi2_glue.h (its model_* functions, e.g. native_railcar.c) unchanged. It is a thin
  * compatibility layer, not a second backend interface:
- *   - it implements the glue services of fmi2_glue.h (glue_log, glue_alloc_vars, ...) on the same
- *     GlueInstance, so a backend links against either glue without a change;
+ *   - the instance (GlueInstance) and the glue services (glue_log, glue_alloc_vars, ...) are
+ *     glue_common.c's, as for fmi2_glue.c, so a backend links against either glue unchanged;
  *   - the backend's FMI 2 types are FMI 3's on this platform (checked at compile time):
  *     fmi2Status OK..Fatal = fmi3Status OK..Fatal, fmi2Real = fmi3Float64,
  *     fmi2Integer = fmi3Int32 (our Integer variables are Int32 in FMI 3), fmi2String = fmi3String,
  *     fmi2ValueReference = fmi3ValueReference;
- *   - the host's fmi3LogMessageCallback is reached through an FMI 2 style logger installed in the
- *     GlueInstance (Glue3Instance below): glue_log_text hands it the text with every '%' doubled
- *     (the FMI 2 logger is printf-like); the forwarder undoes that, since FMI 3's message is
- *     plain text;
+ *   - messages reach the host's fmi3LogMessageCallback as plain text (Glue3Instance below);
  *   - fmi3EnterInitializationMode is model_setup_experiment + model_enter_initialization_mode.
  * Call rules (states, value references, statuses) are those of fmi2_glue.h, in FMI 3 terms:
  * instantiated, initialization mode, step mode (GLUE_STEP_COMPLETE), terminated, error, fatal.
@@ -26,7 +23,7 @@
 #include "fmi3Functions.h"
 
 /* One FMI 3 instance: the backend's GlueInstance first (fmi3Instance points at it), then what
-   only FMI 3 has. */
+   only FMI 3 has: the host's logger. */
 typedef struct {
     GlueInstance g;
     fmi3LogMessageCallback log_message;        /* NULL: no logging */

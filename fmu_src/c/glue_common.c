@@ -1,0 +1,549 @@
+/* glue_common.c -- the part of the FMI 2.0 and FMI 3.0 glues that no standard owns (see
+ * glue_common.h): registry, state rules, value-reference checks, logging, resource locations.
+ * Compile these sources with -ffp-contract=off (GCC ignores #pragma STDC FP_CONTRACT): the model
+ * core is bit-identical to the Python reference only without fused multiply-adds (its own .c
+ * files also turn contraction off, models/core/rc_fp_contract.h).
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <math.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "glue_common.h"
+
+#define LOG_ERROR(g, ...) glue_log((g), GLUE_STATUS_ERROR, "logStatusError", __VA_ARGS__)
+
+/* ------------------------------------------------------------------------------- registry */
+
+/* Live instances of this library. Looked up by pointer value only, so a stale or garbage
+   pointer is recognised without being read. A handful of instances: a linear scan is enough. */
+static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
+static GlueInstance **registry;
+static size_t registry_count, registry_capacity;
+
+int gc_register(GlueInstance *g) {
+    int ok = 1;
+    pthread_mutex_lock(&registry_lock);
+    if (registry_count == registry_capacity) {
+        size_t cap = registry_capacity ? 2 * registry_capacity : 8;
+        GlueInstance **grown = realloc(registry, cap * sizeof *grown);
+        if (grown) {
+            registry = grown;
+            registry_capacity = cap;
+        } else {
+            ok = 0;
+        }
+    }
+    if (ok) registry[registry_count++] = g;
+    pthread_mutex_unlock(&registry_lock);
+    return ok;
+}
+
+/* Find `handle` among the live instances; with `remove`, take it out (freeInstance). */
+static GlueInstance *registry_find(const void *handle, int remove) {
+    GlueInstance *found = NULL;
+    size_t i;
+    if (!handle) return NULL;
+    pthread_mutex_lock(&registry_lock);
+    for (i = 0; i < registry_count; i++) {
+        if ((const void *)registry[i] == handle) {
+            found = registry[i];
+            if (remove) {
+                registry[i] = registry[--registry_count];
+                if (registry_count == 0) {   /* nothing left behind if the host unloads us */
+                    free(registry);
+                    registry = NULL;
+                    registry_capacity = 0;
+                }
+            }
+            break;
+        }
+    }
+    pthread_mutex_unlock(&registry_lock);
+    return found;
+}
+
+GlueInstance *gc_unregister(const void *handle) {
+    return registry_find(handle, 1);
+}
+
+/* No instance to log through: stderr is the only place left to say why the call failed. */
+GlueInstance *gc_lookup(const GlueStandard *standard, const void *handle, const char *function) {
+    GlueInstance *g = registry_find(handle, 0);
+    if (!g)
+        fprintf(stderr, "[%s] %s: %s %p is not a live instance of this FMU "
+                        "(NULL, already freed, or never created); returning %sError\n",
+                standard->prefix, function, standard->handle, handle, standard->prefix);
+    return g;
+}
+
+/* ------------------------------------------------------------------------------ logging */
+
+const char *glue_status_category(int status) {
+    switch (status) {
+    case GLUE_STATUS_WARNING: return "logStatusWarning";
+    case GLUE_STATUS_DISCARD: return "logStatusDiscard";
+    case GLUE_STATUS_ERROR: return "logStatusError";
+    case GLUE_STATUS_FATAL: return "logStatusFatal";
+    default: return "logAll";
+    }
+}
+
+int glue_log_wanted(const GlueInstance *g, int status, const char *category) {
+    size_t i;
+    if (!g || !g->log_sink) return 0;
+    if (status >= GLUE_STATUS_WARNING) return 1;  /* warnings and errors always reach the host */
+    if (!g->logging_on) return 0;
+    if (g->n_categories == 0) return 1;
+    for (i = 0; i < g->n_categories; i++)
+        if (strcmp(g->categories[i], "logAll") == 0 ||
+            (category && strcmp(g->categories[i], category) == 0))
+            return 1;
+    return 0;
+}
+
+void glue_log_text(GlueInstance *g, int status, const char *category, const char *message) {
+    if (!category) category = glue_status_category(status);
+    if (!glue_log_wanted(g, status, category)) return;
+    g->log_sink(g, status, category, message ? message : "");
+}
+
+void glue_log(GlueInstance *g, int status, const char *category, const char *fmt, ...) {
+    char small[512], *text = small;
+    va_list ap;
+    int n;
+    if (!category) category = glue_status_category(status);
+    if (!glue_log_wanted(g, status, category)) return;
+    va_start(ap, fmt);
+    n = vsnprintf(small, sizeof small, fmt, ap);
+    va_end(ap);
+    if (n >= (int)sizeof small) {                 /* long message: one allocation, then freed */
+        char *big = malloc((size_t)n + 1);
+        if (big) {
+            va_start(ap, fmt);
+            vsnprintf(big, (size_t)n + 1, fmt, ap);
+            va_end(ap);
+            text = big;
+        }
+    }
+    glue_log_text(g, status, category, n < 0 ? fmt : text);
+    if (text != small) free(text);
+}
+
+/* ----------------------------------------------------------------- services to the backend */
+
+char *gc_copy_string(const char *s) {
+    char *d;
+    size_t n;
+    if (!s) return NULL;
+    n = strlen(s) + 1;
+    d = malloc(n);
+    if (d) memcpy(d, s, n);
+    return d;
+}
+
+static void free_strings(char **list, size_t n) {
+    size_t i;
+    for (i = 0; i < n; i++) free(list[i]);
+    free(list);
+}
+
+int glue_alloc_vars(GlueInstance *g, size_t n) {
+    g->vars = calloc(n ? n : 1, sizeof *g->vars);
+    g->n_vars = g->vars ? n : 0;
+    return g->vars != NULL;
+}
+
+int glue_set_model_name(GlueInstance *g, const char *name) {
+    char *copy = gc_copy_string(name);
+    if (!copy) return 0;
+    free(g->model_name);
+    g->model_name = copy;
+    return 1;
+}
+
+int glue_add_category(GlueInstance *g, const char *name) {
+    char **grown = realloc(g->known_categories, (g->n_known_categories + 1) * sizeof *grown);
+    if (!grown) return 0;
+    g->known_categories = grown;
+    if (!(grown[g->n_known_categories] = gc_copy_string(name))) return 0;
+    g->n_known_categories++;
+    return 1;
+}
+
+char *glue_string_space(GlueInstance *g, size_t size) {
+    if (size > g->strings_size) {
+        char *grown = realloc(g->strings, size);
+        if (!grown) return NULL;
+        g->strings = grown;
+        g->strings_size = size;
+    }
+    return g->strings;
+}
+
+/* ------------------------------------------------------------------------------ instances */
+
+int gc_init_instance(GlueInstance *g, const GlueStandard *standard, GlueLogSink sink,
+                     const char *instance_name, int logging_on, int visible) {
+    g->standard = standard;
+    g->log_sink = sink;
+    g->logging_on = logging_on;
+    g->visible = visible;
+    g->state = GLUE_INSTANTIATED;
+    g->instance_name = gc_copy_string(instance_name);
+    return g->instance_name != NULL;
+}
+
+void gc_free_instance(GlueInstance *g) {
+    size_t i;
+    for (i = 0; i < g->n_vars; i++) free(g->vars[i].name);
+    free(g->vars);
+    free_strings(g->categories, g->n_categories);
+    free_strings(g->known_categories, g->n_known_categories);
+    free(g->strings);
+    free(g->instance_name);
+    free(g->model_name);
+    free(g->resources);
+    free(g);
+}
+
+/* --------------------------------------------------------------------------- the states */
+
+static const char *state_name(const GlueInstance *g, GlueState s) {
+    switch (s) {
+    case GLUE_INSTANTIATED: return "instantiated";
+    case GLUE_INIT_MODE: return "initialization mode";
+    case GLUE_STEP_COMPLETE: return g->standard->step_state;
+    case GLUE_TERMINATED: return "terminated";
+    case GLUE_ERROR: return "error";
+    case GLUE_FATAL: return "fatal";
+    }
+    return "?";
+}
+
+/* "instantiated, initialization mode" for a state mask */
+static void describe_mask(const GlueInstance *g, int mask, char *out, size_t size) {
+    static const GlueState all[] = {GLUE_INSTANTIATED, GLUE_INIT_MODE, GLUE_STEP_COMPLETE,
+                                    GLUE_TERMINATED, GLUE_ERROR};
+    size_t i, used = 0;
+    out[0] = '\0';
+    for (i = 0; i < sizeof all / sizeof all[0]; i++) {
+        int n;
+        if (!(mask & (int)all[i])) continue;
+        n = snprintf(out + used, size - used, "%s%s", used ? ", " : "", state_name(g, all[i]));
+        if (n < 0 || (size_t)n >= size - used) break;
+        used += (size_t)n;
+    }
+}
+
+GlueInstance *gc_enter(const GlueStandard *standard, const void *handle, const char *function,
+                       int mask) {
+    char where[128];
+    GlueInstance *g = gc_lookup(standard, handle, function);
+    if (!g || ((int)g->state & mask)) return g;
+    describe_mask(g, mask, where, sizeof where);
+    LOG_ERROR(g, "%s: not allowed in state '%s' (allowed in: %s)", function,
+              state_name(g, g->state), where);
+    return NULL;
+}
+
+void gc_not_supported(const GlueStandard *standard, const void *handle, const char *function,
+                      const char *why) {
+    GlueInstance *g = gc_lookup(standard, handle, function);
+    if (g)
+        LOG_ERROR(g, "%s: not supported by %s (%s)", function,
+                  g->model_name ? g->model_name : "this FMU", why);
+}
+
+int gc_settle(GlueInstance *g, int status) {
+    if (status == GLUE_STATUS_FATAL) g->state = GLUE_FATAL;
+    else if (status == GLUE_STATUS_ERROR) g->state = GLUE_ERROR;
+    return status;
+}
+
+int gc_finish(GlueInstance *g, int status, GlueState next) {
+    if (status == GLUE_STATUS_OK) g->state = next;
+    return gc_settle(g, status);
+}
+
+int gc_finish_reset(GlueInstance *g, int status) {
+    if (status == GLUE_STATUS_OK) {
+        g->state = GLUE_INSTANTIATED;
+        g->time = 0.0;
+        g->terminate_requested = 0;
+    }
+    return gc_settle(g, status);
+}
+
+int gc_terminate_after_error(GlueInstance *g, const char *function) {
+    if (g->state != GLUE_ERROR) return 0;
+    glue_log(g, GLUE_STATUS_OK, "logAll", "%s: after an error; the model is not called", function);
+    g->state = GLUE_TERMINATED;
+    return 1;
+}
+
+int gc_check_times(GlueInstance *g, const char *function, double start_time,
+                   int stop_time_defined, double stop_time) {
+    if (!isfinite(start_time)) {
+        LOG_ERROR(g, "%s: startTime = %g is not finite", function, start_time);
+        return 0;
+    }
+    if (stop_time_defined && !(stop_time >= start_time)) {
+        LOG_ERROR(g, "%s: stopTime = %g is before startTime = %g", function, stop_time,
+                  start_time);
+        return 0;
+    }
+    return 1;
+}
+
+int gc_set_debug_logging(GlueInstance *g, const char *function, int logging_on, size_t n,
+                         const char *const categories[], const char *owner) {
+    char **copy = NULL;
+    size_t i, k;
+    if (n > 0 && !categories) {
+        LOG_ERROR(g, "%s: categories[] is NULL but nCategories = %zu", function, n);
+        return 0;
+    }
+    for (i = 0; i < n; i++) {                /* check all before changing anything */
+        int known = g->n_known_categories == 0;
+        if (!categories[i]) {
+            LOG_ERROR(g, "%s: categories[%zu] is NULL", function, i);
+            return 0;
+        }
+        for (k = 0; k < g->n_known_categories && !known; k++)
+            known = strcmp(categories[i], g->known_categories[k]) == 0;
+        if (!known) {
+            LOG_ERROR(g, "%s: '%s' is not a log category of %s", function, categories[i], owner);
+            return 0;
+        }
+    }
+    if (logging_on && n > 0) {            /* logging off: the categories do not matter */
+        copy = calloc(n, sizeof *copy);
+        for (i = 0; copy && i < n; i++)
+            if (!(copy[i] = gc_copy_string(categories[i]))) {
+                free_strings(copy, i);
+                copy = NULL;
+            }
+        if (!copy) {
+            LOG_ERROR(g, "%s: out of memory", function);
+            return 0;
+        }
+    }
+    free_strings(g->categories, g->n_categories);
+    g->categories = copy;
+    g->n_categories = copy ? n : 0;
+    g->logging_on = logging_on;             /* off: every debug category off */
+    return 1;
+}
+
+/* ------------------------------------------------------------------- getting and setting */
+
+static const char *causality_phrase(GlueCausality c) {
+    switch (c) {
+    case GLUE_PARAMETER: return "a parameter";
+    case GLUE_CALCULATED_PARAMETER: return "a calculated parameter";
+    case GLUE_INPUT: return "an input";
+    case GLUE_OUTPUT: return "an output";
+    case GLUE_LOCAL: return "a local variable";
+    case GLUE_INDEPENDENT: return "the independent variable";
+    }
+    return "?";
+}
+
+static const char *variability_name(GlueVariability v) {
+    switch (v) {
+    case GLUE_CONSTANT: return "constant";
+    case GLUE_FIXED: return "fixed";
+    case GLUE_TUNABLE: return "tunable";
+    case GLUE_DISCRETE: return "discrete";
+    case GLUE_CONTINUOUS: return "continuous";
+    }
+    return "?";
+}
+
+static int utf8_valid(const char *s) {
+    const unsigned char *p = (const unsigned char *)s;
+    while (*p) {
+        unsigned c = *p++;
+        int extra;
+        unsigned min;
+        uint32_t cp;
+        if (c < 0x80) continue;
+        if ((c & 0xE0) == 0xC0) { extra = 1; min = 0x80; cp = c & 0x1F; }
+        else if ((c & 0xF0) == 0xE0) { extra = 2; min = 0x800; cp = c & 0x0F; }
+        else if ((c & 0xF8) == 0xF0) { extra = 3; min = 0x10000; cp = c & 0x07; }
+        else return 0;
+        while (extra--) {
+            if ((*p & 0xC0) != 0x80) return 0;
+            cp = (cp << 6) | (*p++ & 0x3F);
+        }
+        if (cp < min || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return 0;
+    }
+    return 1;
+}
+
+/* With GlueStandard.time_variable: "time", value reference n_vars (the first one after the
+   backend's table; fmu_src/native_fmi3.py writes the same), read-only. The backend never sees
+   it; the glue gives its value (the instance's time). */
+static char time_name[] = "time";
+static const GlueVar time_var = {time_name, GLUE_REAL, GLUE_INDEPENDENT, GLUE_CONTINUOUS, 0};
+
+/* The settable checks of one variable (vr r, index i of the call): 0 logged. */
+static int check_settable(GlueInstance *g, const char *function, const GlueVar *v,
+                          unsigned long r, size_t i, int type, const void *values) {
+    const GlueStandard *std = g->standard;
+    if (v->causality != GLUE_PARAMETER && v->causality != GLUE_INPUT) {
+        LOG_ERROR(g, "%s: '%s' (value reference %lu) is %s and cannot be set", function,
+                  v->name, r, causality_phrase(v->causality));
+        return 0;
+    }
+    if (v->variability == GLUE_CONSTANT || !v->settable) {
+        LOG_ERROR(g, "%s: '%s' (value reference %lu) is %s that cannot be set (%s)", function,
+                  v->name, r, causality_phrase(v->causality),
+                  v->variability == GLUE_CONSTANT ? "a constant" : "no setter");
+        return 0;
+    }
+    if (g->state == GLUE_STEP_COMPLETE && v->causality == GLUE_PARAMETER &&
+        v->variability != GLUE_TUNABLE) {
+        LOG_ERROR(g, "%s: '%s' (value reference %lu) is a parameter of variability %s: it can "
+                     "be set only before %sExitInitializationMode, not in state '%s' "
+                     "(%sReset, then set it and initialise again)",
+                  function, v->name, r, variability_name(v->variability), std->prefix,
+                  state_name(g, g->state), std->prefix);
+        return 0;
+    }
+    if (type == GLUE_STRING) {
+        const char *s = ((const char *const *)values)[i];
+        if (!s) {
+            LOG_ERROR(g, "%s: %s[%zu] for '%s' (value reference %lu) is NULL", function,
+                      std->values_array, i, v->name, r);
+            return 0;
+        }
+        if (!utf8_valid(s)) {
+            LOG_ERROR(g, "%s: %s[%zu] for '%s' (value reference %lu) is not valid UTF-8",
+                      function, std->values_array, i, v->name, r);
+            return 0;
+        }
+    }
+    return 1;
+}
+
+int gc_check_refs(GlueInstance *g, const char *function, int type, const char *type_name,
+                  const unsigned int vr[], size_t nvr, const void *values, size_t nvalues,
+                  int setting) {
+    const GlueStandard *std = g->standard;
+    const char *model = g->model_name ? g->model_name : "this FMU";
+    size_t i;
+    if (!type_name) type_name = type >= 0 && type < 4 ? std->type_phrase[type] : "?";
+    if (nvalues != nvr) {
+        LOG_ERROR(g, "%s: nValues = %zu but nValueReferences = %zu (all variables of %s are "
+                     "scalars)", function, nvalues, nvr, model);
+        return 0;
+    }
+    if (nvr == 0) return 1;
+    if (!vr) {
+        LOG_ERROR(g, "%s: %s[] is NULL but %s = %zu", function, std->vr_array, std->vr_count,
+                  nvr);
+        return 0;
+    }
+    if (!values) {
+        LOG_ERROR(g, "%s: %s[] is NULL but %s = %zu", function, std->values_array,
+                  std->values_count, nvr);
+        return 0;
+    }
+    for (i = 0; i < nvr; i++) {
+        const GlueVar *v;
+        unsigned long r = (unsigned long)vr[i];
+        if (std->time_variable && r == g->n_vars) {
+            v = &time_var;
+        } else if (r >= g->n_vars || !g->vars[r].name) {
+            LOG_ERROR(g, "%s: value reference %lu (%s[%zu]) is not a variable of %s", function,
+                      r, std->vr_array, i, model);
+            return 0;
+        } else {
+            v = &g->vars[r];
+        }
+        if ((int)v->type != type) {
+            LOG_ERROR(g, "%s: value reference %lu (%s[%zu]) is '%s', %s variable, not %s",
+                      function, r, std->vr_array, i, v->name, std->type_phrase[v->type],
+                      type_name);
+            return 0;
+        }
+        if (setting && !check_settable(g, function, v, r, i, type, values)) return 0;
+    }
+    return 1;
+}
+
+/* ------------------------------------------------------------------- the FMU's files */
+
+static int hex_value(char c) {
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    return -1;
+}
+
+char *gc_resource_path(const char *location, int decode) {
+    const char *p = location;
+    char *out, *q;
+    size_t n;
+    if (!location) return NULL;
+    if (strncmp(p, "file://", 7) == 0) {
+        p += 7;
+        if (strncmp(p, "localhost/", 10) == 0) p += 9;
+    } else if (strncmp(p, "file:", 5) == 0) {
+        p += 5;
+    }
+    if (*p != '/') return NULL;                 /* relative, or file://host/...: not here */
+    out = malloc(strlen(p) + 1);
+    if (!out) return NULL;
+    for (q = out; *p; p++) {
+        int hi, lo;
+        if (decode && *p == '%' && (hi = hex_value(p[1])) >= 0 && (lo = hex_value(p[2])) >= 0) {
+            *q++ = (char)(hi * 16 + lo);
+            p += 2;
+        } else {
+            *q++ = *p;
+        }
+    }
+    *q = '\0';
+    n = strlen(out);
+    while (n > 1 && out[n - 1] == '/') out[--n] = '\0';
+    return out;
+}
+
+int gc_description_attribute(const char *resources, const char *attribute, char *out,
+                             size_t size) {
+    static const char tail[] = "/../modelDescription.xml";
+    char key[64], *root, *attr, *end, *path;
+    size_t n, len = strlen(resources);
+    int key_len = snprintf(key, sizeof key, " %s=\"", attribute);
+    FILE *f;
+    if (size < 2 || key_len < 0 || (size_t)key_len >= sizeof key) return -1;
+    path = malloc(len + sizeof tail);
+    if (!path) return -1;
+    memcpy(path, resources, len);
+    memcpy(path + len, tail, sizeof tail);
+    f = fopen(path, "rb");
+    free(path);
+    if (!f) return -1;
+    n = fread(out, 1, size - 1, f);
+    fclose(f);
+    out[n] = '\0';
+    root = strstr(out, "<fmiModelDescription");
+    if (!root) return -1;
+    end = strchr(root, '>');
+    attr = strstr(root, key);
+    if (!attr || (end && attr > end)) return -1;
+    attr += key_len;
+    end = strchr(attr, '"');
+    if (!end) return -1;
+    *end = '\0';
+    memmove(out, attr, (size_t)(end - attr) + 1);
+    return 1;
+}
