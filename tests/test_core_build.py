@@ -53,3 +53,50 @@ def test_the_flags_do_refuse_a_warning(tmp_path):
     bad.write_text("int g(void) { return 0; };\n")          # a stray ';' at file scope: ISO C
     assert compile_c(bad, ["-std=c99", "-pedantic"], tmp_path).returncode != 0
     assert len(CORE_SOURCES) >= 10                           # the glob found the core
+
+
+# ----------------------------------------------- no fused multiply-add, whatever the flags
+
+FMA = ("vfmadd", "vfmsub", "vfnmadd", "vfnmsub")
+"""x86-64 FMA3 mnemonics; -mfma lets GCC emit them on this machine whatever its CPU."""
+CONTRACTING = ["-std=gnu99", "-O3", "-mfma", "-fPIC", "-I", str(ROOT / "models" / "core")]
+"""What a user's source-FMU build may do: GNU mode (fmpy's compile: gnu99 or the default gnu17,
+where GCC's default is -ffp-contract=fast) on a target with FMA."""
+GLUE_SOURCES = sorted((ROOT / "fmu_src" / "c").glob("*.c"))
+
+
+def fused_instructions(source: Path, tmp_path: Path, extra: list[str] = ()) -> int:
+    obj = tmp_path / (source.stem + ".o")
+    subprocess.run([GCC, *CONTRACTING, *extra, "-c", str(source), "-o", str(obj)], check=True,
+                   capture_output=True, text=True, timeout=120)
+    asm = subprocess.run(["objdump", "-d", str(obj)], check=True, capture_output=True, text=True).stdout
+    return sum(asm.count(m) for m in FMA)
+
+
+def test_every_source_turns_contraction_off_itself(tmp_path):
+    """rc_fp_contract.h comes first in every .c file of the core, and with GCC's contracting
+    defaults no source of the core or the native glue (which computes nothing a fused
+    multiply-add could change) compiles to a fused multiply-add: bit-identity with Python does
+    not depend on the -ffp-contract=off a source-FMU user may not pass."""
+    from fmu_src.native import C_DIR
+    sources = CORE_SOURCES + [s for s in GLUE_SOURCES if s.name != "pyslave.c"]
+    missing = [s.name for s in CORE_SOURCES if '#include "rc_fp_contract.h"' not in s.read_text()]
+    assert not missing, f"without rc_fp_contract.h: {missing}"
+    fused = {s.name: n for s in sources
+             if (n := fused_instructions(s, tmp_path, ["-I", str(C_DIR), "-I", str(_fmi_headers())]))}
+    assert not fused, f"fused multiply-adds: {fused}"
+
+
+def test_the_fma_check_sees_a_source_without_the_guard(tmp_path):
+    """The control: ident.c without its include contracts hundreds of a * b + c."""
+    copy = tmp_path / "ident_unguarded.c"
+    copy.write_text((ROOT / "models" / "core" / "ident.c").read_text().replace('#include "rc_fp_contract.h"', ""))
+    assert fused_instructions(copy, tmp_path) > 50
+
+
+def _fmi_headers() -> Path:
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("railcar_build", ROOT / "build.py")
+    build = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    return build.fmi2_headers()

@@ -51,17 +51,12 @@ NATIVE = {  # native FMU -> (its pythonfmu twin, FMI version)
 EST_INPUTS = ("traction_force", "brake_force", "sensor.speed", "sensor.position",
               "sensor.track_speed", "sensor.track_time")
 
-# The guard asked for in the report (top of every .c, or of a header every .c includes first):
-# GCC ignores the standard pragma (and warns), clang honours it, GCC honours its own.
-GUARD = b"""#if defined(__clang__)
-#pragma STDC FP_CONTRACT OFF
-#elif defined(__GNUC__)
-#pragma GCC optimize ("fp-contract=off")
-#endif
-"""
-CONTROLS = {  # build -> (native FMU, CFLAGS, sources with GUARD)
-    "fma": ("RailCarNative", "-mfma", False),
-    "fma_guarded": ("RailCarNative", "-mfma", True),
+# The shipped sources turn contraction off themselves: every .c of the core includes
+# rc_fp_contract.h first. The control removes that line, to show what it prevents.
+GUARD_LINE = b'#include "rc_fp_contract.h"'
+CONTROLS = {  # build -> (native FMU, CFLAGS, sources with the guard removed)
+    "fma": ("RailCarNative", "-mfma", True),
+    "fma_guarded": ("RailCarNative", "-mfma", False),
 }
 FMA = re.compile(r"\bvf(n?)m(add|sub)")          # x86 fused multiply-add instructions
 
@@ -86,16 +81,16 @@ def _shipped_binary(path: Path, fmi_version: str) -> bytes:
 
 # ---------------------------------------------------------------------------- the builds
 
-def _source_copy(shipped: Path, dest: Path, guard: bool) -> Path:
-    """The shipped FMU without binaries/ (with GUARD on top of each .c if ``guard``)."""
+def _source_copy(shipped: Path, dest: Path, unguard: bool) -> Path:
+    """The shipped FMU without binaries/ (without the contraction guard if ``unguard``)."""
     dest.parent.mkdir(parents=True)
     with zipfile.ZipFile(shipped) as zin, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as zout:
         for info in zin.infolist():
             if info.filename.startswith("binaries/"):
                 continue
             data = zin.read(info.filename)
-            if guard and info.filename.startswith("sources/") and info.filename.endswith(".c"):
-                data = GUARD + data
+            if unguard and info.filename.startswith("sources/") and info.filename.endswith(".c"):
+                data = data.replace(GUARD_LINE, b"")
             zout.writestr(info, data)
     with zipfile.ZipFile(dest) as z:
         names = z.namelist()
@@ -113,8 +108,8 @@ def compiled(built_fmus, tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("fmpy_compile")
     jobs = {**{name: (name, None, False) for name in NATIVE}, **CONTROLS}
     procs = {}
-    for build, (name, cflags, guard) in jobs.items():
-        fmu = _source_copy(native_dir / f"{name}.fmu", root / build / f"{name}.fmu", guard)
+    for build, (name, cflags, unguard) in jobs.items():
+        fmu = _source_copy(native_dir / f"{name}.fmu", root / build / f"{name}.fmu", unguard)
         env = {k: v for k, v in os.environ.items() if k not in ("CFLAGS", "CPPFLAGS", "LDFLAGS")}
         env.update(VERBOSE="1", TMPDIR=str(fmu.parent))
         if cflags:
@@ -331,10 +326,10 @@ def test_compiled_estimator_bit_identical(compiled, shipped, built_fmus, python_
 
 def test_contraction_breaks_bit_identity_and_the_guard_restores_it(compiled, shipped,
                                                                    scenarios, tmp_path):
-    """What an aarch64 user's `fmpy compile` does (fused multiply-adds: GCC's gnu dialect
-    contracts whenever the target has FMA), here with CFLAGS=-mfma: the comparison above sees it
-    from the first step. The same build of sources that start with GUARD has no FMA instruction
-    and is bit-identical again: the guard is what the sources need."""
+    """What an aarch64 user's `fmpy compile` would do to sources without the guard (fused
+    multiply-adds: GCC's gnu dialect contracts whenever the target has FMA), here with
+    CFLAGS=-mfma: the comparison above sees it from the first step. The shipped sources, guard
+    included, built the same way have no FMA instruction and are bit-identical."""
     if not re.search(r"^flags\s*:.*\bfma\b", Path("/proc/cpuinfo").read_text(), re.M):
         pytest.skip("this CPU has no FMA: the -mfma control binaries cannot run here")
     fma, guarded = compiled["fma"][0], compiled["fma_guarded"][0]
