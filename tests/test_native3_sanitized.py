@@ -54,12 +54,11 @@ see tests/test_native_sanitized.py). Two leak controls prove these checks can fa
   live instances keeps every one reachable), but live bytes grow ~12 KB a cycle and RSS ~16 MB:
   the live-byte equality is the check that catches a leaked instance.
 
-A known gap, reported and marked xfail below: FMI 3.0 lets a host pass resourcePath = NULL
-("resourcePath must be NULL, if no resource path can be provided to the FMU"; "If the FMU
-cannot work without content of the resources folder, fmi3Instantiate must return NULL" --
-FMI 3.0.2, section 2.3.1, docs/2_3_common_states.adoc of modelica/fmi-standard). Ours works
-without it (no profile by default; a relative profile is then looked up in the working
-directory, fmu_src/c/native_common.c resolve_profile_path), yet fmi3_glue.c refuses NULL.
+FMI 3.0 lets a host pass resourcePath = NULL ("resourcePath must be NULL, if no resource path
+can be provided to the FMU"; "If the FMU cannot work without content of the resources folder,
+fmi3Instantiate must return NULL" -- FMI 3.0.2, section 2.3.1). Ours works without it (no
+profile by default; a relative profile is then looked up in the working directory,
+fmu_src/c/native_common.c resolve_profile_path), so it instantiates.
 
 The runs take well under a second each; the parallel compilation dominates.
 """
@@ -258,21 +257,10 @@ def test_a_leaked_instance_is_caught_by_the_live_byte_count(hosts):
     assert rss[1000] - rss[100] >= RSS_GROWTH_LIMIT_KB, rss
 
 
-NULL_RESOURCES_FIX = (
-    "fmi3_glue.c refuses resourcePath = NULL, which FMI 3.0 allows (section 2.3.1); fix in "
-    "fmi3InstantiateCoSimulation: `if (resourcePath && !g->resources)` before the 'is not an "
-    "absolute path' error, `(g->resources && check_token(g, instantiationToken) == 0)` (no "
-    "token check without resources), and log `g->resources ? g->resources : \"none\"`")
-
-
 def test_a_null_resource_path_is_accepted(hosts):
     """FMI 3.0: resourcePath may be NULL; the FMU must then instantiate unless it cannot work
-    without its resources (ours can). Known to fail today with exactly the message below: the
-    test is then xfail with the fix wanted; any other failure fails, and it passes once fixed."""
+    without its resources (ours can)."""
     proc, _ = _run(hosts, "railcar", mode="null_resources")
     _no_sanitizer_report(proc)
-    if (proc.returncode == 1 and "resourcePath = NULL returned NULL" in proc.stdout
-            and "resourcePath '(NULL)' is not an absolute path" in proc.stdout):
-        pytest.xfail(NULL_RESOURCES_FIX)
     _clean(proc)
     assert "null_resources instantiated, 20 steps" in proc.stdout, proc.stdout
