@@ -1,6 +1,6 @@
 """Command line of the validation harness.
 
-    python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild]
+    python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild] [--fmu KIND]
     python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
     python -m harness regress [--update] [NAME ...]
     python -m harness report [--out DIR] [NAME ...]
@@ -8,6 +8,12 @@
     python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
     python -m harness list
+
+Every command that runs an FMU (run, replay, regress, report, filters, sweep) takes
+``--fmu auto|native|python`` (harness.fmus): the native FMU (the C core, no Python, bit-identical
+outputs), the pythonfmu FMU, or by default ``auto``: the native FMU when the C core covers the
+parameters of everything the command runs, else the pythonfmu FMU. The choice is printed
+("fmu: ...") and recorded (summary.md, library.md, the sweep's ``fmu`` column).
 
 Exit codes: 0 success; 1 a run failed or a regression/target check failed; 2 bad usage or
 invalid input (scenario, log, parameter, sweep file, output folder): one line on stderr naming
@@ -29,10 +35,18 @@ from .textio import InputError, check_out_dir
 EXIT_OK, EXIT_RUN_FAILED, EXIT_USAGE = 0, 1, 2
 
 
-def _init_failed(where, e) -> int:
+def _init_failed(where, e, hint: str = "") -> int:
     """The FMU refused to initialise with the parameters of ``where``: invalid input."""
-    print(f"error: {where}: the FMU refused to initialise: {e.reason}", file=sys.stderr)
+    print(f"error: {where}: the FMU refused to initialise: {e.reason}{hint}", file=sys.stderr)
     return EXIT_USAGE
+
+
+def _native_hint(choice, model: str, parameters: dict) -> str:
+    """For a native FMU refusing an option the C core does not cover: how to run it anyway."""
+    from .fmus import uncovered
+    if choice.kind == "native" and uncovered(model, parameters):
+        return " (--fmu auto or --fmu python runs it on the pythonfmu FMU)"
+    return ""
 
 
 def _check_log_path(path: str) -> None:
@@ -46,7 +60,7 @@ def _check_log_path(path: str) -> None:
 
 
 def cmd_run(args) -> int:
-    from .fmus import DIST, ensure_built
+    from .fmus import select
     from .metrics import format_summary, summarise
     from .report import write_report
     from .runner import FmuRunner, InitError, RunError
@@ -56,21 +70,22 @@ def cmd_run(args) -> int:
     check_out_dir(out)
     if args.log:
         _check_log_path(args.log)
-    dist = Path(args.dist) if args.dist else DIST
-    fmus = ensure_built(dist, force=args.rebuild)
+    choice = select(args.fmu, "RailCar", args.dist, args.rebuild, [(str(args.scenario), scenario.parameters)])
     print(f"running '{scenario.name}': {scenario.purpose}", flush=True)
-    with FmuRunner(fmus["RailCar"]) as runner:
+    print(choice.line(), flush=True)
+    with FmuRunner(choice.path) as runner:
         try:
             result = runner.run(scenario)
         except InitError as e:
-            return _init_failed(f"{args.scenario}: parameters", e)
+            return _init_failed(f"{args.scenario}: parameters", e,
+                                _native_hint(choice, "RailCar", scenario.parameters))
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
     summary = summarise(result)
     true_A = summary.A_true
     print(format_summary(summary))
-    files = write_report(result, summary, true_A, out)
+    files = write_report(result, summary, true_A, out, fmu=choice.describe())
     if args.log:
         from .replay import write_log
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
@@ -92,22 +107,47 @@ def _library(names: list[str]) -> list:
     return [load_scenario(p) for p in paths]
 
 
-def _run_all(scenarios, dist, rebuild=False):
-    """Run scenarios on one extracted RailCar; yields (scenario, result or RunError)."""
-    from .fmus import DIST, ensure_built
+def _choose_each(scenarios, kind: str, dist, rebuild: bool) -> dict:
+    """The FMU for each scenario (--fmu, harness.fmus.choose: auto decides per scenario), printed
+    as one line per FMU used."""
+    from .fmus import DIST, choose, ensure_built
+    dist = Path(dist) if dist else DIST
+    ensure_built(dist, force=rebuild, native=kind != "python")
+    choices = {s.name: choose(kind, "RailCar", dist, [(str(s.path or s.name), s.parameters)]) for s in scenarios}
+    groups: dict = {}
+    for name, c in choices.items():
+        groups.setdefault((c.kind, c.path), []).append((name, c))
+    for (k, path), members in groups.items():
+        whys = list(dict.fromkeys(c.why for _, c in members))
+        which = (f"all {len(members)} scenarios" if len(members) == len(choices) and len(members) > 1
+                 else ", ".join(n for n, _ in members))
+        print(f"fmu: {k} {path} for {which} (--fmu {kind}: {'; '.join(whys)})", flush=True)
+    return choices
+
+
+def _run_all(scenarios, dist, rebuild=False, kind: str = "auto"):
+    """Run scenarios, each on the FMU --fmu picks for it (each FMU extracted once); yields
+    (scenario, result or RunError). A RunError carries ``fmu``, the kind that ran."""
     from .progress import Progress
     from .runner import FmuRunner, RunError
-    fmus = ensure_built(Path(dist) if dist else DIST, force=rebuild)
+    choices = _choose_each(scenarios, kind, dist, rebuild)
     bar = Progress(len(scenarios), "scenarios")
-    with FmuRunner(fmus["RailCar"]) as runner:
+    runners: dict = {}
+    try:
         for s in scenarios:
+            path = choices[s.name].path
+            runner = runners.get(path) or runners.setdefault(path, FmuRunner(path))
             try:
                 result = runner.run(s)
                 bar.advance(s.name)
                 yield s, result
             except RunError as e:
+                e.fmu = runner.kind
                 bar.advance(s.name, failed=True)
                 yield s, e
+    finally:
+        for runner in runners.values():
+            runner.close()
 
 
 def _init_failures(results) -> int | None:
@@ -124,7 +164,7 @@ def cmd_regress(args) -> int:
     scenarios = _library(args.names)
     failed = False
     results = []
-    for s, result in _run_all(scenarios, args.dist, args.rebuild):
+    for s, result in _run_all(scenarios, args.dist, args.rebuild, args.fmu):
         results.append((s, result))
         if isinstance(result, Exception):
             print(f"FAIL {s.name}: {result}")
@@ -154,7 +194,7 @@ def cmd_report(args) -> int:
     scenarios = _library(args.names)
     out = Path(args.out) if args.out else Path("out") / "library"
     check_out_dir(out)
-    results = list(_run_all(scenarios, args.dist, args.rebuild))
+    results = list(_run_all(scenarios, args.dist, args.rebuild, args.fmu))
     rows = library_rows(results)
     print(format_table(rows))
     path = write_table(rows, out)
@@ -163,34 +203,38 @@ def cmd_report(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from .fmus import DIST, ensure_built
+    from .fmus import select
     from .replay import estimator_parameters, read_log, replay_report
     from .runner import FmuRunner, InitError, RunError
     log = read_log(args.log)                     # LogError, ParamError: invalid input (exit 2)
     params = estimator_parameters(args.param, dt=float(log.time[1] - log.time[0]))
     out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
     check_out_dir(out)
-    fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
-    with FmuRunner(fmus["RailCarEstimator"]) as runner:
+    choice = select(args.fmu, "RailCarEstimator", args.dist, args.rebuild, [("--param", params)])
+    print(choice.line(), flush=True)
+    with FmuRunner(choice.path) as runner:
         try:
             signals, _ = runner.replay(log, params, what=Path(args.log).name)
         except InitError as e:
-            return _init_failed("--param", e)
+            return _init_failed("--param", e, _native_hint(choice, "RailCarEstimator", params))
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    print(replay_report(log, signals, out))
+    print(replay_report(log, signals, out, fmu=f"{choice.kind} ({choice.path.name})"))
     return EXIT_OK
 
 
 def cmd_filters(args) -> int:
-    from .fmus import DIST, ensure_built
+    from .fmus import select
     from .filter_compare import KINDS, compare_filters, format_rows
     from .progress import Progress
     from .runner import FmuRunner
     scenarios = _library(args.names)
-    fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
-    with FmuRunner(fmus["RailCar"]) as runner:
+    choice = select(args.fmu, "RailCar", args.dist, args.rebuild,
+                    [(f"{s.name} with filter.kind = {k}", {**s.parameters, "filter.kind": k})
+                     for s in scenarios for k in KINDS])
+    print(choice.line(), flush=True)
+    with FmuRunner(choice.path) as runner:
         rows = compare_filters(scenarios, runner, Progress(len(scenarios) * len(KINDS), "filters"))
     print(format_rows(rows))
     return EXIT_OK
@@ -230,8 +274,14 @@ def cmd_sweep(args) -> int:
 
 
 def _fmu_options(p) -> None:
-    p.add_argument("--dist", metavar="DIR", help="folder of RailCar.fmu and RailCarEstimator.fmu (default: dist/); "
-                   "they are built there when missing or built from other sources")
+    from .fmus import DEFAULT_KIND, KINDS
+    p.add_argument("--dist", metavar="DIR", help="folder of RailCar.fmu and RailCarEstimator.fmu and their native "
+                   "twins in DIR/native (default: dist/); they are built there when missing or built from other "
+                   "sources")
+    p.add_argument("--fmu", choices=KINDS, default=DEFAULT_KIND,
+                   help="which FMU runs: native (the C core, no Python), python (pythonfmu, every option), or "
+                        "auto (default): native when the C core covers the parameters (est.method, est.physical "
+                        "and est.sigma2_method 0), else python; the choice is printed and recorded")
     p.add_argument("--rebuild", action="store_true", help="rebuild the FMUs into --dist even if they are current")
 
 

@@ -22,6 +22,7 @@ class Row:
     speed_std: float            # [m/s]
     summary: RunSummary | None
     error: str = ""
+    fmu: str = ""               # which FMU ran: "native" or "python" (harness.fmus)
 
     @property
     def targets_apply(self) -> bool:
@@ -49,9 +50,9 @@ def library_rows(results) -> list[Row]:
     for s, r in results:
         std = s.parameter("sensor.speed_std")
         if isinstance(r, Exception):
-            rows.append(Row(s.name, std, None, str(r).splitlines()[0]))
+            rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", "")))
         else:
-            rows.append(Row(s.name, std, summarise(r)))
+            rows.append(Row(s.name, std, summarise(r), fmu=r.fmu))
     return rows
 
 
@@ -97,11 +98,22 @@ def format_table(rows: list[Row]) -> str:
                      ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body])
 
 
+def fmu_line(rows: list[Row]) -> str:
+    """Which FMU ran which scenarios: 'native for all 12 scenarios' or 'native: a, b; python: c'."""
+    kinds: dict[str, list[str]] = {}
+    for r in rows:
+        kinds.setdefault(r.fmu or "?", []).append(r.name)
+    if len(kinds) == 1 and len(rows) > 1:
+        return f"{next(iter(kinds))} for all {len(rows)} scenarios"
+    return "; ".join(f"{k}: {', '.join(names)}" for k, names in kinds.items())
+
+
 def write_table(rows: list[Row], out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Scenario library: truth vs estimates", "",
              f"Targets for speed noise <= {NOISE_LIMIT} m/s: |mass error| <= {MASS_BOUND_PCT} % at every stop, "
              f"filter RMSE <= {RMSE_RATIO_BOUND} x sensor RMSE (speed and distance).", "",
+             f"FMU (python -m harness report --fmu): {fmu_line(rows)}.", "",
              "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     lines += ["| " + " | ".join(b) + " |" for b in table_rows(rows)]
     path = out / "library.md"

@@ -183,11 +183,12 @@ def write_log(path: Path, result) -> Path:
     return path
 
 
-def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path) -> str:
+def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path, fmu: str = "") -> str:
     """Write the estimates (CSV, units in the header) and return a short summary text.
 
     RailCarEstimator's outputs at row k are its estimates for row k's instant (the one-step
     prediction made at row k-1), so they compare directly with truth columns on the same row.
+    ``fmu``: which FMU ran (harness.fmus.FmuChoice.describe), a line of the text.
     """
     from .metrics import rmse
     out.mkdir(parents=True, exist_ok=True)
@@ -215,5 +216,7 @@ def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path) -> str:
     if "car.total_mass" in c:
         err = 100 * (signals["est.mass"][-1] - c["car.total_mass"][-1]) / c["car.total_mass"][-1]
         lines.append(f"  mass error at the end    {err:+.3f} %")
+    if fmu:
+        lines.append(f"  ran on the FMU {fmu}")
     lines.append(f"  estimates: {path}")
     return "\n".join(lines)

@@ -22,9 +22,12 @@ def write_result_csv(result, path: Path) -> Path:
     return path
 
 
-def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Path]) -> Path:
-    lines = [f"# Run report: {summary.scenario}", "", scenario.purpose or "", "",
-             "```", format_summary(summary), "```", ""]
+def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Path], fmu: str = "") -> Path:
+    """``fmu``: which FMU ran and why (harness.fmus.FmuChoice.line), a line of its own."""
+    lines = [f"# Run report: {summary.scenario}", "", scenario.purpose or "", ""]
+    if fmu:
+        lines += [f"FMU: {fmu}", ""]
+    lines += ["```", format_summary(summary), "```", ""]
     for fig in figures:
         lines += [f"![{fig.stem}]({fig.name})", ""]
     lines += ["Raw values:", "", "| metric | value |", "|---|---|"]
@@ -130,11 +133,13 @@ def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
     return _save(fig, f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
 
 
-def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path) -> list[Path]:
-    """Everything for one run into ``out_dir``; returns the files written."""
+def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path, fmu: str = "") -> list[Path]:
+    """Everything for one run into ``out_dir``; returns the files written. ``fmu``: which FMU ran
+    (a line of summary.md; default: the kind the result records)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_result_csv(result, out_dir / f"{result.scenario.name}_result.csv")
     figs = plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir),
                                         plot_resistance_vs_time(result, true_A, out_dir)]
-    md = write_summary_md(summary, result.scenario, out_dir / "summary.md", figs)
+    md = write_summary_md(summary, result.scenario, out_dir / "summary.md", figs,
+                          fmu or getattr(result, "fmu", ""))
     return [csv_path, md, *figs]

@@ -2,7 +2,9 @@
 
 The runner always steps with the scenario's communication step (no silent coarsening), checks
 the run reaches its stop time, keeps the FMU's log, and raises ``RunError`` with that log
-when a call fails. Value references are looked up by name.
+when a call fails. Value references are looked up by name, so that the pythonfmu FMU and its
+native twin (same names and value references, harness.fmus) are driven by the same code;
+``FmuRunner.kind`` says which one runs, and every RunResult records it.
 """
 from __future__ import annotations
 
@@ -58,6 +60,7 @@ class RunResult:
     units: dict[str, str]
     log: list[str] = field(default_factory=list)
     inputs: dict[str, np.ndarray] = field(default_factory=dict)   # held over [t_k, t_k+1]
+    fmu: str = ""                  # which FMU ran: "native" or "python" (FmuRunner.kind); "" no FMU
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -104,6 +107,12 @@ class FmuRunner:
         self.units = {v.name: (v.unit or v.declaredType and v.declaredType.unit or "")
                       for v in self.md.modelVariables}
         self._runs = 0
+
+    @property
+    def kind(self) -> str:
+        """"native" (the C core, no Python: needsExecutionTool false) or "python" (pythonfmu)."""
+        from .fmus import is_native
+        return "native" if is_native(self.md) else "python"
 
     def close(self) -> None:
         shutil.rmtree(self.unzipdir, ignore_errors=True)
@@ -277,4 +286,4 @@ class FmuRunner:
         units = {n: self.units.get(n, "") for n in outputs}
         u_arr = np.array(rows_in + rows_in[-1:] if rows_in else [[0.0] * len(INPUTS)]).reshape(-1, len(INPUTS))
         inputs = {n: u_arr[:, j] for j, n in enumerate(INPUTS)}
-        return RunResult(scenario, time, signals, units, log, inputs)
+        return RunResult(scenario, time, signals, units, log, inputs, fmu=self.kind)

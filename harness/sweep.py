@@ -42,6 +42,13 @@ after an initialisation failure (pythonfmu: fmi2Fatal) that instance is leaked, 
 again, and the next run gets a fresh one. The FMU is shipped by *path*: a remote cluster must
 see the same path (and the project on its PYTHONPATH).
 
+Which FMU: ``--fmu`` (harness.fmus.choose). One FMU runs the whole sweep: by default (``auto``)
+the native RailCar (the C core, no Python, bit-identical rows) when the C core covers every
+valid run's parameters, else the pythonfmu RailCar. The choice is printed, and the ``fmu``
+column (last) of every row that ran says which kind ran it. A worker that finds a rebuilt
+native FMU at the same path loads the new one (no Python modules are cached for it); a
+rebuilt pythonfmu FMU still needs fresh worker processes.
+
 Results: one row per run, appended to ``DIR/results.csv`` as runs finish (completion order,
 units in the header cells ``name [unit]``), and to ``DIR/results.parquet`` when pyarrow is
 importable (rewritten from the CSV every few seconds and at the end, so it is always a valid
@@ -510,13 +517,16 @@ def metric_columns() -> list[Column]:
     return cols
 
 
+FMU_COLUMN = Column("fmu", "", "str")          # which FMU ran the row: native, python ('' none ran)
+
+
 def sweep_columns(sweep: Sweep) -> list[Column]:
     cols = [Column("run_id", "", "int"), Column("status", "", "str"), Column("error", "", "str"),
             Column("wall_time", "s", "float")]
     cols += [Column(n, name_unit(n) or ("-" if name_kind(n) != "str" else ""), name_kind(n)) for n in sweep.axes]
     if "seed" not in sweep.axes:
         cols.append(Column("seed", "-", "int"))
-    return cols + metric_columns() + list(CALIBRATION_COLUMNS)
+    return cols + metric_columns() + list(CALIBRATION_COLUMNS) + [FMU_COLUMN]
 
 
 def _max_abs(xs) -> float:
@@ -670,8 +680,13 @@ class ReusableRunner(FmuRunner):
 
 def worker_runner(fmu_path: str, guid: str | None = None, extract_root: str | None = None):
     """This process's runner of ``fmu_path`` (extracted once, below ``extract_root`` if given);
-    checks it is the build expected."""
+    checks it is the build expected. A native FMU rebuilt at the same path replaces the old one
+    (a fresh extraction, its own shared library); a pythonfmu one cannot (its Python modules are
+    cached in the process)."""
     runner = _WORKER_FMUS.get(fmu_path)
+    if runner is not None and guid is not None and runner.md.guid != guid and runner.kind == "native":
+        _WORKER_FMUS.pop(fmu_path).close()
+        runner = None
     if runner is None:
         runner = _WORKER_FMUS[fmu_path] = ReusableRunner(fmu_path, extract_root)
     if guid is not None and runner.md.guid != guid:
@@ -707,6 +722,7 @@ def execute_run(fmu_path: str, guid: str | None, spec: RunSpec, extract_root: st
         return row
     try:
         runner = worker_runner(fmu_path, guid, extract_root)
+        row["fmu"] = runner.kind
         result = runner.run(spec.scenario)
     except RunError as e:
         row.update(status=TEXT_STATUS_FAILED, error=_one_line(e))
@@ -809,14 +825,16 @@ def _read_csv_rows(path: Path, cols: list[Column]) -> list[dict]:
 class ResultsWriter:
     """Appends rows to DIR/results.csv as they come (deduplicated by run id), Parquet alongside."""
 
-    def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool, overwrite: bool = False):
+    def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool, overwrite: bool = False,
+                 fmu_kind: str | None = None):
         self.out_dir = out_dir
+        self.fmu_kind = fmu_kind
         self.cols = sweep_columns(sweep)
         self.csv_path = out_dir / "results.csv"
         self.parquet_path = out_dir / "results.parquet"
         meta_path = out_dir / "sweep.json"
         meta = {"sweep": str(sweep.path.resolve()), "name": sweep.name, "fingerprint": sweep.fingerprint,
-                "fmu_guid": fmu_guid, "runs": len(sweep.runs),
+                "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "runs": len(sweep.runs),
                 "columns": [[c.key, c.unit, c.kind] for c in self.cols]}
         out_dir.mkdir(parents=True, exist_ok=True)
         self._lock = _lock_folder(out_dir)
@@ -852,6 +870,10 @@ class ResultsWriter:
         if old.get("fingerprint") != sweep.fingerprint:
             raise SweepError(f"{self.out_dir}: --resume: the results there are of another sweep (its runs, "
                              f"fixed values or base scenario differ); use another --out or drop --resume")
+        if old.get("fmu_kind") and self.fmu_kind and old["fmu_kind"] != self.fmu_kind:
+            raise SweepError(f"{self.out_dir}: --resume: the results there ran on the {old['fmu_kind']} FMU, this "
+                             f"call would run the {self.fmu_kind} one; give --fmu {old['fmu_kind']} to continue, "
+                             f"or use another --out")
         if old.get("fmu_guid") != fmu_guid:
             raise SweepError(f"{self.out_dir}: --resume: the FMU was rebuilt since (GUID {old.get('fmu_guid')} "
                              f"-> {fmu_guid}); rows of two builds would mix: use another --out or drop --resume")
@@ -943,6 +965,7 @@ class SweepOutcome:
     wall_s: float
     workers: int
     files: list = field(default_factory=list)
+    fmu: str = ""                # which FMU ran and why (harness.fmus.FmuChoice.describe)
 
 
 class _Progress:
@@ -972,21 +995,25 @@ class _Progress:
 def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler: str | None = None,
               workers: int | None = None, resume: bool = False, limit: int | None = None,
               progress: bool | None = None, plots: bool = True, client=None, log=print,
-              overwrite: bool = False) -> SweepOutcome:
+              overwrite: bool = False, fmu_note: str = "") -> SweepOutcome:
     """Run the sweep's runs (those not in DIR yet with ``resume``; the first ``limit`` of them).
     A DIR that holds results is refused (SweepError) unless ``resume`` or ``overwrite``.
 
     Runs on ``client`` if given, else on the dask scheduler at ``scheduler``, else on a
     LocalCluster of ``workers`` (default: one per core) single-threaded worker processes whose
     scratch space and FMU extractions are in one temporary folder, removed when the sweep ends.
+    ``fmu_path`` is either kind of RailCar FMU (harness.fmus); ``fmu_note`` says which and why,
+    for the summary (default: its kind and path).
     """
-    from .fmus import fmu_guid
+    from fmpy import read_model_description
+    from .fmus import fmu_guid, is_native
     out_dir = Path(out_dir)
     fmu_path = Path(fmu_path).resolve()
     if not fmu_path.is_file():
         raise FileNotFoundError(f"FMU not found: {fmu_path}")
     guid = fmu_guid(fmu_path)
-    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite)
+    kind = "native" if is_native(read_model_description(str(fmu_path))) else "python"
+    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind)
     todo = [s for s in sweep.runs if s.run_id not in writer.done]
     if limit is not None:
         todo = todo[:limit]
@@ -1029,7 +1056,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler
     done = {r["run_id"] for r in table.rows}
     outcome = SweepOutcome(table=table, ran=ran, resumed=writer.resumed,
                            missing=[s.run_id for s in sweep.runs if s.run_id not in done],
-                           wall_s=time.monotonic() - t0, workers=n_workers)
+                           wall_s=time.monotonic() - t0, workers=n_workers, fmu=fmu_note or f"{kind} {fmu_path}")
     outcome.files = [out_dir / "results.csv"] + ([writer.parquet_path] if writer.parquet_path.is_file() else [])
     text = format_sweep_summary(sweep, outcome)
     (out_dir / "summary.md").write_text(f"# Sweep: {sweep.name}\n\n{sweep.purpose}\n\n```\n{text}\n```\n",
@@ -1128,6 +1155,8 @@ def format_sweep_summary(sweep: Sweep, o: SweepOutcome) -> str:
              f"  rows {len(t.rows)}: {len(ok)} ok, {len(failed)} failed; this call ran {o.ran} in {o.wall_s:.1f} s"
              + (f" ({o.ran / o.wall_s:.2f} runs/s on {o.workers} workers)" if o.ran and o.wall_s > 0 and o.workers else "")
              + (f"; {o.resumed} rows kept from before (--resume)" if o.resumed else "")]
+    if o.fmu:
+        lines.append(f"  fmu: {o.fmu}")
     if o.missing:
         lines.append(f"  not run yet: {len(o.missing)} runs (first ids {', '.join(map(str, o.missing[:5]))}); "
                      f"--resume continues")
@@ -1261,7 +1290,7 @@ def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path) -> list[Path]:
 
 def cli_sweep(args) -> int:
     """``python -m harness sweep``: see harness/__main__.py for the arguments."""
-    from .fmus import DIST, ensure_built
+    from .fmus import select
     if args.scheduler and args.workers:
         print("error: --workers sets the size of the embedded local cluster; not with --scheduler", file=sys.stderr)
         return 2
@@ -1278,12 +1307,15 @@ def cli_sweep(args) -> int:
     out = Path(args.out) if args.out else Path("out") / "sweeps" / sweep.name
     check_out_dir(out)
     check_rerun(out, sweep.fingerprint, args.resume, args.overwrite, SweepError)   # before any build
-    fmus = ensure_built(Path(args.dist) if args.dist else DIST, force=args.rebuild)
+    choice = select(getattr(args, "fmu", "auto"), "RailCar", args.dist, args.rebuild,
+                    [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
     where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
     print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)
+    print(choice.line(), flush=True)
     try:
-        o = run_sweep(sweep, out, fmus["RailCar"], scheduler=args.scheduler, workers=args.workers,
-                      resume=args.resume, limit=args.limit, plots=not args.no_plots, overwrite=args.overwrite)
+        o = run_sweep(sweep, out, choice.path, scheduler=args.scheduler, workers=args.workers,
+                      resume=args.resume, limit=args.limit, plots=not args.no_plots, overwrite=args.overwrite,
+                      fmu_note=choice.describe())
     except KeyboardInterrupt:
         print(f"\ninterrupted: the finished runs are in {out / 'results.csv'}; --resume continues", file=sys.stderr)
         return 1
