@@ -1,15 +1,22 @@
-"""Sweep throughput on 1 and 2 dask worker processes, and the per-run instance overhead.
+"""Sweep throughput on 1 and 2 dask worker processes, per-run overhead, and what the native FMU gains.
 
-    python benchmarks/sweep_benchmark.py [--runs 40] [--dist DIR]
+    python benchmarks/sweep_benchmark.py [--runs 40] [--mc 1000] [--dist DIR] [--part workers|kinds|mc ...]
 
 Prints (does not assert) against the targets:
-- runs per second of a seed sweep of level_run cut to 1500 steps (150 s at 0.1 s), on a
-  LocalCluster of 1 and of 2 single-threaded worker processes, each warmed up first (FMU
-  extracted, one run done), so that cluster start-up is not counted; target: 2 workers >= 1.8x 1;
-- the instance life-cycle cost per run as a share of the run's time, for the sweep's reuse path
-  (fmi2Reset + setupExperiment + initialisation + terminate) and for a fresh instance per run
-  (instantiate + ... + freeInstance); target <= 10 %.
-Not run by the test suite.
+- ``workers``: runs per second of a seed sweep of level_run cut to 1500 steps (150 s at 0.1 s),
+  with the pythonfmu FMU on a LocalCluster of 1 and of 2 single-threaded worker processes, each
+  warmed up first (FMU extracted, one run done), so that cluster start-up is not counted; target:
+  2 workers >= 1.8x 1; and the instance life-cycle cost per run as a share of the run's time, for
+  the sweep's reuse path (fmi2Reset + setupExperiment + initialisation + terminate) and for a fresh
+  instance per run (instantiate + ... + freeInstance); target <= 10 %;
+- ``kinds``: the same 1500-step sweep on 2 workers with the pythonfmu RailCar.fmu and the native
+  RailCarNative.fmu (``--fmu python`` / ``native``), runs per second of each and the ratio, plus
+  where a run's time goes (the FMU run vs the metrics computed on it, which are Python either way);
+- ``mc``: a Monte Carlo of the library scenario station_day (900 s, 9000 steps), seeds 0..N-1
+  (``--mc``, default 1000), on 2 warmed-up worker processes with each FMU kind: the sweep's wall
+  time with each, the ratio, and whether the two tables are the same bit for bit.
+Every measurement also prints the CPU share other processes took meanwhile. Not run by the test
+suite.
 """
 from __future__ import annotations
 
@@ -25,7 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.fmus import DIST, ensure_built, fmu_guid  # noqa: E402
+from harness.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: E402
 from harness.metrics import summarise  # noqa: E402
 from harness.runner import FmuRunner  # noqa: E402
 from harness.sweep import ReusableRunner, execute_run, load_sweep, run_sweep  # noqa: E402
@@ -33,12 +40,14 @@ from harness.sweep import ReusableRunner, execute_run, load_sweep, run_sweep  # 
 STEPS = 1500
 
 
-def sweep_file(folder: Path, runs: int, first_seed: int = 1) -> Path:
-    p = folder / f"bench_{first_seed}.toml"
+def sweep_file(folder: Path, runs: int, first_seed: int = 1, scenario: str = "level_run",
+               duration_s: float | None = STEPS * 0.1) -> Path:
+    """A seed sweep of a library scenario (cut to ``duration_s`` and run to it, unless None)."""
+    p = folder / f"bench_{scenario}_{first_seed}_{runs}.toml"
     seeds = list(range(first_seed, first_seed + runs))
-    p.write_text(f'name = "bench"\nscenario = "{(ROOT / "scenarios/library/level_run.toml").as_posix()}"\n'
-                 f'seeds = {seeds}\n[fixed]\nduration_s = {STEPS * 0.1}\nstop_after_last_phase = false\n',
-                 encoding="utf-8")
+    fixed = f"[fixed]\nduration_s = {duration_s}\nstop_after_last_phase = false\n" if duration_s else ""
+    p.write_text(f'name = "bench"\nscenario = "{(ROOT / "scenarios/library" / scenario).as_posix()}.toml"\n'
+                 f'seeds = {seeds}\n{fixed}', encoding="utf-8")
     return p
 
 
@@ -77,30 +86,39 @@ class ForeignLoad:
         return False
 
 
-def throughput(n_workers: int, fmu: Path, runs: int, folder: Path) -> tuple[float, float, float]:
+def throughput(n_workers: int, fmu: Path, runs: int, folder: Path, sweep=None) -> tuple[float, float, float]:
     """(runs per second, mean worker-side seconds per run, CPU share taken by other processes)
-    on a warmed-up LocalCluster."""
+    on a warmed-up LocalCluster; ``sweep`` (default: ``runs`` seeds of the 1500-step level run)."""
+    o, share = timed_sweep(n_workers, fmu, sweep or load_sweep(sweep_file(folder, runs)), folder)
+    return len(o.table.rows) / o.wall_s, statistics.mean(r["wall_time"] for r in o.table.rows), share
+
+
+def timed_sweep(n_workers: int, fmu: Path, sweep, folder: Path):
+    """(SweepOutcome, CPU share of other processes) of ``sweep`` on a LocalCluster of
+    ``n_workers``, each warmed up first with one run of the sweep's scenario (FMU extracted and
+    loaded): o.wall_s is the sweep's own wall time, without the cluster's start-up."""
+    import dataclasses
     import logging
     from distributed import Client, LocalCluster
-    warm = load_sweep(sweep_file(folder, n_workers, first_seed=10_000))
-    sweep = load_sweep(sweep_file(folder, runs))
+    first = sweep.runs[0]
+    warm = [dataclasses.replace(first, run_id=-1 - k) for k in range(n_workers)]
     with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None,
                       host="127.0.0.1", silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         client.wait_for_workers(n_workers)
         guid = fmu_guid(fmu)
         futures = [client.submit(execute_run, str(fmu), guid, spec, workers=[w], pure=False)
-                   for spec, w in zip(warm.runs, client.scheduler_info()["workers"])]
+                   for spec, w in zip(warm, client.scheduler_info()["workers"])]
         client.gather(futures)                                    # every worker: FMU loaded, one run done
         with ForeignLoad() as load:
             o = run_sweep(sweep, folder / f"out_{n_workers}_{time.monotonic_ns()}", fmu, client=client,
-                          plots=False, progress=False)
+                          plots=False, progress=False, log=lambda *a: None)
             load.stop()
     assert all(r["status"] == "ok" for r in o.table.rows), [r["error"] for r in o.table.rows if r["error"]]
-    return runs / o.wall_s, statistics.mean(r["wall_time"] for r in o.table.rows), load.share
+    return o, load.share
 
 
 def overhead(fmu: Path, repeats: int) -> dict:
-    """Seconds per run: the 1500-step run, its metrics, and the instance life-cycle calls."""
+    """Seconds per run (medians): the 1500-step run, its metrics, and the instance life-cycle calls."""
     sweep = load_sweep(sweep_file(Path(tempfile.mkdtemp()), 1))
     sc = sweep.runs[0].scenario
     reuse, fresh = ReusableRunner(fmu), FmuRunner(fmu)
@@ -133,22 +151,14 @@ def overhead(fmu: Path, repeats: int) -> dict:
     return {k: statistics.median(v) for k, v in t.items()}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--runs", type=int, default=40, help="runs per throughput measurement (default 40)")
-    ap.add_argument("--repeats", type=int, default=10, help="repeats of the overhead measurement (default 10)")
-    ap.add_argument("--trials", type=int, default=2, help="throughput trials per worker count; the best counts")
-    ap.add_argument("--dist", help="folder of the FMUs (default: dist/, built if stale)")
-    args = ap.parse_args(argv)
-    fmu = ensure_built(Path(args.dist) if args.dist else DIST)["RailCar"]
+def part_workers(fmu: Path, args, tmp: Path) -> None:
     trials = {1: [], 2: []}
-    with tempfile.TemporaryDirectory() as tmp:
-        for _ in range(args.trials):
-            for n in (1, 2):
-                trials[n].append(throughput(n, fmu, args.runs, Path(tmp)))
+    for _ in range(args.trials):
+        for n in (1, 2):
+            trials[n].append(throughput(n, fmu, args.runs, tmp))
     o = overhead(fmu, args.repeats)
-    print(f"sweep throughput, {args.runs} runs of {STEPS} steps (level_run, run + metrics per task), "
-          f"best of {args.trials} trials:")
+    print(f"sweep throughput, {args.runs} runs of {STEPS} steps (level_run, run + metrics per task, pythonfmu "
+          f"RailCar.fmu), best of {args.trials} trials:")
     for n in (1, 2):
         for r, w, load in trials[n]:
             print(f"  {n} worker{'s' if n > 1 else ' '}: {r:6.2f} runs/s  (worker time per run {w:.3f} s; "
@@ -164,6 +174,72 @@ def main(argv=None) -> int:
     print(f"  fresh (instantiate + setup + init + terminate + free): {1000 * o['fresh']:7.2f} ms = "
           f"{100 * o['fresh'] / run:5.2f} % of the run")
     print(f"  reuse vs fresh instance per run: {o['fresh'] / o['reuse']:.1f}x cheaper")
+
+
+def part_kinds(fmus: dict, args, tmp: Path) -> None:
+    """(a) the 1500-step sweep on 2 workers with each FMU kind, alternating, best of --trials."""
+    trials = {k: [] for k in fmus}
+    for _ in range(args.trials):
+        for kind, fmu in fmus.items():
+            trials[kind].append(throughput(2, fmu, args.runs, tmp))
+    split = {kind: overhead(fmu, args.repeats) for kind, fmu in fmus.items()}
+    print(f"FMU kind: {args.runs} runs of {STEPS} steps (level_run, run + metrics per task) on 2 workers, "
+          f"best of {args.trials} trials:")
+    for kind in fmus:
+        for r, w, load in trials[kind]:
+            print(f"  {kind:6s}: {r:6.2f} runs/s  (worker time per run {w:.3f} s; other processes took "
+                  f"{100 * load:4.1f} % of the CPUs meanwhile)")
+    best = {k: max(v) for k, v in trials.items()}
+    print(f"  native vs python: {best['native'][0] / best['python'][0]:.2f}x the runs per second")
+    for kind, o in split.items():
+        print(f"  one run on one process, {kind:6s}: FMU run {o['run']:.3f} s + metrics {o['metrics']:.3f} s "
+              f"(medians of {args.repeats})")
+    py, na = split["python"], split["native"]
+    print(f"  the FMU run alone: native {py['run'] / na['run']:.2f}x faster; the metrics (Python, the same for "
+          f"both) are {100 * na['metrics'] / (na['run'] + na['metrics']):.0f} % of a native run's task")
+
+
+def part_mc(fmus: dict, args, tmp: Path) -> None:
+    """(b) the station_day Monte Carlo, seeds 0..N-1, on 2 workers with each kind."""
+    sweep = load_sweep(sweep_file(tmp, args.mc, first_seed=0, scenario="station_day", duration_s=None))
+    out = {}
+    for kind, fmu in fmus.items():
+        print(f"  Monte Carlo with the {kind} FMU ({fmu}) ...", flush=True)
+        out[kind] = timed_sweep(2, fmu, sweep, tmp)
+    print(f"Monte Carlo: station_day (900 s, 9000 steps), {args.mc} runs (seeds 0..{args.mc - 1}) on 2 local "
+          f"dask worker processes (warmed up), run + metrics per task:")
+    for kind, (o, load) in out.items():
+        print(f"  {kind:6s}: {o.wall_s:8.1f} s wall  ({len(o.table.rows) / o.wall_s:.2f} runs/s; other processes "
+              f"took {100 * load:4.1f} % of the CPUs meanwhile)")
+    ratio = out["python"][0].wall_s / out["native"][0].wall_s
+    print(f"  python / native wall time: {ratio:.2f}x")
+    keep = ("wall_time", "fmu")
+    same = out["python"][0].table.comparable(keep) == out["native"][0].table.comparable(keep)
+    print(f"  the two results tables, every cell but wall_time and fmu: "
+          f"{'identical bit for bit' if same else 'DIFFERENT'}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=40, help="runs per throughput measurement (default 40)")
+    ap.add_argument("--repeats", type=int, default=10, help="repeats of the overhead measurement (default 10)")
+    ap.add_argument("--trials", type=int, default=2, help="throughput trials per worker count or kind; the best counts")
+    ap.add_argument("--mc", type=int, default=1000, help="runs of the station_day Monte Carlo per kind (default 1000)")
+    ap.add_argument("--part", action="append", choices=("workers", "kinds", "mc"),
+                    help="measure only this (repeatable; default: all three)")
+    ap.add_argument("--dist", help="folder of the FMUs (default: dist/, built if stale)")
+    args = ap.parse_args(argv)
+    dist = Path(args.dist) if args.dist else DIST
+    fmu = ensure_built(dist)["RailCar"]
+    fmus = {"python": fmu, "native": native_path("RailCar", dist)}
+    parts = args.part or ["workers", "kinds", "mc"]
+    with tempfile.TemporaryDirectory() as tmp:
+        if "workers" in parts:
+            part_workers(fmu, args, Path(tmp))
+        if "kinds" in parts:
+            part_kinds(fmus, args, Path(tmp))
+        if "mc" in parts and args.mc > 0:
+            part_mc(fmus, args, Path(tmp))
     return 0
 
 
