@@ -207,7 +207,7 @@ def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
         raise RuntimeError(f"{header.name} is out of date: run python -m fmu_src.native")
     if python_fmu is None:
         from harness.fmus import ensure_built
-        python_fmu = ensure_built(quiet=True)[spec.fmu]
+        python_fmu = ensure_built(quiet=True, native=False)[spec.fmu]
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
     target = dest / f"{native3_name(spec)}.fmu"
