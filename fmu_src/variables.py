@@ -1,8 +1,8 @@
 """The one table of FMU variables: name, causality, variability, type, unit, start, bounds, doc.
 
 It drives the slaves' registration (``adapter.py``), the units and bounds that ``build.py``
-writes into modelDescription.xml, and the README's variable tables. Names and units of the
-contract (``shared/spec/FMU_INTERFACE.md``) must never change.
+writes into modelDescription.xml, and docs/variables.md. The names, units and value references
+are a contract with our users' models: they never change.
 """
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
 """Main-resistance identification during coasting with an extended Kalman filter (seed 003).
 
-Seed 003 (Meleshin 2011, MODEL.md section 7) identifies the main resistance of the Rusich
+Seed 003 (Meleshin 2011, docs/estimation.md) identifies the main resistance of the Rusich
 train on coasting runs with an EKF whose state is [v, a + w_grade, b, c], w0 = a + b v + c v^2,
 only the speed measured. The source works with v in km/h and forces in kgf/t; here everything
-is SI as in the rest of ``models`` (MODEL.md section 1):
+is SI as in the rest of ``models`` (docs/model.md, Units):
 
     state  x = (V, alpha, A1, A2)      [m/s, N/kN, N/kN/(m/s), N/kN/(m/s)^2]
     dV/dt  = -g/1000 / (1 + gamma) * ( alpha + A1 V + A2 V^2 + i_known )      [m/s^2]
@@ -11,7 +11,7 @@ is SI as in the rest of ``models`` (MODEL.md section 1):
     z      = V_meas = V + nu,   nu ~ N(0, speed_std^2)
 
 Coefficients in seed 003's units (a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]) are converted
-at the edge with ``models.units.resistance_kmh_to_si`` (1 kgf/t = 1 N/kN, MODEL.md section 1);
+at the edge with ``models.units.resistance_kmh_to_si`` (1 kgf/t = 1 N/kN, docs/model.md, Units);
 ``to_kmh`` converts back.
 
 The grade: seed 003 lumps the grade into the state's second component, alpha = a + w_grade,

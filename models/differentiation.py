@@ -1,5 +1,5 @@
 """Speed and acceleration from sensor samples by least-squares polynomial differentiation
-(seed 004, Sidorenko 1997, chapter 3; MODEL.md section 8).
+(seed 004, Sidorenko 1997, chapter 3; docs/estimation.md).
 
 Seed 004 fits a polynomial X(t) = a0 + a1 t + ... + al t^l (its eq. (1)) by least squares
 ("Chebyshev polynomials") to the last M+1 samples X[n], ..., X[n-M] of a measured quantity and

@@ -8,7 +8,7 @@ factor gamma):
     dX/dt = V                                                             [m/s]
 
 With gamma = 0 this is exactly the paper's model; with gamma > 0 an estimator built on (2)
-alone identifies the effective mass P (1 + gamma) (MODEL.md section 2).
+alone identifies the effective mass P (1 + gamma) (docs/model.md, Forces on the car).
 """
 from __future__ import annotations
 
@@ -105,7 +105,7 @@ def main_resistance(v: float, wind: float, p: VehicleParams) -> float:
     """Specific main resistance w0 [N/kN], eq. (1), with wind ``wind`` [m/s] (headwind > 0).
 
     The V^2 term is air drag, so the wind acts on it: A2 (V + Vw)|V + Vw|. For V + Vw > 0 this
-    is eq. (1) with A0 + A2 Vw^2, A1 + 2 A2 Vw, A2 (MODEL.md section 2: wind moves all three).
+    is eq. (1) with A0 + A2 Vw^2, A1 + 2 A2 Vw, A2 (docs/model.md, Forces on the car: wind moves all three).
     """
     va = v + wind
     return p.A0 + p.A1 * v + p.A2 * va * abs(va)
@@ -195,7 +195,7 @@ def held_input_dynamics(p: VehicleParams, grade_profile: GradeProfile, traction_
         va = v + wind
         spec = (f - b) * inv_weight - (a0 + a1 * v + a2 * va * abs(va)) - average(x, length)
         a = k_acc * spec
-        return a if (v > 0.0 or a > 0.0) else 0.0     # at rest: no backward roll (MODEL.md 3)
+        return a if (v > 0.0 or a > 0.0) else 0.0     # at rest: no backward roll (docs/model.md, Equation of motion)
 
     return forces, accel
 

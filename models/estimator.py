@@ -77,9 +77,8 @@ class OnlineEstimator:
       1  RefitLS: as 0, plus a filter-error refit of each finished run at the next station, the
          A's carried over between runs (models/output_error.py);
       2  SlopeLS: the same LS fed with seed 004's speed and acceleration (a first-order fit over
-         the last est.slope_window samples, MODEL.md section 8): no errors-in-variables bias;
-      3  CoastLS: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], MODEL.md
-         section 7) for the A's, over every coasting interval (F = B = 0).
+         the last est.slope_window samples, docs/estimation.md): no errors-in-variables bias;
+      3  CoastLS: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], docs/estimation.md) for the A's, over every coasting interval (F = B = 0).
 
     Independent of the method: ``est.physical`` 1 reports (and predicts with) Theta-hat projected
     onto A0, A2 >= 0 (identification.project_physical); ``est.sigma2_method`` chooses the noise
@@ -170,7 +169,7 @@ class OnlineEstimator:
     # Information cap per operating point. At a steady speed and force every regressor phi is the
     # same vector: it tells nothing new about the mass, nor how the resistance splits into A0, A1,
     # A2, while the paper's rows carry the measured speed's error in phi and in y alike (errors in
-    # variables, MODEL.md section 4), a bias that then piles up along the unexcited directions with
+    # variables, docs/model.md, Identification), a bias that then piles up along the unexcited directions with
     # every row. On a 2 h cruise at 60 km/h A0 walked from 0.89 to -10 N/kN and the mass crept
     # +1.1 % with est.mass_std at 0.12 t (seed 3; with wind changes the issue saw 34 -> 573 t).
     # So one steady state feeds at most STEADY_TIME of rows: the filter's speed within

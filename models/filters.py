@@ -102,10 +102,6 @@ class MotionFilter:
     def Rm(self) -> np.ndarray:
         return np.diag(self.R)
 
-    # the Singer kind's own filter and parameters (tests/test_core_singer.py compares them with C)
-    _singer = property(lambda self: self.algorithm.singer)
-    _singer_params = property(lambda self: self.algorithm.params)
-
     def start_from_measurement(self, speed_meas: float, position_meas: float) -> None:
         """A run that does not start at a station: state = first measurement, P = its noise."""
         self.restart()

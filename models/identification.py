@@ -1,6 +1,6 @@
 """Running identification of P, A0, A1, A2 and sigma^2 from measured motion, eqs. (3)-(12).
 
-Regression form of eq. (2) (MODEL.md section 4), generalised by a known rotating-mass factor
+Regression form of eq. (2) (docs/model.md, Identification), generalised by a known rotating-mass factor
 gamma (gamma = 0 is the paper exactly):
 
     Theta = (1/(P g), A0, A1, A2)         [1/kN, N/kN, N/kN/(m/s), N/kN/(m/s)^2]
@@ -54,7 +54,7 @@ from .units import G
 
 PHYSICAL = (1, 3)
 """Components of Theta kept >= 0 by ``project_physical``: A0 and A2. A1 is not: a tailwind Vw < 0
-makes A1' = A1 + 2 A2 Vw negative on a real car (MODEL.md section 2)."""
+makes A1' = A1 + 2 A2 Vw negative on a real car (docs/model.md, Forces on the car)."""
 
 
 def project_physical(theta, cov, components=PHYSICAL) -> np.ndarray:

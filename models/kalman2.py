@@ -1,4 +1,4 @@
-"""The paper's Kalman filter of (speed, distance) as pure functions, eqs. (13)-(19) of MODEL.md.
+"""The paper's Kalman filter of (speed, distance) as pure functions, eqs. (13)-(19) (docs/model.md, Kalman filters).
 
 State x = (x0, X): x0 the speed part [m/s] (V - V_zad for the linearised filter, V for the
 EKF), X the distance from the previous station [m]. Covariances are symmetric 2x2 matrices held

@@ -1,6 +1,6 @@
 """The paper's least squares as pure functions, eqs. (3)-(12), plus the sandwich covariance.
 
-Regression form of eq. (2) (MODEL.md section 4), generalised by a known rotating-mass factor
+Regression form of eq. (2) (docs/model.md, Identification), generalised by a known rotating-mass factor
 gamma (gamma = 0 is the paper exactly):
 
     Theta = (1/(P g), A0, A1, A2)         [1/kN, N/kN, N/kN/(m/s), N/kN/(m/s)^2]

@@ -169,7 +169,7 @@ class RefitLS(PaperLS):
 
 class SlopeLS(PaperLS):
     """est.method 2: the LS fed with seed 004's speed and acceleration: a first-order
-    least-squares fit over the last est.slope_window contiguous samples (MODEL.md section 8),
+    least-squares fit over the last est.slope_window contiguous samples (docs/estimation.md),
     at the window's mean time, with the forces and grade weighted as the slope weights the
     intervals (differentiation.centred_slope_weights). The value and the slope of that fit are
     uncorrelated, so the errors-in-variables bias of V in phi and in y goes away. The seed's
@@ -218,8 +218,7 @@ class SlopeLS(PaperLS):
 
 
 class CoastLS(PaperLS):
-    """est.method 3: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], MODEL.md
-    section 7; models/coast_ekf.py) for the A's: it runs over every coasting interval
+    """est.method 3: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], docs/estimation.md; models/coast_ekf.py) for the A's: it runs over every coasting interval
     (F = B = 0) and carries its A's and their covariance from coast to coast and run to run."""
 
     MIN_COAST_SAMPLES = 50   # coasting samples before the EKF's A's are reported

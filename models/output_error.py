@@ -2,7 +2,7 @@
 
 The paper's least squares (seed 001, eqs. (3)-(12), ``models.identification``) regresses the
 *differenced measured* speed: its target y(n) carries ~sqrt(2) sigma_V 1000/(g dt) of noise
-and the regressors V, V^2 are noisy too (MODEL.md section 4), so the A's are lost. Output-error
+and the regressors V, V^2 are noisy too (docs/model.md, Identification), so the A's are lost. Output-error
 fitting instead simulates eq. (2) deterministically from a fitted initial state and fits the
 *simulated* trajectory to the measured one: measurement noise enters only the residuals, never
 the regressors, and the estimator is consistent.
@@ -420,7 +420,7 @@ class OutputErrorFit:
     @property
     def mass(self) -> float:
         """P-hat [t] (the effective mass P (1 + gamma) if gamma is set to 0 for a car with
-        rotating masses, MODEL.md section 2)."""
+        rotating masses, docs/model.md, Forces on the car)."""
         return 1.0 / (G * self.theta[0]) if self.theta[0] > 0 else float("inf")
 
     @property

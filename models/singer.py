@@ -1,4 +1,4 @@
-"""Singer-type motion model and its Kalman filter (seed 002, MODEL.md section 6).
+"""Singer-type motion model and its Kalman filter (seed 002, docs/filters.md).
 
 State z = [w, v, r]: acceleration w [m/s^2], speed v [m/s], distance r [m]. Seed 002 models
 the acceleration as a Gauss-Markov process with mean m_w [m/s^2], std sigma_w [m/s^2] and
@@ -18,7 +18,7 @@ Discretisation over a step dt [s], x = alpha dt [-], rho = exp(-x):
 - ``singer_process_noise`` is the exact Q = int_0^dt Phi(s) b b^T Phi(s)^T ds with
   b b^T = diag(2 alpha sigma_w^2, 0, 0).  Q[w, w] = sigma_w^2 (1 - rho^2).
 
-Relation to the seed's recursion (seed 002 eqs. (8)-(14), MODEL.md section 6):
+Relation to the seed's recursion (seed 002 eqs. (8)-(14), docs/filters.md):
 w[n] = rho w[n-1] + q xi[n-1], rho = exp(-dt/tau) (9), q = sqrt(1 - rho^2) (10; the OCR shows
 1 - rho^2, the square root keeps var(w) = sigma_w^2), xi of variance sigma_w^2. The exact model
 has the same w row: Phi[w, w] = rho and Q[w, w] = sigma_w^2 q^2. The seed's speed and distance

@@ -1,4 +1,4 @@
-"""Speed from two point track sensors a base b apart (seed 002 eq. (15), MODEL.md section 6).
+"""Speed from two point track sensors a base b apart (seed 002 eq. (15), docs/filters.md).
 
 The car passes sensor 1 at t1 and sensor 2 at t2 = t1 + b / v (constant speed over the base);
 a timer of resolution delta [s] time-stamps both passages and the speed is v_meas = b / (t2' - t1')
@@ -25,7 +25,7 @@ Error model (first order in the timing error e of the interval t2' - t1' [s]):
   worst case of quantisation alone is b/(T - delta) - b/T = v^2 delta / (b - v delta)
   (``track_sensor_speed_error_bound``). To second order the measurement is biased high by
   v sigma_e^2/T^2 (E[1/(T+e)] > 1/T, ``track_sensor_speed_bias``) — relevant to the "never
-  above the truth" requirement of seed 003 (MODEL.md section 7).
+  above the truth" requirement of seed 003 (docs/estimation.md).
 - With constant acceleration over the base, b/(t2 - t1) is exactly the speed at the midpoint
   time (t1 + t2)/2 (``passage_times`` with ``accel``): time-stamp the measurement there.
 

@@ -6,7 +6,7 @@ and a force [N] divided by that weight is a specific force in [N/kN].
 """
 
 G = 9.81
-"""Gravity [m/s^2] (the value the sources use, MODEL.md section 1)."""
+"""Gravity [m/s^2] (the value the sources use, docs/model.md, Units)."""
 
 KMH = 1.0 / 3.6
 """One km/h in [m/s]."""

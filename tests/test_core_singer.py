@@ -115,7 +115,7 @@ def c_trace(lib, cfg: FilterConfig, ops: np.ndarray) -> np.ndarray:
 
 
 def py_state(f: MotionFilter) -> list[float]:
-    g, sp = f._singer, f._singer_params
+    g, sp = f.algorithm.singer, f.algorithm.params
     return [*py_fields(f), f.acceleration, *g._x, *g._P, g.nis,
             sp.tau, sp.sigma_w, sp.m_w, float(g.clip), 0.0]
 

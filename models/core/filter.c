@@ -108,7 +108,7 @@ static double vzad_at(const rc_filter *f, double x)      /* MotionFilter._vzad *
     return has_speed_profile(f) ? rc_speed_at(f->speed, x) : 0.0;
 }
 
-/* MotionFilter._singer_copy: the (v, r) block of the Singer state into the posterior's
+/* SingerKind._publish (models/filter_kinds.py): the (v, r) block of the Singer state into the posterior's
  * (posterior true) or the prediction's fields */
 static void singer_copy(rc_filter *f, int posterior)
 {

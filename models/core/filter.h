@@ -2,7 +2,7 @@
  * Singer): the innovation gate, the update ((15), (17), (18) with H = I, or one measurement
  * alone), the prediction ((16), (19) or the EKF's) and the outputs. Kind 4 runs the Singer
  * filter of singer.h on [w, v, r] and copies its (v, r) block into the posterior's and the
- * prediction's fields, as MotionFilter._singer_copy does.
+ * prediction's fields, as SingerKind._publish (models/filter_kinds.py) does.
  *
  * Where Python raises (ZeroDivisionError, OverflowError of x ** 2), the C function returns
  * RC_MATH and leaves the state as Python leaves it at the raise (mostly unchanged; the few
