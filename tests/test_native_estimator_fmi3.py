@@ -21,13 +21,13 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
 import test_native_estimator_fmu as est2
-from conftest import DISCARD, ERROR, OK, FmuFile, LogMessage, Slave
+from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, LogMessage, Slave
 from fmu_src import native_fmi3
 from fmu_src.variables import ESTIMATOR, variables_for
 from test_native_estimator_fmu import native_fmu, railcar_runner  # noqa: F401  (fixtures)
 from test_native_fmi3 import Fmi3AsFmi2, _Fmi2Typed
 
-SCENARIOS = ("station_day", "steep_grades", "etcs_noisy_sensors")
+SCENARIOS = tuple(sorted(p.stem for p in (ROOT / "scenarios" / "library").glob("*.toml")))
 
 
 class _Md3:

@@ -1,7 +1,7 @@
 """The native RailCar FMU for FMI 3.0 (fmu_src/native_fmi3.py + fmu_src/c/fmi3_glue.c): the same
 backend (fmu_src/c/native_railcar.c) and C core as the FMI 2 native FMU behind the FMI 3 glue,
 run through fmpy's FMU3Slave and compared bit for bit with the native FMI 2 FMU (itself compared
-with the pythonfmu RailCar.fmu in tests/test_native_fmu.py; level_run is compared with it here
+with the pythonfmu RailCar.fmu in tests/test_native_fmu.py; level_run is compared with it here; every library scenario against FMI 2
 too).
 """
 from __future__ import annotations
@@ -25,7 +25,8 @@ from fmu_src.variables import RAILCAR, variables_for
 from harness.runner import FmuRunner
 from harness.scenario import load_scenario
 
-SCENARIOS = ("level_run", "station_day", "steep_grades")
+SCENARIOS = tuple(sorted(p.stem for p in (ROOT / "scenarios" / "library").glob("*.toml")))
+"""Every library scenario: FMI 3 against FMI 2 (itself bit-identical to pythonfmu on all of them)."""
 INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload")
 
 
