@@ -1,8 +1,8 @@
 """The native RailCar FMU for FMI 3.0 (fmu_src/native_fmi3.py + fmu_src/c/fmi3_glue.c): the same
 backend (fmu_src/c/native_railcar.c) and C core as the FMI 2 native FMU behind the FMI 3 glue,
 run through fmpy's FMU3Slave and compared bit for bit with the native FMI 2 FMU (itself compared
-with the pythonfmu RailCar.fmu in tests/test_native_fmu.py; level_run is compared with it here; every library scenario against FMI 2
-too).
+with the pythonfmu RailCar.fmu in tests/test_native_fmu.py) on every library scenario; level_run
+is compared with the pythonfmu FMU here too.
 """
 from __future__ import annotations
 
