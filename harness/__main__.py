@@ -61,8 +61,8 @@ def _check_log_path(path: str) -> None:
 
 def cmd_run(args) -> int:
     from .fmus import select
-    from .metrics import format_summary, summarise
-    from .report import write_report
+    from .metrics import summarise
+    from .report import format_run_summary, write_report
     from .runner import FmuRunner, InitError, RunError
 
     scenario = load_scenario(args.scenario)
@@ -84,7 +84,7 @@ def cmd_run(args) -> int:
             return EXIT_RUN_FAILED
     summary = summarise(result)
     true_A = summary.A_true
-    print(format_summary(summary))
+    print(format_run_summary(summary, result))
     files = write_report(result, summary, true_A, out, fmu=choice.describe())
     if args.log:
         from .replay import write_log
@@ -260,7 +260,7 @@ def cmd_list(args) -> int:
     for path in [root / "default.toml", *library_scenarios()]:
         s = load_scenario(path)
         print(f"  {path.relative_to(root).as_posix():40s} {s.purpose}")
-    print("sweeps (python -m harness sweep scenarios/sweeps/NAME.toml --out DIR)")
+    print("sweeps (python -m harness sweep scenarios/sweeps/NAME.toml [--out DIR])")
     for path in sorted((root / "sweeps").glob("*.toml")):
         with path.open("rb") as f:
             purpose = tomllib.load(f).get("purpose", "")
@@ -318,7 +318,7 @@ def main(argv=None) -> int:
     p = sub.add_parser("list", help="the scenarios and sweeps that come with the harness, one line each")
     p.set_defaults(func=cmd_list)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
-    p.add_argument("scenario")
+    p.add_argument("scenario", help="scenario TOML file (its phases and RailCar parameters)")
     p.add_argument("--out", required=True, help="CSV file to write (distance_m,speed_mps)")
     p.set_defaults(func=cmd_plan)
     p = sub.add_parser("sweep", help="run a parameter sweep (TOML) on dask worker processes: results.csv, summary, plots")
