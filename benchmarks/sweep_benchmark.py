@@ -35,7 +35,9 @@ sys.path.insert(0, str(ROOT))
 from harness.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: E402
 from harness.metrics import summarise  # noqa: E402
 from harness.runner import FmuRunner  # noqa: E402
-from harness.sweep import ReusableRunner, execute_run, load_sweep, run_sweep  # noqa: E402
+from harness.sweep import run_sweep  # noqa: E402
+from harness.sweep_exec import ReusableRunner, execute_run  # noqa: E402
+from harness.sweep_spec import load_sweep  # noqa: E402
 
 STEPS = 1500
 

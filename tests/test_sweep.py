@@ -1,6 +1,7 @@
-"""Parameter sweeps (harness/sweep.py): sweep files, Latin hypercube, instance reuse, and whole
-sweeps through the CLI on an embedded local cluster and on a real dask scheduler with two
-worker processes (one of them killed mid-sweep), plus an interrupted sweep resumed.
+"""Parameter sweeps (harness/sweep.py and its parts, harness/sweep_*.py): sweep files, Latin
+hypercube, instance reuse, and whole sweeps through the CLI on an embedded local cluster and on
+a real dask scheduler with two worker processes (one of them killed mid-sweep), plus an
+interrupted sweep resumed.
 
 Short runs (60 s of simulated time) keep the whole module well under two minutes.
 """
@@ -22,9 +23,10 @@ import numpy as np
 import pytest
 
 from harness.scenario import load_scenario
-from harness.sweep import (CALIBRATION_COLUMNS, ReusableRunner, SweepError, calibration, execute_run,
-                           flatten_summary, latin_hypercube, load_sweep, metric_columns, read_results,
-                           sweep_columns)
+from harness.sweep_exec import ReusableRunner, execute_run
+from harness.sweep_results import ResultsWriter, read_results
+from harness.sweep_spec import SweepError, latin_hypercube, load_sweep
+from harness.sweep_table import CALIBRATION_COLUMNS, calibration, flatten_summary, metric_columns, sweep_columns
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVEL = ROOT / "scenarios" / "library" / "level_run.toml"
@@ -370,7 +372,6 @@ def test_sweep_columns_match_the_rows(tmp_path):
 
 
 def test_two_sweeps_cannot_write_one_folder(tmp_path):
-    from harness.sweep import ResultsWriter
     s = load_sweep(write(tmp_path, SWEEP))
     first = ResultsWriter(tmp_path / "out", s, "guid", resume=False)
     try:
@@ -379,3 +380,19 @@ def test_two_sweeps_cannot_write_one_folder(tmp_path):
     finally:
         first.close()
     ResultsWriter(tmp_path / "out", s, "guid", resume=True).close()      # free again once closed
+
+
+def test_reading_and_plotting_a_sweep_loads_no_dask_and_no_fmu_library():
+    """Computing apart from execution: the sweep file, the table, the results folder and the
+    plots import neither dask nor an FMU library; harness.sweep_exec does (the control)."""
+    code = ("import sys\n"
+            "import harness.sweep_spec, harness.sweep_table, harness.sweep_results, harness.sweep_plots\n"
+            "heavy = ('distributed', 'dask', 'fmpy', 'pythonfmu')\n"
+            "print(sorted(m for m in heavy if m in sys.modules))\n"
+            "import harness.sweep_exec\n"
+            "print(sorted(m for m in heavy if m in sys.modules))\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    parts, with_exec = p.stdout.splitlines()
+    assert parts == "[]"
+    assert "'fmpy'" in with_exec and "'pythonfmu'" in with_exec
