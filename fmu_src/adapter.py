@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real, String
@@ -187,3 +188,24 @@ def chain_config(v: dict):
                        sample_period=v["sensor.sample_period"], seed=int(v["seed"]),
                        initial_speed=v["car.initial_speed"], initial_position=v["car.initial_position"],
                        station=station, identifier=ident, filter=filt, track=track_settings(v))
+
+
+@dataclass(frozen=True)
+class ChainSetup:
+    """RailCar's models chain as its parameters configure it: the ChainConfig and the track
+    profiles (grade; the speed profile V_zad(X) or None)."""
+    config: object                      # models.chain.ChainConfig
+    grade: GradeProfile
+    speed: SpeedProfile | None
+
+    def open(self, start_time: float = 0.0):
+        """The chain (models.compiled.open_chain: C where the core covers the configuration)."""
+        from models.compiled import open_chain
+        return open_chain(self.config, self.grade, self.speed, start_time=start_time)
+
+
+def chain_setup(v: dict, resources: str | None) -> ChainSetup:
+    """RailCar's parameter values -> its chain's configuration and profiles, as the FMU builds
+    them at initialisation (``chain_config``, ``load_profiles`` with the FMU's ``resources``
+    folder). Raises ValueError (ParameterError for a profile), naming the parameter."""
+    return ChainSetup(chain_config(v), *load_profiles(v, resources))

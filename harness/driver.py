@@ -1,8 +1,20 @@
-"""Scripted drivers: phases triggered by speed, distance or time, or a time table of demands.
+"""Drivers, and the one closed loop that runs a scenario on the FMU or on the models chain.
 
-A phase driver sees the true speed [m/s] and distance [m] (the ideal odometry of an ATO
-test bench, so that driving decisions do not depend on sensor noise) and returns the
-traction and brake demands [N]. Phases (TOML ``[[driver]]`` entries):
+**The loop** (``drive``) advances one communication step of ``scenario.step_s`` [s] at a time: a
+*driver* turns the outputs after the previous step into demands, a *stepper* advances with them,
+the scenario's wind and the payload boarded so far held over the step. FmuRunner.run (the RailCar
+FMU, harness.runner.FmuStepper) and run_on_chain (a models chain, ChainStepper) both run it, so
+phases, time tables, wind, payload, stop_after_last_phase and the step count exist once.
+
+    Stepper: outputs() -> Mapping[str, float];  do_step(t, h, inputs)    (inputs in INPUTS order)
+    Driver:  demands(t, outputs) -> Demands(traction [N], brake [N], payload change [t]);  finished
+
+Of a driver's demands the loop reads ``traction`` and ``brake``, and ``payload_change_t`` where
+there is one (models.ato's AtoCommand plugs in as it is). A driver may list the outputs it reads
+(``reads``): an FMU stepper then reads those and the recorded ones, no more.
+
+**Phase drivers** see the true speed [m/s] and distance [m] (the ideal odometry of an ATO test
+bench, so that driving decisions do not depend on sensor noise). Phases (TOML ``[[driver]]``):
 
     action = "traction" | "coast" | "cruise" | "brake" | "brake_to_stop" | "hold"
     force_N = 40000          # traction/brake demand; default: the car's limit / a service brake
@@ -15,18 +27,51 @@ traction and brake demands [N]. Phases (TOML ``[[driver]]`` entries):
     mass_change_t = 3.0      # hold: passengers boarding (the car's mass changes by this) [t]
     target_speed_kmh = 50    # (or target_speed_mps) cruise: hold this speed with traction/brake
 
-brake_to_stop ends when the car stands; hold (a holding brake) ends by until_time_s.
+brake_to_stop ends when the car stands; hold (a holding brake) ends by until_time_s. A **time
+table** ([driver_table]) gives the demands as piecewise-linear functions of time instead.
 """
 from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Mapping, NamedTuple, Protocol, Sequence
 
 import numpy as np
 
 from models.units import kmh_to_mps
+
+if TYPE_CHECKING:
+    from .scenario import Scenario
+
+INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload")
+"""A stepper's inputs, in this order: traction and brake demand [N], wind [m/s], payload [t]."""
+
+
+class Demands(NamedTuple):
+    """One step's demands."""
+    traction: float                 # [N]
+    brake: float                    # [N]
+    payload_change_t: float = 0.0   # [t] passengers boarding now (leaving: < 0)
+
+
+class Driver(Protocol):
+    """Demands from the time [s] and the outputs after the last step, by FMU name."""
+
+    @property
+    def finished(self) -> bool: ...
+
+    def demands(self, t: float, outputs: Mapping[str, float]) -> Demands: ...
+
+
+class Stepper(Protocol):
+    """A RailCar to drive: its outputs by FMU name, and one step with the inputs held."""
+
+    def outputs(self) -> Mapping[str, float]: ...
+
+    def do_step(self, t: float, h: float, inputs: Sequence[float]) -> None: ...
+
 
 ACTIONS = ("traction", "coast", "cruise", "brake", "brake_to_stop", "hold")
 CRUISE_GAIN = 0.5   # [1/s] the cruise controller's demand: mass * gain * (target - speed)
@@ -102,6 +147,7 @@ class PhaseDriver:
     """Runs the phases in order; ``demands`` is called once per communication step."""
 
     STOPPED = 1e-6   # [m/s] below this the car stands
+    reads = ("car.speed", "car.position")   # the truth, not the sensors
 
     def __init__(self, phases: tuple[DriverPhase, ...], mass_t: float, traction_force_max: float,
                  brake_force_max: float):
@@ -140,8 +186,16 @@ class PhaseDriver:
             return True
         return False
 
-    def demands(self, t: float, speed: float, position: float) -> tuple[float, float, float]:
-        """(traction [N], brake [N], mass change [t] to apply now) for the true speed and distance."""
+    def demands(self, t: float, outputs, position: float | None = None) -> Demands:
+        """The demands for the outputs after the last step (their car.speed and car.position);
+        ``demands(t, speed, position)`` with the two numbers is the same call."""
+        if position is None:
+            return self.at(t, outputs["car.speed"], outputs["car.position"])
+        return self.at(t, outputs, position)
+
+    def at(self, t: float, speed: float, position: float) -> Demands:
+        """(traction [N], brake [N], mass change [t] to apply now) for the true speed [m/s] and
+        distance [m]."""
         mass_change = 0.0
         while not self.finished and self._phase_done(self.phases[self.index], t, speed, position):
             self.index += 1
@@ -149,35 +203,41 @@ class PhaseDriver:
             if not self.finished and self.phases[self.index].mass_change_t:
                 mass_change += self.phases[self.index].mass_change_t
         if self.finished:
-            return 0.0, (0.3 * self.b_max if speed <= self.STOPPED else 0.0), mass_change
+            return Demands(0.0, 0.3 * self.b_max if speed <= self.STOPPED else 0.0, mass_change)
         p = self.phases[self.index]
         if p.action == "traction":
-            return (p.force_N if p.force_N is not None else self.f_max), 0.0, mass_change
+            return Demands(p.force_N if p.force_N is not None else self.f_max, 0.0, mass_change)
         if p.action == "coast":
-            return 0.0, 0.0, mass_change
+            return Demands(0.0, 0.0, mass_change)
         if p.action == "brake":
-            return 0.0, (p.force_N if p.force_N is not None else 0.6 * self.b_max), mass_change
+            return Demands(0.0, p.force_N if p.force_N is not None else 0.6 * self.b_max, mass_change)
         if p.action == "hold":
-            return 0.0, 0.3 * self.b_max, mass_change
+            return Demands(0.0, 0.3 * self.b_max, mass_change)
         if p.action == "cruise":
             demand = 1000.0 * self.mass_t * CRUISE_GAIN * (p.target_speed_mps - speed)
             if demand >= 0.0:
-                return min(demand, self.f_max), 0.0, mass_change
-            return 0.0, min(-demand, self.b_max), mass_change
+                return Demands(min(demand, self.f_max), 0.0, mass_change)
+            return Demands(0.0, min(-demand, self.b_max), mass_change)
         # brake_to_stop: the deceleration needed to stop at stop_at_m, as a force
         left = p.stop_at_m - position
         if speed <= self.STOPPED or left <= 0.05:
-            return 0.0, 0.3 * self.b_max, mass_change
+            return Demands(0.0, 0.3 * self.b_max, mass_change)
         need = speed * speed / (2.0 * left)
-        return 0.0, min(self.b_max, 1000.0 * self.mass_t * need), mass_change
+        return Demands(0.0, min(self.b_max, 1000.0 * self.mass_t * need), mass_change)
 
 
 @dataclass(frozen=True)
 class TimeTable:
-    """Time-scripted demands, piecewise linear in time: t [s], traction [N], brake [N]."""
+    """Time-scripted demands, piecewise linear in time: t [s], traction [N], brake [N]. As a
+    driver it reads no output and never finishes (the run goes on to duration_s)."""
     time_s: tuple[float, ...]
     traction_N: tuple[float, ...]
     brake_N: tuple[float, ...]
+    reads = ()
+    finished = False
+
+    def demands(self, t: float, outputs=None) -> Demands:
+        return Demands(*self.at(t))
 
     def at(self, t: float) -> tuple[float, float]:
         k = bisect_right(self.time_s, t)
@@ -234,57 +294,113 @@ def parse_time_table(raw: dict, where: str, base_dir: Path | None, error=ValueEr
     return TimeTable(tuple(cols[0]), tuple(cols[1]), tuple(cols[2]))
 
 
-def run_on_chain(scenario, overrides: dict | None = None):
-    """The scenario on a models chain built as the RailCar FMU builds it (its parameters, with
-    ``overrides`` by FMU name, e.g. {"est.method": 2, "seed": 5}): ``chain_result``. Raises
-    ValueError, naming the parameter, if the configuration rejects one."""
-    from fmu_src.adapter import chain_config, load_profiles
-    from fmu_src.variables import RAILCAR, variables_for
-    from models.compiled import open_chain
-    v = {x.name: scenario.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    v.update(overrides or {})
-    return chain_result(open_chain(chain_config(v), *load_profiles(v, None)), scenario)
+# ------------------------------------------------------------------------------ the loop
+
+@dataclass
+class RunResult:
+    """Recorded outputs of one run: ``signals[name]`` is an array over ``time`` [s]."""
+    scenario: Scenario
+    time: np.ndarray
+    signals: dict[str, np.ndarray]
+    units: dict[str, str]
+    log: list[str] = field(default_factory=list)
+    inputs: dict[str, np.ndarray] = field(default_factory=dict)   # held over [t_k, t_k+1]
+    fmu: str = ""                  # which FMU ran: "native" or "python" (FmuRunner.kind); "" no FMU
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "time":
+            return self.time
+        return self.signals[name]
 
 
-def chain_result(chain, scenario):
-    """Drive a models chain through the scenario (``drive_chain``) and return a
-    ``harness.runner.RunResult`` of its outputs, with the inputs applied over each step as its
-    inputs (the demands [N] are what ``harness.metrics.oracle_filter`` needs; wind [m/s] and
-    payload [t] complete harness.runner.INPUTS), as the FMU runner's would be."""
-    from .runner import INPUTS, RunResult
-    demands: list = []
-    rows = drive_chain(chain, scenario, demands=demands)
-    demands.append(demands[-1])
-    d = np.array(demands)
-    return RunResult(scenario, np.arange(len(rows)) * scenario.step_s,
-                     {k: np.array([r[k] for r in rows]) for k in rows[0]}, {},
-                     inputs={name: d[:, j] for j, name in enumerate(INPUTS)})
+@dataclass
+class Trace:
+    """What ``drive`` saw: the outputs at t = 0 and after every step, and each step's inputs
+    (INPUTS order); ``finished``: the run ended early because the driver had finished."""
+    outputs: list[Mapping[str, float]]
+    inputs: list[list[float]]
+    finished: bool = False
+
+    def result(self, scenario: Scenario, names: Sequence[str] | None = None, **extra) -> RunResult:
+        """A RunResult of the outputs ``names`` (default: all the stepper gave) at k * step_s [s];
+        the last step's inputs are repeated on the last row (held). ``extra``: RunResult's
+        units, log, fmu."""
+        rows = self.outputs
+        names = list(rows[0]) if names is None else names
+        h = scenario.step_s
+        u = np.array(self.inputs + self.inputs[-1:] if self.inputs else [[0.0] * len(INPUTS)])
+        u = u.reshape(-1, len(INPUTS))
+        return RunResult(scenario, np.array([k * h for k in range(len(rows))]),
+                         {n: np.array([r[n] for r in rows]) for n in names}, extra.pop("units", {}),
+                         inputs={n: u[:, j] for j, n in enumerate(INPUTS)}, **extra)
 
 
-def drive_chain(chain, scenario, max_steps: int | None = None,
-                demands: list | None = None) -> list[dict]:
-    """Run a models chain (``models.chain.RailCarChain``, no FMI) through the scenario's scripted
-    phases, one communication step of ``scenario.step_s`` [s] at a time, as
-    ``harness.runner.FmuRunner.run`` drives the FMU; returns ``chain.outputs()`` at t = 0 and
-    after every step (at most ``max_steps`` steps). ``demands``, when given, receives each
-    step's inputs in harness.runner.INPUTS order: traction and brake demand [N], wind [m/s],
-    payload [t]."""
-    driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
-                         scenario.parameter("car.traction_force_max"),
-                         scenario.parameter("car.brake_force_max"))
-    h, payload = scenario.step_s, 0.0
-    rows = [chain.outputs()]
+def drive(stepper: Stepper, scenario: Scenario, driver: Driver | None = None,
+          max_steps: int | None = None,
+          until: Callable[[Mapping[str, float]], bool] | None = None) -> Trace:
+    """Run ``scenario`` on ``stepper`` in a closed loop with ``driver`` (default: the scenario's
+    own, ``scenario.new_driver()``) for duration_s / step_s steps (at most ``max_steps``). At
+    t_k = k * step_s the driver gets the outputs after the last step; its demands, the
+    scenario's wind at t_k and the payload boarded so far [t] are held over [t_k, t_k+1]. The
+    run ends early when the driver has finished and the scenario says stop_after_last_phase, or
+    when ``until(outputs)`` is true after a step."""
+    driver = scenario.new_driver() if driver is None else driver
+    h = scenario.step_s
     steps = int(round(scenario.duration_s / h))
+    out = stepper.outputs()
+    trace = Trace([out], [])
+    payload = 0.0
     for k in range(steps if max_steps is None else min(steps, max_steps)):
         t = k * h
-        last = rows[-1]        # the truth the closed loop sees (the car's own speed and distance)
-        traction, brake, dm = driver.demands(t, last["car.speed"], last["car.position"])
-        payload += dm
+        d = driver.demands(t, out)
+        payload += getattr(d, "payload_change_t", 0.0)
         if driver.finished and scenario.stop_after_last_phase:
+            trace.finished = True
             break
-        wind = scenario.wind_at(t)
-        chain.do_step(t, h, traction, brake, wind, payload)
-        rows.append(chain.outputs())
-        if demands is not None:
-            demands.append((traction, brake, wind, payload))
-    return rows
+        u = [d.traction, d.brake, scenario.wind_at(t), payload]
+        trace.inputs.append(u)
+        stepper.do_step(t, h, u)
+        out = stepper.outputs()
+        trace.outputs.append(out)
+        if until is not None and until(out):
+            break
+    return trace
+
+
+class ChainStepper:
+    """A models chain (models.chain.RailCarChain, models.compiled.CompiledChain: no FMI) as a
+    Stepper; its outputs are all of the chain's, in its order."""
+
+    def __init__(self, chain):
+        self.chain = chain
+
+    def outputs(self) -> Mapping[str, float]:
+        return self.chain.outputs()
+
+    def do_step(self, t: float, h: float, inputs: Sequence[float]) -> None:
+        self.chain.do_step(t, h, *inputs)
+
+
+def run_on_chain(scenario: Scenario, overrides: dict | None = None,
+                 driver: Driver | None = None) -> RunResult:
+    """The scenario on a models chain built as the RailCar FMU builds it (Scenario.chain_setup:
+    its parameters with ``overrides`` by FMU name, e.g. {"est.method": 2, "seed": 5}), run by
+    ``chain_result``. Raises ValueError, naming the parameter, if the configuration rejects one."""
+    return chain_result(scenario.chain_setup(overrides).open(), scenario, driver)
+
+
+def chain_result(chain, scenario: Scenario, driver: Driver | None = None) -> RunResult:
+    """Drive a models chain through the scenario (``drive``) and return a RunResult of all its
+    outputs with each step's inputs (INPUTS), as FmuRunner.run's would be."""
+    return drive(ChainStepper(chain), scenario, driver).result(scenario)
+
+
+def drive_chain(chain, scenario: Scenario, max_steps: int | None = None,
+                demands: list | None = None) -> list[dict]:
+    """``chain.outputs()`` at t = 0 and after every step of the scenario's own driver (at most
+    ``max_steps`` steps); ``demands``, when given, receives each step's inputs as a tuple in
+    INPUTS order: traction and brake demand [N], wind [m/s], payload [t]."""
+    trace = drive(ChainStepper(chain), scenario, max_steps=max_steps)
+    if demands is not None:
+        demands.extend(tuple(u) for u in trace.inputs)
+    return trace.outputs

@@ -1,6 +1,6 @@
 """One table of metrics over the scenario library, with the harness's targets checked.
 
-Targets (issue 3), for scenarios whose speed noise is <= 0.05 m/s: est.mass within 1 % of the
+Targets, for scenarios whose speed noise is <= 0.05 m/s: est.mass within 1 % of the
 truth at every stop, and the filter's speed and distance RMSE at most 0.6x the raw sensor's.
 """
 from __future__ import annotations

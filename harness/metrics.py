@@ -1,7 +1,9 @@
 """Metrics of a run, as functions of result arrays. Units in each docstring.
 
-Input arrays come from ``RunResult`` (one value per communication step). Nothing here reads
-or writes files.
+Input arrays come from ``RunResult`` (one value per communication step); the car's
+configuration and track profiles from a ``fmu_src.adapter.ChainSetup`` (the scenario's:
+``Scenario.chain_setup()``, which ``summarise`` asks for once). Nothing here reads or writes
+files.
 """
 from __future__ import annotations
 
@@ -106,11 +108,14 @@ def _segments(speed: np.ndarray) -> list[tuple[int, int]]:
     return out
 
 
-def summarise(result, true_A: tuple | None = None) -> RunSummary:
-    """Compute the summary of a ``RunResult`` of RailCar (true A's default to the scenario's)."""
+def summarise(result, true_A: tuple | None = None, setup=None) -> RunSummary:
+    """Compute the summary of a ``RunResult`` of RailCar (true A's default to the scenario's);
+    ``setup``: the run's ChainSetup (default: ``result.scenario.chain_setup()``)."""
     s = result.scenario
+    setup = s.chain_setup() if setup is None else setup
     if true_A is None:   # the coefficients at the end, moved by the wind then blowing
-        A = tuple(s.parameter(n) for n in ("car.A0", "car.A1", "car.A2"))
+        car = setup.config.vehicle
+        A = (car.A0, car.A1, car.A2)
         true_A = tuple(float(x) for x in true_theta(1.0, A, s.wind_at(float(result.time[-1])))[1:])
     t = result.time
     v = result["car.speed"]
@@ -120,12 +125,12 @@ def summarise(result, true_A: tuple | None = None) -> RunSummary:
     segments = _segments(v)
     moving = v > 0.0
     est_A = (float(result["est.A0"][-1]), float(result["est.A1"][-1]), float(result["est.A2"][-1]))
-    oracle = oracle_filter(result, s.parameter("sensor.sample_period"))
+    oracle = oracle_filter(result, setup)
     nan = float("nan")
 
     coast_errors = coast_time_errors(
         result, lambda last: (float(result["est.A0"][last]), float(result["est.A1"][last]),
-                              float(result["est.A2"][last])))
+                              float(result["est.A2"][last])), setup=setup)
 
     return RunSummary(
         scenario=s.name, duration_s=float(t[-1]), stops=len(segments),
@@ -182,19 +187,20 @@ def format_summary(s: RunSummary) -> str:
 def true_theta(mass_t: float, A: tuple, wind: float) -> np.ndarray:
     """Theta = (1/(Pg), A0', A1', A2) of eq. (2) for a mass [t], still-air A's and wind [m/s].
 
-    Wind moves the coefficients (MODEL.md section 2): A0' = A0 + A2 Vw^2, A1' = A1 + 2 A2 Vw.
+    Wind moves the coefficients (docs/model.md, Forces on the car): A0' = A0 + A2 Vw^2, A1' = A1 + 2 A2 Vw.
     """
     from models.units import G
     a0, a1, a2 = A
     return np.array([1.0 / (G * mass_t), a0 + a2 * wind * wind, a1 + 2.0 * a2 * wind, a2])
 
 
-def oracle_filter(result, sample_period: float) -> tuple[np.ndarray, np.ndarray] | None:
+def oracle_filter(result, setup) -> tuple[np.ndarray, np.ndarray] | None:
     """Speed [m/s] and distance [m] of the same filter fed with the true parameters.
 
     Replays the recorded measurements and applied forces through the models' estimator with a
     frozen identifier holding the truth (mass per row, A's moved by the wind, sigma^2 =
-    psd * dt). Needs one sample per row (communication step = sensor.sample_period); else None.
+    psd * dt); the car, the sensors and the profiles are the run's ``setup`` (ChainSetup). Needs
+    one sample per row (communication step = sensor.sample_period); else None.
 
     The forces over [t_k, t_k+1] are what the chain's own estimator gets (the applied impulse
     over the interval): the plant's force law with the demands held over that interval
@@ -204,33 +210,24 @@ def oracle_filter(result, sample_period: float) -> tuple[np.ndarray, np.ndarray]
     which let the learning filter beat this "oracle" on station_day. Without recorded
     inputs, that trapezoid is the fallback.
     """
-    from models.estimator import OnlineEstimator, StationConfig
+    from models.estimator import OnlineEstimator
     from models.filters import FilterConfig
     from models.identification import IdentifierConfig
-    from models.track import GradeProfile, SpeedProfile
 
     s = result.scenario
     h = s.step_s
-    if abs(h - sample_period) > 1e-12:
+    cfg = setup.config
+    if abs(h - cfg.sample_period) > 1e-12:
         return None
-    p = s.parameter
-    A = (p("car.A0"), p("car.A1"), p("car.A2"))
-    grade = GradeProfile.level()
-    if p("track.grade_profile"):
-        with open(p("track.grade_profile"), encoding="utf-8") as f:
-            grade = GradeProfile.from_csv_text(f.read(), p("track.grade_profile"))
-    speed_profile = None
-    if p("track.speed_profile"):
-        with open(p("track.speed_profile"), encoding="utf-8") as f:
-            speed_profile = SpeedProfile.from_csv_text(f.read(), p("track.speed_profile"))
-    gamma = p("car.gamma")
-    ident = IdentifierConfig(dt=h, frozen=True, gamma=gamma, mass_initial=p("car.mass"),
-                             sigma2_initial=max(p("car.process_noise_psd") * h, 1e-12))
-    filt = FilterConfig(dt=h, speed_std=p("sensor.speed_std"), position_std=p("sensor.position_std"),
-                        position_std_rel=p("sensor.position_std_rel"), gamma=gamma,
-                        kind=int(p("filter.kind")), length=p("car.length"))
-    est = OnlineEstimator(ident, filt, StationConfig(dwell=p("track.station_dwell")), grade, speed_profile)
-    F, B = _interval_forces(result)
+    car, sensors = cfg.vehicle, cfg.filter
+    A = (car.A0, car.A1, car.A2)
+    ident = IdentifierConfig(dt=h, frozen=True, gamma=car.gamma, mass_initial=car.mass,
+                             sigma2_initial=max(cfg.process_noise_psd * h, 1e-12))
+    filt = FilterConfig(dt=h, speed_std=sensors.speed_std, position_std=sensors.position_std,
+                        position_std_rel=sensors.position_std_rel, gamma=car.gamma,
+                        kind=sensors.kind, length=car.length)
+    est = OnlineEstimator(ident, filt, cfg.station, setup.grade, setup.speed)
+    F, B = _interval_forces(result, car)
     mass = result["car.total_mass"]
     n = len(result.time)
     v_out, x_out = np.empty(n), np.empty(n)
@@ -243,21 +240,17 @@ def oracle_filter(result, sample_period: float) -> tuple[np.ndarray, np.ndarray]
     return v_out, x_out
 
 
-def _interval_forces(result) -> tuple[np.ndarray, np.ndarray]:
+def _interval_forces(result, vehicle) -> tuple[np.ndarray, np.ndarray]:
     """Mean applied traction and brake force [N] over each interval [t_k, t_k+1] (see
-    oracle_filter): the plant's force law with the interval's demands at both end speeds."""
+    oracle_filter): the plant's force law for the car ``vehicle`` (models.dynamics.VehicleParams)
+    with the interval's demands at both end speeds."""
     from dataclasses import replace
 
-    from fmu_src.adapter import chain_config
-    from fmu_src.variables import RAILCAR, variables_for
     from models.dynamics import applied_forces
     F, B = result["car.traction_force"], result["car.brake_force"]
     inputs = getattr(result, "inputs", None) or {}
     if "traction_force_demand" not in inputs or len(inputs["traction_force_demand"]) < len(F) - 1:
         return 0.5 * (F[:-1] + F[1:]), 0.5 * (B[:-1] + B[1:])
-    s = result.scenario
-    params = {v.name: s.parameter(v.name) for v in variables_for(RAILCAR) if v.causality == "parameter"}
-    vehicle = chain_config(params).vehicle
     v, mass = result["car.speed"], result["car.total_mass"]
     td, bd = inputs["traction_force_demand"], inputs["brake_force_demand"]
     f_mean, b_mean = np.empty(len(F) - 1), np.empty(len(F) - 1)
@@ -282,10 +275,11 @@ def coast_segments(mode: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
     return out
 
 
-def coast_time_errors(result, A_at, still_air: bool = False) -> list[float]:
+def coast_time_errors(result, A_at, still_air: bool = False, setup=None) -> list[float]:
     """Predicted - actual time [s] of each coast of at least 10 s in a RailCar ``RunResult``,
     re-run with the resistance ``A_at(last)`` gives for the coast ending at row ``last`` (seed
-    003's measure).
+    003's measure) on the run's grade with its car's gamma and length (``setup``, the run's
+    ChainSetup; default: ``result.scenario.chain_setup()``, read at the first coast).
 
     Identified A's are the coefficients of eq. (2) as the car met them, the wind included
     (A0' = A0 + A2 Vw^2, ...): the coast is re-run in still air. With ``still_air`` the A's are
@@ -294,19 +288,15 @@ def coast_time_errors(result, A_at, still_air: bool = False) -> list[float]:
     """
     s = result.scenario
     t, v, mass = result.time, result["car.speed"], result["car.total_mass"]
-    out, grade = [], None
+    out = []
     for first, last in coast_segments(result["car.mode"], int(round(10.0 / s.step_s))):
-        if grade is None:
-            from models.track import GradeProfile
-            grade = GradeProfile.level()
-            if s.parameter("track.grade_profile"):
-                with open(s.parameter("track.grade_profile"), encoding="utf-8") as f:
-                    grade = GradeProfile.from_csv_text(f.read(), s.parameter("track.grade_profile"))
+        setup = s.chain_setup() if setup is None else setup
+        car = setup.config.vehicle
         x0, x1 = float(result["car.position"][first]), float(result["car.position"][last])
         t0 = float(t[first])
         wind = (lambda tc, t0=t0: s.wind_at(t0 + tc)) if still_air else 0.0
-        predicted = coast_time(float(v[first]), x0, x1, A_at(last), float(mass[first]), s.parameter("car.gamma"),
-                               s.parameter("car.length"), grade, wind)
+        predicted = coast_time(float(v[first]), x0, x1, A_at(last), float(mass[first]), car.gamma,
+                               car.length, setup.grade, wind)
         out.append(predicted - float(t[last] - t[first]))
     return out
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from fmpy.util import read_csv, read_ref_opt_file, validate_result
 
-from .runner import INPUTS
+from .driver import INPUTS
 from .textio import InputError, check_text_file
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,18 +1,18 @@
 """Run scenarios on the RailCar FMU with fmpy: extract once, step in a closed loop, record.
 
-The runner always steps with the scenario's communication step (no silent coarsening), checks
-the run reaches its stop time, keeps the FMU's log, and raises ``RunError`` with that log
-when a call fails. Value references are looked up by name, so that the pythonfmu FMU and its
-native twin (same names and value references, harness.fmus) are driven by the same code;
-``FmuRunner.kind`` says which one runs, and every RunResult records it.
+The closed loop is harness.driver.drive, the one the models chain runs too; here the FMU is its
+stepper (``FmuStepper``). The runner always steps with the scenario's communication step (no
+silent coarsening), checks the run reaches its stop time, keeps the FMU's log, and raises
+``RunError`` with that log when a call fails. Value references are looked up by name, so that
+the pythonfmu FMU and its native twin (same names and value references, harness.fmus) are
+driven by the same code; ``FmuRunner.kind`` says which one runs, and every RunResult records it.
 """
 from __future__ import annotations
 
-import math
 import shutil
 import tempfile
-from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -22,10 +22,10 @@ from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
 from fmpy import calloc, free
 
-from .driver import PhaseDriver
-from .scenario import Scenario
+from .driver import INPUTS, Driver, RunResult, drive
+from .scenario import Scenario, integer_range
 
-INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payload")
+__all__ = ["INPUTS", "FmuRunner", "FmuStepper", "InitError", "RunError", "RunResult"]
 
 
 class RunError(RuntimeError):
@@ -51,27 +51,9 @@ class InitError(RunError):
         return self.message
 
 
-@dataclass
-class RunResult:
-    """Recorded outputs of one run: ``signals[name]`` is an array over ``time`` [s]."""
-    scenario: Scenario
-    time: np.ndarray
-    signals: dict[str, np.ndarray]
-    units: dict[str, str]
-    log: list[str] = field(default_factory=list)
-    inputs: dict[str, np.ndarray] = field(default_factory=dict)   # held over [t_k, t_k+1]
-    fmu: str = ""                  # which FMU ran: "native" or "python" (FmuRunner.kind); "" no FMU
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name == "time":
-            return self.time
-        return self.signals[name]
-
-
 def _int32(name: str, value: int) -> int:
     """An fmi2Integer value: ctypes would wrap a value outside 32 bits silently (seed 2**32 + 1 ran
     as seed 1); refused instead, with the range (harness.scenario.integer_range)."""
-    from .scenario import integer_range
     lo, hi = integer_range(name)
     if not lo <= value <= hi:
         raise ValueError(f"{name}: {value} is outside {lo}..{hi} (a 32-bit fmi2Integer)")
@@ -231,59 +213,51 @@ class FmuRunner:
         arr = np.array(rows).reshape(len(rows), len(outputs))
         return {n: arr[:, j] for j, n in enumerate(outputs)}, log
 
-    def run(self, scenario: Scenario, outputs: list[str] | None = None) -> RunResult:
-        """Run ``scenario`` to its end and return every output (or ``outputs``) over time."""
+    def run(self, scenario: Scenario, outputs: list[str] | None = None,
+            driver: Driver | None = None) -> RunResult:
+        """Run ``scenario`` to its end (harness.driver.drive, with ``driver`` or the scenario's
+        own) and return every output (or ``outputs``) over time."""
         outputs = list(outputs or self.outputs)
-        real_out = [n for n in outputs if self.vars[n].type == "Real"]
-        int_out = [n for n in outputs if self.vars[n].type == "Integer"]
-        real_vr = [self.vr(n) for n in real_out]
-        int_vr = [self.vr(n) for n in int_out]
-        in_vr = [self.vr(n) for n in INPUTS]
-        speed_i, pos_i = real_out.index("car.speed"), real_out.index("car.position")
-
-        h = scenario.step_s
-        n_max = int(round(scenario.duration_s / h))
+        names = ([n for n in outputs if self.vars[n].type == "Real"] +
+                 [n for n in outputs if self.vars[n].type == "Integer"])
+        driver = scenario.new_driver() if driver is None else driver
         log: list[str] = []
         fmu = self.start(scenario.parameters, scenario.duration_s, log, scenario.name)
-        rows_t, rows_r, rows_i = [], [], []
         try:
-            driver = PhaseDriver(scenario.phases, scenario.parameter("car.mass"),
-                                 scenario.parameter("car.traction_force_max"),
-                                 scenario.parameter("car.brake_force_max")) if scenario.phases else None
-            payload = 0.0
-            finished = False
-            rows_in = []
-            r = fmu.getReal(real_vr)
-            rows_t.append(0.0), rows_r.append(r), rows_i.append(fmu.getInteger(int_vr))
-            for k in range(n_max):
-                t = k * h
-                if driver is not None:
-                    traction, brake, dm = driver.demands(t, r[speed_i], r[pos_i])
-                    payload += dm
-                    if driver.finished and scenario.stop_after_last_phase:
-                        finished = True
-                        break
-                else:
-                    traction, brake = scenario.time_table.at(t)
-                u = [traction, brake, scenario.wind_at(t), payload]
-                rows_in.append(u)
-                fmu.setReal(in_vr, u)
-                try:
-                    fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
-                except Exception as e:
-                    raise RunError(f"{scenario.name}: doStep at t = {t:.3f} s failed: {e}", log) from None
-                r = fmu.getReal(real_vr)
-                rows_t.append((k + 1) * h), rows_r.append(r), rows_i.append(fmu.getInteger(int_vr))
+            reads = names + [n for n in getattr(driver, "reads", ()) if n not in names]
+            trace = drive(FmuStepper(self, fmu, reads, scenario.name, log), scenario, driver)
         finally:
             _finish(fmu)
-        time = np.array(rows_t)
-        if not finished and not math.isclose(time[-1], n_max * h, rel_tol=1e-12, abs_tol=1e-9):
-            raise RunError(f"{scenario.name}: run ended at {time[-1]} s, not at {n_max * h} s", log)
-        r_arr = np.array(rows_r).reshape(len(rows_t), len(real_out))
-        i_arr = np.array(rows_i).reshape(len(rows_t), len(int_out))
-        signals = {n: r_arr[:, j] for j, n in enumerate(real_out)}
-        signals.update({n: i_arr[:, j] for j, n in enumerate(int_out)})
-        units = {n: self.units.get(n, "") for n in outputs}
-        u_arr = np.array(rows_in + rows_in[-1:] if rows_in else [[0.0] * len(INPUTS)]).reshape(-1, len(INPUTS))
-        inputs = {n: u_arr[:, j] for j, n in enumerate(INPUTS)}
-        return RunResult(scenario, time, signals, units, log, inputs, fmu=self.kind)
+        steps = int(round(scenario.duration_s / scenario.step_s))
+        if not trace.finished and len(trace.inputs) != steps:
+            raise RunError(f"{scenario.name}: run ended after {len(trace.inputs)} steps, not {steps}", log)
+        return trace.result(scenario, names, units={n: self.units.get(n, "") for n in outputs}, log=log,
+                            fmu=self.kind)
+
+
+class FmuStepper:
+    """An initialised RailCar FMU instance (FMU2Slave, or what FmuRunner.start gives) as a
+    harness.driver Stepper: the inputs set by value reference (INPUTS), doStep, and the outputs
+    ``names`` read back (Real, then Integer), no others. A failed doStep raises RunError with
+    the FMU's log."""
+
+    def __init__(self, runner: FmuRunner, fmu, names: Sequence[str], what: str, log: list[str]):
+        self.fmu, self.what, self.log = fmu, what, log
+        real = [n for n in names if runner.vars[n].type == "Real"]
+        ints = [n for n in names if runner.vars[n].type == "Integer"]
+        self.names = real + ints
+        self.real_vr, self.int_vr = [runner.vr(n) for n in real], [runner.vr(n) for n in ints]
+        self.in_vr = [runner.vr(n) for n in INPUTS]
+
+    def outputs(self) -> Mapping[str, float]:
+        values = list(self.fmu.getReal(self.real_vr))
+        if self.int_vr:
+            values += self.fmu.getInteger(self.int_vr)
+        return dict(zip(self.names, values))
+
+    def do_step(self, t: float, h: float, inputs: Sequence[float]) -> None:
+        self.fmu.setReal(self.in_vr, list(inputs))
+        try:
+            self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        except Exception as e:
+            raise RunError(f"{self.what}: doStep at t = {t:.3f} s failed: {e}", self.log) from None

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from fmu_src.variables import RAILCAR, variables_for
 
-from .driver import DriverPhase, TimeTable, parse_phase, parse_time_table
+from .driver import DriverPhase, PhaseDriver, TimeTable, parse_phase, parse_time_table
 from .textio import InputError, read_text
 
 PATH_PARAMETERS = ("track.grade_profile", "track.speed_profile")
@@ -73,6 +73,28 @@ class Scenario:
             return self.parameters[name]
         return _PARAMETER_TABLE[name].start
 
+    def railcar_parameters(self, overrides: dict | None = None) -> dict:
+        """Every RailCar parameter by FMU name: the scenario's value, else the FMU's default, with
+        ``overrides`` on top (ValueError for a name RailCar does not have)."""
+        return railcar_values({**self.parameters, **_known(overrides or {})})
+
+    def chain_setup(self, overrides: dict | None = None):
+        """The models chain's configuration and profiles (fmu_src.adapter.ChainSetup) for
+        ``railcar_parameters(overrides)``, as the RailCar FMU builds them at initialisation (a
+        relative profile path looked up where the FMU looks: its resources, then the working
+        directory). ``.open()`` gives the chain."""
+        from fmu_src.adapter import chain_setup
+        return chain_setup(self.railcar_parameters(overrides), str(BUNDLED_RESOURCES))
+
+    def new_driver(self, mass_t: float | None = None):
+        """A fresh driver of this scenario's script (harness.driver): a PhaseDriver of its phases
+        for a car of ``mass_t`` [t] (default car.mass; it sizes the cruise and brake_to_stop
+        demands) and the car's force limits, or its time table."""
+        if not self.phases:
+            return self.time_table
+        return PhaseDriver(self.phases, self.parameter("car.mass") if mass_t is None else mass_t,
+                           self.parameter("car.traction_force_max"), self.parameter("car.brake_force_max"))
+
     def wind_at(self, t: float) -> float:
         """Wind speed [m/s] at time t [s]."""
         w = 0.0
@@ -83,6 +105,18 @@ class Scenario:
 
 
 _PARAMETER_TABLE = {v.name: v for v in variables_for(RAILCAR) if v.causality == "parameter"}
+
+
+def railcar_values(parameters: dict) -> dict:
+    """Every RailCar parameter by FMU name: the value in ``parameters``, else the FMU's default."""
+    return {n: parameters.get(n, var.start) for n, var in _PARAMETER_TABLE.items()}
+
+
+def _known(overrides: dict) -> dict:
+    for name in overrides:
+        if name not in _PARAMETER_TABLE:
+            raise ValueError(f"{name}: not a RailCar parameter (see fmu_src/variables.py)")
+    return overrides
 
 
 def _number(value, where: str) -> float:
@@ -179,7 +213,7 @@ def check_fmu_parameters(parameters: dict, where: str, error=None) -> None:
     from models.chain import RailCarChain
     from models.track import GradeProfile
     error = error or ScenarioError
-    v = {n: parameters.get(n, var.start) for n, var in _PARAMETER_TABLE.items()}
+    v = railcar_values(parameters)
     profiles = {}
     for n in PATH_PARAMETERS:
         if v[n]:

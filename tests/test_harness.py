@@ -162,10 +162,11 @@ def test_oracle_gets_each_intervals_force_not_the_trapezoid_of_the_outputs():
     signals = {"car.traction_force": np.array([40e3, 40e3, 0.0, 0.0]), "car.brake_force": np.zeros(4),
                "car.speed": np.full(4, 10.0), "car.total_mass": np.full(4, 30.0)}
     demands = {"traction_force_demand": np.array([40e3, 0.0, 0.0, 0.0]), "brake_force_demand": np.zeros(4)}
-    F, B = _interval_forces(Recorded(demands))
+    car = sc.chain_setup().config.vehicle
+    F, B = _interval_forces(Recorded(demands), car)
     np.testing.assert_array_equal(F, [40e3, 0.0, 0.0])      # 40 kN is within every limit at 10 m/s
     np.testing.assert_array_equal(B, [0.0, 0.0, 0.0])
-    F, _ = _interval_forces(Recorded({}))                    # no recorded demands: the trapezoid
+    F, _ = _interval_forces(Recorded({}), car)               # no recorded demands: the trapezoid
     np.testing.assert_array_equal(F, [40e3, 20e3, 0.0])
 
 
