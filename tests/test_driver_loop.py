@@ -7,10 +7,12 @@
   own ignored the table and ran no step at all), the same as on the FMU;
 - the protocol with a fake stepper and fake drivers: what the driver sees and when, the time
   instants, wind, payload, stop_after_last_phase, max_steps and until; a command with only
-  traction and brake (as models.ato's AtoCommand) plugs in;
+  traction and brake plugs in, and models.ato's controller drives the chain through the loop
+  exactly as a hand-written loop does;
 - FmuRunner.run with a driver's ``reads`` and a restricted output list reads what it must.
 
-About 10 s with the session's FMU build (the library runs ~3 s on the FMU, ~0.5 s on the chain).
+About 4 s of its own (the library ~3 s on the FMU, ~0.5 s on the chain), plus the session's
+FMU build when run alone (~25 s).
 """
 from __future__ import annotations
 
@@ -229,3 +231,39 @@ def test_fmu_runner_reads_what_the_driver_needs_and_records_only_what_was_asked(
     watched = runner.run(s, outputs=["est.mass"], driver=Watch())
     assert np.array_equal(bits(watched["est.mass"]), bits(full["est.mass"]))
     assert np.array_equal(bits(seen), bits(full["filter.speed"][:-1]))
+
+
+def test_the_ato_controller_plugs_into_the_loop():
+    """models.ato's controller (demands(t, outputs) -> AtoCommand, no payload) drives the chain
+    through ``drive`` exactly as a hand-written loop of the same steps drives it: until it
+    stands at the mark, the same commands at every step (floats equal) and the same end state."""
+    from models.ato import AtoController
+    from models.span import CarTraction, Span
+    from models.track import GradeProfile
+    from models.units import kmh_to_mps
+
+    grade = GradeProfile((0.0, 300.0, 800.0, 1100.0, 1500.0), (0.0, 15.0, -10.0, 0.0, 5.0))
+    span = Span(2200.0, 135.0, stop=2150.0, grade=grade, limit_distances=(0.0, 900.0, 1300.0),
+                limit_speeds=(kmh_to_mps(80.0), kmh_to_mps(60.0), kmh_to_mps(80.0)))
+    s = scenario_from_dict({"name": "ato", "step_s": 0.1, "duration_s": 400.0, "stop_after_last_phase": False,
+                            "driver": [{"action": "coast", "until_time_s": 1.0}]},   # (not used)
+                           "ato.toml")
+    setup = replace(s.chain_setup({"seed": 4}), grade=span.grade)
+
+    chain, ctrl, by_hand = setup.open(), AtoController(span, CarTraction()), []
+    out = chain.outputs()
+    for k in range(4000):
+        cmd = ctrl.demands(k * 0.1, out)
+        by_hand.append([cmd.traction, cmd.brake, 0.0, 0.0])
+        chain.do_step(k * 0.1, 0.1, cmd.traction, cmd.brake, 0.0, 0.0)
+        out = chain.outputs()
+        if ctrl.finished and out["car.speed"] == 0.0:
+            break
+
+    ato = AtoController(span, CarTraction())
+    trace = drive(ChainStepper(setup.open()), s, ato,
+                  until=lambda o: ato.finished and o["car.speed"] == 0.0)
+    assert np.array_equal(bits(trace.inputs), bits(by_hand))
+    assert list(trace.outputs[-1]) == list(out)
+    assert np.array_equal(bits(list(trace.outputs[-1].values())), bits(list(out.values())))
+    assert 1000 < len(by_hand) < 4000 and abs(out["car.position"] - span.stop) < 1.0    # [m]
