@@ -71,7 +71,7 @@ class Scenario:
         """The scenario's value of an FMU parameter, or the FMU's default."""
         if name in self.parameters:
             return self.parameters[name]
-        return _PARAMETER_TABLE[name].start
+        return RAILCAR_PARAMETERS[name].start
 
     def railcar_parameters(self, overrides: dict | None = None) -> dict:
         """Every RailCar parameter by FMU name: the scenario's value, else the FMU's default, with
@@ -104,17 +104,19 @@ class Scenario:
         return w
 
 
-_PARAMETER_TABLE = {v.name: v for v in variables_for(RAILCAR) if v.causality == "parameter"}
+RAILCAR_PARAMETERS = {v.name: v for v in variables_for(RAILCAR) if v.causality == "parameter"}
+"""RailCar's parameters (fmu_src.variables.Var: type, unit, default ``start``) by FMU name: the one
+place the harness reads them from the variable table."""
 
 
 def railcar_values(parameters: dict) -> dict:
     """Every RailCar parameter by FMU name: the value in ``parameters``, else the FMU's default."""
-    return {n: parameters.get(n, var.start) for n, var in _PARAMETER_TABLE.items()}
+    return {n: parameters.get(n, var.start) for n, var in RAILCAR_PARAMETERS.items()}
 
 
 def _known(overrides: dict) -> dict:
     for name in overrides:
-        if name not in _PARAMETER_TABLE:
+        if name not in RAILCAR_PARAMETERS:
             raise ValueError(f"{name}: not a RailCar parameter (see fmu_src/variables.py)")
     return overrides
 
@@ -178,7 +180,7 @@ def parse_parameters(raw: dict, where: str, base_dir: Path | None) -> dict:
     out = {}
     for name, value in raw.items():
         key = f"{where}.\"{name}\""
-        var = _PARAMETER_TABLE.get(name)
+        var = RAILCAR_PARAMETERS.get(name)
         if var is None:
             raise ScenarioError(f"{key}: not a RailCar parameter (see fmu_src/variables.py)")
         if var.type == "Real":
@@ -222,10 +224,10 @@ def check_fmu_parameters(parameters: dict, where: str, error=None) -> None:
         RailCarChain(chain_config(v), profiles.get("track.grade_profile") or GradeProfile.level(),
                      profiles.get("track.speed_profile"))
     except (ValueError, ArithmeticError) as e:
-        name = named_parameter(str(e), _PARAMETER_TABLE)
+        name = named_parameter(str(e), RAILCAR_PARAMETERS)
         if name is None:
             raise error(f"{where}: {e}") from None
-        note = "" if name in parameters else f" (not set: the FMU's default {_PARAMETER_TABLE[name].start!r})"
+        note = "" if name in parameters else f" (not set: the FMU's default {RAILCAR_PARAMETERS[name].start!r})"
         raise error(f"{where}.\"{name}\"{note}: {e}") from None
 
 

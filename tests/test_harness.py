@@ -207,3 +207,27 @@ def test_list_shows_every_scenario_and_sweep_with_its_purpose(capsys):
         line = next((x for x in lines if x.strip().startswith(f)), None)
         assert line is not None and len(line.strip()) > len(f) + 10, f"{f}: {line!r}"
     assert len(lines) == len(files) + 2                 # and the two headings
+
+
+def test_a_scenario_gives_its_railcar_parameters_and_chain_setup(monkeypatch, tmp_path):
+    """Scenario.railcar_parameters: every RailCar parameter (the file's, else the FMU's default),
+    overrides on top, a misspelt override refused; Scenario.chain_setup: the FMU's own
+    configuration of them (chain_config, load_profiles), a relative profile path found where the
+    FMU finds it (its resources, i.e. scenarios/profiles) whatever the working directory."""
+    from fmu_src.adapter import chain_config, load_profiles
+    from harness.scenario import RAILCAR_PARAMETERS
+    s = load_scenario(ROOT / "scenarios" / "default.toml")
+    v = s.railcar_parameters({"seed": 7})
+    assert set(v) == set(RAILCAR_PARAMETERS) and v["seed"] == 7
+    assert s.railcar_parameters()["seed"] == s.parameter("seed") != 7
+    assert v["car.mass"] == 34.0 and v["est.batch_size"] == 50
+    with pytest.raises(ValueError, match="car.mas: not a RailCar parameter"):
+        s.railcar_parameters({"car.mas": 1.0})
+    setup = s.chain_setup({"seed": 7})
+    assert setup.config == chain_config(v) and setup.config.seed == 7
+    assert (setup.grade, setup.speed) == load_profiles(v, None) and len(setup.grade.distances) > 1
+    monkeypatch.chdir(tmp_path)                     # no profiles/ here
+    relative = scenario_from_dict({**MINIMAL, "parameters": {"track.grade_profile": "profiles/demo_grade.csv"}},
+                                  "t.toml")
+    assert relative.parameter("track.grade_profile") == "profiles/demo_grade.csv"
+    assert relative.chain_setup().grade == setup.grade
