@@ -74,6 +74,8 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
+from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMIT_KB, clean,
+                            no_sanitizer_report, run_host)
 from fmu_src import native, native_fmi3
 
 # conftest.layer_of marks modules named test_native_* as "core"; this one (test_native3_*) is
@@ -83,9 +85,6 @@ pytestmark = [pytest.mark.core, pytest.mark.slow]
 HOST = ROOT / "tests" / "fmu_cases" / "native3_cycles.c"
 TOKEN = "{native3-cycles-test}"
 BACKENDS = {"railcar": native_fmi3.RAILCAR_SPEC, "estimator": native_fmi3.ESTIMATOR_SPEC}
-RSS_GROWTH_LIMIT_KB = 1024
-ASAN_DEFAULT = "detect_leaks=1:abort_on_error=0:halt_on_error=1"
-ASAN_SMALL_QUARANTINE = ASAN_DEFAULT + ":quarantine_size_mb=1"
 CYCLES = 900                       # cycles between the two measurements (100 -> 1000)
 
 
@@ -163,34 +162,13 @@ def hosts(tmp_path_factory) -> dict:
 
 
 def _run(hosts, name: str, mode: str = "main", asan_options: str = ASAN_DEFAULT):
-    env = dict(os.environ, ASAN_OPTIONS=asan_options,
-               UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
-    env.pop("LD_PRELOAD", None)
-    proc = subprocess.run([str(hosts["exes"][name]), mode, *hosts["args"]], capture_output=True,
-                          text=True, env=env, timeout=120, cwd=str(ROOT))
-    figures = {key: {int(c): int(v) for c, v in re.findall(rf"^{key} (\d+) (\d+)$",
-                                                             proc.stdout, re.M)}
-               for key in ("rss_kb", "live_bytes")}
-    return proc, figures
-
-
-def _no_sanitizer_report(proc) -> None:
-    report = proc.stdout[-2000:] + proc.stderr[-4000:]
-    assert "Sanitizer" not in proc.stderr and "runtime error" not in proc.stderr, report
-
-
-def _clean(proc) -> None:
-    report = proc.stdout[-2000:] + proc.stderr[-4000:]
-    _no_sanitizer_report(proc)
-    assert proc.returncode == 0, report
-    assert proc.stdout.rstrip().endswith("ok"), report
-    assert "FAILED" not in proc.stdout, report
+    return run_host(hosts["exes"][name], [mode, *hosts["args"]], asan_options)
 
 
 @pytest.mark.parametrize("backend", sorted(BACKENDS))
 def test_catalogue_refusals_and_cycles_clean_under_sanitizers(hosts, backend):
     proc, figures = _run(hosts, backend)
-    _clean(proc)
+    clean(proc)
     out = proc.stdout
     assert "bad_inputs 9 discarded, each followed by a good step bit-identical" in out, out
     assert re.search(r"^reset 200 steps x \d+ outputs bit-identical to a fresh instance; "
@@ -211,7 +189,7 @@ def test_catalogue_refusals_and_cycles_clean_under_sanitizers(hosts, backend):
 @pytest.mark.parametrize("backend", sorted(BACKENDS))
 def test_rss_flat_over_1000_cycles(hosts, backend):
     proc, figures = _run(hosts, backend, asan_options=ASAN_SMALL_QUARANTINE)
-    _clean(proc)
+    clean(proc)
     rss = figures["rss_kb"]
     assert set(rss) == {100, 1000}, proc.stdout
     growth = rss[1000] - rss[100]
@@ -225,7 +203,7 @@ def test_the_twin_comparison_sees_one_ulp(hosts, backend):
     """Negative control for the refusal runs: the same run with the first input one ulp off on
     one twin must fail its bit-identity check (so 'a refused call changed nothing' is tested)."""
     proc, _ = _run(hosts, backend, mode="twin_control")
-    _no_sanitizer_report(proc)
+    no_sanitizer_report(proc)
     assert proc.returncode == 1, proc.stdout[-2000:]
     assert re.search(r"^FAILED line \d+: after refused calls, step \d+ differs from the twin",
                      proc.stdout, re.M), proc.stdout[-2000:]
@@ -248,7 +226,7 @@ def test_a_leaked_instance_is_caught_by_the_live_byte_count(hosts):
     (the glue's registry keeps every live instance reachable), so this is what the live-byte
     equality is for; the RSS bound sees it too."""
     proc, figures = _run(hosts, "leak_instance", asan_options=ASAN_SMALL_QUARANTINE)
-    _no_sanitizer_report(proc)            # LeakSanitizer is blind to it, as said
+    no_sanitizer_report(proc)            # LeakSanitizer is blind to it, as said
     assert proc.stdout.rstrip().endswith("ok"), proc.stdout[-2000:]
     live, rss = figures["live_bytes"], figures["rss_kb"]
     per_cycle = (live[1000] - live[100]) / CYCLES
@@ -261,6 +239,6 @@ def test_a_null_resource_path_is_accepted(hosts):
     """FMI 3.0: resourcePath may be NULL; the FMU must then instantiate unless it cannot work
     without its resources (ours can)."""
     proc, _ = _run(hosts, "railcar", mode="null_resources")
-    _no_sanitizer_report(proc)
-    _clean(proc)
+    no_sanitizer_report(proc)
+    clean(proc)
     assert "null_resources instantiated, 20 steps" in proc.stdout, proc.stdout

@@ -46,14 +46,13 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
+from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMIT_KB, clean,
+                            run_host)
 from fmu_src import native
 
 HOST = ROOT / "tests" / "fmu_cases" / "native_cycles.c"
 GUID = "{native-cycles-test}"
 BACKENDS = {"railcar": native.RAILCAR_SPEC, "estimator": native.ESTIMATOR_SPEC}
-RSS_GROWTH_LIMIT_KB = 1024
-ASAN_DEFAULT = "detect_leaks=1:abort_on_error=0:halt_on_error=1"
-ASAN_SMALL_QUARANTINE = ASAN_DEFAULT + ":quarantine_size_mb=1"
 
 
 def _compile_all(out: Path) -> dict[str, Path]:
@@ -116,29 +115,13 @@ def hosts(tmp_path_factory) -> dict:
 
 
 def _run(hosts, name: str, asan_options: str):
-    env = dict(os.environ, ASAN_OPTIONS=asan_options,
-               UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
-    env.pop("LD_PRELOAD", None)
-    proc = subprocess.run([str(hosts["exes"][name]), *hosts["args"]], capture_output=True,
-                          text=True, env=env, timeout=120, cwd=str(ROOT))
-    figures = {key: {int(c): int(v) for c, v in re.findall(rf"^{key} (\d+) (\d+)$",
-                                                             proc.stdout, re.M)}
-               for key in ("rss_kb", "live_bytes")}
-    return proc, figures
-
-
-def _clean(proc) -> None:
-    report = proc.stdout[-2000:] + proc.stderr[-4000:]
-    assert proc.returncode == 0, report
-    assert proc.stdout.rstrip().endswith("ok"), report
-    assert "Sanitizer" not in proc.stderr and "runtime error" not in proc.stderr, report
-    assert "FAILED" not in proc.stdout, report
+    return run_host(hosts["exes"][name], hosts["args"], asan_options)
 
 
 @pytest.mark.parametrize("backend", sorted(BACKENDS))
 def test_catalogue_reset_failed_inits_and_cycles_clean_under_sanitizers(hosts, backend):
     proc, figures = _run(hosts, backend, ASAN_DEFAULT)
-    _clean(proc)
+    clean(proc)
     out = proc.stdout
     assert "bad_inputs 9 discarded, each followed by a good step" in out, out
     assert re.search(r"^reset 200 steps x \d+ outputs bit-identical to a fresh instance; "
@@ -155,7 +138,7 @@ def test_catalogue_reset_failed_inits_and_cycles_clean_under_sanitizers(hosts, b
 @pytest.mark.parametrize("backend", sorted(BACKENDS))
 def test_rss_flat_over_1000_cycles(hosts, backend):
     proc, figures = _run(hosts, backend, ASAN_SMALL_QUARANTINE)
-    _clean(proc)
+    clean(proc)
     rss = figures["rss_kb"]
     assert set(rss) == {100, 1000}, proc.stdout
     growth = rss[1000] - rss[100]
