@@ -118,11 +118,14 @@ class AtoTuning:
     brake_share: float = 0.85         # planned braking curves use this share of the electric
     #                                   brake: the rest (and the mechanical brake) is reserve
     approach_gain: float = 1.0        # [1/s] speed feedback of holding and curve tracking
+    brake_integral_gain: float = 0.5  # [1/s^2] integral feedback on the final braking curve
+    brake_integral_max: float = 0.3   # [m/s^2] its bound (anti-windup: ~25 % of the curve)
     a_ep: float = 1.0                 # [m/s^2] programmed deceleration of the EP stage (a
     #                                   metro service rate; 0.7 costs 1 s and 2 % energy)
     ep_stages: int = 6                # EP brake stages of car.mech_force_max / ep_stages
     relay_hysteresis: float = 0.03    # [m/s] relay on above +, off below - this speed error
     relay_stage_speed: float = 0.1    # [m/s] one more stage per this much further error
+    relay_dwell: float = 0.3          # [s] between stage changes (an EP valve's response)
     stand_speed: float = 0.05         # [m/s] at or below for stand_time: the car stands
     stand_time: float = 0.5           # [s]
     creep_speed: float = 0.3          # [m/s] creeping to the mark after a short stop
@@ -201,7 +204,8 @@ class AtoController:
         stage_force = car.mech_force_max / tuning.ep_stages
         self.relay = RelayBrake(span.stop, tuning.a_ep, stage_force, tuning.ep_stages,
                                 tuning.relay_hysteresis, tuning.relay_stage_speed,
-                                tuning.creep_speed, tuning.creep_accel, tuning.stop_window)
+                                tuning.relay_dwell, tuning.creep_speed, tuning.creep_accel,
+                                tuning.stop_window)
         self._final_start = self._final_stretch_start(plan.qU)
         self._sup_q = self._supervision(self.configured.brake_mass)
         self.phase = RUN
@@ -219,6 +223,7 @@ class AtoController:
         self._rejected = False
         self.replans = 0
         self.aim_offset = 0.0
+        self._brake_int, self._t_last = 0.0, None
 
     # ----------------------------------------------------------------- construction checks
     @staticmethod
@@ -244,6 +249,7 @@ class AtoController:
         curves (brake_force_max, no resistance, (1 + mass_reserve) x mass) to every lower limit
         ahead and to 1 m past the stop mark (seed 004's 'never past +1 m' as a hard line)."""
         c, car, span = self.course, self.car, self.span
+        self._sup_mass = mass
         m = 1000.0 * mass * (1.0 + self.tuning.mass_reserve) * (1.0 + car.gamma)
         s = c.s
         q = [0.0] * c.n
@@ -395,7 +401,8 @@ class AtoController:
             self._last_status = plan.status
         self.plan = plan
         self._final_start = self._final_stretch_start(plan.qU)
-        self._sup_q = self._supervision(car.brake_mass)
+        if abs(car.brake_mass - self._sup_mass) > 1e-3 * self._sup_mass:   # else unchanged
+            self._sup_q = self._supervision(car.brake_mass)
 
     def _step(self, t: float, vals) -> AtoCommand:
         v, s, sd = max(vals[0], 0.0), vals[1], vals[2]
@@ -426,7 +433,15 @@ class AtoController:
         u, a_u = self._ceiling(s, sd)
         f_ceil = track_force(car, v, u, a_u, g, tn.approach_gain)
         if self.phase == BRAKE:
-            return self._supervised(t, s, v, sd, self._command(car, v, min(f_ceil, 0.0), a_u, u))
+            # PI on the braking curve: the integral takes out what the feed-forward's mass and
+            # resistance get wrong (a 20 % heavier car than planned lags ~0.2 m/s with P alone)
+            dt = t - self._t_last if self._t_last is not None else 0.0
+            lim = tn.brake_integral_max
+            self._brake_int = min(max(self._brake_int + tn.brake_integral_gain * (u - v) * dt,
+                                      -lim), lim)
+            f = min(f_ceil + car.m_in * self._brake_int, 0.0)
+            self._t_last = t
+            return self._supervised(t, s, v, sd, self._command(car, v, f, a_u, u))
         f_want = 0.0
         if not any(x <= s < y for x, y in plan.coasts):
             f_c = track_force(car, v, plan.hold_speed, 0.0, g, tn.approach_gain)
@@ -438,6 +453,7 @@ class AtoController:
         f = f_ceil if on_ceiling else f_want
         if on_ceiling and f < 0.0 and s >= self._final_start - 1e-9:
             self.phase = BRAKE                 # on the braking curve to the stop mark
+            self._brake_int, self._t_last = 0.0, t
         return self._supervised(t, s, v, sd, self._command(car, v, f, a_u if on_ceiling else 0.0,
                                                            plan.speed_at(s)))
 
@@ -469,7 +485,7 @@ class AtoController:
             return AtoCommand(0.0, max(self._last_brake, tn.hold_brake * self.car.brake_force_max),
                               int(AtoMode.EP), 0.0, self.relay.n_stages)
         self._stand_since = None
-        f, b, stage, v_p = self.relay.command(s, v, car, g)
+        f, b, stage, v_p = self.relay.command(t, s, v, car, g)
         mode = AtoMode.CREEP if stage < 0 else AtoMode.EP
         return self._supervised(t, s, v, sd, AtoCommand(f, b, int(mode), v_p, max(stage, 0)))
 

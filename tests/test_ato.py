@@ -50,6 +50,7 @@ class Run:
     ctrl: AtoController
     modes: list = field(default_factory=list)
     brakes: list = field(default_factory=list)
+    lag: list = field(default_factory=list)       # planned - true speed at each command [m/s]
 
 
 def closed_loop(tuning: AtoTuning, seed: int, overrides: dict | None = None, wind: float = 0.0,
@@ -73,9 +74,10 @@ def closed_loop(tuning: AtoTuning, seed: int, overrides: dict | None = None, win
         if corrupt is not None:
             corrupt(t, seen)
         cmd = ctrl.demands(t, seen)
+        v0, s0 = out["car.speed"], out["car.position"]
         run.modes.append(cmd.mode)
         run.brakes.append(cmd.brake)
-        v0, s0 = out["car.speed"], out["car.position"]
+        run.lag.append(cmd.planned_speed - v0)
         chain.do_step(t, STEP, cmd.traction, cmd.brake, wind, 0.0)
         k += 1
         t = k * STEP
@@ -153,8 +155,9 @@ def test_reduced_planner_reproduces_the_maximum_principle_plan(synthesis):
 def test_replanning_is_fast_and_meets_the_arrival_from_mid_span():
     """The regulator re-plans every 2 s from wherever the car is: from states along a run, with
     a 20 % heavier car, each re-plan must arrive on time (0.05 s, its tolerance) within a few
-    forward runs of the policy, and take milliseconds: median < 50 ms here (measured ~5-10 ms;
-    the bound leaves room for a loaded machine), where synthesize() takes seconds."""
+    forward runs of the policy (at most 12; measured at most 7), and take milliseconds: median
+    CPU time < 50 ms (measured 2-10 ms on an idle machine; process time, so that other
+    processes do not count, and room for a slow one), where synthesize() takes seconds."""
     ctrl = AtoController(SPAN, CAR, REGULATED)
     heavy = PlanCar(CAR, 36.0, CAR.A0, CAR.A1, CAR.A2, 0.85, brake_mass=36.0)
     walls, trials = [], []
@@ -162,9 +165,9 @@ def test_replanning_is_fast_and_meets_the_arrival_from_mid_span():
         v = ctrl.initial_plan.speed_at(x)
         t = ctrl.initial_plan.t[min(range(len(ctrl.initial_plan.s)),
                                     key=lambda j: abs(ctrl.initial_plan.s[j] - x))]
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         plan = ctrl.planner.plan(heavy, float(x), v, t + 0.5, SPAN.schedule)
-        walls.append(time.perf_counter() - t0)
+        walls.append(time.process_time() - t0)
         trials.append(plan.trials)
         if plan.status == "ok":
             assert abs(plan.arrival - SPAN.schedule) <= 0.05, (x, plan.arrival)
@@ -274,26 +277,27 @@ def test_supervisor_brakes_when_the_speed_plus_its_uncertainty_is_over_the_limit
 
 
 def test_relay_brake_switches_stages_on_the_speed_error():
-    """Seed 004's relay (models/ato_stopping.py): stages of 7.5 kN; at the programmed speed the
-    feed-forward stage (30 t x 1.0 m/s^2 less the resistance: 29.7 kN -> 3 stages, rounded
-    down); more than the 0.03 m/s hysteresis above: the relay adds one, every further 0.1 m/s
-    one more; below: it drops back, and far below (short of the mark, nearly at rest) it
-    creeps on with traction; at and past the mark: all stages."""
+    """Seed 004's relay (models/ato_stopping.py), stages of 7.5 kN: it starts with the stages
+    the feed-forward needs (30 t x 1.0 m/s^2 less the resistance: 29.7 kN -> 4, rounded);
+    more than the 0.03 m/s hysteresis above the programmed speed switches one more stage on
+    (one more per further 0.1 m/s), as much below one off, within it nothing changes, and no
+    stage changes within 0.3 s of the last (the valve's dwell). Stopped short of the mark with
+    every stage off it creeps on with traction; at and past the mark: all stages."""
     relay = RelayBrake(stop=100.0, a_ep=1.0, stage_force=7500.0, n_stages=6, hysteresis=0.03,
-                       stage_speed=0.1, creep_speed=0.3, creep_accel=0.2, stop_window=0.15)
+                       stage_speed=0.1, dwell=0.3, creep_speed=0.3, creep_accel=0.2,
+                       stop_window=0.15)
     pc = PlanCar(CAR, 30.0, CAR.A0, CAR.A1, CAR.A2)
     s = 98.0
     vp = relay.programmed_speed(s)
     assert vp == pytest.approx(2.0, rel=1e-12)
-    assert relay.command(s, vp, pc, 0.0)[:3] == (0.0, 22500.0, 3)
-    assert relay.command(s, vp + 0.05, pc, 0.0)[2] == 4
-    assert relay.command(s, vp + 0.02, pc, 0.0)[2] == 4          # hysteresis: stays on
-    assert relay.command(s, vp + 0.25, pc, 0.0)[2] == 6
-    assert relay.command(s, vp - 0.05, pc, 0.0)[2] == 3          # off again
-    assert relay.command(s, vp - 0.2, pc, 0.0)[2] == 2
-    f, b, stage, _ = relay.command(99.0, 0.0, pc, 0.0)
-    assert stage == -1 and f > 0.0 and b == 0.0                  # stopped 1 m short: creep
-    assert relay.command(100.0, 0.1, pc, 0.0)[1:3] == (45000.0, 6)
+    steps = [(0.0, 0.0, 4), (0.1, 0.05, 4), (0.3, 0.05, 5), (0.4, 0.05, 5), (0.6, 0.25, 6),
+             (0.9, -0.05, 5), (1.2, 0.02, 5), (1.5, -0.2, 3)]
+    for t, err, stage in steps:
+        traction, brake, got, v_p = relay.command(t, s, vp + err, pc, 0.0)
+        assert (traction, brake, got, v_p) == (0.0, 7500.0 * stage, stage, vp), (t, err)
+    f, b, stage, _ = relay.command(1.8, 99.0, 0.0, pc, 0.0)
+    assert (stage, b) == (-1, 0.0) and f > 0.0                   # 1 m short, at rest: creep
+    assert relay.command(1.9, 100.0, 0.1, pc, 0.0)[1:3] == (45000.0, 6)
 
 
 # ======================================================================= closed loop
@@ -303,16 +307,20 @@ def test_nominal_closed_loop_meets_the_schedule_and_the_stop_mark():
     """Four seeds, the estimator in the loop, the configured car equal to the true one: every
     run arrives within +-2.5 s, stops within +-0.3 m, the true speed stays under V_lim, no safe
     brake or supervisor intervention, and the controller re-planned with the identified mass
-    and resistance (est.status usable after its 100 samples)."""
+    and resistance (est.status usable after its 100 samples). The car follows the planned
+    speed it reports: RMS of planned - true speed <= 0.3 m/s (measured 0.12 m/s; 0.3 m/s is
+    1.9 % of the mean speed, what 2.5 s is of 135 s)."""
     for seed in (1, 2, 3, 4):
         run = closed_loop(REGULATED, seed)
         assert abs(run.arrival) <= ARRIVAL_TOL, (seed, run.arrival)
         assert abs(run.stop) <= STOP_TOL, (seed, run.stop)
         assert run.margin > 0.0, (seed, run.margin)
         assert _interventions(run) == 0
-        assert run.ctrl.finished and run.ctrl.replans >= 40
+        assert run.ctrl.finished and run.ctrl.replans >= 40     # ~55 in 110 s before braking
         assert any("est.* usable" in e for _, e in run.ctrl.events)
         assert AtoMode.EP in run.modes and run.modes[-1] == AtoMode.HOLD
+        moving = [x for x, m in zip(run.lag, run.modes) if m != AtoMode.HOLD]
+        assert math.sqrt(statistics.fmean(x * x for x in moving)) <= 0.3
 
 
 DISTURBANCES = {   # RailCar overrides (the truth), wind [m/s]; the controller keeps CAR
@@ -327,9 +335,9 @@ DISTURBANCES = {   # RailCar overrides (the truth), wind [m/s]; the controller k
 def test_the_regulator_absorbs_what_the_fixed_plan_does_not(case):
     """Mass +-20 % and a 5 m/s headwind (seed 003's disturbances; the controller is configured
     with the 30 t car and still air): the fixed plan (configured coefficients, no re-planning)
-    is off by at least 2 s (measured 2.1-5.4 s), the regulator (identified values, re-planning)
-    arrives within +-2.5 s and removes at least 1.5 s of the fixed plan's error; both stop
-    within +-0.3 m and stay under V_lim."""
+    is off by at least 2 s (100-seed means: +6.0 s and -3.7 s for the mass, +2.3 s for the
+    wind), the regulator (identified values, re-planning) arrives within +-2.5 s and removes at
+    least 1.5 s of the fixed plan's error; both stop within +-0.3 m and stay under V_lim."""
     overrides, wind = DISTURBANCES[case]
     for seed in (11, 12):
         reg = closed_loop(REGULATED, seed, overrides, wind)
@@ -347,9 +355,10 @@ def test_a0_off_by_half_and_speed_noise():
     """A0 off by +-50 % moves the arrival by less than 1 s on this span (A0 = 0.45 N/kN of
     ~3 N/kN of resistance at speed): regulator and fixed plan both within +-2.5 s and +-0.3 m.
     Speed-sensor noise of 2 % of 80 km/h as 2 sigma (0.222 m/s): the regulator within +-2.5 s;
-    the stop within +-0.5 m and never past +1 m, not +-0.3 m: at this noise the estimator's
-    filter is itself up to 0.39 m off at the start of the EP stage (measured in these runs),
-    and the controller knows the position only from it. The true speed stays under V_lim."""
+    the stop within +-0.5 m, not +-0.3 m: at this noise the estimator's own position error at
+    standstill has sd 0.14 m and lags 0.12 m on average (30 seeds), and the controller knows
+    the position only from it (the stop relative to the filter's position: sd 0.08 m); 0.5 m
+    is the filter's 3.5 sd. The true speed stays under V_lim."""
     for a0 in (1.5 * CAR.A0, 0.5 * CAR.A0):
         for tuning in (REGULATED, FIXED):
             run = closed_loop(tuning, 21, {"car.A0": a0})
