@@ -1,9 +1,8 @@
 """RailCar FMU: car dynamics (plant), sensors, parameter identification and Kalman filter."""
 from pythonfmu import Fmi2Slave
 
-from fmu_src.adapter import chain_config, guarded_step, initialise, not_initialised, load_profiles, register_variables
+from fmu_src.adapter import chain_setup, guarded_step, initialise, not_initialised, register_variables
 from fmu_src.variables import RAILCAR
-from models.compiled import open_chain
 
 
 class RailCar(Fmi2Slave):
@@ -20,10 +19,7 @@ class RailCar(Fmi2Slave):
         self.start_time = float(start_time)
 
     def _build(self):
-        v = self.values
-        cfg = chain_config(v)
-        grade, speed = load_profiles(v, self.resources)
-        chain = open_chain(cfg, grade, speed, start_time=self.start_time)   # C where covered
+        chain = chain_setup(self.values, self.resources).open(self.start_time)   # C where covered
         self.values.update(chain.outputs())
         return chain
 

@@ -151,8 +151,6 @@ def resistance_covariance(result) -> np.ndarray | None:
     est.A*_std are the square roots of the diagonal of). It is accepted only when the re-run ends
     on the run's est.A0..A2 and est.A0_std..A2_std bit for bit; otherwise (no recorded inputs, a
     parameter the reference refuses, a run over ``MAX_REPLAY_STEPS``) None."""
-    from fmu_src.adapter import chain_config, load_profiles
-    from fmu_src.variables import RAILCAR, variables_for
     from models.chain import RailCarChain
     from .runner import INPUTS
 
@@ -162,8 +160,8 @@ def resistance_covariance(result) -> np.ndarray | None:
             or n - 1 > MAX_REPLAY_STEPS:
         return None
     try:
-        v = {x.name: s.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-        chain = RailCarChain(chain_config(v), *load_profiles(v, None))
+        setup = s.chain_setup()
+        chain = RailCarChain(setup.config, setup.grade, setup.speed)
         u = [np.asarray(result.inputs[k], dtype=float) for k in INPUTS]
         for k in range(n - 1):
             chain.do_step(float(result.time[k]), s.step_s, *(float(c[k]) for c in u))

@@ -51,13 +51,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_src.variables import RAILCAR, variables_for
-
+from .scenario import RAILCAR_PARAMETERS as PARAMETERS
 from .scenario import (PATH_PARAMETERS, SEED_MAX, Scenario, ScenarioError, check_integer, parse_parameters,
                        read_toml, scenario_from_dict)
 from .textio import decode_text
 
-PARAMETERS = {v.name: v for v in variables_for(RAILCAR) if v.causality == "parameter"}
 SCENARIO_FIELDS = {"step_s": "s", "duration_s": "s", "stop_after_last_phase": ""}
 WIND_KEYS = {"time_s": "s", "speed_mps": "m/s"}
 BLOCKS = ("grid", "zip", "lhs", "seeds")          # in the order of the product (seeds vary fastest)

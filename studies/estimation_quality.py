@@ -68,8 +68,6 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
-from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
 from harness.driver import drive_chain  # noqa: E402
 from harness.metrics import coast_segments, coast_time, w0_relative_rms_error  # noqa: E402
 from harness.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
@@ -95,8 +93,6 @@ ONLINE = {"paper LS": {}, "paper LS, lik. s2": {"est.sigma2_method": 1},
           "LS slopes": SLOPES, "LS slopes, lik. s2": {**SLOPES, "est.sigma2_method": 1}}   # (d)
 MASS_WITHIN, MASS_SHARE = 0.01, 0.95                  # every stop within 1 % in >= 95 % of seeds
 FILTER_VS_SENSOR, FILTER_VS_ORACLE = 0.6, 1.10        # speed and distance RMSE ratios
-
-_PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 
 
 # ------------------------------------------------------------------ running a scenario
@@ -155,13 +151,11 @@ def run_scenario(scenario: Scenario, seed: int) -> Run:
     """The scenario's driver on models.chain.RailCarChain (what the RailCar FMU runs, without
     FMI; the loop of harness.runner.FmuRunner.run). The forces the estimator is given per
     sample interval are recorded by its method wrapped in a ForceLog (before the first step)."""
-    v = {n: scenario.parameter(n) for n in _PARAMETERS}
-    v["seed"] = int(seed)
-    if abs(scenario.step_s - v["sensor.sample_period"]) > 1e-12:
+    setup = scenario.chain_setup({"seed": int(seed)})
+    if abs(scenario.step_s - setup.config.sample_period) > 1e-12:
         raise ValueError("the study needs step_s == sensor.sample_period (one sample per row)")
-    cfg = chain_config(v)
-    grade, speed_profile = load_profiles(v, None)
-    chain = RailCarChain(cfg, grade, speed_profile)
+    grade = setup.grade
+    chain = RailCarChain(setup.config, setup.grade, setup.speed)
     est = chain.estimator
     est.method = log = ForceLog(est.method)
     h = scenario.step_s

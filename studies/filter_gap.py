@@ -37,8 +37,6 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from fmu_src.adapter import chain_config, load_profiles  # noqa: E402
-from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
 from harness.driver import chain_result  # noqa: E402
 from harness.metrics import summarise  # noqa: E402
 from harness.scenario import load_scenario  # noqa: E402
@@ -47,7 +45,6 @@ from models.methods import KnownNoise, PaperLS  # noqa: E402
 from models.units import G  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
-PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 VARIANTS = ("as built", "true sigma2", "true mass", "true A's", "true theta", "theta+sigma2",
             "= oracle", "sigma2 by ML")
 
@@ -87,10 +84,10 @@ def run(job) -> tuple[str, str, float, float, float]:
     """(scenario, variant, filter/oracle speed RMSE, sigma2 at the end, its truth)."""
     path, variant = job
     scenario = load_scenario(path)
-    v = {n: scenario.parameter(n) for n in PARAMETERS}
-    if variant == "sigma2 by ML":
-        v["est.sigma2_method"] = 1
-    chain = RailCarChain(chain_config(v), *load_profiles(v, str(path.parent)),
+    overrides = {"est.sigma2_method": 1} if variant == "sigma2 by ML" else {}
+    v = scenario.railcar_parameters(overrides)
+    setup = scenario.chain_setup(overrides)
+    chain = RailCarChain(setup.config, setup.grade, setup.speed,
                          **strategies(variant, v, scenario.step_s, lambda: chain.plant.p.mass))
     result = chain_result(chain, scenario)
     s = summarise(result)

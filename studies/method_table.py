@@ -64,16 +64,14 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
-from harness.driver import run_on_chain  # noqa: E402
+from harness.driver import chain_result  # noqa: E402
 from harness.metrics import _segments, coast_time_errors, summarise  # noqa: E402
 from harness.runner import RunResult  # noqa: E402
-from harness.scenario import load_scenario  # noqa: E402
+from harness.scenario import RAILCAR_PARAMETERS as PARAMETERS, load_scenario  # noqa: E402
 from models.identification import METHODS as ID_METHODS  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
 OUT = ROOT / "out" / "methods"
-PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 METHODS = (0, 1, 2, 3)
 ORACLE = "oracle"
 LOW_NOISE = 0.05          # [m/s] the summary's scenarios: sensor.speed_std at most this
@@ -127,10 +125,12 @@ def method_label(method: int, extra: dict | None = None) -> str:
 
 # ------------------------------------------------------------------------------ computing
 
-def _run(path: Path, method: int, extra: dict | None = None) -> RunResult:
+def _run(scenario, method: int, extra: dict | None = None):
     """The scenario on the models chain with est.method = method and the ``extra`` parameters,
-    demands recorded as inputs. Raises ValueError if the configuration rejects them."""
-    return run_on_chain(load_scenario(path), {"est.method": method, **(extra or {})})
+    demands recorded as inputs: (the run's ChainSetup, its RunResult). Raises ValueError if the
+    configuration rejects them."""
+    setup = scenario.chain_setup({"est.method": method, **(extra or {})})
+    return setup, chain_result(setup.open(), scenario)
 
 
 def _coverage(estimate, truth, std, mask) -> float:
@@ -139,11 +139,12 @@ def _coverage(estimate, truth, std, mask) -> float:
     return float(np.mean(ok[mask])) if mask.any() else NAN
 
 
-def _true_coast_errors(result: RunResult) -> list[float]:
+def _true_coast_errors(result: RunResult, setup) -> list[float]:
     """summarise's coast run-time errors [s] with the true still-air A's (and the wind then
-    blowing) in place of the identified ones."""
-    A = tuple(result.scenario.parameter(n) for n in ("car.A0", "car.A1", "car.A2"))
-    return coast_time_errors(result, lambda last: A, still_air=True)
+    blowing) in place of the identified ones; ``setup``: the run's ChainSetup."""
+    car = setup.config.vehicle
+    A = (car.A0, car.A1, car.A2)
+    return coast_time_errors(result, lambda last: A, still_air=True, setup=setup)
 
 
 def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[Row]:
@@ -153,13 +154,13 @@ def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[
     scenario = load_scenario(path)
     noise = float(scenario.parameter("sensor.speed_std"))
     try:
-        result = _run(path, method, extra)
+        setup, result = _run(scenario, method, extra)
     except ValueError as e:
         rows = [Row(scenario.name, method_label(method, extra), noise, rejected=str(e))]
         if with_oracle:
             rows += [r for r in run_job((path, 0, True)) if r.method == ORACLE]
         return rows
-    s = summarise(result)
+    s = summarise(result, setup=setup)
     v = result["car.speed"]
     moving = v > 0.0
     arrivals = [k for _, k in _segments(v)]
@@ -186,7 +187,7 @@ def run_job(job: tuple[Path, int, bool] | tuple[Path, int, bool, bool]) -> list[
         rows.append(Row(
             scenario.name, ORACLE, noise, stops=len(arrivals),
             mass_err_max_pct=0.0 if arrivals else NAN, mass_within_1pct=True if arrivals else None,
-            w0_err_pct=0.0, coast_errors_s=_true_coast_errors(result),
+            w0_err_pct=0.0, coast_errors_s=_true_coast_errors(result, setup),
             speed_rmse_sensor=s.speed_rmse_sensor, speed_rmse_filter=s.speed_rmse_oracle,
             speed_rmse_oracle=s.speed_rmse_oracle,
             dist_rmse_filter=s.position_rmse_oracle, dist_rmse_oracle=s.position_rmse_oracle))

@@ -67,8 +67,8 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 from fmu_src.adapter import chain_config, estimator_settings  # noqa: E402
-from fmu_src.variables import RAILCAR, variables_for  # noqa: E402
 from harness.driver import CRUISE_GAIN  # noqa: E402
+from harness.scenario import railcar_values  # noqa: E402
 from models.chain import StepRejected  # noqa: E402
 from models.compiled import open_chain, open_estimator_chain  # noqa: E402
 from models.track import GradeProfile  # noqa: E402
@@ -136,7 +136,7 @@ default)."""
 def fmu_parameters(day: DayConfig, seed: int, overrides: dict | None = None) -> dict:
     """RailCar's parameter values: the FMU's defaults, car.mass and seed from the day, then
     ``overrides`` (default: SERVICE_PARAMETERS)."""
-    v = {x.name: x.start for x in variables_for(RAILCAR) if x.causality == "parameter"}
+    v = railcar_values({})
     v.update({"car.mass": day.car_mass_t, "seed": int(seed), "sensor.sample_period": day.step_s})
     v.update(SERVICE_PARAMETERS if overrides is None else overrides)
     return v

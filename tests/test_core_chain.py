@@ -21,8 +21,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fmu_src.adapter import chain_config, load_profiles
-from fmu_src.variables import RAILCAR, variables_for
 from harness.driver import drive_chain
 from harness.scenario import load_scenario
 from models import compiled
@@ -37,7 +35,6 @@ from models.track import GradeProfile
 
 ROOT = Path(__file__).resolve().parent.parent
 LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
-PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 
 
 def test_the_c_core_is_built():
@@ -75,9 +72,8 @@ def python_state(chain: RailCarChain) -> tuple:
 def scenario_chains(path: Path, overrides: dict):
     sc = load_scenario(path)
     sc = replace(sc, parameters={**sc.parameters, **overrides})
-    v = {n: sc.parameter(n) for n in PARAMETERS}
-    profiles = load_profiles(v, str(path.parent))
-    return sc, RailCarChain(chain_config(v), *profiles), CompiledChain(chain_config(v), *profiles)
+    s = sc.chain_setup()            # each chain runs a private copy of the configuration
+    return sc, RailCarChain(s.config, s.grade, s.speed), CompiledChain(s.config, s.grade, s.speed)
 
 
 def assert_identical(path: Path, overrides: dict, max_steps: int | None = None) -> int:
@@ -99,12 +95,14 @@ def test_library_scenario_bit_identical(path):
     assert assert_identical(path, {}) > 100
 
 
+# a relative profile path is looked up where the RailCar FMU looks (Scenario.chain_setup): its
+# resources, i.e. scenarios/ (build.py bundles scenarios/profiles)
 VARIANTS = {
     "forgetting": {"est.forgetting": 0.002},
     "run_forgetting": {"est.run_forgetting": 0.3},
     "car_length_and_odometry_drift": {"car.length": 60.0, "sensor.position_std_rel": 0.01},
-    "paper_filter": {"filter.kind": 3, "track.speed_profile": "../profiles/default_speed.csv"},
-    "linearised_filter": {"filter.kind": 1, "track.speed_profile": "../profiles/default_speed.csv"},
+    "paper_filter": {"filter.kind": 3, "track.speed_profile": "profiles/default_speed.csv"},
+    "linearised_filter": {"filter.kind": 1, "track.speed_profile": "profiles/default_speed.csv"},
     "solver_step_0.1": {"solver.step": 0.1},
     "gamma_and_small_batch": {"car.gamma": 0.08, "est.gamma": 0.08, "est.batch_size": 4},
     "start_time": {"seed": 2147483647},

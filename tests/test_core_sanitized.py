@@ -24,8 +24,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fmu_src.adapter import chain_config, load_profiles
-from fmu_src.variables import RAILCAR, variables_for
 from harness.driver import drive_chain
 from harness.scenario import load_scenario
 from models import compiled
@@ -35,7 +33,6 @@ ROOT = Path(__file__).resolve().parent.parent
 CORE = ROOT / "models" / "core"
 DRIVER = ROOT / "tests" / "core_cases" / "chain_driver.c"
 LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
-PARAMETERS = [v.name for v in variables_for(RAILCAR) if v.causality == "parameter"]
 MAX_STEPS = None       # whole scenarios: station_day reaches its station stops (9000 steps)
 STRICT = ["-std=c99", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 SANITIZE = ["-g", "-O1", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
@@ -60,9 +57,9 @@ class Run:
 
     def __init__(self, path: Path):
         sc = load_scenario(path)
-        values = {n: sc.parameter(n) for n in PARAMETERS}
-        grade, speed = load_profiles(values, str(path.parent))
-        chain = RailCarChain(chain_config(values), grade, speed)
+        setup = sc.chain_setup()
+        grade, speed = setup.grade, setup.speed
+        chain = RailCarChain(setup.config, grade, speed)
         demands: list = []
         rows = drive_chain(chain, sc, MAX_STEPS, demands=demands)
         assert len(rows) == len(demands) + 1 > 100
@@ -72,7 +69,7 @@ class Run:
         self.expected = np.array([[float(r[n]) for n in names] for r in rows])
         h = sc.step_s
         steps = np.array([(k * h, h, *d) for k, d in enumerate(demands)], dtype=float).reshape(-1, 6)
-        self.cfg = compiled.validate(chain_config(values), speed, 0.0)
+        self.cfg = compiled.validate(setup.config, speed, 0.0)
         self.grade, self.speed, self.steps = grade, speed, steps
         self.data = self.file_data(self.cfg)
 

@@ -16,8 +16,6 @@ import numpy as np
 import pytest
 from matplotlib.collections import PolyCollection
 
-from fmu_src.adapter import chain_config, load_profiles
-from fmu_src.variables import RAILCAR, variables_for
 from harness import report
 from harness.runner import INPUTS, RunResult
 from harness.scenario import load_scenario
@@ -32,8 +30,8 @@ def open_loop_run(scenario, seconds: float = 100.0):
     """``scenario``'s car (its parameters and seed) driven open loop: 40 kN of traction for 25 s,
     coast to 60 s, 20 kN to 70 s, then 30 kN of brake; a RunResult as the FMU runner makes one,
     and the chain at the end (its estimator holds the covariance)."""
-    v = {x.name: scenario.parameter(x.name) for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    chain = RailCarChain(chain_config(v), *load_profiles(v, None))
+    s = scenario.chain_setup()
+    chain = RailCarChain(s.config, s.grade, s.speed)
     h = scenario.step_s
     rows, inputs = [chain.outputs()], []
     for k in range(int(round(seconds / h))):
