@@ -78,11 +78,8 @@ VARIANTS = {
 
 
 def railcar_values(seed: int, overrides: dict) -> dict:
-    from fmu_src.variables import RAILCAR, variables_for
-    v = {x.name: x.start for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    v["seed"] = seed
-    v.update(overrides)
-    return v
+    from harness.scenario import railcar_values as defaults
+    return defaults({**overrides, "seed": seed})
 
 
 def true_car(overrides: dict, wind: float) -> CarTraction:

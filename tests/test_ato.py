@@ -59,11 +59,9 @@ def closed_loop(tuning: AtoTuning, seed: int, overrides: dict | None = None, win
     the mark (the harness's scenario-driver loop will replace this). ``corrupt(t, outputs)``
     may change what the controller sees."""
     from fmu_src.adapter import chain_config
-    from fmu_src.variables import RAILCAR, variables_for
+    from harness.scenario import railcar_values
     from models.compiled import open_chain
-    values = {x.name: x.start for x in variables_for(RAILCAR) if x.causality == "parameter"}
-    values["seed"] = seed
-    values.update(overrides or {})
+    values = railcar_values({**(overrides or {}), "seed": seed})
     chain = open_chain(chain_config(values), span.grade)
     ctrl = AtoController(span, CAR, tuning)
     out = chain.outputs()
