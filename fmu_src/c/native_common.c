@@ -334,3 +334,79 @@ void native_gate_warning(GlueInstance *g, const native_values *v, fmi2Integer be
                  "innovation gate in this step (a spike, a dropout; filter.rejected = %ld)",
                  (long)now - (long)before, (long)now);
 }
+
+/* ------------------------------------------------- the model_* lifecycle of every backend */
+
+static void drop_chain(native_instance *m) {
+    if (m->chain) {
+        NATIVE_BACKEND.kind->free_chain(m->chain);
+        free(m->chain);
+        m->chain = NULL;
+    }
+}
+
+fmi2Status model_instantiate(GlueInstance *g) {
+    native_instance *m = calloc(1, sizeof *m);
+    g->model = m;
+    if (m) m->outputs = calloc((size_t)NATIVE_BACKEND.md->noutputs, sizeof *m->outputs);
+    if (!m || !m->outputs) {
+        glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+        return fmi2Error;                       /* the glue calls model_free next */
+    }
+    return native_instantiate(g, NATIVE_BACKEND.md, &m->v);
+}
+
+void model_free(GlueInstance *g) {
+    native_instance *m = g->model;
+    if (!m) return;
+    drop_chain(m);
+    native_free(&m->v);
+    free(m->outputs);
+    free(m);
+    g->model = NULL;
+}
+
+fmi2Status model_reset(GlueInstance *g) {
+    native_instance *m = g->model;
+    drop_chain(m);
+    native_start_values(&m->v);
+    return fmi2OK;
+}
+
+fmi2Status model_setup_experiment(GlueInstance *g, int tolerance_defined, double tolerance,
+                                  double start_time, int stop_time_defined, double stop_time) {
+    (void)tolerance_defined;
+    (void)tolerance;
+    (void)stop_time_defined;
+    (void)stop_time;
+    ((native_instance *)g->model)->v.start_time = start_time;
+    return fmi2OK;
+}
+
+fmi2Status model_enter_initialization_mode(GlueInstance *g) {
+    (void)g;
+    return fmi2OK;
+}
+
+fmi2Status model_exit_initialization_mode(GlueInstance *g) {
+    native_instance *m = g->model;
+    if (!NATIVE_BACKEND.kind) return fmi2OK;    /* nothing to build */
+    drop_chain(m);
+    m->chain = native_build_chain(g, &m->v, NATIVE_BACKEND.kind, m->outputs);
+    return m->chain ? fmi2OK : fmi2Error;
+}
+
+fmi2Status model_terminate(GlueInstance *g) {
+    (void)g;
+    return fmi2OK;
+}
+
+fmi2Status model_get(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
+                     void *values) {
+    return native_get(g, &((native_instance *)g->model)->v, type, vr, nvr, values);
+}
+
+fmi2Status model_set(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
+                     const void *values) {
+    return native_set(g, &((native_instance *)g->model)->v, type, vr, nvr, values);
+}

@@ -86,7 +86,23 @@ typedef struct {
     rc_status (*init)(void *chain, const void *cfg, rc_error *err);   /* copies the profiles */
     int (*outputs)(void *chain, double *out);   /* 0: no outputs yet (EstimatorChain) */
     int vr_slope_window;                        /* est.slope_window, an Integer parameter */
+    void (*free_chain)(void *chain);            /* the core's free (not free() itself) */
 } native_chain_kind;
+
+/* What a backend .c defines (one per FMU binary, read-only): its variable table and its chain
+   type (NULL: no chain, for the benchmarks' no-op). native_common.c implements every model_*
+   function of fmi2_glue.h on it but model_do_step, which each backend writes. */
+typedef struct {
+    const native_model *md;
+    const native_chain_kind *kind;
+} native_backend;
+extern const native_backend NATIVE_BACKEND;
+
+typedef struct {                 /* GlueInstance.model of a native FMU */
+    native_values v;
+    void *chain;                 /* after a successful fmi2ExitInitializationMode */
+    double *outputs;             /* md->noutputs, the core's output order */
+} native_instance;
 
 /* fmi2ExitInitializationMode of a native backend, in adapter.initialise's order: the flat
    configuration from the parameters and the start time; load_profiles (the grade profile, then

@@ -33,66 +33,7 @@
 typedef char nes_outputs_match_the_core[NES_NOUTPUTS == RC_EST_OUTPUTS ? 1 : -1];
 typedef char nes_inputs_are_six[NES_NINPUTS == 6 ? 1 : -1];
 
-typedef struct {
-    native_values v;                   /* the variables (native_common.h) */
-    rc_estchain *chain;                /* after a successful fmi2ExitInitializationMode */
-    double outputs[RC_EST_OUTPUTS];
-} Native;
-
-#define MODEL(g) ((Native *)(g)->model)
-
-static void drop_chain(Native *m) {
-    if (m->chain) {
-        rc_estchain_free(m->chain);
-        free(m->chain);
-        m->chain = NULL;
-    }
-}
-
-fmi2Status model_instantiate(GlueInstance *g) {
-    Native *m = calloc(1, sizeof *m);
-    g->model = m;
-    if (!m) {
-        glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
-        return fmi2Error;
-    }
-    return native_instantiate(g, &NES_MODEL, &m->v);
-}
-
-void model_free(GlueInstance *g) {
-    Native *m = MODEL(g);
-    if (!m) return;
-    drop_chain(m);
-    native_free(&m->v);
-    free(m);
-    g->model = NULL;
-}
-
-fmi2Status model_reset(GlueInstance *g) {
-    drop_chain(MODEL(g));
-    native_start_values(&MODEL(g)->v);
-    return fmi2OK;
-}
-
-fmi2Status model_setup_experiment(GlueInstance *g, int tolerance_defined, double tolerance,
-                                  double start_time, int stop_time_defined, double stop_time) {
-    (void)tolerance_defined;
-    (void)tolerance;
-    (void)stop_time_defined;
-    (void)stop_time;
-    MODEL(g)->v.start_time = start_time;   /* EstimatorChain does not use it */
-    return fmi2OK;
-}
-
-fmi2Status model_enter_initialization_mode(GlueInstance *g) {
-    (void)g;
-    return fmi2OK;
-}
-
-fmi2Status model_terminate(GlueInstance *g) {
-    (void)g;
-    return fmi2OK;
-}
+#define MODEL(g) ((native_instance *)(g)->model)
 
 /* ------------------------------------------------------------------------- initialisation */
 
@@ -113,22 +54,21 @@ static int outputs(void *chain, double *out) {
     return rc_estchain_outputs(chain, out);            /* none before the first step */
 }
 
+static void free_chain(void *chain) {
+    rc_estchain_free(chain);
+}
+
 static const native_chain_kind CHAIN = {
     sizeof(rc_estchain_config), sizeof(rc_estchain), NATIVE_PROFILE_OFFSETS(rc_estchain_config),
-    config_from_values, validate, init, outputs, NES_VR_SLOPE_WINDOW
+    config_from_values, validate, init, outputs, NES_VR_SLOPE_WINDOW, free_chain
 };
 
-fmi2Status model_exit_initialization_mode(GlueInstance *g) {
-    Native *m = MODEL(g);
-    drop_chain(m);
-    m->chain = native_build_chain(g, &m->v, &CHAIN, m->outputs);
-    return m->chain ? fmi2OK : fmi2Error;
-}
+const native_backend NATIVE_BACKEND = {&NES_MODEL, &CHAIN};
 
 /* -------------------------------------------------------------------------------- stepping */
 
 fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size) {
-    Native *m = MODEL(g);
+    native_instance *m = MODEL(g);
     const double *in = m->v.real;
     rc_error err;
     rc_status s;
@@ -146,16 +86,4 @@ fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size)
         native_store_outputs(&m->v, m->outputs);
     native_gate_warning(g, &m->v, rejected);
     return fmi2OK;
-}
-
-/* ------------------------------------------------------------------- getting and setting */
-
-fmi2Status model_get(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
-                     void *values) {
-    return native_get(g, &MODEL(g)->v, type, vr, nvr, values);
-}
-
-fmi2Status model_set(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
-                     const void *values) {
-    return native_set(g, &MODEL(g)->v, type, vr, nvr, values);
 }

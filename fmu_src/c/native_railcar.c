@@ -16,7 +16,8 @@
  *   innovation gate refuse measurements logs guarded_step's warning.
  * The flat configuration (rc_chain_config_from_values) is filled from the table's mapping of
  * each of its numbers to a parameter, the start time or a constant. What it shares with the
- * RailCarEstimator backend (variables, get/set, profiles, messages) is in native_common.c.
+ * RailCarEstimator backend (the model_* lifecycle, variables, get/set, profiles, messages) is in
+ * native_common.c; this file gives its chain type (NATIVE_BACKEND) and model_do_step.
  *
  * Differences from the pythonfmu FMU: a step the core cannot compute (RC_MATH, where Python
  * raises ZeroDivisionError or OverflowError and guarded_step discards the step) is fmi2Error
@@ -36,66 +37,7 @@
 typedef char nrc_outputs_match_the_core[NRC_NOUTPUTS == RC_CHAIN_OUTPUTS ? 1 : -1];
 typedef char nrc_inputs_are_four[NRC_NINPUTS == 4 ? 1 : -1];
 
-typedef struct {
-    native_values v;                   /* the variables (native_common.h) */
-    rc_chain *chain;                   /* after a successful fmi2ExitInitializationMode */
-    double outputs[RC_CHAIN_OUTPUTS];
-} Native;
-
-#define MODEL(g) ((Native *)(g)->model)
-
-static void drop_chain(Native *m) {
-    if (m->chain) {
-        rc_chain_free(m->chain);
-        free(m->chain);
-        m->chain = NULL;
-    }
-}
-
-fmi2Status model_instantiate(GlueInstance *g) {
-    Native *m = calloc(1, sizeof *m);
-    g->model = m;
-    if (!m) {
-        glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
-        return fmi2Error;
-    }
-    return native_instantiate(g, &NRC_MODEL, &m->v);
-}
-
-void model_free(GlueInstance *g) {
-    Native *m = MODEL(g);
-    if (!m) return;
-    drop_chain(m);
-    native_free(&m->v);
-    free(m);
-    g->model = NULL;
-}
-
-fmi2Status model_reset(GlueInstance *g) {
-    drop_chain(MODEL(g));
-    native_start_values(&MODEL(g)->v);
-    return fmi2OK;
-}
-
-fmi2Status model_setup_experiment(GlueInstance *g, int tolerance_defined, double tolerance,
-                                  double start_time, int stop_time_defined, double stop_time) {
-    (void)tolerance_defined;
-    (void)tolerance;
-    (void)stop_time_defined;
-    (void)stop_time;
-    MODEL(g)->v.start_time = start_time;
-    return fmi2OK;
-}
-
-fmi2Status model_enter_initialization_mode(GlueInstance *g) {
-    (void)g;
-    return fmi2OK;
-}
-
-fmi2Status model_terminate(GlueInstance *g) {
-    (void)g;
-    return fmi2OK;
-}
+#define MODEL(g) ((native_instance *)(g)->model)
 
 /* ------------------------------------------------------------------------- initialisation */
 
@@ -117,22 +59,21 @@ static int outputs(void *chain, double *out) {
     return 1;
 }
 
+static void free_chain(void *chain) {
+    rc_chain_free(chain);
+}
+
 static const native_chain_kind CHAIN = {
     sizeof(rc_chain_config), sizeof(rc_chain), NATIVE_PROFILE_OFFSETS(rc_chain_config),
-    config_from_values, validate, init, outputs, NRC_VR_SLOPE_WINDOW
+    config_from_values, validate, init, outputs, NRC_VR_SLOPE_WINDOW, free_chain
 };
 
-fmi2Status model_exit_initialization_mode(GlueInstance *g) {
-    Native *m = MODEL(g);
-    drop_chain(m);
-    m->chain = native_build_chain(g, &m->v, &CHAIN, m->outputs);
-    return m->chain ? fmi2OK : fmi2Error;
-}
+const native_backend NATIVE_BACKEND = {&NRC_MODEL, &CHAIN};
 
 /* -------------------------------------------------------------------------------- stepping */
 
 fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size) {
-    Native *m = MODEL(g);
+    native_instance *m = MODEL(g);
     const double *in = m->v.real;
     rc_error err;
     rc_status s;
@@ -148,16 +89,4 @@ fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size)
     native_store_outputs(&m->v, m->outputs);
     native_gate_warning(g, &m->v, rejected);
     return fmi2OK;
-}
-
-/* ------------------------------------------------------------------- getting and setting */
-
-fmi2Status model_get(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
-                     void *values) {
-    return native_get(g, &MODEL(g)->v, type, vr, nvr, values);
-}
-
-fmi2Status model_set(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
-                     const void *values) {
-    return native_set(g, &MODEL(g)->v, type, vr, nvr, values);
 }
