@@ -40,7 +40,8 @@ sys.path.insert(0, str(ROOT))
 
 from fmu_src.variables import UNITS, variables_for  # noqa: E402
 
-FMUS = {"RailCar": "fmu_src/railcar.py", "RailCarEstimator": "fmu_src/railcar_estimator.py"}
+FMUS = {"RailCar": "fmu_src/railcar.py", "RailCarEstimator": "fmu_src/railcar_estimator.py",
+        "AtoController": "fmu_src/ato_controller.py"}
 PROJECT_FILES = ["fmu_src", "models", "scenarios/profiles"]
 DEFAULT_EXPERIMENT = {"startTime": "0", "stopTime": "200", "stepSize": "0.1"}
 
@@ -94,8 +95,11 @@ def complete_model_description(xml: bytes, model_name: str) -> bytes:
     mv_index = [i for i, c in enumerate(children) if c.tag == "ModelVariables"][0]
     root.insert(mv_index, ET.Element("DefaultExperiment", DEFAULT_EXPERIMENT))
 
-    for sv in root.find("ModelVariables"):
+    calculated = []
+    for index, sv in enumerate(root.find("ModelVariables"), start=1):
         var = table[sv.get("name")]
+        if var.causality == "output" and var.initial == "calculated":
+            calculated.append(index)
         real = sv.find("Real")
         if real is None:
             continue
@@ -105,6 +109,11 @@ def complete_model_description(xml: bytes, model_name: str) -> bytes:
             real.set("min", repr(float(var.min)))
         if var.max is not None:
             real.set("max", repr(float(var.max)))
+    if calculated:      # FMI 2.0 section 2.2.8: every calculated output is an initial unknown
+        structure = root.find("ModelStructure")
+        unknowns = ET.SubElement(structure, "InitialUnknowns")
+        for index in calculated:
+            ET.SubElement(unknowns, "Unknown", index=str(index))
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 

@@ -13,7 +13,7 @@ import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
-from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real, String
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
 
 from models.estimator import StationConfig
@@ -27,7 +27,8 @@ _CAUSALITY = {"parameter": Fmi2Causality.parameter, "input": Fmi2Causality.input
               "output": Fmi2Causality.output}
 _VARIABILITY = {"fixed": Fmi2Variability.fixed, "continuous": Fmi2Variability.continuous,
                 "discrete": Fmi2Variability.discrete}
-_TYPE = {"Real": Real, "Integer": Integer, "String": String}
+_TYPE = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
+_INITIAL = {"exact": Fmi2Initial.exact, "calculated": Fmi2Initial.calculated}
 
 
 class ParameterError(ValueError):
@@ -44,10 +45,11 @@ def register_variables(slave, fmu: str) -> dict:
                       description=var.description,
                       getter=(lambda n=var.name: values[n]))
         if var.causality == "output":
-            kwargs["initial"] = Fmi2Initial.exact
+            kwargs["initial"] = _INITIAL[var.initial]
         else:
             kwargs["setter"] = _setter(slave, values, var)
-        slave.register_variable(_TYPE[var.type](var.name, start=var.start, **kwargs))
+        start = None if var.initial == "calculated" else var.start   # no start: computed
+        slave.register_variable(_TYPE[var.type](var.name, start=start, **kwargs))
     return values
 
 
@@ -209,3 +211,58 @@ def chain_setup(v: dict, resources: str | None) -> ChainSetup:
     them at initialisation (``chain_config``, ``load_profiles`` with the FMU's ``resources``
     folder). Raises ValueError (ParameterError for a profile), naming the parameter."""
     return ChainSetup(chain_config(v), *load_profiles(v, resources))
+
+
+# ------------------------------------------------------------------------------- AtoController
+SPEED_LIMIT_COLUMNS = ("distance_m", "speed_limit_mps")
+
+
+def ato_setup(v: dict, resources: str | None):
+    """AtoController's parameter values -> (models.span.Span, CarTraction, AtoTuning), the
+    profiles read as RailCar reads its own (``resolve_profile_path``). Raises ParameterError
+    naming the parameter (a profile: its file and line)."""
+    from models.ato import AtoTuning
+    from models.span import CarTraction, Span
+    from models.track import parse_profile_csv
+    from .variables import ATO, _CAR_ROWS, _TUNING_ROWS
+
+    def text(param: str) -> tuple[str, str] | None:
+        raw = v[param]
+        if not raw:
+            return None
+        path = resolve_profile_path(raw, resources)
+        try:
+            return path.read_text(encoding="utf-8"), str(path)
+        except OSError as e:
+            raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
+        except UnicodeDecodeError as e:
+            raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
+
+    grade_src = text("span.grade_profile")
+    try:
+        grade = GradeProfile.from_csv_text(*grade_src) if grade_src else GradeProfile.level()
+    except ProfileError as e:
+        raise ParameterError(f"span.grade_profile: {e}") from None
+    limit_src = text("span.speed_limit_profile")
+    if limit_src:
+        try:
+            distances, limits = parse_profile_csv(*limit_src, SPEED_LIMIT_COLUMNS)
+        except ProfileError as e:
+            raise ParameterError(f"span.speed_limit_profile: {e}") from None
+    else:
+        distances, limits = [0.0], [v["span.speed_limit"]]
+    stop = v["span.stop"]
+    length = v["span.length"] or stop
+    try:
+        span = Span(length, v["span.schedule"], stop, grade, tuple(distances), tuple(limits))
+        car = CarTraction(**{f: v[f"car.{f}"] for f, _, _ in _CAR_ROWS})
+        tuning = AtoTuning(**{f: v[f"ato.{f}"] for f, _, _ in _TUNING_ROWS})
+    except ValueError as e:
+        raise ParameterError(f"{ATO}: {_fmu_names(str(e))}") from None
+    return span, car, tuning
+
+
+def _fmu_names(message: str) -> str:
+    """models' messages say tuning.x and span.limit_speeds[k]: name the FMU's parameters."""
+    return (message.replace("tuning.", "ato.").replace("span.limit_speeds", "span.speed_limit(s)")
+            .replace("span.limit_distances", "span.speed_limit_profile distances"))

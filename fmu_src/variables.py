@@ -8,29 +8,32 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-RAILCAR, ESTIMATOR = "RailCar", "RailCarEstimator"
+RAILCAR, ESTIMATOR, ATO = "RailCar", "RailCarEstimator", "AtoController"
 BOTH = (RAILCAR, ESTIMATOR)
+FMUS = (RAILCAR, ESTIMATOR, ATO)
 
 
 @dataclass(frozen=True)
 class Var:
     name: str
     causality: str          # parameter | input | output
-    type: str               # Real | Integer | String
+    type: str               # Real | Integer | Boolean | String
     unit: str | None
     start: object
     description: str
     fmus: tuple[str, ...] = BOTH
     min: float | None = None
     max: float | None = None
+    initial: str = "exact"  # outputs: exact (start is the value after initialisation) or
+    #                         calculated (computed from the parameters at initialisation)
 
     @property
     def variability(self) -> str:
         if self.causality == "parameter":
             return "fixed"
-        if self.type == "Real":
+        if self.type == "Real" and not (self.causality == "output" and ATO in self.fmus):
             return "continuous"
-        return "discrete"
+        return "discrete"   # the controller's outputs change at communication points only
 
 
 # (name, SI base-unit exponents, factor): factor converts the unit into SI (FMI 2.0 BaseUnit)
@@ -48,6 +51,8 @@ UNITS: dict[str, tuple[dict[str, int], float]] = {
     "N/kN": ({}, 1e-3),
     "N/kN/(m/s)": ({"m": -1, "s": 1}, 1e-3),
     "N/kN/(m/s)2": ({"m": -2, "s": 2}, 1e-3),
+    "1/s": ({"s": -1}, 1.0),
+    "1/s2": ({"s": -2}, 1.0),
     "1": ({}, 1.0),
 }
 
@@ -153,6 +158,114 @@ VARIABLES: tuple[Var, ...] = (
 )
 
 
+
+# ------------------------------------------------------------------------------- AtoController
+# The controller (models.ato.AtoController) as an FMU: inputs are the estimator's outputs it reads
+# (same names, so a system connects them name to name), parameters the span, the configured car
+# (models.span.CarTraction) and the tuning (models.ato.AtoTuning, defaults taken from there),
+# outputs the demands RailCar takes (same names) and what the controller is doing.
+A = (ATO,)
+_CAR_ROWS = (   # CarTraction field, unit, description (the car as configured, not the truth)
+    ("mass", "t", "configured mass with passengers (the plan's mass until est.mass is usable)"),
+    ("A0", "N/kN", "configured main-resistance coefficient A0"),
+    ("A1", "N/kN/(m/s)", "configured main-resistance coefficient A1"),
+    ("A2", "N/kN/(m/s)2", "configured main-resistance coefficient A2"),
+    ("gamma", "1", "rotating-mass factor"),
+    ("length", "m", "car/train length the grade is averaged over; 0 = point mass"),
+    ("traction_force_max", "N", "traction force limit (constant-force zone)"),
+    ("traction_power_max", "W", "traction power limit (constant-power zone)"),
+    ("brake_force_max", "N", "total brake limit (regenerative + electro-pneumatic)"),
+    ("regen_force_max", "N", "regenerative brake limit (constant-force zone)"),
+    ("regen_power_max", "W", "regenerative brake power limit"),
+    ("regen_fade_speed", "m/s", "full regenerative brake at and above this speed (seed 003: 7 km/h)"),
+    ("regen_off_speed", "m/s", "no regenerative brake at and below this speed"),
+    ("mech_force_max", "N", "electro-pneumatic brake limit"),
+    ("adhesion_mass_fraction", "1", "share of the mass on driven axles"),
+    ("adhesion_factor", "1", "scales the dry-rail adhesion coefficient"),
+    ("eta_f", "1", "traction efficiency: wheel energy / network energy"),
+    ("eta", "1", "share of the regenerated energy the network takes back"),
+)
+_TUNING_ROWS = (   # AtoTuning field, unit, description
+    ("replan", None, "re-plan the rest of the span every ato.replan_period (the running-time regulator)"),
+    ("use_estimates", None, "plan and feed forward with est.* once usable (else the configured car.*)"),
+    ("replan_period", "s", "time between re-plans"),
+    ("grid_step", "m", "re-planner's distance grid"),
+    ("time_tol", "s", "re-plan's running-time tolerance"),
+    ("min_samples", None, "est.samples needed before est.* are used"),
+    ("mass_band", "1", "est.mass is used within [car.mass / this, car.mass x this]"),
+    ("limit_margin", "m/s", "planned speeds stay this far below the speed limit"),
+    ("k_sigma", "1", "supervisor: filter.speed + k_sigma x filter.speed_std must stay under the supervision curve"),
+    ("supervisor_gap", "m/s", "the controller keeps that speed this far below the supervision curve"),
+    ("mass_reserve", "1", "the supervisor's braking curves assume this share more mass"),
+    ("brake_share", "1", "share of the electric brake the planned braking curves use"),
+    ("approach_gain", "1/s", "speed feedback gain of holding and curve tracking"),
+    ("brake_integral_gain", "1/s2", "integral feedback on the final braking curve"),
+    ("brake_integral_max", "m/s2", "bound of that integral term"),
+    ("a_ep", "m/s2", "programmed deceleration of the electro-pneumatic stage"),
+    ("ep_stages", None, "electro-pneumatic brake stages of car.mech_force_max / ep_stages each"),
+    ("relay_hysteresis", "m/s", "relay: a stage on above +, off below - this speed error"),
+    ("relay_stage_speed", "m/s", "relay: one more stage per this much further speed error"),
+    ("relay_dwell", "s", "relay: time between stage changes"),
+    ("stand_speed", "m/s", "at or below this speed for ato.stand_time the car stands"),
+    ("stand_time", "s", "see ato.stand_speed"),
+    ("creep_speed", "m/s", "speed of creeping on to the mark after a short stop"),
+    ("creep_accel", "m/s2", "acceleration of creeping on"),
+    ("stop_window", "m", "standing closer than this to the aim point: arrived"),
+    ("aim_sigma", "1", "aim this many filter.speed_std x (the stage's duration) short of the mark"),
+    ("aim_max", "m", "at most this far short"),
+    ("safe_brake", "1", "share of car.brake_force_max on a missing or non-finite input"),
+    ("hold_brake", "1", "share of car.brake_force_max held at the stop"),
+)
+
+
+def _ato_rows() -> tuple[Var, ...]:
+    from models.ato import AtoTuning
+    from models.span import CarTraction
+    from models.units import kmh_to_mps
+    car, tuning = CarTraction(), AtoTuning()
+    typed = {"bool": "Boolean", "int": "Integer", "float": "Real"}
+    hints = {f: t for f, t in AtoTuning.__annotations__.items()}
+    rows = [
+        Var("filter.speed", "input", "Real", "m/s", 0.0, "filtered speed (RailCar or RailCarEstimator)", A),
+        Var("filter.position", "input", "Real", "m", 0.0, "filtered distance from the previous station", A),
+        Var("filter.speed_std", "input", "Real", "m/s", 0.0, "standard deviation of filter.speed", A),
+        Var("filter.position_std", "input", "Real", "m", 0.0, "standard deviation of filter.position", A),
+        Var("est.mass", "input", "Real", "t", 30.0, "identified mass", A),
+        Var("est.A0", "input", "Real", "N/kN", 1.0, "identified A0", A),
+        Var("est.A1", "input", "Real", "N/kN/(m/s)", 0.03, "identified A1", A),
+        Var("est.A2", "input", "Real", "N/kN/(m/s)2", 0.01, "identified A2", A),
+        Var("est.status", "input", "Integer", None, 0, "the estimator's status (1 identifying and 2 holding are usable)", A),
+        Var("est.samples", "input", "Integer", None, 0, "samples the identification has used", A),
+        Var("span.stop", "parameter", "Real", "m", 2000.0, "the stop mark: distance from the departure station where the car must stand", A, min=0.0),
+        Var("span.length", "parameter", "Real", "m", 0.0, "span length (>= span.stop); 0 = span.stop", A, min=0.0),
+        Var("span.schedule", "parameter", "Real", "s", 125.0, "scheduled running time from departure (t = 0) to standing at the stop mark", A, min=0.0),
+        Var("span.grade_profile", "parameter", "String", None, "", "CSV 'distance_m,grade_permille' (as RailCar's track.grade_profile: give the same file); empty = level", A),
+        Var("span.speed_limit", "parameter", "Real", "m/s", kmh_to_mps(80.0), "speed limit over the whole span when span.speed_limit_profile is empty", A, min=0.0),
+        Var("span.speed_limit_profile", "parameter", "String", None, "", "CSV 'distance_m,speed_limit_mps': the limit piecewise constant from each distance (the first 0)", A),
+    ]
+    rows += [Var(f"car.{f}", "parameter", "Real", u, getattr(car, f), d, A, min=0.0)
+             for f, u, d in _CAR_ROWS]
+    for f, u, d in _TUNING_ROWS:
+        t = typed[hints[f]]
+        rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
+                        min=0.0 if t == "Real" else None))
+    rows += [
+        Var("traction_force_demand", "output", "Real", "N", 0.0, "traction force asked of the car (RailCar's input)", A, initial="calculated"),
+        Var("brake_force_demand", "output", "Real", "N", 0.0, "brake force asked of the car (RailCar's input); a holding brake before the first step", A, initial="calculated"),
+        Var("ato.planned_speed", "output", "Real", "m/s", 0.0, "the speed the current plan wants here", A, initial="calculated"),
+        Var("ato.mode", "output", "Integer", None, 8, "0 full traction, 1 holding by traction, 2 coasting, 3 holding by regenerative brake, 4 regenerative braking, 5 holding by regenerative + mechanical brake, 6 mechanical braking, 7 electro-pneumatic relay stages, 8 holding brake, 9 safe brake (bad input), 10 supervisor brake (overspeed), 11 creeping to the mark", A, initial="calculated"),
+        Var("ato.ep_stage", "output", "Integer", None, 0, "electro-pneumatic brake stages on (mode 7)", A, initial="calculated"),
+        Var("ato.finished", "output", "Boolean", None, False, "the car stands at the stop mark", A, initial="calculated"),
+        Var("ato.replans", "output", "Integer", None, 0, "re-plans so far", A, initial="calculated"),
+        Var("ato.using_estimates", "output", "Boolean", None, False, "the plan uses est.* (else the configured car.*)", A, initial="calculated"),
+        Var("ato.hold_speed", "output", "Real", "m/s", 0.0, "the current plan's holding speed V_c", A, initial="calculated"),
+        Var("ato.predicted_arrival", "output", "Real", "s", 0.0, "when the current plan stands at the stop mark", A, initial="calculated"),
+    ]
+    return tuple(rows)
+
+
+VARIABLES = VARIABLES + _ato_rows()
+
 def variables_for(fmu: str) -> tuple[Var, ...]:
     """The variables of one FMU, in value-reference order."""
     return tuple(v for v in VARIABLES if fmu in v.fmus)
@@ -169,7 +282,7 @@ def markdown_table(fmu: str) -> str:
 
 def docs_block() -> str:
     """What stands between the variables markers of docs/variables.md."""
-    return "\n" + "\n\n".join(f"### `{n}`\n\n{markdown_table(n)}" for n in BOTH) + "\n"
+    return "\n" + "\n\n".join(f"### `{n}`\n\n{markdown_table(n)}" for n in FMUS) + "\n"
 
 
 if __name__ == "__main__":
