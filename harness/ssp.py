@@ -1,0 +1,556 @@
+"""Systems of FMUs as SSP 1.0 packages (.ssp): write one, read one back, checked against the FMUs.
+
+A system is a few co-simulation FMUs (components), connections from an output of one to an input
+of another, by variable NAME, and per component a set of start values (parameters, and inputs
+that nothing drives). ``write_ssp`` packs it as an SSP 1.0 archive that our own master
+(harness.master) and libcosim (harness.ssp_libcosim) both load:
+
+    SystemStructure.ssd        the system: components, their connectors (every input and output
+                               of the FMU, with type and unit), connections, units, the step
+    resources/<Name>.fmu       each component's FMU (its own file name)
+    resources/<Name>.ssv       each component's parameter set, bound by ssd:ParameterBinding
+
+What libcosim 0.11 (the libcosimpy 0.0.6 build) reads decides the details (docs/systems.md): the
+namespace prefixes must be literally ``ssd:``, ``ssc:``, ``ssv:`` (it looks up prefixed tag
+names), the step is the ``osp:FixedStepAlgorithm baseStepSize`` annotation of
+``ssd:DefaultExperiment`` (SSP 1.0 itself has no step size), and a parameter set is taken from an
+``.ssv`` file named relative to the .ssd, or inline. libcosim only warns about a parameter it
+cannot apply and silently drops nothing else it does not know; ``read_ssp`` refuses all of it:
+an unknown component or variable, a type or unit that does not match the FMU, an output bound as
+a parameter, a missing FMU, malformed XML. Every error is an ``SspError`` naming the file, the
+element and the variable. fmpy's SSP reader (fmpy.ssp.ssd.read_ssd) validates the same file
+against the SSP 1.0 schema.
+"""
+from __future__ import annotations
+
+import io
+import math
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Sequence
+from xml.etree import ElementTree as ET
+
+from .textio import InputError
+
+__all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec",
+           "read_ssp", "write_ssp", "ssp_type", "unit_of", "split_name"]
+
+SSD_NAME = "SystemStructure.ssd"
+NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+      "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+      "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations"}
+OSP_ANNOTATION = "com.opensimulationplatform"
+TYPES = ("Real", "Integer", "Boolean", "String")
+NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")       # no dot: "Component.variable" splits at the first
+INT32 = (-2**31, 2**31 - 1)
+
+
+class SspError(InputError):
+    """A system that cannot be written or read; the message names the file, element and variable."""
+
+
+# --------------------------------------------------------------------------------- the model
+
+@dataclass(frozen=True)
+class Component:
+    """One FMU in a system. ``fmu``: the FMU file (writing), or its path inside the .ssp (read)."""
+    name: str
+    fmu: Path | str
+    parameters: Mapping[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Connection:
+    """``start`` output -> ``end`` input, each "Component.variable"."""
+    start: str
+    end: str
+
+    def __str__(self):
+        return f"{self.start} -> {self.end}"
+
+
+@dataclass(frozen=True)
+class SystemSpec:
+    name: str
+    components: Sequence[Component]
+    connections: Sequence[Connection]
+    step: float                       # communication step [s]
+    start: float = 0.0
+    stop: float | None = None
+    description: str = ""
+
+
+@dataclass
+class LoadedSystem:
+    """What read_ssp gives: the system (component.fmu = the path inside the archive) and each
+    component's model description (fmpy's), for value references and types by name."""
+    path: Path
+    spec: SystemSpec
+    models: dict                      # component name -> fmpy ModelDescription
+
+    def variable(self, full: str):
+        comp, var = split_name(full)
+        return _variable(self.models[comp], comp, var, str(self.path))
+
+
+def split_name(full: str) -> tuple[str, str]:
+    """"Component.variable" -> ("Component", "variable") (component names have no dot)."""
+    comp, dot, var = full.partition(".")
+    if not dot or not comp or not var:
+        raise SspError(f"'{full}': expected Component.variable")
+    return comp, var
+
+
+# ------------------------------------------------------------------------- FMU variables
+
+def ssp_type(variable) -> str:
+    """The SSP connector type of an fmpy model variable (FMI 2 or 3)."""
+    t = variable.type
+    if t in ("Real", "Float64", "Float32"):
+        return "Real"
+    if t in ("Integer", "Enumeration") or t.startswith(("Int", "UInt")):
+        return "Integer"
+    if t in ("Boolean", "String"):
+        return t
+    return t                          # Binary, Clock: no SSP 1.0 connector type; refused by callers
+
+
+def unit_of(variable) -> str:
+    return variable.unit or (variable.declaredType.unit if variable.declaredType is not None
+                             and getattr(variable.declaredType, "unit", None) else "") or ""
+
+
+def _variable(md, comp: str, name: str, where: str):
+    for v in md.modelVariables:
+        if v.name == name:
+            return v
+    raise SspError(f"{where}: component '{comp}' ({md.modelName}) has no variable '{name}'")
+
+
+def _interface(md) -> list:
+    """The variables a component exposes as connectors: every input and output."""
+    return [v for v in md.modelVariables if v.causality in ("input", "output")]
+
+
+def _typed(value, typ: str, what: str):
+    """``value`` (a Python value or the text of an SSV attribute) as a value of SSP type ``typ``."""
+    try:
+        if typ == "Real":
+            if isinstance(value, bool):
+                raise ValueError
+            x = float(value)
+            if not math.isfinite(x):
+                raise SspError(f"{what}: {value!r} is not a finite Real")
+            return x
+        if typ == "Integer":
+            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                raise ValueError
+            x = int(value) if not isinstance(value, float) else int(value)
+            if not INT32[0] <= x <= INT32[1]:
+                raise SspError(f"{what}: {value!r} is outside the 32-bit Integer range")
+            return x
+        if typ == "Boolean":
+            if isinstance(value, bool):
+                return value
+            if str(value) in ("true", "1"):
+                return True
+            if str(value) in ("false", "0"):
+                return False
+            raise ValueError
+        if typ == "String":
+            if not isinstance(value, (str, Path)):
+                raise ValueError
+            return str(value)
+    except (TypeError, ValueError):
+        raise SspError(f"{what}: {value!r} is not a valid {typ}") from None
+    raise SspError(f"{what}: type {typ} is not supported")
+
+
+def _text(value, typ: str) -> str:
+    if typ == "Real":
+        return repr(float(value))     # shortest text that reads back to the same double
+    if typ == "Boolean":
+        return "true" if value else "false"
+    return str(value)
+
+
+# ------------------------------------------------------------------------------ checking
+
+def check_system(spec: SystemSpec, models: Mapping[str, object], where: str) -> SystemSpec:
+    """Check ``spec`` against the components' model descriptions; returns it with every
+    parameter value converted to its variable's type. SspError names ``where`` and the element."""
+    if not NAME_RE.match(spec.name or ""):
+        raise SspError(f"{where}: system name {spec.name!r}: letters, digits and _ only")
+    if not (isinstance(spec.step, (int, float)) and math.isfinite(spec.step) and spec.step > 0):
+        raise SspError(f"{where}: step {spec.step!r}: expected a step > 0 [s]")
+    if round(spec.step * 1e9) < 1:
+        raise SspError(f"{where}: step {spec.step!r} is below 1 ns")
+    seen: set[str] = set()
+    components = []
+    for c in spec.components:
+        if not NAME_RE.match(c.name or ""):
+            raise SspError(f"{where}: component name {c.name!r}: letters, digits and _ only (no dot)")
+        if c.name in seen:
+            raise SspError(f"{where}: component '{c.name}' appears twice")
+        seen.add(c.name)
+        md = models[c.name]
+        if md.coSimulation is None:
+            raise SspError(f"{where}: component '{c.name}' ({c.fmu}): not a co-simulation FMU")
+        params = {}
+        for name, value in c.parameters.items():
+            v = _variable(md, c.name, name, f"{where}: parameter binding of '{c.name}'")
+            what = f"{where}: parameter binding {c.name}.{name}"
+            if v.causality not in ("parameter", "input"):
+                raise SspError(f"{what}: '{name}' is an {v.causality}, not a parameter or input")
+            if v.variability == "constant":
+                raise SspError(f"{what}: '{name}' is a constant")
+            typ = ssp_type(v)
+            if typ not in TYPES:
+                raise SspError(f"{what}: type {v.type} is not supported")
+            params[name] = _typed(value, typ, f"{what} ({typ})")
+        components.append(Component(c.name, c.fmu, params))
+    driven: dict[str, Connection] = {}
+    for k, conn in enumerate(spec.connections, 1):
+        what = f"{where}: connection {k} ({conn})"
+        ends = []
+        for full, kind in ((conn.start, "output"), (conn.end, "input")):
+            comp, name = split_name(full)
+            if comp not in models:
+                raise SspError(f"{what}: no component named '{comp}'")
+            v = _variable(models[comp], comp, name, what)
+            if v.causality != kind:
+                raise SspError(f"{what}: {full} is an {v.causality}; a connection goes from an "
+                               f"output to an input")
+            ends.append(v)
+        (a, b) = ends
+        if ssp_type(a) != ssp_type(b) or ssp_type(a) not in TYPES:
+            raise SspError(f"{what}: type mismatch: {conn.start} is {a.type}, {conn.end} is {b.type}")
+        if unit_of(a) != unit_of(b):
+            raise SspError(f"{what}: unit mismatch: {conn.start} [{unit_of(a) or '-'}], {conn.end} "
+                           f"[{unit_of(b) or '-'}] (no unit conversion)")
+        if conn.end in driven:
+            raise SspError(f"{what}: {conn.end} is already driven by {driven[conn.end].start}")
+        driven[conn.end] = conn
+    return SystemSpec(spec.name, tuple(components), tuple(spec.connections), float(spec.step),
+                      float(spec.start), None if spec.stop is None else float(spec.stop), spec.description)
+
+
+# ------------------------------------------------------------------------------- writing
+
+def _q(prefix: str, tag: str) -> str:
+    return f"{prefix}:{tag}"
+
+
+def _unit_element(parent, name: str, base) -> None:
+    u = ET.SubElement(parent, "ssc:Unit", name=name)
+    attrs = {}
+    if base is not None:
+        for k in ("kg", "m", "s", "A", "K", "mol", "cd", "rad"):
+            if getattr(base, k, 0):
+                attrs[k] = str(getattr(base, k))
+        if getattr(base, "factor", 1.0) != 1.0:
+            attrs["factor"] = repr(float(base.factor))
+        if getattr(base, "offset", 0.0) != 0.0:
+            attrs["offset"] = repr(float(base.offset))
+    ET.SubElement(u, _q("ssc", "BaseUnit"), attrs)
+
+
+def _units_of(md) -> dict:
+    return {u.name: u.baseUnit for u in (md.unitDefinitions or [])}
+
+
+def _ssv(comp: Component, md) -> bytes:
+    root = ET.Element("ssv:ParameterSet", {"xmlns:ssv": NS["ssv"], "xmlns:ssc": NS["ssc"],
+                                           "version": "1.0", "name": comp.name})
+    params = ET.SubElement(root, "ssv:Parameters")
+    units = {}
+    for name, value in comp.parameters.items():
+        v = _variable(md, comp.name, name, "")
+        typ = ssp_type(v)
+        p = ET.SubElement(params, "ssv:Parameter", name=name)
+        attrs = {"value": _text(value, typ)}
+        if typ == "Real" and unit_of(v):
+            attrs["unit"] = units.setdefault(unit_of(v), unit_of(v))
+        ET.SubElement(p, f"ssv:{typ}", attrs)
+    if units:
+        u = ET.SubElement(root, "ssv:Units")
+        defs = _units_of(md)
+        for name in sorted(units):
+            _unit_element(u, name, defs.get(name))
+    return _xml(root)
+
+
+def _xml(root) -> bytes:
+    ET.indent(root, space="  ")
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
+
+
+def _ssd(spec: SystemSpec, models: Mapping[str, object], sources: Mapping[str, str]) -> bytes:
+    root = ET.Element("ssd:SystemStructureDescription", {
+        "xmlns:ssd": NS["ssd"], "xmlns:ssc": NS["ssc"], "xmlns:ssv": NS["ssv"],
+        "xmlns:osp": NS["osp"], "version": "1.0", "name": spec.name})
+    system = ET.SubElement(root, "ssd:System", name=spec.name)
+    if spec.description:
+        system.set("description", spec.description)
+    elements = ET.SubElement(system, "ssd:Elements")
+    units: dict[str, object] = {}
+    for c in spec.components:
+        md = models[c.name]
+        e = ET.SubElement(elements, "ssd:Component", name=c.name, source=sources[c.name],
+                          type="application/x-fmu-sharedlibrary")
+        connectors = ET.SubElement(e, "ssd:Connectors")
+        defs = _units_of(md)
+        for v in _interface(md):
+            typ = ssp_type(v)
+            if typ not in TYPES:
+                continue
+            k = ET.SubElement(connectors, "ssd:Connector", name=v.name, kind=v.causality)
+            attrs = {}
+            if typ == "Real" and unit_of(v):
+                attrs["unit"] = unit_of(v)
+                units.setdefault(unit_of(v), defs.get(unit_of(v)))
+            ET.SubElement(k, f"ssc:{typ}", attrs)
+        if c.parameters:
+            b = ET.SubElement(e, "ssd:ParameterBindings")
+            ET.SubElement(b, "ssd:ParameterBinding", source=f"resources/{c.name}.ssv",
+                          type="application/x-ssp-parameter-set")
+    if spec.connections:
+        conns = ET.SubElement(system, "ssd:Connections")
+        for conn in spec.connections:
+            (sc, sv), (ec, ev) = split_name(conn.start), split_name(conn.end)
+            ET.SubElement(conns, "ssd:Connection", startElement=sc, startConnector=sv,
+                          endElement=ec, endConnector=ev)
+    if units:
+        u = ET.SubElement(root, "ssd:Units")
+        for name in sorted(units):
+            _unit_element(u, name, units[name])
+    exp = ET.SubElement(root, "ssd:DefaultExperiment", startTime=repr(spec.start))
+    if spec.stop is not None:
+        exp.set("stopTime", repr(spec.stop))
+    ann = ET.SubElement(ET.SubElement(exp, "ssd:Annotations"), "ssc:Annotation", type=OSP_ANNOTATION)
+    ET.SubElement(ET.SubElement(ann, "osp:Algorithm"), "osp:FixedStepAlgorithm",
+                  baseStepSize=repr(spec.step))
+    return _xml(root)
+
+
+def _read_md(data_or_path, where: str):
+    from fmpy import read_model_description
+    try:
+        src = io.BytesIO(data_or_path) if isinstance(data_or_path, bytes) else str(data_or_path)
+        return read_model_description(src, validate=False)
+    except Exception as e:
+        raise SspError(f"{where}: not a readable FMU ({type(e).__name__}: {e})") from None
+
+
+def write_ssp(spec: SystemSpec, path: str | Path) -> Path:
+    """Check ``spec`` against its FMUs and write it as an .ssp package at ``path``."""
+    path = Path(path)
+    models, sources, used = {}, {}, {}
+    for c in spec.components:
+        fmu = Path(c.fmu)
+        if not fmu.is_file():
+            raise SspError(f"{path}: component '{c.name}': FMU file not found: {fmu}")
+        models[c.name] = _read_md(fmu, f"{path}: component '{c.name}' ({fmu})")
+        source = f"resources/{fmu.name}"
+        if source in used and Path(used[source]).resolve() != fmu.resolve():
+            raise SspError(f"{path}: components '{c.name}' and another use two FMU files named {fmu.name}")
+        used[source], sources[c.name] = fmu, source
+    spec = check_system(spec, models, str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr(SSD_NAME, _ssd(spec, models, sources))
+        for source, fmu in used.items():
+            z.write(fmu, source, compress_type=zipfile.ZIP_STORED)
+        for c in spec.components:
+            if c.parameters:
+                z.writestr(f"resources/{c.name}.ssv", _ssv(c, models[c.name]))
+    tmp.replace(path)
+    return path
+
+
+# ------------------------------------------------------------------------------- reading
+
+def _parse(data: bytes, where: str):
+    try:
+        return ET.fromstring(data)
+    except ET.ParseError as e:
+        raise SspError(f"{where}: malformed XML: {e}") from None
+
+
+def _tag(ns: str, name: str) -> str:
+    return f"{{{NS[ns]}}}{name}"
+
+
+def _attr(el, name: str, where: str) -> str:
+    value = el.get(name)
+    if value is None or value == "":
+        raise SspError(f"{where}: <{_local(el.tag)}> has no '{name}' attribute")
+    return value
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def _connector_type(el, where: str) -> tuple[str, str]:
+    for child in el:
+        if child.tag.startswith(f"{{{NS['ssc']}}}"):
+            typ = _local(child.tag)
+            if typ not in TYPES:
+                raise SspError(f"{where}: connector type ssc:{typ} is not supported")
+            return typ, child.get("unit", "")
+    raise SspError(f"{where}: no type (ssc:Real, ssc:Integer, ssc:Boolean, ssc:String)")
+
+
+def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
+    """(name, type, value text, unit) of each ssv:Parameter of an ssv:ParameterSet element."""
+    if el.tag != _tag("ssv", "ParameterSet"):
+        raise SspError(f"{where}: expected an ssv:ParameterSet, found <{_local(el.tag)}>")
+    out = []
+    params = el.find("ssv:Parameters", NS)
+    for p in (params if params is not None else []):
+        name = _attr(p, "name", where)
+        typed = [c for c in p if c.tag.startswith(f"{{{NS['ssv']}}}")]
+        if len(typed) != 1 or _local(typed[0].tag) not in TYPES:
+            raise SspError(f"{where}: parameter '{name}': expected one of ssv:Real, ssv:Integer, "
+                           f"ssv:Boolean, ssv:String")
+        value = typed[0].get("value")
+        if value is None:
+            raise SspError(f"{where}: parameter '{name}' has no value")
+        out.append((name, _local(typed[0].tag), value, typed[0].get("unit", "")))
+    return out
+
+
+def _step(root, where: str) -> tuple[float | None, float, float | None]:
+    exp = root.find("ssd:DefaultExperiment", NS)
+    if exp is None:
+        return None, 0.0, None
+    try:
+        start = float(exp.get("startTime", "0"))
+        stop = float(exp.get("stopTime")) if exp.get("stopTime") is not None else None
+    except ValueError:
+        raise SspError(f"{where}: ssd:DefaultExperiment: startTime/stopTime are not numbers") from None
+    step = None
+    for algo in exp.iterfind(f"ssd:Annotations/ssc:Annotation[@type='{OSP_ANNOTATION}']/osp:Algorithm/*", NS):
+        if algo.tag != _tag("osp", "FixedStepAlgorithm"):
+            raise SspError(f"{where}: ssd:DefaultExperiment: algorithm <{_local(algo.tag)}> is not "
+                           f"supported (osp:FixedStepAlgorithm only)")
+        try:
+            step = float(_attr(algo, "baseStepSize", f"{where}: ssd:DefaultExperiment"))
+        except ValueError:
+            raise SspError(f"{where}: ssd:DefaultExperiment: baseStepSize {algo.get('baseStepSize')!r} "
+                           f"is not a number") from None
+    return step, start, stop
+
+
+def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
+    """Read and check an .ssp package; ``step`` overrides the one in the file (needed if it has
+    none)."""
+    path = Path(path)
+    where = str(path)
+    if not path.is_file():
+        raise SspError(f"{where}: no such file")
+    try:
+        z = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as e:
+        raise SspError(f"{where}: not an SSP package (a zip archive): {e}") from None
+    with z:
+        names = set(z.namelist())
+        if SSD_NAME not in names:
+            raise SspError(f"{where}: no {SSD_NAME} in the package")
+        ssd_where = f"{where}: {SSD_NAME}"
+        root = _parse(z.read(SSD_NAME), ssd_where)
+        if root.tag != _tag("ssd", "SystemStructureDescription"):
+            raise SspError(f"{ssd_where}: root element <{root.tag}> is not ssd:SystemStructureDescription "
+                           f"(namespace {NS['ssd']})")
+        system = root.find("ssd:System", NS)
+        if system is None:
+            raise SspError(f"{ssd_where}: no ssd:System")
+        name = _attr(system, "name", ssd_where)
+        models, components, declared = {}, [], {}
+        for el in system.iterfind("ssd:Elements/*", NS):
+            if el.tag != _tag("ssd", "Component"):
+                raise SspError(f"{ssd_where}: element <{_local(el.tag)}> is not supported (ssd:Component only)")
+            cname = _attr(el, "name", ssd_where)
+            cwhere = f"{ssd_where}: component '{cname}'"
+            source = _attr(el, "source", cwhere)
+            if source not in names:
+                raise SspError(f"{cwhere}: FMU '{source}' is not in the package")
+            if cname in models:
+                raise SspError(f"{ssd_where}: component '{cname}' appears twice")
+            md = models[cname] = _read_md(z.read(source), f"{cwhere} ({source})")
+            declared[cname] = _check_connectors(el, md, cname, cwhere)
+            params = {}
+            for b in el.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NS):
+                if b.get("prefix"):
+                    raise SspError(f"{cwhere}: ssd:ParameterBinding prefix is not supported")
+                if b.get("source"):
+                    src = b.get("source")
+                    if src not in names:
+                        raise SspError(f"{cwhere}: parameter set '{src}' is not in the package")
+                    swhere = f"{where}: {src}"
+                    entries = _parameter_set(_parse(z.read(src), swhere), swhere)
+                else:
+                    swhere = f"{cwhere}: inline parameter set"
+                    sets = b.findall("ssd:ParameterValues/ssv:ParameterSet", NS)
+                    entries = [e for s in sets for e in _parameter_set(s, swhere)]
+                for pname, typ, text, unit in entries:
+                    v = _variable(md, cname, pname, f"{swhere}: parameter '{pname}'")
+                    if ssp_type(v) != typ:
+                        raise SspError(f"{swhere}: parameter '{pname}': type mismatch: ssv:{typ} for "
+                                       f"{cname}.{pname}, which is {v.type}")
+                    if unit and unit != unit_of(v):
+                        raise SspError(f"{swhere}: parameter '{pname}': unit '{unit}', the FMU's is "
+                                       f"'{unit_of(v) or '-'}'")
+                    if pname in params:
+                        raise SspError(f"{swhere}: parameter '{pname}' is bound twice")
+                    params[pname] = text
+                if b.find("ssd:ParameterMapping", NS) is not None:
+                    raise SspError(f"{cwhere}: ssd:ParameterMapping is not supported")
+            components.append(Component(cname, source, params))
+        connections = []
+        for k, c in enumerate(system.iterfind("ssd:Connections/ssd:Connection", NS), 1):
+            cw = f"{ssd_where}: connection {k}"
+            ends = [(_attr(c, "startElement", cw), _attr(c, "startConnector", cw)),
+                    (_attr(c, "endElement", cw), _attr(c, "endConnector", cw))]
+            for comp, conn in ends:
+                if comp not in models:
+                    raise SspError(f"{cw} ({comp}.{conn}): no component named '{comp}'")
+                if conn not in declared[comp]:
+                    raise SspError(f"{cw} ({comp}.{conn}): component '{comp}' declares no connector "
+                                   f"'{conn}'")
+            if len(c):
+                raise SspError(f"{cw}: <{_local(c[0].tag)}> is not supported (no transformations)")
+            connections.append(Connection(f"{ends[0][0]}.{ends[0][1]}", f"{ends[1][0]}.{ends[1][1]}"))
+        file_step, start, stop = _step(root, ssd_where)
+    if step is None:
+        step = file_step
+    if step is None:
+        raise SspError(f"{ssd_where}: no step size (ssd:DefaultExperiment's osp:FixedStepAlgorithm "
+                       f"baseStepSize); pass one")
+    spec = check_system(SystemSpec(name, components, connections, step, start, stop,
+                                   system.get("description", "")), models, ssd_where)
+    return LoadedSystem(path, spec, models)
+
+
+def _check_connectors(el, md, cname: str, where: str) -> set[str]:
+    """The connectors an ssd:Component declares, each checked against its FMU's variable."""
+    names = set()
+    for k in el.iterfind("ssd:Connectors/ssd:Connector", NS):
+        name = _attr(k, "name", where)
+        kw = f"{where}: connector '{name}'"
+        kind = _attr(k, "kind", kw)
+        v = _variable(md, cname, name, kw)
+        if kind != v.causality:
+            raise SspError(f"{kw}: kind '{kind}', but the FMU's variable is an {v.causality}")
+        typ, unit = _connector_type(k, kw)
+        if typ != ssp_type(v):
+            raise SspError(f"{kw}: type mismatch: ssc:{typ}, the FMU's variable is {v.type}")
+        if unit and unit != unit_of(v):
+            raise SspError(f"{kw}: unit '{unit}', the FMU's is '{unit_of(v) or '-'}'")
+        names.add(name)
+    return names
