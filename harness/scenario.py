@@ -21,6 +21,9 @@ schedule, and the run's step and duration. Every error names the file, the key a
     [[wind]]                          # piecewise constant from each time on
     time_s = 60.0
     speed_mps = 5.0
+
+Instead of a driving script, a ``[span]`` table (or ``[[span]]`` tables: a line) makes the ATO
+(models.ato.AtoController) the driver; ``[ato]`` tunes it (harness/ato_scenario.py, docs/ato.md).
 """
 from __future__ import annotations
 
@@ -66,6 +69,7 @@ class Scenario:
     step_s: float = 0.1
     duration_s: float = 200.0
     stop_after_last_phase: bool = True
+    ato: object = None          # harness.ato_scenario.AtoSetup of a span scenario, else None
 
     def parameter(self, name: str):
         """The scenario's value of an FMU parameter, or the FMU's default."""
@@ -89,7 +93,11 @@ class Scenario:
     def new_driver(self, mass_t: float | None = None):
         """A fresh driver of this scenario's script (harness.driver): a PhaseDriver of its phases
         for a car of ``mass_t`` [t] (default car.mass; it sizes the cruise and brake_to_stop
-        demands) and the car's force limits, or its time table."""
+        demands) and the car's force limits, or its time table; for a span scenario a fresh
+        harness.ato_scenario.AtoDriver (the ATO, one controller per span)."""
+        if self.ato is not None:
+            from .ato_scenario import AtoDriver
+            return AtoDriver(self.ato)
         if not self.phases:
             return self.time_table
         return PhaseDriver(self.phases, self.parameter("car.mass") if mass_t is None else mass_t,
@@ -275,7 +283,7 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     The RailCar parameters are checked with the FMU's own rules (``check_fmu_parameters``), so that
     a scenario the FMU would refuse to initialise is invalid input here, before any FMU runs."""
     known = {"name", "purpose", "step_s", "duration_s", "stop_after_last_phase", "parameters",
-             "driver", "driver_table", "wind"}
+             "driver", "driver_table", "wind", "span", "ato"}
     for key in data:
         if key not in known:
             raise ScenarioError(f"{source}: unknown key '{key}' (known: {', '.join(sorted(known))})")
@@ -286,21 +294,24 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     if not isinstance(purpose, str):
         raise ScenarioError(f"{source}: purpose: expected a string, got {purpose!r}")
     step = _number(data.get("step_s", 0.1), f"{source}: step_s")
-    duration = _number(data.get("duration_s", 200.0), f"{source}: duration_s")
     if step <= 0:
         raise ScenarioError(f"{source}: step_s must be > 0, got {step}")
-    if duration < step:
-        raise ScenarioError(f"{source}: duration_s must be >= step_s, got {duration}")
     params = parse_parameters(data.get("parameters", {}), f"{source}: parameters", base_dir)
     phases = tuple(parse_phase(p, f"{source}: driver[{i}]", ScenarioError)
                    for i, p in enumerate(_table_list(data, "driver", source)))
     table = None
     if "driver_table" in data:
         table = _time_table(data["driver_table"], f"{source}: driver_table", base_dir)
-    if phases and table is not None:
-        raise ScenarioError(f"{source}: give either [[driver]] phases or [driver_table], not both")
-    if not phases and table is None:
-        raise ScenarioError(f"{source}: no driving script: add [[driver]] phases or a [driver_table]")
+    scripts = [k for k, given in (("[[driver]]", bool(phases)), ("[driver_table]", table is not None),
+                                  ("[span]", "span" in data)) if given]
+    if len(scripts) > 1:
+        raise ScenarioError(f"{source}: give one of [[driver]] phases, [driver_table] or [span], "
+                            f"not {' and '.join(scripts)}")
+    if not scripts:
+        raise ScenarioError(f"{source}: no driving script: add [[driver]] phases, a [driver_table] "
+                            f"or a [span] (the ATO drives)")
+    if "ato" in data and "span" not in data:
+        raise ScenarioError(f"{source}: ato: tunes the ATO of a [span] scenario; this one has none")
     wind = []
     for i, w in enumerate(_table_list(data, "wind", source)):
         where = f"{source}: wind[{i}]"
@@ -313,10 +324,28 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     if not isinstance(stop_after, bool):
         raise ScenarioError(f"{source}: stop_after_last_phase must be true or false")
     check_fmu_parameters(params, f"{source}: parameters")
+    ato = _ato(data, source, params) if "span" in data else None
+    default_duration = ato.default_duration_s if ato is not None else 200.0
+    duration = _number(data.get("duration_s", default_duration), f"{source}: duration_s")
+    if duration < step:
+        raise ScenarioError(f"{source}: duration_s must be >= step_s, got {duration}")
     return Scenario(name=name, purpose=purpose,
                     path=Path(source) if base_dir is not None else None, parameters=params,
                     phases=phases, time_table=table, wind=tuple(sorted(wind, key=lambda w: w.time_s)),
-                    step_s=step, duration_s=duration, stop_after_last_phase=stop_after)
+                    step_s=step, duration_s=duration, stop_after_last_phase=stop_after, ato=ato)
+
+
+def _ato(data: dict, source: str, params: dict):
+    """The ATO of a span scenario (harness.ato_scenario.parse_ato): the span's grade is the
+    RailCar parameter track.grade_profile, read as the FMU reads it (one source)."""
+    from models.track import GradeProfile
+    from .ato_scenario import parse_ato
+    v = railcar_values(params)
+    grade = GradeProfile.level()
+    if v["track.grade_profile"]:
+        grade = read_profile("track.grade_profile", profile_file(v["track.grade_profile"], None),
+                             f"{source}: parameters.\"track.grade_profile\"")
+    return parse_ato(data, source, grade, float(v["track.station_dwell"]), ScenarioError)
 
 
 def read_toml(path: Path, error=None) -> dict:

@@ -17,6 +17,8 @@ seeds 1..N (the chain's noise seed):
             models.trajectory.manual_driver on the true car (flat out, coast, brake: what a
             driver does to meet the schedule), "MP" the maximum-principle plan's own saving
   safety    runs with a safe-brake or supervisor intervention
+(the per-step energy, the standstill time and what counts as an intervention are
+harness/ato_metrics.py's, which the harness's span scenarios report too: one copy)
 
 Variants: identified parameters + re-planning (the regulator), configured coefficients + a
 fixed plan (planned once, no re-planning: the reference the issue asks for), configured
@@ -45,8 +47,9 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from models.ato import AtoController, AtoMode, AtoTuning  # noqa: E402
-from models.dynamics import VehicleParams, brake_force_limit, traction_force_limit  # noqa: E402
+from harness.ato_metrics import INTERVENTIONS, energy_kwh, standstill_time, step_work  # noqa: E402
+from models.ato import AtoController, AtoTuning  # noqa: E402
+from models.dynamics import VehicleParams  # noqa: E402
 from models.span import CarTraction, Span  # noqa: E402
 from models.track import GradeProfile  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
@@ -109,25 +112,22 @@ def run_one(case: str, variant: str, seed: int) -> dict:
     interventions = 0
     while k < 4000:
         cmd = ctrl.demands(t, out)
-        interventions += cmd.mode in (AtoMode.SAFE, AtoMode.OVERSPEED)
+        interventions += cmd.mode in INTERVENTIONS
         v0, s0 = out["car.speed"], out["car.position"]
         chain.do_step(t, STEP, cmd.traction, cmd.brake, wind, 0.0)
         k += 1
         t = k * STEP
         out = chain.outputs()
         v1, s1 = out["car.speed"], out["car.position"]
-        vm, ds = 0.5 * (v0 + v1), s1 - s0
-        if cmd.brake > 0.0:
-            b = min(cmd.brake, brake_force_limit(vm, truth))
-            w_r += min(b, CAR.r_max(vm)) * ds
-        else:
-            w_f += min(cmd.traction, traction_force_limit(vm, truth)) * ds
+        f, r = step_work(v0, v1, s0, s1, cmd.traction, cmd.brake, truth, CAR)
+        w_f += f
+        w_r += r
         margin = min(margin, SPAN.v_lim(s1) - v1)
         if t_stop is None and v0 > 0.0 and v1 == 0.0 and s1 > 0.5 * SPAN.stop:
-            t_stop = t - STEP + min(STEP, 2.0 * ds / v0)     # constant deceleration in the step
+            t_stop = standstill_time(t - STEP, STEP, v0, s1 - s0)
         if t_stop is not None and ctrl.finished:
             break
-    energy = (w_f / CAR.eta_f - CAR.eta * w_r) / 3.6e6
+    energy = energy_kwh(w_f, w_r, CAR)
     return {"case": case, "variant": variant, "seed": seed,
             "arrival": (t_stop if t_stop is not None else math.inf) - SPAN.schedule,
             "stop": out["car.position"] - SPAN.stop, "margin": margin, "energy": energy,
