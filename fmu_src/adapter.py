@@ -9,6 +9,7 @@ fmi2Error with that message and keeps the instance safe to reset or free.
 from __future__ import annotations
 
 import os
+import re
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -217,14 +218,15 @@ def chain_setup(v: dict, resources: str | None) -> ChainSetup:
 SPEED_LIMIT_COLUMNS = ("distance_m", "speed_limit_mps")
 
 
-def ato_setup(v: dict, resources: str | None):
-    """AtoController's parameter values -> (models.span.Span, CarTraction, AtoTuning), the
-    profiles read as RailCar reads its own (``resolve_profile_path``). Raises ParameterError
-    naming the parameter (a profile: its file and line)."""
-    from models.ato import AtoTuning
+def open_ato(v: dict, resources: str | None):
+    """AtoController's parameter values -> models.ato.AtoController (span, configured car,
+    tuning; the profiles read as RailCar reads its own, ``resolve_profile_path``). Raises
+    ParameterError naming the parameter (a profile: its file and line): an infeasible schedule,
+    a stop mark beyond the span, a limit the brakes cannot keep, a bad tuning value."""
+    from models.ato import AtoController, AtoTuning
     from models.span import CarTraction, Span
     from models.track import parse_profile_csv
-    from .variables import ATO, _CAR_ROWS, _TUNING_ROWS
+    from .variables import _CAR_ROWS, _TUNING_ROWS
 
     def text(param: str) -> tuple[str, str] | None:
         raw = v[param]
@@ -257,12 +259,14 @@ def ato_setup(v: dict, resources: str | None):
         span = Span(length, v["span.schedule"], stop, grade, tuple(distances), tuple(limits))
         car = CarTraction(**{f: v[f"car.{f}"] for f, _, _ in _CAR_ROWS})
         tuning = AtoTuning(**{f: v[f"ato.{f}"] for f, _, _ in _TUNING_ROWS})
+        return AtoController(span, car, tuning)
     except ValueError as e:
-        raise ParameterError(f"{ATO}: {_fmu_names(str(e))}") from None
-    return span, car, tuning
+        raise ParameterError(_fmu_names(str(e), bool(limit_src))) from None
 
 
-def _fmu_names(message: str) -> str:
+def _fmu_names(message: str, profile: bool) -> str:
     """models' messages say tuning.x and span.limit_speeds[k]: name the FMU's parameters."""
-    return (message.replace("tuning.", "ato.").replace("span.limit_speeds", "span.speed_limit(s)")
-            .replace("span.limit_distances", "span.speed_limit_profile distances"))
+    def limit(m):
+        return f"span.speed_limit_profile row {int(m.group(2)) + 1}" if profile else "span.speed_limit"
+    message = re.sub(r"span\.limit_(speeds|distances)\[(\d+)\]", limit, message)
+    return message.replace("tuning.", "ato.")

@@ -11,9 +11,8 @@ cannot keep); at run time nothing fails: a missing or non-finite input gives the
 from pythonfmu import Fmi2Slave
 from pythonfmu.enums import Fmi2Status
 
-from fmu_src.adapter import ato_setup, initialise, not_initialised, register_variables
+from fmu_src.adapter import initialise, not_initialised, open_ato, register_variables
 from fmu_src.variables import ATO, variables_for
-from models.ato import AtoController as Controller
 from models.ato import AtoMode
 
 READS = tuple(v.name for v in variables_for(ATO) if v.causality == "input")
@@ -31,7 +30,7 @@ class AtoController(Fmi2Slave):
         self.logged = 0
 
     def _build(self):
-        ctrl = Controller(*ato_setup(self.values, self.resources))
+        ctrl = open_ato(self.values, self.resources)
         hold = ctrl.tuning.hold_brake * ctrl.car.brake_force_max
         self._publish(ctrl, 0.0, hold, int(AtoMode.HOLD), 0.0, 0)
         return ctrl
@@ -46,7 +45,6 @@ class AtoController(Fmi2Slave):
         v["ato.finished"] = bool(ctrl.finished)
         v["ato.replans"] = int(ctrl.replans)
         v["ato.using_estimates"] = bool(getattr(ctrl, "_using_estimates", False))
-        v["ato.hold_speed"] = float(ctrl.plan.hold_speed)
         v["ato.predicted_arrival"] = float(ctrl.plan.arrival)
 
     def do_step(self, current_time, step_size):

@@ -258,7 +258,6 @@ def _ato_rows() -> tuple[Var, ...]:
         Var("ato.finished", "output", "Boolean", None, False, "the car stands at the stop mark", A, initial="calculated"),
         Var("ato.replans", "output", "Integer", None, 0, "re-plans so far", A, initial="calculated"),
         Var("ato.using_estimates", "output", "Boolean", None, False, "the plan uses est.* (else the configured car.*)", A, initial="calculated"),
-        Var("ato.hold_speed", "output", "Real", "m/s", 0.0, "the current plan's holding speed V_c", A, initial="calculated"),
         Var("ato.predicted_arrival", "output", "Real", "s", 0.0, "when the current plan stands at the stop mark", A, initial="calculated"),
     ]
     return tuple(rows)

@@ -34,7 +34,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
-FMU_NAMES = ("RailCar", "RailCarEstimator")
+FMU_NAMES = ("RailCar", "RailCarEstimator", "AtoController")
 
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 STATUS_LABEL = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
@@ -49,7 +49,7 @@ STATUS_LABEL = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: 
 #   regression  compares with the references in tests/regression/
 # and "slow" on everything but the unit layer, plus the unit tests in SLOW_UNIT (long runs), so
 # that `pytest -m "not slow"` is the fast unit layer a developer runs while editing.
-FMU_FIXTURES = {"built_fmus", "fmus", "railcar", "estimator"}
+FMU_FIXTURES = {"built_fmus", "fmus", "railcar", "estimator", "ato_fmu"}
 C_MODULES = ("test_core_", "test_native")
 SLOW_UNIT = {"test_cli_errors.py", "test_service_day.py", "test_studies.py", "test_regression_variants.py",
              "test_estimator_methods.py", "test_estimator_refit.py", "test_track_integration.py",
@@ -116,7 +116,7 @@ class FmuFile:
 
 @pytest.fixture(scope="session")
 def built_fmus(tmp_path_factory) -> dict[str, Path]:
-    """RailCar.fmu and RailCarEstimator.fmu built once per session from the current sources."""
+    """RailCar.fmu, RailCarEstimator.fmu and AtoController.fmu built once per session from the current sources."""
     return build_fmus(tmp_path_factory.mktemp("build") / "dist")
 
 
@@ -137,6 +137,11 @@ def railcar(fmus) -> FmuFile:
 @pytest.fixture(scope="session")
 def estimator(fmus) -> FmuFile:
     return fmus["RailCarEstimator"]
+
+
+@pytest.fixture(scope="session")
+def ato_fmu(fmus) -> FmuFile:
+    return fmus["AtoController"]
 
 
 # ------------------------------------------------------------------------ low-level stepping

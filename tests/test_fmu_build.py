@@ -1,4 +1,4 @@
-"""Build and model-description checks of RailCar.fmu and RailCarEstimator.fmu.
+"""Build and model-description checks of RailCar.fmu, RailCarEstimator.fmu and AtoController.fmu.
 
 The FMUs under test are built once per session by ``build.py`` in a subprocess (conftest), i.e.
 exactly what ``python build.py`` writes to ``dist/``, from the current sources.
@@ -25,7 +25,7 @@ from conftest import FMU_NAMES, ROOT, build_fmus
 # Units are written as in the contract; CONTRACT_UNITS gives the ASCII spelling used in
 # modelDescription.xml and the SI base unit (exponents, factor) each must declare.
 BOTH = ("RailCar", "RailCarEstimator")
-R, E = ("RailCar",), ("RailCarEstimator",)
+R, E, A = ("RailCar",), ("RailCarEstimator",), ("AtoController",)
 
 CONTRACT = [
     # name, fmus, causality, type, contract unit (None: no unit)
@@ -68,6 +68,21 @@ CONTRACT = [
     ("filter.position", BOTH, "output", "Real", "m"),
     ("filter.speed_std", BOTH, "output", "Real", "m/s"),
     ("filter.position_std", BOTH, "output", "Real", "m"),
+    # AtoController: the estimator's outputs in, RailCar's demands out, by the same names
+    ("filter.speed", A, "input", "Real", "m/s"),
+    ("filter.position", A, "input", "Real", "m"),
+    ("filter.speed_std", A, "input", "Real", "m/s"),
+    ("est.mass", A, "input", "Real", "t"),
+    ("est.A0", A, "input", "Real", "N/kN"),
+    ("est.status", A, "input", "Integer", None),
+    ("span.stop", A, "parameter", "Real", "m"),
+    ("span.schedule", A, "parameter", "Real", "s"),
+    ("span.grade_profile", A, "parameter", "String", None),
+    ("car.mass", A, "parameter", "Real", "t"),
+    ("traction_force_demand", A, "output", "Real", "N"),
+    ("brake_force_demand", A, "output", "Real", "N"),
+    ("ato.planned_speed", A, "output", "Real", "m/s"),
+    ("ato.mode", A, "output", "Integer", None),
 ]
 
 # contract unit -> (name in modelDescription.xml, SI exponents, factor to SI)
@@ -88,7 +103,7 @@ CONTRACT_UNITS = {
 # physics of every unit the FMUs may declare (not only the contract's)
 KNOWN_UNITS = {name: (exps, factor) for name, exps, factor in CONTRACT_UNITS.values()}
 KNOWN_UNITS.update({"W": ({"kg": 1, "m": 2, "s": -3}, 1.0), "m2/s3": ({"m": 2, "s": -3}, 1.0),
-                    "1": ({}, 1.0)})
+                    "1/s": ({"s": -1}, 1.0), "1/s2": ({"s": -2}, 1.0), "1": ({}, 1.0)})
 
 SI = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
@@ -240,8 +255,9 @@ unzipdir, start_values, outputs = sys.argv[1], json.loads(sys.argv[2]), json.loa
 r = fmpy.simulate_fmu(unzipdir, stop_time=10.0, output_interval=0.1, start_values=start_values,
                       output=outputs)
 print(json.dumps({"modules": {m: sys.modules[m].__file__ for m in ("models", "models.chain",
-                                                                   "models._railcar",
-                                                                   "fmu_src.adapter")},
+                                                                   "models._railcar", "models.ato",
+                                                                   "fmu_src.adapter")
+                              if m in sys.modules},
                   "time": r["time"].tolist(), "values": {n: r[n].tolist() for n in outputs}}))
 """
 
@@ -250,6 +266,9 @@ FRESH_CASES = {
                 ["car.speed", "sensor.speed", "est.mass", "filter.speed"]),
     "RailCarEstimator": ({"traction_force": 20e3, "sensor.speed": 1.0, "sensor.position": 5.0},
                          ["est.mass", "filter.speed", "filter.position"]),
+    # a car at 10 m/s seen by the controller: it brakes or holds towards its plan
+    "AtoController": ({"filter.speed": 10.0, "filter.position": 100.0, "span.schedule": 140.0},
+                      ["traction_force_demand", "brake_force_demand", "ato.planned_speed"]),
 }
 
 
@@ -264,6 +283,7 @@ def test_fmu_runs_its_bundled_code_in_a_fresh_process(fmus, name, tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     fresh = json.loads(proc.stdout.strip().splitlines()[-1])
     resources = Path(fmu.unzipdir, "resources").resolve()
+    assert {"models", "fmu_src.adapter"} <= set(fresh["modules"])
     for module, file in fresh["modules"].items():
         assert Path(file).resolve().is_relative_to(resources), \
             f"{name}: {module} was loaded from {file}, not from the FMU's resources/"
