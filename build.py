@@ -38,7 +38,7 @@ from xml.etree import ElementTree as ET
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
 
-from fmu_src.variables import UNITS, variables_for  # noqa: E402
+from fmu_src.variables import ATO, UNITS, variables_for  # noqa: E402
 
 FMUS = {"RailCar": "fmu_src/railcar.py", "RailCarEstimator": "fmu_src/railcar_estimator.py",
         "AtoController": "fmu_src/ato_controller.py"}
@@ -109,8 +109,11 @@ def complete_model_description(xml: bytes, model_name: str) -> bytes:
             real.set("min", repr(float(var.min)))
         if var.max is not None:
             real.set("max", repr(float(var.max)))
+    structure = root.find("ModelStructure")
+    if model_name == ATO:   # a command is computed in doStep from the inputs at its start and held
+        for unknown in structure.find("Outputs"):   # for the next step: no direct feedthrough, so
+            unknown.set("dependencies", "")          # a loop through RailCar is no algebraic loop
     if calculated:      # FMI 2.0 section 2.2.8: every calculated output is an initial unknown
-        structure = root.find("ModelStructure")
         unknowns = ET.SubElement(structure, "InitialUnknowns")
         for index in calculated:
             ET.SubElement(unknowns, "Unknown", index=str(index))

@@ -149,3 +149,16 @@ def test_do_step_before_initialisation_is_refused(ato_fmu, slave_factory):
     s.fmu.enterInitializationMode()                         # the defaults: a feasible level span
     assert s.exit_init() == OK
     assert s.do_step(0.0, STEP) == OK
+
+
+def test_outputs_have_no_direct_feedthrough_and_are_initial_unknowns(ato_fmu):
+    """A system that loops RailCar -> AtoController -> RailCar has no algebraic loop: the
+    controller's outputs depend on no input within a step (dependencies=""), and each output,
+    calculated at initialisation, is an initial unknown (FMI 2.0 section 2.2.8)."""
+    md = ato_fmu.md
+    outputs = [v for v in md.modelVariables if v.causality == "output"]
+    assert len(outputs) == 9
+    assert [u.variable for u in md.outputs] == outputs
+    assert all(u.dependencies == [] for u in md.outputs)
+    assert [u.variable for u in md.initialUnknowns] == outputs
+    assert all(v.initial == "calculated" and v.start is None for v in outputs)
