@@ -2,7 +2,7 @@
 
     python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild] [--fmu KIND]
     python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
-    python -m harness regress [--update] [NAME ...]
+    python -m harness regress [--update] [NAME ...]    (a NAME may be a pattern: 'ato_*')
     python -m harness report [--out DIR] [NAME ...]
     python -m harness filters [NAME ...]
     python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite]
@@ -73,9 +73,10 @@ def cmd_run(args) -> int:
     choice = select(args.fmu, "RailCar", args.dist, args.rebuild, [(str(args.scenario), scenario.parameters)])
     print(f"running '{scenario.name}': {scenario.purpose}", flush=True)
     print(choice.line(), flush=True)
+    driver = scenario.new_driver()
     with FmuRunner(choice.path) as runner:
         try:
-            result = runner.run(scenario)
+            result = runner.run(scenario, driver=driver)
         except InitError as e:
             return _init_failed(f"{args.scenario}: parameters", e,
                                 _native_hint(choice, "RailCar", scenario.parameters))
@@ -85,7 +86,12 @@ def cmd_run(args) -> int:
     summary = summarise(result)
     true_A = summary.A_true
     print(format_run_summary(summary, result))
-    files = write_report(result, summary, true_A, out, fmu=choice.describe())
+    ato_steps = driver.steps if scenario.ato is not None else None
+    if ato_steps is not None:
+        from .ato_metrics import ato_metrics, format_ato
+        print("ATO, per span:")
+        print(format_ato(ato_metrics(scenario, result, ato_steps)))
+    files = write_report(result, summary, true_A, out, fmu=choice.describe(), ato_steps=ato_steps)
     if args.log:
         from .replay import write_log
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
@@ -96,14 +102,17 @@ def cmd_run(args) -> int:
 
 def _library(names: list[str]) -> list:
     from .regress import library_scenarios
+    from fnmatch import fnmatchcase
     paths = library_scenarios()
     if names:
         known = {p.stem: p for p in paths}
-        unknown = [n for n in names if n not in known]
+        # a name may be a pattern ('ato_*': the span scenarios), matching one or more
+        matched = {n: [k for k in known if fnmatchcase(k, n)] for n in names}
+        unknown = [n for n, found in matched.items() if not found]
         if unknown:
             raise ScenarioError(f"unknown library scenario(s): {', '.join(unknown)} "
                                 f"(known: {', '.join(sorted(known))})")
-        paths = [known[n] for n in names]
+        paths = [known[k] for k in dict.fromkeys(k for n in names for k in matched[n])]
     return [load_scenario(p) for p in paths]
 
 
@@ -302,17 +311,17 @@ def main(argv=None) -> int:
     _fmu_options(p)
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser("regress", help="run the library scenarios and compare with tests/regression references")
-    p.add_argument("names", nargs="*", help="library scenario names (default: all)")
+    p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     p.add_argument("--update", action="store_true", help="rewrite the references and say what changed")
     _fmu_options(p)
     p.set_defaults(func=cmd_regress)
     p = sub.add_parser("report", help="run the library scenarios and print and write one table of metrics")
-    p.add_argument("names", nargs="*", help="library scenario names (default: all)")
+    p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     p.add_argument("--out", help="folder of the table (default: out/library)")
     _fmu_options(p)
     p.set_defaults(func=cmd_report)
     p = sub.add_parser("filters", help="each filter.kind on the library scenarios: speed/distance RMSE and NEES")
-    p.add_argument("names", nargs="*", help="library scenario names (default: all)")
+    p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     _fmu_options(p)
     p.set_defaults(func=cmd_filters)
     p = sub.add_parser("list", help="the scenarios and sweeps that come with the harness, one line each")

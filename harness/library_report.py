@@ -2,6 +2,9 @@
 
 Targets, for scenarios whose speed noise is <= 0.05 m/s: est.mass within 1 % of the
 truth at every stop, and the filter's speed and distance RMSE at most 0.6x the raw sensor's.
+A span scenario (the ATO drives, harness/ato_scenario.py) also gets a table of its own, and the
+ATO's targets (seeds 003 and 004), at any noise: on every span arrival within +-2.5 s of the
+schedule, the stop within +-0.3 m of the mark, never over the speed limit, no safety intervention.
 """
 from __future__ import annotations
 
@@ -14,6 +17,8 @@ from .metrics import RunSummary, summarise
 MASS_BOUND_PCT = 1.0
 RMSE_RATIO_BOUND = 0.6
 NOISE_LIMIT = 0.05     # [m/s] the targets apply up to this speed noise
+ARRIVAL_BOUND_S = 2.5  # [s] the ATO's |arrival error| (seeds 003, 004)
+STOP_BOUND_M = 0.3     # [m] the ATO's |stop error| (seed 004)
 
 
 @dataclass
@@ -23,6 +28,7 @@ class Row:
     summary: RunSummary | None
     error: str = ""
     fmu: str = ""               # which FMU ran: "native" or "python" (harness.fmus)
+    ato: list | None = None     # a span scenario's harness.ato_metrics.SpanMetrics, else None
 
     @property
     def targets_apply(self) -> bool:
@@ -40,19 +46,38 @@ class Row:
         }
 
     @property
+    def ato_checks(self) -> dict[str, bool]:
+        """The ATO's targets over every span (empty for a scripted scenario)."""
+        if not self.ato:
+            return {}
+        m = self.ato
+        return {"arrived": all(x.arrived for x in m),
+                "arrival": all(abs(x.arrival_error_s) <= ARRIVAL_BOUND_S for x in m),
+                "stop": all(abs(x.stop_error_m) <= STOP_BOUND_M for x in m),
+                "limit": all(x.margin_mps > 0.0 for x in m),
+                "safety": all(x.interventions == 0 for x in m)}
+
+    @property
     def ok(self) -> bool:
-        return self.summary is not None and (not self.targets_apply or all(self.checks.values()))
+        return (self.summary is not None and (not self.targets_apply or all(self.checks.values()))
+                and all(self.ato_checks.values()))
 
 
 def library_rows(results) -> list[Row]:
-    """(scenario, RunResult or exception) pairs -> rows."""
+    """(scenario, RunResult or exception) pairs -> rows. A span scenario's ATO commands are
+    those its recorded outputs give (harness.ato_scenario.replay_steps: the same as the run's)."""
     rows = []
     for s, r in results:
         std = s.parameter("sensor.speed_std")
         if isinstance(r, Exception):
             rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", "")))
-        else:
-            rows.append(Row(s.name, std, summarise(r), fmu=r.fmu))
+            continue
+        ato = None
+        if s.ato is not None:
+            from .ato_metrics import ato_metrics
+            from .ato_scenario import replay_steps
+            ato = ato_metrics(s, r, replay_steps(s, r).steps)
+        rows.append(Row(s.name, std, summarise(r), fmu=r.fmu, ato=ato))
     return rows
 
 
@@ -76,6 +101,9 @@ def table_rows(rows: list[Row]) -> list[tuple[str, ...]]:
         errs = s.mass_errors_at_stops_pct
         target = ("ok" if all(r.checks.values()) else
                   "MISSED " + ",".join(k for k, v in r.checks.items() if not v)) if r.targets_apply else "n/a (noisy)"
+        if r.ato_checks:
+            missed = [k for k, v in r.ato_checks.items() if not v]
+            target += "; ATO " + ("ok" if not missed else "MISSED " + ",".join(missed))
         out.append((
             r.name, _fmt(r.speed_std, ".3g"), str(s.stops),
             _fmt(max((abs(e) for e in errs), default=float("nan")), ".3f"),
@@ -90,12 +118,26 @@ def table_rows(rows: list[Row]) -> list[tuple[str, ...]]:
     return out
 
 
-def format_table(rows: list[Row]) -> str:
-    body = table_rows(rows)
-    widths = [max(len(h), *(len(b[j]) for b in body)) for j, h in enumerate(HEADER)]
-    line = "  ".join(h.ljust(w) for h, w in zip(HEADER, widths))
+ATO_HEADER = ("scenario", "span", "schedule [s]", "arrival err [s]", "stop err [m]", "energy [kWh]",
+              "V_lim margin [m/s]", "interventions [steps]", "arrived")
+
+
+def ato_table_rows(rows: list[Row]) -> list[tuple[str, ...]]:
+    from .ato_metrics import rows_text
+    return [(r.name, *cells) for r in rows if r.ato for cells in rows_text(r.ato)]
+
+
+def _fixed(header, body) -> str:
+    widths = [max(len(h), *(len(b[j]) for b in body)) for j, h in enumerate(header)]
+    line = "  ".join(h.ljust(w) for h, w in zip(header, widths))
     return "\n".join([line, "  ".join("-" * w for w in widths)] +
                      ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body])
+
+
+def format_table(rows: list[Row]) -> str:
+    text = _fixed(HEADER, table_rows(rows))
+    ato = ato_table_rows(rows)
+    return text + ("\n\nATO, per span:\n" + _fixed(ATO_HEADER, ato) if ato else "")
 
 
 def fmu_line(rows: list[Row]) -> str:
@@ -116,6 +158,12 @@ def write_table(rows: list[Row], out: Path) -> Path:
              f"FMU (python -m harness report --fmu): {fmu_line(rows)}.", "",
              "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     lines += ["| " + " | ".join(b) + " |" for b in table_rows(rows)]
+    ato = ato_table_rows(rows)
+    if ato:
+        lines += ["", f"ATO targets, every span (any noise): |arrival error| <= {ARRIVAL_BOUND_S} s, "
+                      f"|stop error| <= {STOP_BOUND_M} m, margin to V_lim > 0, no safety intervention.", "",
+                  "| " + " | ".join(ATO_HEADER) + " |", "|" + "---|" * len(ATO_HEADER)]
+        lines += ["| " + " | ".join(b) + " |" for b in ato]
     path = out / "library.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -8,6 +8,11 @@ names, time first; their units are the FMU variables' (README tables).
 
 A fresh run passes when every key signal is within its explicit tolerance of the reference
 and fmpy's band test (``fmpy.util.validate_result``) finds no outlier.
+
+The references are written by ``python -m harness regress --update [NAME ...]``; the span
+scenarios' (the ATO in closed loop: scenarios/library/ato_*.toml) alone by
+``python -m harness regress --update 'ato_*'``. Their inputs are the ATO's demands, so a change
+to models/ato*.py changes them: regenerate with that command after one, deliberately.
 """
 from __future__ import annotations
 

@@ -50,12 +50,15 @@ def format_run_summary(summary: RunSummary, result) -> str:
 
 
 def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Path], fmu: str = "",
-                     result=None) -> Path:
+                     result=None, ato: list[str] | None = None) -> Path:
     """``fmu``: which FMU ran and why (harness.fmus.FmuChoice.line), a line of its own.
-    ``result``: the run, for the A's standard deviations (``format_run_summary``)."""
+    ``result``: the run, for the A's standard deviations (``format_run_summary``). ``ato``: a
+    span scenario's ATO table in markdown (harness.ato_report), first."""
     lines = [f"# Run report: {summary.scenario}", "", scenario.purpose or "", ""]
     if fmu:
         lines += [f"FMU: {fmu}", ""]
+    if ato:
+        lines += ["ATO, per span (docs/ato.md):", "", *ato, "", "Estimation:", ""]
     text = format_summary(summary) if result is None else format_run_summary(summary, result)
     lines += ["```", text, "```", ""]
     for fig in figures:
@@ -249,13 +252,20 @@ def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
                  f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
 
 
-def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path, fmu: str = "") -> list[Path]:
+def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path, fmu: str = "",
+                 ato_steps=None) -> list[Path]:
     """Everything for one run into ``out_dir``; returns the files written. ``fmu``: which FMU ran
-    (a line of summary.md; default: the kind the result records)."""
+    (a line of summary.md; default: the kind the result records). ``ato_steps``: for a span
+    scenario, the ATO's calls (AtoDriver.steps): ato.png and the ATO table come first."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_result_csv(result, out_dir / f"{result.scenario.name}_result.csv")
-    figs = plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir),
-                                        plot_resistance_vs_time(result, true_A, out_dir)]
+    figs, ato_md = [], None
+    if ato_steps is not None:
+        from .ato_report import write_ato_report
+        png, _, _, ato_md = write_ato_report(result, ato_steps, out_dir)
+        figs.append(png)
+    figs += plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir),
+                                         plot_resistance_vs_time(result, true_A, out_dir)]
     md = write_summary_md(summary, result.scenario, out_dir / "summary.md", figs,
-                          fmu or getattr(result, "fmu", ""), result)
+                          fmu or getattr(result, "fmu", ""), result, ato_md)
     return [csv_path, md, *figs]
