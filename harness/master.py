@@ -117,10 +117,7 @@ def default_outputs(system: LoadedSystem) -> list[str]:
 def check_outputs(system: LoadedSystem, outputs: Sequence[str]) -> list[str]:
     out = []
     for full in outputs:
-        comp, name = split_name(full)
-        if comp not in system.models:
-            raise SspError(f"{system.path}: output '{full}': no component named '{comp}'")
-        system.variable(full)                      # SspError if unknown
+        system.variable(full, f"output '{full}'")       # SspError if unknown
         if full in out:
             raise SspError(f"{system.path}: output '{full}' asked for twice")
         out.append(full)

@@ -91,9 +91,13 @@ class LoadedSystem:
     spec: SystemSpec
     models: dict                      # component name -> fmpy ModelDescription
 
-    def variable(self, full: str):
+    def variable(self, full: str, what: str = ""):
+        """The model variable of "Component.variable"; SspError naming ``what`` if unknown."""
         comp, var = split_name(full)
-        return _variable(self.models[comp], comp, var, str(self.path))
+        where = f"{self.path}: {what}" if what else str(self.path)
+        if comp not in self.models:
+            raise SspError(f"{where}: no component named '{comp}'")
+        return _variable(self.models[comp], comp, var, where)
 
 
 def split_name(full: str) -> tuple[str, str]:
@@ -137,35 +141,38 @@ def _interface(md) -> list:
 
 def _typed(value, typ: str, what: str):
     """``value`` (a Python value or the text of an SSV attribute) as a value of SSP type ``typ``."""
-    try:
-        if typ == "Real":
-            if isinstance(value, bool):
-                raise ValueError
-            x = float(value)
-            if not math.isfinite(x):
-                raise SspError(f"{what}: {value!r} is not a finite Real")
-            return x
-        if typ == "Integer":
-            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
-                raise ValueError
-            x = int(value) if not isinstance(value, float) else int(value)
-            if not INT32[0] <= x <= INT32[1]:
-                raise SspError(f"{what}: {value!r} is outside the 32-bit Integer range")
-            return x
-        if typ == "Boolean":
-            if isinstance(value, bool):
-                return value
-            if str(value) in ("true", "1"):
-                return True
-            if str(value) in ("false", "0"):
-                return False
-            raise ValueError
-        if typ == "String":
-            if not isinstance(value, (str, Path)):
-                raise ValueError
-            return str(value)
-    except (TypeError, ValueError):
-        raise SspError(f"{what}: {value!r} is not a valid {typ}") from None
+    bad = SspError(f"{what}: {value!r} is not a valid {typ}")
+    if typ == "Real":
+        try:
+            x = float(value) if not isinstance(value, bool) else None
+        except (TypeError, ValueError):
+            x = None
+        if x is None:
+            raise bad
+        if not math.isfinite(x):
+            raise SspError(f"{what}: {value!r} is not a finite Real")
+        return x
+    if typ == "Integer":
+        try:
+            x = int(value) if not isinstance(value, (bool, float)) else \
+                int(value) if isinstance(value, float) and value.is_integer() else None
+        except (TypeError, ValueError):
+            x = None
+        if x is None:
+            raise bad
+        if not INT32[0] <= x <= INT32[1]:
+            raise SspError(f"{what}: {value!r} is outside the 32-bit Integer range")
+        return x
+    if typ == "Boolean":
+        if isinstance(value, bool):
+            return value
+        if str(value) in ("true", "1", "false", "0"):
+            return str(value) in ("true", "1")
+        raise bad
+    if typ == "String":
+        if not isinstance(value, (str, Path)):
+            raise bad
+        return str(value)
     raise SspError(f"{what}: type {typ} is not supported")
 
 
@@ -239,10 +246,6 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str) -> 
 
 
 # ------------------------------------------------------------------------------- writing
-
-def _q(prefix: str, tag: str) -> str:
-    return f"{prefix}:{tag}"
-
 
 def _unit_element(parent, name: str, base) -> None:
     u = ET.SubElement(parent, "ssc:Unit", name=name)
@@ -439,8 +442,9 @@ def _step(root, where: str) -> tuple[float | None, float, float | None]:
         if algo.tag != _tag("osp", "FixedStepAlgorithm"):
             raise SspError(f"{where}: ssd:DefaultExperiment: algorithm <{_local(algo.tag)}> is not "
                            f"supported (osp:FixedStepAlgorithm only)")
+        text = _attr(algo, "baseStepSize", f"{where}: ssd:DefaultExperiment")
         try:
-            step = float(_attr(algo, "baseStepSize", f"{where}: ssd:DefaultExperiment"))
+            step = float(text)
         except ValueError:
             raise SspError(f"{where}: ssd:DefaultExperiment: baseStepSize {algo.get('baseStepSize')!r} "
                            f"is not a number") from None

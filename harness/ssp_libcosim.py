@@ -58,13 +58,16 @@ def _samples(internal, observer, index: int, vr: int, typ: str, n: int):
 def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = None,
                  n_steps: int | None = None, outputs: Sequence[str] | None = None,
                  log_level: str = "WARNING") -> Result:
-    """Run the .ssp in libcosim and return ``outputs`` (default every output) over time, the
-    same table as harness.master.run_system."""
+    """Run the .ssp in libcosim and return ``outputs`` (default every Real and Integer output:
+    libcosim's time series hold no others) over time, the same table as
+    harness.master.run_system."""
     if not isinstance(system, LoadedSystem):
         system = read_ssp(system)
     spec = system.spec
     n = steps_for(system, stop_time, n_steps)
-    outputs = check_outputs(system, default_outputs(system) if outputs is None else outputs)
+    if outputs is None:
+        outputs = [o for o in default_outputs(system) if ssp_type(system.variable(o)) in ("Real", "Integer")]
+    outputs = check_outputs(system, outputs)
     for c in spec.components:
         if not system.models[c.name].fmiVersion.startswith("2"):
             raise SspError(f"{system.path}: component '{c.name}' is an FMI {system.models[c.name].fmiVersion} "
