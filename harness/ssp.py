@@ -258,7 +258,7 @@ def _unit_element(parent, name: str, base) -> None:
             attrs["factor"] = repr(float(base.factor))
         if getattr(base, "offset", 0.0) != 0.0:
             attrs["offset"] = repr(float(base.offset))
-    ET.SubElement(u, _q("ssc", "BaseUnit"), attrs)
+    ET.SubElement(u, "ssc:BaseUnit", attrs)
 
 
 def _units_of(md) -> dict:
