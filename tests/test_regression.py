@@ -2,7 +2,10 @@
 
 All library scenarios run once per session on the freshly built RailCar (fixture), then:
 each matches its reference (explicit tolerances + fmpy's band test), the stored inputs are
-those the driver applied, and every target of the library table is met.
+those the driver applied, and every target of the library table is met. The span scenarios
+(scenarios/library/ato_*.toml: the ATO in closed loop on the FMU) are among them: their
+inputs are the ATO's demands, and the ATO's targets are checked on every span.
+After a change to models/ato*.py: python -m harness regress --update 'ato_*'.
 """
 from dataclasses import replace
 
@@ -68,3 +71,17 @@ def test_library_targets_met(library_results):
     failures = {r.name: r.checks for r in checked if not all(r.checks.values())}
     assert not failures, failures
     assert all(set(KEY_SIGNALS) <= set(library_results[r.name].signals) for r in rows)
+
+
+def test_the_ato_scenarios_meet_the_atos_targets(library_results):
+    """Every span of every span scenario, on the FMU: arrived, |arrival error| <= 2.5 s,
+    |stop error| <= 0.3 m, never over V_lim, no safety intervention (library_report's bounds,
+    seeds 003 and 004). The message gives the measured figures."""
+    from harness.ato_metrics import format_ato
+    from harness.scenario import load_scenario as load
+    paths = [p for p in library_scenarios() if p.stem.startswith("ato_")]
+    assert len(paths) >= 7
+    rows = library_rows([(load(p), library_results[p.stem]) for p in paths])
+    assert all(r.ato for r in rows)
+    missed = {r.name: (r.ato_checks, format_ato(r.ato)) for r in rows if not all(r.ato_checks.values())}
+    assert not missed, missed
