@@ -63,7 +63,7 @@ from .units import G
 LOG = logging.getLogger(__name__)
 
 INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "est.A0",
-          "est.A1", "est.A2", "est.status", "est.samples")
+          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
 """The outputs the controller reads, by their FMU names."""
 
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
@@ -83,6 +83,7 @@ class AtoMode(IntEnum):
     SAFE = 9        # safe brake: an input was missing or not finite (reason logged)
     OVERSPEED = 10  # the supervisor brakes: the speed is above the supervision curve
     CREEP = 11      # stopped short of the mark: creeping on
+    SETTLE = 12     # standing short of the mark while the filter's distance settles
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,15 @@ class AtoTuning:
     stop_window: float = 0.15         # [m] standing closer than this to the aim: arrived
     aim_sigma: float = 3.0            # aim this many filter.speed_std x (the EP stage's
     aim_max: float = 0.5              # duration) short of the mark, at most aim_max [m]
+    settle_std: float = 0.1           # [m] filter.position_std above this at the final braking
+    #                                   curve: stop short, stand, creep on (below: one stop)
+    settle_sigma: float = 6.0         # the short stop aims this many filter.position_std short
+    settle_aim_max: float = 1.5       # [m] at most
+    settle_time: float = 6.0          # [s] standing before the creep (the filter's distance
+    #                                   catches up with the car at rest; < track.station_dwell);
+    #                                   0: never a short stop
+    settle_window: float = 0.05       # [m] the stop_window after the stand: the creep gets
+    #                                   within a few cm, a wider window only adds error
     safe_brake: float = 1.0           # share of car.brake_force_max on a bad input
     hold_brake: float = 0.5           # share of car.brake_force_max held at the stop (at least
     #                                   the last EP stage)
@@ -165,7 +175,7 @@ class AtoTuning:
                 raise ValueError(f"tuning.{f.name} must be in (0, 1], got {v!r}")
 
 
-RUN, BRAKE, STOP_EP, HOLD = "run", "brake", "ep", "hold"
+RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
 
 class AtoController:
@@ -224,6 +234,11 @@ class AtoController:
         self.replans = 0
         self.aim_offset = 0.0
         self._brake_int, self._t_last = 0.0, None
+        self._psd = 0.0                     # filter.position_std at this step [m]
+        self._settle = None                 # None: not decided; True: stop short and settle
+        self._settle_since = None
+        self.settled = False                # the settle stand is over
+        self.first_stop = None              # (t, filter.position) of the first standstill
 
     # ----------------------------------------------------------------- construction checks
     @staticmethod
@@ -406,7 +421,8 @@ class AtoController:
 
     def _step(self, t: float, vals) -> AtoCommand:
         v, s, sd = max(vals[0], 0.0), vals[1], vals[2]
-        est = vals[3:]
+        est = vals[3:9]
+        self._psd = max(vals[9], 0.0)
         if self.t_departure is None:
             self.t_departure = t
         tau = t - self.t_departure
@@ -414,23 +430,25 @@ class AtoController:
         tn = self.tuning
         if self.phase == HOLD:
             return self._hold()
+        if self.phase == SETTLE:
+            return self._settle_step(t, s)
         g = self._grade(s)
-        d = self.span.stop - s
+        if self.phase == BRAKE:
+            self._set_aim(sd)
+        d = self.relay.stop - s             # to the aim point (the mark until BRAKE)
         if self.phase in (RUN, BRAKE) and (d <= self.course.d_relay or
                                            (self.phase == BRAKE and v <= self.course.v_relay)):
             self.phase = STOP_EP
-            # aim short by the way a speed error of aim_sigma x filter.speed_std covers over
-            # the EP stage: a filter that lags errs to the short side, never past the mark
-            t_ep = self.course.v_relay / tn.a_ep
-            self.aim_offset = min(tn.aim_sigma * sd * t_ep, tn.aim_max)
-            self.relay.stop = self.span.stop - self.aim_offset
+            if self.aim_offset == 0.0:     # straight into the EP stage (no braking curve)
+                self._set_aim(sd)
         if self.phase == STOP_EP:
             return self._stop_ep(t, s, v, sd, self.relay.stop - s, car, g)
         if self.phase == RUN and tn.replan and tau - self._last_replan >= tn.replan_period - 1e-9:
             self._last_replan = tau
             self._replan(tau, s, v, car)
         plan = self.plan
-        u, a_u = self._ceiling(s, sd)
+        # on the final braking curve, the curve ends at the aim point: U is read aim_offset on
+        u, a_u = self._ceiling(s, sd, self.aim_offset if self.phase == BRAKE else 0.0)
         f_ceil = track_force(car, v, u, a_u, g, tn.approach_gain)
         if self.phase == BRAKE:
             # PI on the braking curve: the integral takes out what the feed-forward's mass and
@@ -454,17 +472,55 @@ class AtoController:
         if on_ceiling and f < 0.0 and s >= self._final_start - 1e-9:
             self.phase = BRAKE                 # on the braking curve to the stop mark
             self._brake_int, self._t_last = 0.0, t
+            self._set_aim(sd)
         return self._supervised(t, s, v, sd, self._command(car, v, f, a_u if on_ceiling else 0.0,
                                                            plan.speed_at(s)))
 
-    def _ceiling(self, s: float, sd: float) -> tuple[float, float]:
+    def _set_aim(self, sd: float):
+        """The aim point: short of the mark by the way a speed error of aim_sigma x
+        filter.speed_std covers over the EP stage, at most aim_max (a filter that lags errs to
+        the short side). Set from the start of the final braking curve on, so that the whole
+        curve ends there (set only at the EP stage, it asked that stage for more than a_ep).
+        Where filter.position_std is above settle_std when that curve starts, the stop is a
+        short one instead: settle_sigma x filter.position_std short, at most settle_aim_max;
+        the car then stands settle_time and creeps on to the mark (_settle_step)."""
+        tn = self.tuning
+        if self._settle is None:
+            self._settle = tn.settle_time > 0.0 and self._psd > tn.settle_std
+        if self._settle and not self.settled:
+            self.aim_offset = min(tn.settle_sigma * self._psd, tn.settle_aim_max)
+        else:
+            t_ep = self.course.v_relay / tn.a_ep
+            self.aim_offset = min(tn.aim_sigma * sd * t_ep, tn.aim_max)
+        self.relay.stop = self.span.stop - self.aim_offset
+
+    def _settle_step(self, t: float, s: float) -> AtoCommand:
+        """Standing short of the mark (the holding brake) for settle_time while the filter's
+        distance catches up with the car; then creep on to the mark (STOP_EP's relay), or
+        finish if the filter now puts the car within stop_window of it."""
+        tn = self.tuning
+        if t - self._settle_since < tn.settle_time - 1e-9:
+            b = max(self._last_brake, tn.hold_brake * self.car.brake_force_max)
+            return AtoCommand(0.0, b, int(AtoMode.SETTLE), 0.0)
+        self.settled = True
+        self.aim_offset = 0.0
+        self.relay.stop = self.span.stop
+        self.relay.stop_window = min(tn.settle_window, tn.stop_window)
+        self._stand_since = None
+        self.events.append((t, f"settled: {self.span.stop - s:+.3f} m short of the mark "
+                               f"(filter)"))
+        self.phase = STOP_EP            # the relay creeps on from the next step, or it stands
+        return AtoCommand(0.0, max(self._last_brake, tn.hold_brake * self.car.brake_force_max),
+                          int(AtoMode.SETTLE), 0.0)
+
+    def _ceiling(self, s: float, sd: float, shift: float = 0.0) -> tuple[float, float]:
         """The speed the car must stay under at s [m/s] and its rate dV/dt along s [m/s^2]: the
         plan's envelope U, or the supervision curve less k_sigma filter.speed_std and the gap
         where that is lower (a noisy filter would otherwise wake the supervisor)."""
-        qu, dq = self._interp(self.plan.qU, s)
+        qu, dq = self._interp(self.plan.qU, s + shift)
         u = math.sqrt(qu) if qu > 0.0 else 0.0
         a_u = 0.5 * dq                          # dV/dt along U at speed u: V dV/ds = dq/ds / 2
-        qs, dqs = self._interp(self._sup_q, s)
+        qs, dqs = self._interp(self._sup_q, s + self.tuning.k_sigma * self._psd)
         vs = math.sqrt(qs) if qs > 0.0 else 0.0
         w = vs - self.tuning.k_sigma * sd - self.tuning.supervisor_gap
         if w < u:
@@ -474,10 +530,20 @@ class AtoController:
     def _stop_ep(self, t, s, v, sd, d, car, g) -> AtoCommand:  # d: to the aim point
         """Below v_relay: seed 004's relay stages; the holding brake once the car stands."""
         tn = self.tuning
-        if v <= tn.stand_speed and d <= tn.stop_window:
+        settle = self._settle and not self.settled
+        if v <= tn.stand_speed and (d <= self.relay.stop_window or settle):
             if self._stand_since is None:
                 self._stand_since = t
+            if t - self._stand_since >= tn.stand_time - 1e-9 and settle:
+                self.phase, self._settle_since = SETTLE, t
+                self.first_stop = (t, s)
+                self.events.append((t, f"stopped {self.span.stop - s:+.3f} m short of the mark "
+                                       f"(filter; aimed {self.aim_offset:.3f} m short): "
+                                       f"standing {tn.settle_time:g} s"))
+                return self._settle_step(t, s)
             if t - self._stand_since >= tn.stand_time - 1e-9:
+                if self.first_stop is None:
+                    self.first_stop = (t, s)
                 self.phase = HOLD
                 self.events.append((t, f"stopped {self.span.stop - s:+.3f} m short of the "
                                        f"mark (filter; aimed {self.aim_offset:.3f} m short)"))
@@ -512,13 +578,16 @@ class AtoController:
         return AtoCommand(0.0, min(b, self.car.brake_force_max), int(mode), planned)
 
     def _supervised(self, t, s, v, sd, cmd: AtoCommand) -> AtoCommand:
-        """The speed supervisor: full brake above the supervision curve."""
-        q, _ = self._interp(self._sup_q, s)
-        v_hi = v + self.tuning.k_sigma * sd
+        """The speed supervisor: full brake above the supervision curve, read k_sigma x
+        filter.position_std further on than filter.position (where the car may be)."""
+        k = self.tuning.k_sigma
+        s_hi = s + k * self._psd
+        q, _ = self._interp(self._sup_q, s_hi)
+        v_hi = v + k * sd
         if v_hi * v_hi > q:
-            self._log(t, f"speed {v:.3f} m/s + {self.tuning.k_sigma:g} x {sd:.3f} m/s above the "
-                         f"supervision curve {math.sqrt(max(q, 0.0)):.3f} m/s at s = {s:.1f} m: "
-                         f"full brake", "overspeed")
+            self._log(t, f"speed {v:.3f} m/s + {k:g} x {sd:.3f} m/s above the supervision curve "
+                         f"{math.sqrt(max(q, 0.0)):.3f} m/s at s = {s:.1f} m + {k:g} x "
+                         f"{self._psd:.3f} m: full brake", "overspeed")
             return AtoCommand(0.0, self.car.brake_force_max, int(AtoMode.OVERSPEED),
                               cmd.planned_speed, cmd.ep_stage)
         self._clear("overspeed")

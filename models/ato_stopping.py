@@ -76,8 +76,10 @@ class RelayBrake:
             return 0.0, self.n_stages * self.stage_force, self.n_stages, 0.0
         err = v - v_p
         if self.stage is None:
-            # the stages the feed-forward needs for a_ep with the identified mass, rounded
-            need = car.m_in * self.a_ep - car.pg * (car.w0(v) + grade)
+            # the stages the feed-forward needs for a_ep with the identified mass, rounded; for
+            # v^2 / (2 d) where the car comes in above V_p (it must stop at the aim all the same)
+            a = max(self.a_ep, v * v / (2.0 * d))
+            need = car.m_in * a - car.pg * (car.w0(v) + grade)
             self.stage = min(max(int(round(need / self.stage_force)), 0), self.n_stages)
             self._switched = t
         elif abs(err) > self.hysteresis and t - self._switched >= self.dwell - 1e-9:
