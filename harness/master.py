@@ -223,9 +223,12 @@ class _Run:
         self.values: dict[str, dict] = {c.name: {} for c in system.spec.components}
         self.rows: list[list] = []
         self.t = system.spec.start
-        for c in system.spec.components:
-            self.instances[c.name] = self._guard(c.name, "fmi2Instantiate", _Instance, c.name,
-                                                 system.models[c.name], dirs[c.name])
+        self.dirs = dirs
+
+    def instantiate(self) -> None:
+        for c in self.system.spec.components:
+            self.instances[c.name] = self._guard(c.name, "instantiate", _Instance, c.name,
+                                                 self.system.models[c.name], self.dirs[c.name])
 
     def _guard(self, comp: str, call: str, fn, *args):
         try:
@@ -299,8 +302,8 @@ def run_system(system: LoadedSystem | str | Path, stop_time: float | None = None
     tmp = Path(tempfile.mkdtemp(prefix="railcar-ssp-", dir=None if unzip_root is None else str(unzip_root)))
     run = None
     try:
-        dirs = _extract(system, tmp)
-        run = _Run(system, dirs, outputs)
+        run = _Run(system, _extract(system, tmp), outputs)
+        run.instantiate()
         _initialise(run, spec)
         run.record()
         for k in range(n):

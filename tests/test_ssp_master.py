@@ -267,6 +267,31 @@ def test_plant_and_estimator_bit_identical_in_both_masters(pe_runs):
     assert ours["est.filter.speed"][2] != 0.0
 
 
+def test_a_moving_start_shows_libcosims_initialisation(native, tmp_path):
+    """The car starts at 12 m/s, 50 m, and the estimator's connected sensor.speed also gets a
+    start value of 5 m/s. Observing the estimator's inputs in both masters (same bits) shows what
+    libcosim does: in initialisation mode the connections carry RailCar's outputs, which are its
+    start values (0) until fmi2ExitInitializationMode, and they overwrite the start value 5; after
+    it they carry the outputs at t = 0, which the estimator's first step gets."""
+    car = dict(CAR, **{"car.initial_speed": 12.0, "car.initial_position": 50.0})
+    spec = plant_estimator(native["RailCarNative"], native["RailCarEstimatorNative"], car=car)
+    spec = SystemSpec("moving", [spec.components[0], Component("est", native["RailCarEstimatorNative"],
+                                                               dict(EST, **{"sensor.speed": 5.0}))],
+                      spec.connections, STEP)
+    ssp = write_ssp(spec, tmp_path / "moving.ssp")
+    outputs = ["car.sensor.speed", "car.sensor.position", "est.sensor.speed", "est.sensor.position",
+               "est.filter.speed", "est.est.mass"]
+    ours = run_system(ssp, n_steps=50, outputs=outputs)
+    lc = run_libcosim(ssp, n_steps=50, outputs=outputs, log_level="ERROR")
+    for name in outputs:
+        assert np.array_equal(bits(ours[name]), bits(lc[name])), name
+    assert ours["car.sensor.speed"][0] == pytest.approx(12.0, abs=0.2)
+    assert ours["est.sensor.speed"][0] == 0.0 and ours["est.sensor.position"][0] == 0.0
+    for name in ("sensor.speed", "sensor.position"):          # Jacobi: one step behind
+        assert np.array_equal(ours[f"est.{name}"][1:], ours[f"car.{name}"][:-1]), name
+    assert ours["est.filter.speed"][1] > 5.0
+
+
 def test_the_comparison_sees_one_ulp_of_one_parameter(native, pe_runs, tmp_path):
     _, lc = pe_runs
     car = dict(CAR, **{"car.mass": math.nextafter(36.0, math.inf)})
@@ -331,6 +356,20 @@ def test_a_discarded_step_stops_the_run_naming_component_time_and_status(native,
         run_libcosim(ssp, n_steps=10, log_level="ERROR")
 
 
+def test_an_fmu_without_a_binary_stops_the_run_naming_it(native, tmp_path):
+    """The estimator's FMU without binaries/: the run stops at instantiation, naming the
+    component; the car's instance, instantiated before it, is freed."""
+    broken = tmp_path / "RailCarEstimatorNative.fmu"
+    with zipfile.ZipFile(native["RailCarEstimatorNative"]) as src, zipfile.ZipFile(broken, "w") as out:
+        for item in src.namelist():
+            if not item.startswith("binaries/"):
+                out.writestr(item, src.read(item))
+    ssp = write_ssp(plant_estimator(native["RailCarNative"], broken), tmp_path / "nobinary.ssp")
+    with pytest.raises(MasterError, match=r"plant_estimator: component 'est': instantiate at t = 0.0 s "
+                                          r"failed \(Exception: Cannot find shared library"):
+        run_system(ssp, n_steps=2)
+
+
 def test_a_failed_initialisation_stops_the_run_naming_the_parameter(native, pe_ssp, tmp_path):
     car = dict(CAR, **{"car.mass": -1.0})
     ssp = write_ssp(plant_estimator(native["RailCarNative"], native["RailCarEstimatorNative"], car=car),
@@ -387,3 +426,18 @@ def test_ato_system_stops_the_car_at_the_mark(ato_runs):
     assert np.array_equal(ours["car.car.brake_force"][1:], demand_b[:-1])
     assert np.all(ours["car.car.traction_force"][1:] <= demand_t[:-1])
     assert not np.any((demand_t > 0) & (demand_b > 0))
+
+
+def test_ato_refusing_its_parameters_stops_our_master(native, built_fmus, tmp_path):
+    """An infeasible schedule: the pythonfmu AtoController fails exitInitializationMode (Error, not
+    Fatal: its instance is freed) naming the parameter; the run stops, naming the component."""
+    ato = built_fmus["RailCar"].parent / "AtoController.fmu"
+    if not ato.is_file():
+        pytest.skip("no AtoController.fmu in the build")
+    spec = ato_system(native["RailCarNative"], ato)
+    bad = SystemSpec(spec.name, [spec.components[0], Component("ato", ato, dict(SPAN, **{"span.schedule": 5.0}))],
+                     spec.connections, STEP)
+    with pytest.raises(MasterError) as e:
+        run_system(write_ssp(bad, tmp_path / "bad_ato.ssp"), n_steps=5)
+    assert e.value.message == "ato_span: component 'ato': fmi2ExitInitializationMode at t = 0.0 s returned error"
+    assert "span.schedule" in str(e.value)
