@@ -7,12 +7,19 @@ reads the file's baseStepSize) and observe the outputs with a time-series observ
 sample is the values after initialisation. The file is read with harness.ssp.read_ssp first, so a
 bad system is refused with our message before libcosim sees it (libcosim only logs a warning for
 a parameter it cannot set, and aborts the whole process when an FMU fails initialisation:
-check parameters with our master first). libcosim 0.11 runs FMI 2.0 FMUs only.
+check parameters with our master first, or pass ``isolated=True``: the run then happens in a child
+process, and an abort there is a MasterError here). libcosim 0.11 runs FMI 2.0 FMUs only.
 
 libcosimpy is an optional (test) dependency, imported only when a run is asked for.
 """
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
 from ctypes import POINTER, c_double, c_int, c_int64, c_size_t, c_uint32
 from pathlib import Path
 from typing import Sequence
@@ -57,10 +64,11 @@ def _samples(internal, observer, index: int, vr: int, typ: str, n: int):
 
 def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = None,
                  n_steps: int | None = None, outputs: Sequence[str] | None = None,
-                 log_level: str = "WARNING") -> Result:
+                 log_level: str = "WARNING", isolated: bool = False) -> Result:
     """Run the .ssp in libcosim and return ``outputs`` (default every Real and Integer output:
     libcosim's time series hold no others) over time, the same table as
-    harness.master.run_system."""
+    harness.master.run_system. ``isolated``: run libcosim in a child process (an FMU failing
+    initialisation aborts libcosim's process)."""
     if not isinstance(system, LoadedSystem):
         system = read_ssp(system)
     spec = system.spec
@@ -76,6 +84,8 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
         if ssp_type(system.variable(full)) not in ("Real", "Integer"):
             raise SspError(f"{system.path}: output '{full}': libcosim's time series hold Real and "
                            f"Integer variables only")
+    if isolated:
+        return _run_isolated(system, n, outputs, log_level)
     CosimExecution, CosimLogging, CosimObserver, CosimVariableType, internal = _libcosim()
     CosimLogging.log_output_level(getattr(CosimLogging.CosimLogLevel, log_level))
     if any(md.coSimulation.needsExecutionTool for md in system.models.values()):
@@ -126,3 +136,52 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
         units[full] = unit_of(system.variable(full))
     del execution, observer
     return Result(grid, signals, units, "libcosim")
+
+
+# ------------------------------------------------------------------ in a child process
+
+def _run_isolated(system: LoadedSystem, n: int, outputs: list[str], log_level: str) -> Result:
+    _libcosim()                                   # LibcosimMissing here, not in the child
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    with tempfile.TemporaryDirectory(prefix="railcar-libcosim-") as tmp:
+        out = Path(tmp) / "result.npz"
+        request = json.dumps({"n_steps": n, "outputs": outputs, "log_level": log_level})
+        proc = subprocess.run([sys.executable, "-m", "harness.ssp_libcosim", str(system.path), request,
+                               str(out)], capture_output=True, text=True, env=env)
+        if proc.returncode == 0:
+            data = np.load(out, allow_pickle=False)
+            signals = {name: data[f"s{j}"] for j, name in enumerate(outputs)}
+            return Result(data["time"], signals, {o: unit_of(system.variable(o)) for o in outputs},
+                          "libcosim")
+    tail = "\n".join(proc.stderr.strip().splitlines()[-12:])
+    if proc.returncode == 2:
+        raise SspError(tail.removeprefix("error: "))
+    if proc.returncode < 0:
+        try:
+            what = f"was killed by {signal.Signals(-proc.returncode).name}"
+        except ValueError:
+            what = f"was killed by signal {-proc.returncode}"
+        raise MasterError(f"{system.spec.name}: libcosim's process {what} (an FMU failing "
+                          f"initialisation aborts libcosim)", tail.splitlines())
+    raise MasterError(f"{system.spec.name}: libcosim's process failed (exit code {proc.returncode})",
+                      tail.splitlines())
+
+
+def _child(argv: list[str]) -> int:
+    path, request, out = argv
+    req = json.loads(request)
+    try:
+        r = run_libcosim(path, n_steps=req["n_steps"], outputs=req["outputs"], log_level=req["log_level"])
+    except SspError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except MasterError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    np.savez(out, time=r.time, **{f"s{j}": r.signals[o] for j, o in enumerate(req["outputs"])})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_child(sys.argv[1:]))

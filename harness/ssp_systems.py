@@ -107,11 +107,11 @@ def main(argv=None) -> int:
         if args.command == "build":
             print(build_system(args.description, args.out, args.dist))
             return 0
-        if args.master == "libcosim":
-            from .ssp_libcosim import run_libcosim as runner
+        if args.master == "libcosim":                # in a child process: libcosim aborts its
+            from .ssp_libcosim import run_libcosim       # process when an FMU fails initialisation
+            result = run_libcosim(args.ssp, stop_time=args.stop, outputs=args.output, isolated=True)
         else:
-            runner = run_system
-        result = runner(args.ssp, stop_time=args.stop, outputs=args.output)
+            result = run_system(args.ssp, stop_time=args.stop, outputs=args.output)
     except SspError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

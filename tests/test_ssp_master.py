@@ -441,3 +441,18 @@ def test_ato_refusing_its_parameters_stops_our_master(native, built_fmus, tmp_pa
         run_system(write_ssp(bad, tmp_path / "bad_ato.ssp"), n_steps=5)
     assert e.value.message == "ato_span: component 'ato': fmi2ExitInitializationMode at t = 0.0 s returned error"
     assert "span.schedule" in str(e.value)
+    # libcosim aborts its process on it: isolated, the abort is a MasterError here
+    with pytest.raises(MasterError) as e:
+        run_libcosim(tmp_path / "bad_ato.ssp", n_steps=5, log_level="ERROR", isolated=True)
+    assert e.value.message == ("ato_span: libcosim's process was killed by SIGABRT (an FMU failing "
+                               "initialisation aborts libcosim)")
+    assert "span.schedule = 5.00 s is infeasible" in str(e.value)
+
+
+def test_libcosim_in_a_child_process_gives_the_same_table(pe_ssp, pe_runs):
+    _, lc = pe_runs
+    child = run_libcosim(pe_ssp, log_level="ERROR", isolated=True)
+    assert child.units == lc.units and list(child.signals) == list(lc.signals)
+    assert_same(child, lc)
+    with pytest.raises(SspError, match="output 'est.est.mas'"):
+        run_libcosim(pe_ssp, n_steps=2, outputs=["est.est.mas"], isolated=True)
