@@ -46,6 +46,19 @@ def _libcosim():
     return CosimExecution, CosimLogging, CosimObserver, CosimVariableType, _internal
 
 
+def _check_prefixes(system: LoadedSystem) -> None:
+    """libcosim looks elements up by their prefixed names (ssd:System, ssc:Real, ssv:Parameter):
+    a valid SSD with other namespace prefixes would load as an empty or partial system there."""
+    import zipfile
+    from .ssp import NS, SSD_NAME
+    with zipfile.ZipFile(system.path) as z:
+        head = z.read(SSD_NAME)[:4000].decode("utf-8", "replace")
+    for prefix in ("ssd", "ssc"):
+        if f'xmlns:{prefix}="{NS[prefix]}"' not in head:
+            raise SspError(f"{system.path}: {SSD_NAME}: libcosim reads the namespace prefix '{prefix}:' "
+                           f"literally; declare xmlns:{prefix}=\"{NS[prefix]}\" on the root element")
+
+
 def _samples(internal, observer, index: int, vr: int, typ: str, n: int):
     """All n + 1 samples of one variable from step 0 (libcosimc's own call: libcosimpy's
     time_series_*_samples drops the last sample of a read that starts at step 0)."""
@@ -84,6 +97,7 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
         if ssp_type(system.variable(full)) not in ("Real", "Integer"):
             raise SspError(f"{system.path}: output '{full}': libcosim's time series hold Real and "
                            f"Integer variables only")
+    _check_prefixes(system)
     if isolated:
         return _run_isolated(system, n, outputs, log_level)
     CosimExecution, CosimLogging, CosimObserver, CosimVariableType, internal = _libcosim()

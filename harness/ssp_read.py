@@ -55,6 +55,7 @@ def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
     """(name, type, value text, unit) of each ssv:Parameter of an ssv:ParameterSet element."""
     if el.tag != _tag("ssv", "ParameterSet"):
         raise SspError(f"{where}: expected an ssv:ParameterSet, found <{_local(el.tag)}>")
+    _attr(el, "name", where)                      # libcosim needs it
     out = []
     params = el.find("ssv:Parameters", NS)
     for p in (params if params is not None else []):
@@ -113,6 +114,8 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
         if root.tag != _tag("ssd", "SystemStructureDescription"):
             raise SspError(f"{ssd_where}: root element <{root.tag}> is not ssd:SystemStructureDescription "
                            f"(namespace {NS['ssd']})")
+        for attr in ("name", "version"):            # libcosim needs both
+            _attr(root, attr, ssd_where)
         system = root.find("ssd:System", NS)
         if system is None:
             raise SspError(f"{ssd_where}: no ssd:System")
@@ -131,7 +134,10 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
             md = models[cname] = _read_md(z.read(source), f"{cwhere} ({source})")
             declared[cname] = _check_connectors(el, md, cname, cwhere)
             params = {}
-            for b in el.iterfind("ssd:ParameterBindings/ssd:ParameterBinding", NS):
+            bindings = el.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS)
+            if len(bindings) > 1:       # libcosim applies only the first: refused, not guessed
+                raise SspError(f"{cwhere}: {len(bindings)} ssd:ParameterBinding elements; one is supported")
+            for b in bindings:
                 if b.get("prefix"):
                     raise SspError(f"{cwhere}: ssd:ParameterBinding prefix is not supported")
                 if b.get("source"):
@@ -142,8 +148,11 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                     entries = _parameter_set(_parse(z.read(src), swhere), swhere)
                 else:
                     swhere = f"{cwhere}: inline parameter set"
-                    sets = b.findall("ssd:ParameterValues/ssv:ParameterSet", NS)
-                    entries = [e for s in sets for e in _parameter_set(s, swhere)]
+                    sets = b.findall("ssd:ParameterValues/*", NS)
+                    if len(sets) != 1:
+                        raise SspError(f"{swhere}: expected one ssv:ParameterSet in ssd:ParameterValues, "
+                                       f"found {len(sets)}")
+                    entries = _parameter_set(sets[0], swhere)
                 for pname, typ, text, unit in entries:
                     v = _variable(md, cname, pname, f"{swhere}: parameter '{pname}'")
                     if ssp_type(v) != typ:

@@ -243,6 +243,42 @@ def test_reading_a_bad_package_names_the_file_element_and_variable(pe_ssp, tmp_p
     assert str(bad) in str(e.value)
 
 
+def _inline(ssd: str, ssv: str) -> str:
+    """The SSD with car's parameter set inline (ssd:ParameterValues) instead of resources/car.ssv."""
+    body = ssv.split("?>", 1)[1].strip()
+    return ssd.replace('<ssd:ParameterBinding source="resources/car.ssv" type="application/x-ssp-parameter-set" />',
+                       f"<ssd:ParameterBinding><ssd:ParameterValues>{body}</ssd:ParameterValues></ssd:ParameterBinding>")
+
+
+def test_an_inline_parameter_set_reads_and_runs_the_same(pe_ssp, pe_runs, tmp_path):
+    """A parameter set inline in the SSD (the other form libcosim reads) gives the same system and,
+    in both masters, the same numbers."""
+    with zipfile.ZipFile(pe_ssp) as z:
+        ssv = z.read(CAR_SSV).decode()
+    inline = _rewrite(pe_ssp, tmp_path / "inline.ssp", SSD, lambda t: _inline(t, ssv))
+    inline = _rewrite(inline, tmp_path / "inline2.ssp", CAR_SSV, lambda t: None)   # the file goes
+    assert read_ssp(inline).spec == read_ssp(pe_ssp).spec
+    ref, _ = pe_runs
+    for run in (run_system(inline, n_steps=50), run_libcosim(inline, n_steps=50, log_level="ERROR")):
+        for name, x in run.signals.items():
+            assert np.array_equal(bits(x), bits(ref[name][:51])), (run.master, name)
+
+
+def test_what_libcosim_would_read_otherwise_is_refused(pe_ssp, tmp_path):
+    """Two parameter bindings (libcosim applies only the first) are refused by our reader; other
+    namespace prefixes (libcosim looks up 'ssd:' literally) by the libcosim runner."""
+    two = _rewrite(pe_ssp, tmp_path / "two.ssp", SSD, lambda t: t.replace(
+        '<ssd:ParameterBinding source="resources/car.ssv" type="application/x-ssp-parameter-set" />',
+        '<ssd:ParameterBinding source="resources/car.ssv" /><ssd:ParameterBinding source="resources/est.ssv" />'))
+    with pytest.raises(SspError, match="component 'car': 2 ssd:ParameterBinding elements; one is supported"):
+        read_ssp(two)
+    other = _rewrite(pe_ssp, tmp_path / "prefix.ssp", SSD,
+                     lambda t: t.replace("ssd:", "s:").replace("xmlns:ssd=", "xmlns:s="))
+    assert read_ssp(other).spec == read_ssp(pe_ssp).spec          # the same SSP to a namespace-aware reader
+    with pytest.raises(SspError, match="libcosim reads the namespace prefix 'ssd:' literally"):
+        run_libcosim(other, n_steps=2)
+
+
 def test_not_a_package(tmp_path):
     (tmp_path / "x.ssp").write_text("hello")
     with pytest.raises(SspError, match=r"x.ssp: not an SSP package \(a zip archive\)"):
