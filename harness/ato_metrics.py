@@ -103,7 +103,7 @@ def ato_metrics(scenario, result, steps) -> list[SpanMetrics]:
     """Every span's metrics for a run of a span scenario (``result``, a harness RunResult) and
     the ATO's calls ``steps`` (AtoDriver.steps of the run, or harness.ato_scenario.replay_steps);
     the call at row j saw the outputs of row j and its demands held to row j + 1."""
-    setup = scenario.ato
+    setup = scenario.ato_setup()
     vehicle = scenario.chain_setup().config.vehicle
     time, v, x = result.time, result["car.speed"], result["car.position"]
     total = result.signals.get("car.total_mass")

@@ -47,7 +47,7 @@ def ato_figure(result, steps):
     (``steps``: the ATO's calls, row by row)."""
     from .report import _pyplot
     plt = _pyplot()
-    spans = result.scenario.ato.spans
+    spans = result.scenario.ato_setup().spans
     n = len(spans)
     fig, axes = plt.subplots(2 * n, 1, figsize=(11, 5.2 * n), squeeze=False,
                              gridspec_kw={"height_ratios": [5, 1] * n})

@@ -35,8 +35,9 @@ the same profile, from 0 to its own stop mark.
 """
 from __future__ import annotations
 
+import logging
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Mapping
 
 from models.ato import INPUTS as ATO_INPUTS
@@ -67,9 +68,17 @@ class AtoSetup:
     spans: tuple[LineSpan, ...]
     tuning: AtoTuning
     car: CarTraction
+    grade_profile: str = ""      # the track.grade_profile value the spans' grade was read from
 
     def controllers(self) -> list[AtoController]:
         return [AtoController(s.span, self.car, self.tuning) for s in self.spans]
+
+    def with_grade(self, grade: GradeProfile, grade_profile: str) -> "AtoSetup":
+        """The same spans over another grade (read from ``grade_profile``)."""
+        spans = tuple(replace(s, span=Span(s.span.length, s.span.schedule, s.span.stop, grade,
+                                           s.span.limit_distances, s.span.limit_speeds))
+                      for s in self.spans)
+        return replace(self, spans=spans, grade_profile=grade_profile)
 
     @property
     def default_duration_s(self) -> float:
@@ -162,7 +171,8 @@ def _typed_fields(cls, raw: dict, where: str, error, skip=()) -> dict:
     return out
 
 
-def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float, error) -> AtoSetup:
+def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float, error,
+              grade_profile: str = "") -> AtoSetup:
     """The [span] / [[span]] and [ato] tables of a scenario -> AtoSetup. Every controller is
     built once here, so that an infeasible schedule, a limit the brakes cannot keep or bad
     tuning (AtoController's ValueError) is invalid input naming the file and the span."""
@@ -199,7 +209,7 @@ def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float
         except ValueError as e:
             raise error(f"{where}: the ATO cannot run this span: {e}") from None
         spans.append(s)
-    return AtoSetup(tuple(spans), tuning, car)
+    return AtoSetup(tuple(spans), tuning, car, grade_profile)
 
 
 # ------------------------------------------------------------------------------ the driver
@@ -294,14 +304,20 @@ def replay_steps(scenario, result) -> AtoDriver:
     """A fresh AtoDriver fed the outputs a run of ``scenario`` recorded (``result``, every row
     but the last, as the loop fed them): the controllers read nothing but those outputs, so this
     gives the run's commands again (tests check them equal to the run's own, bit for bit)."""
-    driver = AtoDriver(scenario.ato)
+    driver = AtoDriver(scenario.ato_setup())
     names = [n for n in driver.reads if n in result.signals]
     missing = set(driver.reads) - set(names)
     if missing:
         raise ValueError(f"{scenario.name}: the run did not record {', '.join(sorted(missing))}")
     cols = [result.signals[n] for n in names]
-    for j in range(len(result.time)):
-        driver.demands(float(result.time[j]), {n: float(c[j]) for n, c in zip(names, cols)})
-        if driver.finished:
-            break
+    log = logging.getLogger("models.ato")
+    was = log.disabled
+    log.disabled = True                 # the run has logged these events once already
+    try:
+        for j in range(len(result.time)):
+            driver.demands(float(result.time[j]), {n: float(c[j]) for n, c in zip(names, cols)})
+            if driver.finished:
+                break
+    finally:
+        log.disabled = was
     return driver

@@ -97,11 +97,26 @@ class Scenario:
         harness.ato_scenario.AtoDriver (the ATO, one controller per span)."""
         if self.ato is not None:
             from .ato_scenario import AtoDriver
-            return AtoDriver(self.ato)
+            return AtoDriver(self.ato_setup())
         if not self.phases:
             return self.time_table
         return PhaseDriver(self.phases, self.parameter("car.mass") if mass_t is None else mass_t,
                            self.parameter("car.traction_force_max"), self.parameter("car.brake_force_max"))
+
+    def ato_setup(self):
+        """A span scenario's ATO (harness.ato_scenario.AtoSetup) over the grade its parameters
+        name now: a copy of the scenario with another track.grade_profile (a sweep's, a test's)
+        gets its spans over that grade, never the file's (one source). None if not a span
+        scenario."""
+        if self.ato is None:
+            return None
+        value = self.parameter("track.grade_profile")
+        if value == self.ato.grade_profile:
+            return self.ato
+        from models.track import GradeProfile
+        grade = (read_profile("track.grade_profile", profile_file(value, None), "track.grade_profile")
+                 if value else GradeProfile.level())
+        return self.ato.with_grade(grade, value)
 
     def wind_at(self, t: float) -> float:
         """Wind speed [m/s] at time t [s]."""
@@ -345,7 +360,8 @@ def _ato(data: dict, source: str, params: dict):
     if v["track.grade_profile"]:
         grade = read_profile("track.grade_profile", profile_file(v["track.grade_profile"], None),
                              f"{source}: parameters.\"track.grade_profile\"")
-    return parse_ato(data, source, grade, float(v["track.station_dwell"]), ScenarioError)
+    return parse_ato(data, source, grade, float(v["track.station_dwell"]), ScenarioError,
+                     v["track.grade_profile"])
 
 
 def read_toml(path: Path, error=None) -> dict:

@@ -179,6 +179,21 @@ def test_a_limit_the_brakes_cannot_keep_is_refused_naming_the_file(tmp_path):
     assert "cannot be met" in msg and "-180.0 permille" in msg
 
 
+def test_a_copy_with_another_grade_profile_drives_over_that_grade(tmp_path):
+    """One source: a scenario copied with another track.grade_profile (as sweeps and tests make
+    them) gives an ATO planning over that profile, not over the file's."""
+    from dataclasses import replace
+    s = load_scenario(NOMINAL)
+    flat = replace(s, parameters={**s.parameters, "track.grade_profile": ""})
+    assert flat.ato_setup().spans[0].span.grade.grades == (0.0,)
+    assert flat.new_driver().controllers[0].span.grade.grades == (0.0,)
+    assert s.ato_setup() is s.ato and s.new_driver().controllers[0].span.grade == s.chain_setup().grade
+    other = tmp_path / "other.csv"
+    other.write_text("distance_m,grade_permille\n0,3\n", encoding="utf-8")
+    s3 = replace(s, parameters={**s.parameters, "track.grade_profile": str(other)})
+    assert s3.new_driver().controllers[0].span.grade.grades == (3.0,)
+
+
 def test_an_empty_line_is_refused(tmp_path):
     p = write(tmp_path, "span = []\n" + BASE.format(grade=GRADE))
     with pytest.raises(ScenarioError, match="span: no spans given"):
