@@ -10,7 +10,8 @@
   stops at each station, restarts the distance and the estimator there, boards its passengers;
   the commands a run's recorded outputs give (replay_steps) are the run's own, bit for bit;
 - the report's figure, read from matplotlib's objects;
-- ``harness run`` on the FMU (the session build): the table printed, summary.md, ato.png.
+- ``harness run`` on the FMU (the session build): the table printed, summary.md, ato.png; a bad
+  span is one line on stderr and exit code 2.
 
 Runs on the chain take ~0.1 s per span; the FMU test needs the session's build (fmu layer).
 """
@@ -409,3 +410,13 @@ def test_harness_run_prints_and_writes_the_ato_report(built_fmus, tmp_path, caps
         r = runner.run(s, outputs=["car.speed", "car.position"], driver=d)
     assert d.steps == chain_driver.steps             # the ATO got its reads, bit for bit
     assert set(r.signals) == {"car.speed", "car.position"}
+
+
+def test_harness_run_refuses_a_bad_span_in_one_line(tmp_path, capsys):
+    """Invalid input: exit code 2, one line on stderr naming file, key and reason; no FMU built."""
+    from harness.__main__ import main
+    p = write(tmp_path, BASE.format(grade=GRADE) + BAD["stop beyond the span"][0])
+    assert main(["run", str(p), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {p}: span.stop_m: 2150.0 m is beyond the span (length_m = 2000.0 m)"]
+    assert not (tmp_path / "out").exists()
