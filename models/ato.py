@@ -8,8 +8,8 @@ by name and returns an ``AtoCommand``: traction and brake demands [N], the mode 
 (``AtoMode``) and the planned speed [m/s]. It holds no loop; a host steps it.
 
 What it reads (and nothing else: not the truth car.*, whose grade it knows from the span):
-filter.speed, filter.position, filter.speed_std (the motion filter), est.mass, est.A0..A2,
-est.status, est.samples (the identification).
+filter.speed, filter.position, filter.speed_std, filter.position_std (the motion filter),
+est.mass, est.A0..A2, est.status, est.samples (the identification).
 
 **Running-time regulator** (seed 003 ch. 4 uses a fuzzy regulator with predictive traction
 calculation; ours is its model-predictive form). Every ``replan_period`` seconds the rest of
@@ -28,20 +28,32 @@ resistance rises with speed; braking curves are planned for the heavier of the i
 the configured mass (an identified mass that is too low must not make them late).
 
 **Targeted stopping**: models/ato_stopping.py (the braking curve, then the relay stages of the
-electro-pneumatic brake below 7 km/h, then the holding brake). The stage aims
-``aim_sigma`` x filter.speed_std x (its duration) short of the mark: where the filter is
-uncertain (a noisy speed sensor), a stop errs to the short side, never past the mark.
+electro-pneumatic brake below 7 km/h, then the holding brake). From the start of the final
+braking curve the whole curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP
+stage's duration) short of the mark: where the filter is uncertain, a stop errs to the short
+side. Under speed-sensor noise the filter's position lags the car by more than it claims (the
+identified mass comes out low, so the filter's model brakes the car harder than the brake
+does: at 0.444 m/s speed noise est.mass is ~8 % low and the lag at the stop 0.34 m on average,
+sd 0.32 m, while filter.position_std says 0.19 m). So where filter.position_std exceeds
+``settle_std`` when the final braking curve starts, the stop is in two parts: a short stop
+``settle_sigma`` x filter.position_std short (at most ``settle_aim_max``), ``settle_time``
+standing with the holding brake (mode SETTLE) while the filter's distance catches up with the
+car (its model holds at rest, and the distance sensor keeps averaging), then a creep on to the
+mark within ``settle_window``. It costs ~11 s at the stop; with filter.position_std below
+settle_std (a quiet speed sensor) the stop is one stop as before.
 
 **Safety**: bad construction inputs raise ValueError naming the value (an infeasible schedule, a
 stop mark beyond the span (models.span.Span), a limit the brakes cannot keep, a limit the margin
 leaves nothing of, bad tuning). At run time nothing raises: an output that is missing or not
 finite gives a safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged
 (logger ``models.ato`` and ``AtoController.events``). The supervisor brakes with the full brake
-whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve: V_lim(s) and the
+whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve read at
+filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
 full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
 the stop mark; the controller itself keeps filter.speed + k_sigma filter.speed_std a
 ``supervisor_gap`` below that curve, so a noisy filter slows the car rather than waking the
-supervisor.
+supervisor. (A filter that is wrong by more than k_sigma of its own stds, as the lagging one
+above, can still take the car past the line: the controller cannot see that error.)
 
 Units: s [m], V [m/s], t [s], force [N], mass [t], grade [permille].
 """
