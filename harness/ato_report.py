@@ -49,11 +49,14 @@ def ato_figure(result, steps):
     plt = _pyplot()
     spans = result.scenario.ato_setup().spans
     n = len(spans)
-    fig, axes = plt.subplots(2 * n, 1, figsize=(11, 5.2 * n), squeeze=False,
-                             gridspec_kw={"height_ratios": [5, 1] * n})
+    fig = plt.figure(figsize=(11, 4.6 * n))
+    outer = fig.add_gridspec(n, 1, hspace=0.3)
     x_all, v_all, f_all = result["car.position"], result["car.speed"], result["filter.speed"]
     for k, ls in enumerate(spans):
-        ax, bar = axes[2 * k, 0], axes[2 * k + 1, 0]
+        inner = outer[k].subgridspec(2, 1, height_ratios=[5, 1], hspace=0.08)
+        ax = fig.add_subplot(inner[0])
+        bar = fig.add_subplot(inner[1], sharex=ax)
+        ax.tick_params(labelbottom=False)
         rows = span_rows(steps, k, len(result.time))
         if not rows:
             ax.set_title(f"span {k + 1}: not reached")
@@ -84,7 +87,6 @@ def ato_figure(result, steps):
             bar.broken_barh([(x0, max(x1 - x0, 0.0))], (0.0, 1.0), facecolors=colour,
                             label=AtoMode(mode).name)
         bar.set_yticks([])
-        bar.set_xlim(0.0, span.length)
         bar.set_xlabel("distance from the previous station (true) [m]")
         bar.set_ylabel("mode")
         from matplotlib.patches import Patch
@@ -95,8 +97,15 @@ def ato_figure(result, steps):
 
 def write_ato_report(result, steps, out_dir: Path) -> tuple[Path, list, str, list[str]]:
     """ato.png into ``out_dir``; returns (its path, the metrics, the table as text, as markdown)."""
-    from .report import _save
+    import matplotlib.pyplot as plt
     metrics = ato_metrics(result.scenario, result, steps)
-    path = _save(ato_figure(result, steps), f"{result.scenario.name}: planned vs actual V(s), ATO mode",
-                 out_dir / "ato.png")
+    fig = ato_figure(result, steps)
+    fig.suptitle(f"{result.scenario.name}: planned vs actual V(s), ATO mode")
+    # nested grids (a bar under each speed plot) are not tight_layout's: fixed margins, and
+    # the legends right of the bars kept by bbox_inches
+    fig.subplots_adjust(left=0.07, right=0.86, top=1.0 - 0.85 / fig.get_figheight(),
+                        bottom=0.45 / fig.get_figheight())
+    path = out_dir / "ato.png"
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
     return path, metrics, format_ato(metrics), markdown_ato(metrics)
