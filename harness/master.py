@@ -143,6 +143,7 @@ class _Instance:
         self.name, self.md, self.log, self.fatal = name, md, [], False
         self.vars = {v.name: v for v in md.modelVariables}
         self.fmi3 = md.fmiVersion.startswith("3")
+        self.api = "fmi3" if self.fmi3 else "fmi2"
         kw = dict(guid=md.guid, unzipDirectory=unzipdir,
                   modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         if self.fmi3:
@@ -194,6 +195,11 @@ class _Instance:
                     values = [v.decode("utf-8") if isinstance(v, bytes) else v for v in values]
                 out.update(zip(sel, values))
         return out
+
+    def do_step(self, t: float, h: float) -> None:
+        result = self.fmu.doStep(t, h)
+        if self.fmi3 and result[1]:
+            raise RuntimeError("the FMU asked to terminate the simulation (terminateSimulation)")
 
     def setup(self, start: float) -> None:
         if self.fmi3:
@@ -311,7 +317,7 @@ def run_system(system: LoadedSystem | str | Path, stop_time: float | None = None
             run.t = t
             for comp, inst in run.instances.items():
                 run.flush(comp)
-                run._guard(comp, "doStep", inst.fmu.doStep, t, h)
+                run._guard(comp, "doStep", inst.do_step, t, h)
                 run.read(comp)
             run.transfer()
             run.record()
@@ -332,7 +338,8 @@ def _initialise(run: _Run, spec) -> None:
         params = {n: v for n, v in c.parameters.items() if n not in inputs[c.name]}
         if params:
             run._guard(c.name, "set (parameters before setup)", inst.set, params)
-        run._guard(c.name, "fmi2SetupExperiment/EnterInitializationMode", inst.setup, spec.start)
+        run._guard(c.name, "fmi3EnterInitializationMode" if inst.fmi3 else
+                   "fmi2SetupExperiment/EnterInitializationMode", inst.setup, spec.start)
         run.read(c.name)
         run.pending[c.name].update(c.parameters)           # set again in the first iteration
     for _ in range(len(spec.components)):
@@ -342,7 +349,8 @@ def _initialise(run: _Run, spec) -> None:
         run.transfer()
     for c in spec.components:
         run.flush(c.name)
-        run._guard(c.name, "fmi2ExitInitializationMode", run.instances[c.name].fmu.exitInitializationMode)
+        inst = run.instances[c.name]
+        run._guard(c.name, f"{inst.api}ExitInitializationMode", inst.fmu.exitInitializationMode)
         run.read(c.name)
     run.transfer()
 

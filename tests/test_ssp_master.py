@@ -363,6 +363,11 @@ def test_fmi3_components_in_our_master(native, pe_runs, tmp_path):
         assert np.array_equal(bits(ours[name]), bits(x[:101])), name
     with pytest.raises(SspError, match="component 'car' is an FMI 3.0 FMU; libcosim 0.11 runs FMI 2.0 only"):
         run_libcosim(ssp, n_steps=10)
+    bad = write_ssp(plant_estimator(native["RailCarNative3"], native["RailCarEstimatorNative3"],
+                                    car=dict(CAR, **{"car.mass": 0.0})), tmp_path / "bad3.ssp")
+    with pytest.raises(MasterError, match="(?s)component 'car': fmi3ExitInitializationMode at t = 0.0 s "
+                                          "returned error\n.*car.mass must be > 0"):
+        run_system(bad, n_steps=2)
 
 
 def test_result_csv_has_units_and_exact_values(pe_runs, tmp_path):
