@@ -158,15 +158,20 @@ def parse_span(raw, where: str, grade: GradeProfile, first: bool, error) -> Line
 
 
 def _typed_fields(cls, raw: dict, where: str, error, skip=()) -> dict:
-    known = [f.name for f in fields(cls) if f.init]
+    """The fields of dataclass ``cls`` given in ``raw``: known names, true/false for a bool
+    field, a number for the others (the dataclass checks the values)."""
+    types = {f.name: f.type for f in fields(cls) if f.init}
     out = {}
     for key, value in raw.items():
         if key in skip:
             continue
-        if key not in known:
-            raise error(f"{where}: unknown key '{key}' (known: {', '.join(known + list(skip))})")
-        if not isinstance(value, (bool, int, float)):
-            raise error(f"{where}.{key}: expected a number or true/false, got {value!r}")
+        if key not in types:
+            raise error(f"{where}: unknown key '{key}' (known: {', '.join(list(types) + list(skip))})")
+        if types[key] == "bool":
+            if not isinstance(value, bool):
+                raise error(f"{where}.{key}: expected true or false, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise error(f"{where}.{key}: expected a number, got {value!r}")
         out[key] = value
     return out
 

@@ -146,7 +146,9 @@ BAD = {   # name: (TOML after [parameters], key and reason the message must hold
     "unknown tuning": (SPAN + "[ato]\nreplan_every = 2.0\n", "ato: unknown key 'replan_every'"),
     "bad tuning": (SPAN + "[ato]\nreplan_period = 0.0\n", "ato: tuning.replan_period must be > 0, got 0.0"),
     "tuning not a number": (SPAN + '[ato]\nreplan_period = "2 s"\n',
-                            "ato.replan_period: expected a number or true/false, got '2 s'"),
+                            "ato.replan_period: expected a number, got '2 s'"),
+    "tuning not a bool": (SPAN + "[ato]\nreplan = 1\n", "ato.replan: expected true or false, got 1"),
+    "car field a bool": (SPAN + "[ato.car]\nmass = true\n", "ato.car.mass: expected a number, got True"),
     "unknown car field": (SPAN + "[ato.car]\nweight = 30.0\n", "ato.car: unknown key 'weight'"),
     "bad car": (SPAN + "[ato.car]\neta_f = 2.0\n", "ato.car: car.eta_f must be in (0, 1], got 2.0"),
     "line: dwell missing": (SPAN.replace("[span]", "[[span]]") + "[[span]]\nstop_m = 1400.0\nschedule_s = 100.0\n"
