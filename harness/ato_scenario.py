@@ -81,8 +81,13 @@ class AtoSetup:
         return replace(self, spans=spans, grade_profile=grade_profile)
 
     @property
+    def scheduled_s(self) -> float:
+        """[s] the schedules and the dwells: the run's least duration."""
+        return sum(s.span.schedule + s.dwell_s for s in self.spans)
+
+    @property
     def default_duration_s(self) -> float:
-        return sum(s.span.schedule + s.dwell_s for s in self.spans) + END_MARGIN_S
+        return self.scheduled_s + END_MARGIN_S
 
 
 def _num(value, where: str, error) -> float:

@@ -344,6 +344,9 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     duration = _number(data.get("duration_s", default_duration), f"{source}: duration_s")
     if duration < step:
         raise ScenarioError(f"{source}: duration_s must be >= step_s, got {duration}")
+    if ato is not None and duration < ato.scheduled_s:
+        raise ScenarioError(f"{source}: duration_s: {duration} s ends before the schedules and dwells "
+                            f"({ato.scheduled_s:g} s); leave it out for them and a minute more")
     return Scenario(name=name, purpose=purpose,
                     path=Path(source) if base_dir is not None else None, parameters=params,
                     phases=phases, time_table=table, wind=tuple(sorted(wind, key=lambda w: w.time_s)),

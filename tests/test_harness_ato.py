@@ -171,6 +171,14 @@ def test_every_bad_input_names_file_key_and_reason(tmp_path, case):
     assert expected in str(e.value), str(e.value)
 
 
+def test_a_duration_that_ends_before_the_schedule_is_refused(tmp_path):
+    p = write(tmp_path, "duration_s = 100.0\n" + BASE.format(grade=GRADE) + SPAN)
+    with pytest.raises(ScenarioError) as e:
+        load_scenario(p)
+    assert str(e.value) == (f"{p}: duration_s: 100.0 s ends before the schedules and dwells (135 s); "
+                            f"leave it out for them and a minute more")
+
+
 def test_a_limit_the_brakes_cannot_keep_is_refused_naming_the_file(tmp_path):
     """-180 permille at 80 km/h needs ~51 kN of brake to hold; the car has 45 kN."""
     p = write(tmp_path, BASE.format(grade=steep(tmp_path)) + "[span]\nstop_m = 500.0\nschedule_s = 60.0\n"
