@@ -84,7 +84,12 @@ def load_system(path: str | Path, dist: str | Path = DIST) -> SystemSpec:
 
 def build_system(description: str | Path, out: str | Path, dist: str | Path = DIST) -> Path:
     """Write the .ssp of a TOML description (checked against its FMUs)."""
-    return write_ssp(load_system(description, dist), out)
+    spec = load_system(description, dist)
+    for c in spec.components:
+        if not Path(c.fmu).is_file():
+            raise SspError(f"{description}: [components.{c.name}]: FMU file not found: {c.fmu} (build the "
+                           f"FMUs with: python build.py; --dist names another folder)")
+    return write_ssp(spec, out)
 
 
 def main(argv=None) -> int:

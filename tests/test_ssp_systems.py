@@ -45,6 +45,12 @@ def test_command_line_builds_and_runs(dist, tmp_path, capsys):
     assert "has no variable 'est.mas'" in capsys.readouterr().err
 
 
+def test_building_without_the_fmus_says_how_to_build_them(tmp_path, capsys):
+    assert main(["build", str(SYSTEMS / "ato_span.toml"), str(tmp_path / "a.ssp"), "--dist", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "ato_span.toml: [components.car]: FMU file not found" in err and "python build.py" in err
+
+
 def test_command_line_failed_run_exits_1(dist, tmp_path, capsys):
     text = (SYSTEMS / "plant_estimator.toml").read_text().replace("traction_force_demand = 30e3",
                                                                   "traction_force_demand = -1.0")
