@@ -157,8 +157,10 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
 def _run_isolated(system: LoadedSystem, n: int, outputs: list[str], log_level: str) -> Result:
     _libcosim()                                   # LibcosimMissing here, not in the child
     root = Path(__file__).resolve().parent.parent
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
     with tempfile.TemporaryDirectory(prefix="railcar-libcosim-") as tmp:
+        # libcosim unpacks the FMUs below TMPDIR; an aborted process leaves them there: ours
+        env = dict(os.environ, TMPDIR=tmp,
+                   PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
         out = Path(tmp) / "result.npz"
         request = json.dumps({"n_steps": n, "outputs": outputs, "log_level": log_level})
         proc = subprocess.run([sys.executable, "-m", "harness.ssp_libcosim", str(system.path), request,
