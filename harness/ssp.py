@@ -362,16 +362,20 @@ def write_ssp(spec: SystemSpec, path: str | Path) -> Path:
             raise SspError(f"{path}: components '{c.name}' and another use two FMU files named {fmu.name}")
         used[source], sources[c.name] = fmu, source
     spec = check_system(spec, models, str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
-        z.writestr(SSD_NAME, _ssd(spec, models, sources))
-        for source, fmu in used.items():
-            z.write(fmu, source, compress_type=zipfile.ZIP_STORED)
-        for c in spec.components:
-            if c.parameters:
-                z.writestr(f"resources/{c.name}.ssv", _ssv(c, models[c.name]))
-    tmp.replace(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr(SSD_NAME, _ssd(spec, models, sources))
+            for source, fmu in used.items():
+                z.write(fmu, source, compress_type=zipfile.ZIP_STORED)
+            for c in spec.components:
+                if c.parameters:
+                    z.writestr(f"resources/{c.name}.ssv", _ssv(c, models[c.name]))
+        tmp.replace(path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise SspError(f"{path}: cannot write: {e.strerror or e}") from None
     return path
 
 
