@@ -69,6 +69,7 @@ class Result:
     def write_csv(self, path: str | Path) -> Path:
         """One row per time point; header cells 'name [unit]'; reals written exactly (repr)."""
         path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(self.header())

@@ -127,7 +127,11 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     if args.csv:
-        print(f"wrote {result.write_csv(args.csv)}")
+        try:
+            print(f"wrote {result.write_csv(args.csv)}")
+        except OSError as e:
+            print(f"error: --csv {args.csv}: cannot write: {e.strerror or e}", file=sys.stderr)
+            return 2
     width = max(len(n) for n in result.signals) if result.signals else 0
     print(f"{result.master}: {len(result.time) - 1} steps to t = {float(result.time[-1])!r} s")
     for name, values in result.signals.items():
