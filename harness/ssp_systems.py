@@ -92,9 +92,9 @@ def build_system(description: str | Path, out: str | Path, dist: str | Path = DI
     return write_ssp(spec, out)
 
 
-def main(argv=None) -> int:
+def main(argv=None, prog: str = "python -m harness.ssp_systems") -> int:
     from .master import MasterError, run_system
-    p = argparse.ArgumentParser(prog="python -m harness.ssp_systems",
+    p = argparse.ArgumentParser(prog=prog,
                                 description="Build an SSP system from a description, or run one.")
     sub = p.add_subparsers(dest="command", required=True)
     b = sub.add_parser("build", help="description (.toml) -> .ssp")
