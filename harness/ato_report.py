@@ -22,6 +22,11 @@ MODE_COLOURS = {
     AtoMode.SAFE: "red", AtoMode.OVERSPEED: "magenta", AtoMode.CREEP: "gold",
 }
 """The mode bar's colour of each AtoMode."""
+# a mode the controller gains later (SETTLE, ...) gets a colour of its own, not a blank bar
+_SPARE = ("tab:olive", "tab:pink", "tab:gray", "navy", "teal", "salmon")
+for _m in AtoMode:
+    if _m not in MODE_COLOURS:
+        MODE_COLOURS[_m] = _SPARE[sum(1 for k in MODE_COLOURS if k > 11) % len(_SPARE)]
 
 NO_PLAN = (int(AtoMode.HOLD), int(AtoMode.SAFE))   # commands whose planned speed means nothing
 
@@ -82,7 +87,7 @@ def ato_figure(result, steps):
         for mode, a, b in mode_runs(modes):
             x0 = float(x[a])
             x1 = float(x[b]) if b < len(x) else float(x[-1])
-            colour = MODE_COLOURS.get(AtoMode(mode), "white")
+            colour = MODE_COLOURS[AtoMode(mode)]
             seen[mode] = colour
             bar.broken_barh([(x0, max(x1 - x0, 0.0))], (0.0, 1.0), facecolors=colour,
                             label=AtoMode(mode).name)

@@ -389,6 +389,11 @@ def test_the_report_figure_shows_planned_and_actual_speed_and_the_modes(nominal)
     plt.close(fig)
 
 
+def test_every_mode_has_a_colour_of_its_own():
+    assert set(MODE_COLOURS) == set(AtoMode)
+    assert len(set(MODE_COLOURS.values())) == len(AtoMode)
+
+
 def test_mode_runs():
     assert mode_runs([0, 0, 2, 2, 2, 8]) == [(0, 0, 2), (2, 2, 5), (8, 5, 6)]
     assert mode_runs([]) == []
