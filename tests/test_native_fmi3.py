@@ -285,6 +285,8 @@ def test_bad_parameter_fails_initialisation_with_the_message(runners, parameters
         assert e.value.status == ERROR
         errors = [m for m in log if m.startswith(f"[{ERROR}]")]
         assert errors, log
+        fmi = "fmi3" if runner is c3 else "fmi2"      # each standard's own function name
+        assert f"{fmi}ExitInitializationMode: initialisation failed: " in errors[0], errors[0]
         texts.append(errors[0].split("initialisation failed: ", 1)[1]
                      .replace(str(Path(runner.unzipdir).resolve()), "<FMU>"))
         # the instance is still usable: reset, then a good initialisation and a step

@@ -214,10 +214,10 @@ static int read_profile(GlueInstance *g, const native_values *v, int vr, rc_prof
     return status;
 }
 
-/* "fmi2ExitInitializationMode: initialisation failed: <message>" */
+/* "fmi2ExitInitializationMode: initialisation failed: <message>" (fmi3... in an FMI 3 FMU) */
 static void log_init_failure(GlueInstance *g, const char *message) {
-    glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: initialisation failed: "
-             "%s", message);
+    glue_log(g, fmi2Error, "logStatusError", "%sExitInitializationMode: initialisation failed: "
+             "%s", g->standard->prefix, message);
 }
 
 /* load_profiles: the grade profile, then the speed profile (n 0: the parameter is empty).
@@ -297,9 +297,9 @@ void *native_build_chain(GlueInstance *g, native_values *v, const native_chain_k
         native_config_values(v, values);
         expected = kind->config_from_values(cfg, values, v->md->nconfig);
         if (expected != 0)
-            glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: the C core "
-                     "expects %ld configuration values, this FMU has %d (rebuild it)", expected,
-                     v->md->nconfig);
+            glue_log(g, fmi2Error, "logStatusError", "%sExitInitializationMode: the C core "
+                     "expects %ld configuration values, this FMU has %d (rebuild it)",
+                     g->standard->prefix, expected, v->md->nconfig);
         else
             chain = new_chain(g, v, kind, cfg, outputs);
     }
