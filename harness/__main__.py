@@ -261,7 +261,7 @@ def cmd_plan(args) -> int:
 
 
 def cmd_list(args) -> int:
-    """The scenarios (default and library) and the sweep files, one line each: name and purpose."""
+    """The scenarios (default and library), the sweep and the system files, one line each: name and purpose."""
     import tomllib
     from .regress import library_scenarios
     root = Path(__file__).resolve().parent.parent / "scenarios"
@@ -273,6 +273,11 @@ def cmd_list(args) -> int:
     for path in sorted((root / "sweeps").glob("*.toml")):
         with path.open("rb") as f:
             purpose = tomllib.load(f).get("purpose", "")
+        print(f"  {path.relative_to(root).as_posix():40s} {purpose}")
+    print("systems (python -m harness system build scenarios/systems/NAME.toml OUT.ssp; then run OUT.ssp)")
+    for path in sorted((root / "systems").glob("*.toml")):
+        with path.open("rb") as f:
+            purpose = tomllib.load(f).get("description", "")
         print(f"  {path.relative_to(root).as_posix():40s} {purpose}")
     return EXIT_OK
 
@@ -295,6 +300,10 @@ def _fmu_options(p) -> None:
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["system"]:          # harness.ssp_systems parses its own arguments (and -h)
+        from .ssp_systems import main as system_main
+        return system_main(argv[1:], prog="python -m harness system")
     ap = argparse.ArgumentParser(prog="python -m harness", description="RailCar FMU validation harness")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("run", help="build the FMUs if needed, run a scenario, print a summary, write a report")
@@ -324,7 +333,9 @@ def main(argv=None) -> int:
     p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     _fmu_options(p)
     p.set_defaults(func=cmd_filters)
-    p = sub.add_parser("list", help="the scenarios and sweeps that come with the harness, one line each")
+    sub.add_parser("system", help="build an SSP system (RailCar + AtoController, ...) from scenarios/systems/NAME.toml, "
+                   "or run an .ssp in our master or libcosim (python -m harness system -h)")
+    p = sub.add_parser("list", help="the scenarios, sweeps and systems that come with the harness, one line each")
     p.set_defaults(func=cmd_list)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
     p.add_argument("scenario", help="scenario TOML file (its phases and RailCar parameters)")

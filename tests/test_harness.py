@@ -195,18 +195,19 @@ def test_true_resistance_predicts_headwind_change_coast_within_process_noise():
 
 
 def test_list_shows_every_scenario_and_sweep_with_its_purpose(capsys):
-    """python -m harness list: one line per scenario and sweep file, name and purpose."""
+    """python -m harness list: one line per scenario, sweep and system file, name and purpose."""
     from harness.__main__ import main
     from harness.regress import library_scenarios
     root = Path(__file__).resolve().parent.parent / "scenarios"
     assert main(["list"]) == 0
     lines = capsys.readouterr().out.splitlines()
     files = ["default.toml"] + [f"library/{p.name}" for p in library_scenarios()] + \
-            [f"sweeps/{p.name}" for p in sorted((root / "sweeps").glob("*.toml"))]
+            [f"sweeps/{p.name}" for p in sorted((root / "sweeps").glob("*.toml"))] + \
+            [f"systems/{p.name}" for p in sorted((root / "systems").glob("*.toml"))]
     for f in files:
         line = next((x for x in lines if x.strip().startswith(f)), None)
         assert line is not None and len(line.strip()) > len(f) + 10, f"{f}: {line!r}"
-    assert len(lines) == len(files) + 2                 # and the two headings
+    assert len(lines) == len(files) + 3                 # and the three headings
 
 
 def test_a_scenario_gives_its_railcar_parameters_and_chain_setup(monkeypatch, tmp_path):
