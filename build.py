@@ -103,6 +103,8 @@ def complete_model_description(xml: bytes, model_name: str) -> bytes:
         real = sv.find("Real")
         if real is None:
             continue
+        if real.get("start") is not None:    # pythonfmu writes 16 digits: repr round-trips
+            real.set("start", repr(float(var.start)))
         if var.unit:
             real.set("unit", var.unit)
         if var.min is not None:

@@ -162,3 +162,24 @@ def test_outputs_have_no_direct_feedthrough_and_are_initial_unknowns(ato_fmu):
     assert all(u.dependencies == [] for u in md.outputs)
     assert [u.variable for u in md.initialUnknowns] == outputs
     assert all(v.initial == "calculated" and v.start is None for v in outputs)
+
+
+def test_every_tuning_field_and_input_of_the_controller_is_a_variable(ato_fmu):
+    """The FMU exposes all of models.ato: each AtoTuning field as ato.<field> (its type and its
+    default as the start value), each CarTraction field as car.<field>, each INPUTS as an input."""
+    from dataclasses import fields
+    from models.ato import AtoTuning
+    v = ato_fmu.variables
+    tuning = AtoTuning()
+    typed = {"bool": "Boolean", "int": "Integer", "float": "Real"}
+    for f in fields(AtoTuning):
+        var = v.get(f"ato.{f.name}")
+        assert var is not None and var.causality == "parameter", f"ato.{f.name} missing"
+        assert var.type == typed[f.type], f"ato.{f.name}: {var.type}"
+        start = {"Real": float, "Integer": int, "Boolean": lambda x: x in ("true", "1", True)}[var.type](var.start)
+        assert start == getattr(tuning, f.name), f"ato.{f.name}: start {var.start}"
+    car = CarTraction()
+    for f in fields(CarTraction):
+        if f.init:
+            assert float(v[f"car.{f.name}"].start) == getattr(car, f.name), f"car.{f.name}"
+    assert {n for n, x in v.items() if x.causality == "input"} == set(INPUTS)
