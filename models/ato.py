@@ -23,7 +23,8 @@ coasting from each planned coast point, following the envelope U(s) (limits less
 the braking curves) where the car reaches it. With ``replan=False`` and
 ``use_estimates=False`` the same policy is planned once from the configured coefficients: the
 fixed plan the regulator is measured against. Estimates are used once est.status is 1 or 2,
-est.samples >= min_samples, est.mass is within mass_band of the configured mass and the
+est.samples has grown by min_samples since departure (it runs on over station stops, where
+the mass identification restarts), est.mass is within mass_band of the configured mass and the
 resistance rises with speed; braking curves are planned for the heavier of the identified and
 the configured mass (an identified mass that is too low must not make them late).
 
@@ -235,6 +236,7 @@ class AtoController:
         self._sup_q = self._supervision(self.configured.brake_mass)
         self.phase = RUN
         self.t_departure = None
+        self._samples0 = 0.0                 # est.samples at departure
         self._last_replan = -math.inf
         self._using_estimates = False
         self._car_now = self.configured
@@ -336,8 +338,9 @@ class AtoController:
         mass, a0, a1, a2, status, samples = est
         if int(status) not in EST_USABLE:
             return f"est.status = {int(status)}"
-        if samples < self.tuning.min_samples:
-            return f"est.samples = {int(samples)} < {self.tuning.min_samples}"
+        if samples - self._samples0 < self.tuning.min_samples:
+            return (f"est.samples = {int(samples)}: {int(samples - self._samples0)} since departure "
+                    f"< {self.tuning.min_samples}")
         m0, band = self.car.mass, self.tuning.mass_band
         if not m0 / band <= mass <= m0 * band:
             return f"est.mass = {mass:.2f} t outside [{m0 / band:.4g}, {m0 * band:.4g}] t"
@@ -441,6 +444,7 @@ class AtoController:
         self._psd = max(vals[9], 0.0)
         if self.t_departure is None:
             self.t_departure = t
+            self._samples0 = est[5]   # est.samples runs on over station stops: count from here
         tau = t - self.t_departure
         car = self._params(t, est)
         tn = self.tuning

@@ -476,3 +476,21 @@ def test_the_speed_limit_check_can_fail_without_the_margins():
     bare = AtoTuning(limit_margin=0.0, k_sigma=0.0, supervisor_gap=0.0)
     run = closed_loop(bare, 1)
     assert run.margin < 0.0
+
+
+def test_estimates_wait_for_min_samples_since_departure():
+    """est.samples runs on over station stops while the mass identification restarts: a
+    controller departing with est.samples = 5000 (a later span of a line) plans with the
+    configured car until 100 more samples (tuning.min_samples) have come, then with est.*."""
+    ctrl = AtoController(SPAN, CAR, REGULATED)
+    out = _at_rest()
+    out.update({"est.status": 1, "est.samples": 5000, "est.mass": 33.0, "est.A0": 0.9,
+                "est.A1": 0.03, "est.A2": 0.0105})
+    ctrl.demands(0.0, out)
+    assert not ctrl._using_estimates                     # 0 samples since departure
+    out["est.samples"] = 5099
+    ctrl.demands(9.9, out)
+    assert not ctrl._using_estimates                     # 99 < 100
+    out["est.samples"] = 5100
+    ctrl.demands(10.0, out)
+    assert ctrl._using_estimates and ctrl._car_now.mass == 33.0
