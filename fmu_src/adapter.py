@@ -84,19 +84,25 @@ def resolve_profile_path(path: str, resources: str | None) -> Path:
     return Path(os.getcwd()) / p
 
 
+def read_profile_text(values: dict, param: str, resources: str | None) -> tuple[str, str] | None:
+    """(text, path) of the profile CSV parameter ``param`` names (None: empty), found by
+    ``resolve_profile_path``; ParameterError names the parameter and the file."""
+    raw = values[param]
+    if not raw:
+        return None
+    path = resolve_profile_path(raw, resources)
+    try:
+        return path.read_text(encoding="utf-8"), str(path)
+    except OSError as e:
+        raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
+
+
 def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, SpeedProfile | None]:
     """Read track.grade_profile and track.speed_profile; ParameterError names file and line."""
     def read(param: str) -> tuple[str, str] | None:
-        raw = values[param]
-        if not raw:
-            return None
-        path = resolve_profile_path(raw, resources)
-        try:
-            return path.read_text(encoding="utf-8"), str(path)
-        except OSError as e:
-            raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
-        except UnicodeDecodeError as e:
-            raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
+        return read_profile_text(values, param, resources)
 
     grade_src = read("track.grade_profile")
     try:
@@ -229,16 +235,7 @@ def open_ato(v: dict, resources: str | None):
     from .variables import _CAR_ROWS, _TUNING_ROWS
 
     def text(param: str) -> tuple[str, str] | None:
-        raw = v[param]
-        if not raw:
-            return None
-        path = resolve_profile_path(raw, resources)
-        try:
-            return path.read_text(encoding="utf-8"), str(path)
-        except OSError as e:
-            raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
-        except UnicodeDecodeError as e:
-            raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
+        return read_profile_text(v, param, resources)
 
     grade_src = text("span.grade_profile")
     try:
