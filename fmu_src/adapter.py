@@ -166,7 +166,8 @@ def estimator_settings(v: dict) -> tuple[IdentifierConfig, FilterConfig, Station
         A0_std_initial=v["est.A0_std_initial"], A1_std_initial=v["est.A1_std_initial"],
         A2_std_initial=v["est.A2_std_initial"], sigma2_initial=v["est.sigma2_initial"])
     filt = FilterConfig(speed_std=v["sensor.speed_std"], position_std=v["sensor.position_std"],
-                        position_std_rel=v["sensor.position_std_rel"], kind=int(v["filter.kind"]),
+                        position_std_rel=v["sensor.position_std_rel"],
+                        speed_std_rel=v["sensor.speed_std_rel"], kind=int(v["filter.kind"]),
                         length=v["car.length"], singer_tau=v["filter.singer_tau"],
                         singer_p0=v["filter.singer_p0"], singer_p_plus=v["filter.singer_p_plus"],
                         singer_p_minus=v["filter.singer_p_minus"],

@@ -155,6 +155,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("filter.speed_std", "output", "Real", "m/s", 0.0, "standard deviation of filter.speed"),
     Var("filter.position_std", "output", "Real", "m", 0.0, "standard deviation of filter.position"),
     Var("filter.rejected", "output", "Integer", None, 0, "speeds and distances refused by the innovation gate (beyond 6 sigma of their innovation: once in 5e8 for a good one): spikes, dropouts, a stuck sensor"),
+    Var("sensor.speed_std_rel", "parameter", "Real", "1", 0.0, "plus this share of the speed (seed 003's 'within 2 %'): std = speed_std + rel * speed", BOTH, min=0.0),
 )
 
 

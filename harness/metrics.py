@@ -224,7 +224,8 @@ def oracle_filter(result, setup) -> tuple[np.ndarray, np.ndarray] | None:
     ident = IdentifierConfig(dt=h, frozen=True, gamma=car.gamma, mass_initial=car.mass,
                              sigma2_initial=max(cfg.process_noise_psd * h, 1e-12))
     filt = FilterConfig(dt=h, speed_std=sensors.speed_std, position_std=sensors.position_std,
-                        position_std_rel=sensors.position_std_rel, gamma=car.gamma,
+                        position_std_rel=sensors.position_std_rel,
+                        speed_std_rel=sensors.speed_std_rel, gamma=car.gamma,
                         kind=sensors.kind, length=car.length)
     est = OnlineEstimator(ident, filt, cfg.station, setup.grade, setup.speed)
     F, B = _interval_forces(result, car)

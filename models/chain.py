@@ -192,7 +192,7 @@ class RailCarChain:
     def _take_sample(self) -> None:
         s = self.plant.state
         f = self.cfg.filter
-        self.sensor_speed = s.speed + f.speed_std * self._speed_noise()
+        self.sensor_speed = s.speed + f.speed_noise_std(s.speed) * self._speed_noise()
         self.sensor_position = s.position + f.position_noise_std(s.position) * self._position_noise()
         self.estimator.measure(self.sensor_speed, self.sensor_position)
         if self._pending_track is not None:

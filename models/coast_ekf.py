@@ -128,12 +128,19 @@ class CoastEKFConfig:
     param_psd: tuple = (0.0, 0.0, 0.0)  # random walks of (alpha, A1, A2) [(unit)^2/s]
     grade_known: bool = True           # known grade as input (alpha = a) or inside alpha
     gamma: float = 0.0                 # rotating-mass factor [-]
+    speed_std_rel: float = 0.0         # plus this share of the speed [-] (sensor.speed_std_rel)
+
+    def noise_std(self, speed_meas: float) -> float:
+        """Std of a measured speed [m/s] at speed_meas [m/s]: speed_std + rel * |V_meas|."""
+        return self.speed_std + self.speed_std_rel * abs(speed_meas) if self.speed_std_rel else self.speed_std
 
     def validate(self) -> None:
         for name in ("A0_std", "A1_std", "A2_std", "speed_std"):
             v = getattr(self, name)
             if not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"{name} must be > 0, got {v}")
+        if not (self.speed_std_rel >= 0 and math.isfinite(self.speed_std_rel)):
+            raise ValueError(f"speed_std_rel must be >= 0, got {self.speed_std_rel}")
         if not (self.process_noise_psd >= 0 and math.isfinite(self.process_noise_psd)):
             raise ValueError(f"process_noise_psd must be >= 0, got {self.process_noise_psd}")
         if len(self.param_psd) != 3 or any(not (s >= 0) for s in self.param_psd):
@@ -170,7 +177,7 @@ class CoastEKF:
         """First coasting sample: V from the measurement, the A's from the prior."""
         c = self.cfg
         self.x = np.array([speed_meas, c.A0, c.A1, c.A2], dtype=float)
-        self.P = np.diag([c.speed_std ** 2, c.A0_std ** 2, c.A1_std ** 2, c.A2_std ** 2])
+        self.P = np.diag([c.noise_std(speed_meas) ** 2, c.A0_std ** 2, c.A1_std ** 2, c.A2_std ** 2])
         self.samples = 1
         self.nis_sum = 0.0
 
@@ -183,7 +190,7 @@ class CoastEKF:
         self.x[0] = speed_meas
         self.P[0, :] = 0.0
         self.P[:, 0] = 0.0
-        self.P[0, 0] = self.cfg.speed_std ** 2
+        self.P[0, 0] = self.cfg.noise_std(speed_meas) ** 2
 
     def step(self, dt: float, speed_meas: float, grade: float = 0.0) -> None:
         """Predict over dt [s] (grade [permille] held), update with speed_meas [m/s]."""
@@ -192,7 +199,7 @@ class CoastEKF:
         c = self.cfg
         g = grade if c.grade_known else 0.0
         self.x, self.P = predict(self.x, self.P, dt, g, c.process_noise_psd, c.param_psd, c.gamma)
-        self.x, self.P, nu, S = update(self.x, self.P, speed_meas, c.speed_std)
+        self.x, self.P, nu, S = update(self.x, self.P, speed_meas, c.noise_std(speed_meas))
         self.nis_sum += nu * nu / S
         self.samples += 1
 

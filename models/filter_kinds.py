@@ -59,7 +59,7 @@ class EKFKind:
         vzad = self.vzad(position_meas)
         f.vzad_hat = f.vzad_bar = vzad
         f.x_hat = (max(speed_meas, 0.0) - vzad, position_meas)
-        f.P = ((self.cfg.speed_std ** 2, 0.0), (0.0, self.cfg.position_noise_std(position_meas) ** 2))
+        f.P = ((f.speed_variance(speed_meas), 0.0), (0.0, self.cfg.position_noise_std(position_meas) ** 2))
 
     def hold(self, f) -> None:
         f.x_hat, f.P = f.x_bar, f.M
@@ -75,7 +75,7 @@ class EKFKind:
                 self.hold(f)
             return
         vzad = f.vzad_bar
-        R = (f.R[0], f.position_variance(position_meas))
+        R = (f.speed_variance(speed_meas), f.position_variance(position_meas))
         x, f.P = kalman2.update(f.x_bar, f.M, (speed_meas - vzad, position_meas), R)
         f.x_hat = kalman2.forward(x, vzad)
         f.vzad_hat = vzad
@@ -84,7 +84,7 @@ class EKFKind:
         """The update with the speed alone (H = [1 0]) or the distance alone (H = [0 1])."""
         vzad = f.vzad_bar
         if speed:
-            x, f.P = kalman2.update_one(f.x_bar, f.M, speed_meas - vzad, f.R[0], 0)
+            x, f.P = kalman2.update_one(f.x_bar, f.M, speed_meas - vzad, f.speed_variance(speed_meas), 0)
         else:
             x, f.P = kalman2.update_one(f.x_bar, f.M, position_meas, f.position_variance(position_meas), 1)
         f.x_hat = kalman2.forward(x, vzad)
@@ -206,7 +206,7 @@ class SingerKind:
         self._restart(f)
 
     def start(self, f, speed_meas: float, position_meas: float) -> None:
-        self._restart(f, max(speed_meas, 0.0), position_meas, self.cfg.speed_std ** 2,
+        self._restart(f, max(speed_meas, 0.0), position_meas, f.speed_variance(speed_meas),
                       self.cfg.position_noise_std(position_meas) ** 2)
 
     def hold(self, f) -> None:
@@ -214,11 +214,14 @@ class SingerKind:
 
     def update(self, f, speed_meas: float, position_meas: float, use_v: bool, use_x: bool) -> None:
         s, cfg = self.singer, self.cfg
+        # the speed's std at the measured speed (sensor.speed_std_rel); speed_std itself when
+        # rel is 0, whatever the measurement (a NaN one too, as before rel existed)
+        std_v = cfg.speed_noise_std(speed_meas) if cfg.speed_std_rel else cfg.speed_std
         if use_v and use_x:
-            s.update_speed_distance(speed_meas, position_meas, cfg.speed_std,
+            s.update_speed_distance(speed_meas, position_meas, std_v,
                                     cfg.position_noise_std(position_meas))
         elif use_v:
-            s.update_speed(speed_meas, cfg.speed_std)
+            s.update_speed(speed_meas, std_v)
         elif use_x:
             s.update_distance(position_meas, cfg.position_noise_std(position_meas))
         self._publish(f, posterior=True)

@@ -36,6 +36,7 @@ class FilterConfig:
     gamma: float = 0.0          # rotating-mass factor assumed by the model [-]
     kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF, 3 paper, 4 Singer
     length: float = 0.0         # car length for grade averaging [m]
+    speed_std_rel: float = 0.0  # plus this share of the speed [-] (seed 003: "within 2 %")
 
     def singer_params(self):
         """SingerParams from the filter.singer_* settings (ValueError names the bad one)."""
@@ -53,9 +54,15 @@ class FilterConfig:
         """Std of the measured distance [m] at ``distance`` [m]: position_std + rel * |X|."""
         return self.position_std + self.position_std_rel * abs(distance)
 
+    def speed_noise_std(self, speed: float) -> float:
+        """Std of the measured speed [m/s] at ``speed`` [m/s]: speed_std + rel * |V|."""
+        return self.speed_std + self.speed_std_rel * abs(speed)
+
     def validate(self, has_speed_profile: bool) -> None:
         if not (self.position_std_rel >= 0 and math.isfinite(self.position_std_rel)):
             raise ValueError(f"sensor.position_std_rel must be >= 0, got {self.position_std_rel}")
+        if not (self.speed_std_rel >= 0 and math.isfinite(self.speed_std_rel)):
+            raise ValueError(f"sensor.speed_std_rel must be >= 0, got {self.speed_std_rel}")
         if not (self.length >= 0 and math.isfinite(self.length)):
             raise ValueError(f"car.length must be >= 0, got {self.length}")
         for name in ("speed_std", "position_std"):
@@ -74,7 +81,9 @@ class MotionFilter:
     ``predicted_speed``/``predicted_position`` the one-step prediction after ``predict``.
     State (models/kalman2.py's shapes): the prediction ``x_bar``, ``M`` and the posterior
     ``x_hat``, ``P``, x = (speed part, distance) and covariances ((c00, c01), (c01, c11));
-    ``R`` = (sigma_V^2, sigma_X^2), the diagonal of R; ``vzad_hat``, ``vzad_bar`` V_zad at the
+    ``R`` = (sigma_V^2, sigma_X^2), the diagonal of R (with sensor.speed_std_rel or
+    sensor.position_std_rel > 0 the gate and the updates take ``speed_variance`` /
+    ``position_variance`` at the measurement instead); ``vzad_hat``, ``vzad_bar`` V_zad at the
     posterior's and the prediction's instant (0 for the kinds on absolute speed). This class
     keeps the gate and the bookkeeping; the steps that differ between the kinds are
     ``algorithm``'s, the kind object of models/filter_kinds.py (``kind`` is its number). Pass
@@ -138,6 +147,10 @@ class MotionFilter:
         """Variance of the measured distance [m^2] at ``position_meas`` [m]."""
         return self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self.R[1]
 
+    def speed_variance(self, speed_meas: float) -> float:
+        """Variance of the measured speed [(m/s)^2] at ``speed_meas`` [m/s] (R_v; sensor.speed_std_rel)."""
+        return self.cfg.speed_noise_std(speed_meas) ** 2 if self.cfg.speed_std_rel else self.R[0]
+
     def gate(self, speed_meas: float, position_meas: float) -> tuple[bool, bool]:
         """(use the speed, use the distance) [m/s, m] at this sample, against the prediction;
         counts refusals in ``rejected``, sets ``speed_fit`` (the speed may be identified) and
@@ -146,9 +159,10 @@ class MotionFilter:
         when the speed is refused too (counted in ``reacquired``)."""
         vzad = self.vzad_bar
         r1 = self.position_variance(position_meas)
+        r0 = self.speed_variance(speed_meas)
         (xb0, xb1), ((m00, _), (_, m11)) = self.x_bar, self.M
         e0, e1 = speed_meas - vzad - xb0, position_meas - xb1
-        s00, s11 = m00 + self.R[0], m11 + r1
+        s00, s11 = m00 + r0, m11 + r1
         g2 = self.GATE_SIGMAS * self.GATE_SIGMAS
         use_v, use_x = e0 * e0 <= g2 * s00, e1 * e1 <= g2 * s11     # False for NaN
         self.speed_fit = use_v and e0 * e0 <= self.FIT_SIGMAS * self.FIT_SIGMAS * s00
@@ -263,9 +277,11 @@ class ProcessNoiseBank:
     library's runs); the likelihood uses the innovations' whole correlation structure.
     """
 
-    def __init__(self, q0: float, R: float, decades=(-2.0, 1.0), n: int = 13, prior_decades: float = 1.0):
+    def __init__(self, q0: float, R: float, decades=(-2.0, 1.0), n: int = 13, prior_decades: float = 1.0,
+                 variance_at=None):
         if not (q0 > 0 and math.isfinite(q0) and R > 0 and math.isfinite(R)):
             raise ValueError(f"ProcessNoiseBank needs q0 > 0 and R > 0, got {q0}, {R}")
+        self.variance_at = variance_at   # z [m/s] -> R at that measurement (sensor.speed_std_rel)
         self.log_q = math.log(q0) + math.log(10.0) * np.linspace(*decades, n)
         self.q = np.exp(self.log_q)
         self.log_prior = -0.5 * ((self.log_q - math.log(q0)) / (prior_decades * math.log(10.0))) ** 2
@@ -284,10 +300,11 @@ class ProcessNoiseBank:
 
     def update(self, z: float) -> None:
         """A measured speed z [m/s] of a moving car (the first one starts the members)."""
+        R = self.R if self.variance_at is None else self.variance_at(z)
         if self.x is None:
-            self.x, self.P = np.full(len(self.q), z), np.full(len(self.q), self.R)
+            self.x, self.P = np.full(len(self.q), z), np.full(len(self.q), R)
             return
-        S = self.P + self.R
+        S = self.P + R
         nu = z - self.x
         self.log_lik += -0.5 * (np.log(S) + nu * nu / S)
         K = self.P / S

@@ -223,17 +223,17 @@ class CoastLS(PaperLS):
 
     MIN_COAST_SAMPLES = 50   # coasting samples before the EKF's A's are reported
 
-    def __init__(self, id_cfg, speed_std: float):
+    def __init__(self, id_cfg, speed_std: float, speed_std_rel: float = 0.0):
         c = id_cfg
         self.ekf = CoastEKF(CoastEKFConfig(
             A0=c.A0_initial, A1=c.A1_initial, A2=c.A2_initial, A0_std=c.A0_std_initial,
             A1_std=c.A1_std_initial, A2_std=c.A2_std_initial, speed_std=max(speed_std, 1e-6),
-            process_noise_psd=c.sigma2_initial / c.dt, gamma=c.gamma))
+            process_noise_psd=c.sigma2_initial / c.dt, gamma=c.gamma, speed_std_rel=speed_std_rel))
         self.coasting = False         # the last pair used was a coasting one
 
     @classmethod
     def from_config(cls, id_cfg, filt_cfg) -> "CoastLS":
-        return cls(id_cfg, filt_cfg.speed_std)
+        return cls(id_cfg, filt_cfg.speed_std, filt_cfg.speed_std_rel)
 
     def ready(self) -> bool:
         """The EKF has seen MIN_COAST_SAMPLES coasting samples."""
@@ -314,12 +314,13 @@ class LikelihoodNoise(ResidualNoise):
     """est.sigma2_method 1: sigma^2 from the innovation likelihood of a bank of speed filters
     (filters.ProcessNoiseBank) that follows the learning filter while the car moves."""
 
-    def __init__(self, q0: float, speed_variance: float):
-        self.bank = ProcessNoiseBank(q0, speed_variance)
+    def __init__(self, q0: float, speed_variance: float, variance_at=None):
+        self.bank = ProcessNoiseBank(q0, speed_variance, variance_at=variance_at)
 
     @classmethod
     def from_config(cls, id_cfg, filt_cfg) -> "LikelihoodNoise":
-        return cls(id_cfg.sigma2_initial, filt_cfg.speed_std ** 2)
+        variance_at = (lambda z: filt_cfg.speed_noise_std(z) ** 2) if filt_cfg.speed_std_rel else None
+        return cls(id_cfg.sigma2_initial, filt_cfg.speed_std ** 2, variance_at)
 
     def sigma2(self, est) -> float:
         return self.bank.estimate()

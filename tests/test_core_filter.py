@@ -70,7 +70,8 @@ def lib(tmp_path_factory):
     P = ctypes.c_void_p
     dll.shim_new.restype = P
     dll.shim_new.argtypes = [ctypes.c_double] * 5 + [ctypes.c_int, ctypes.c_double, P, P,
-                                                     ctypes.c_long, P, P, ctypes.c_long, P]
+                                                     ctypes.c_long, P, P, ctypes.c_long, P,
+                                                     ctypes.c_double]
     dll.shim_free.argtypes = [P]
     dll.shim_apply.argtypes = [P, P, P]
     dll.shim_config.argtypes = [P, P]
@@ -101,7 +102,8 @@ def c_new(lib, cfg: FilterConfig, speed: SpeedProfile | None, grade: GradeProfil
     msg = ctypes.create_string_buffer(256)
     h = lib.shim_new(cfg.dt, cfg.speed_std, cfg.position_std, cfg.position_std_rel, cfg.gamma,
                      cfg.kind, cfg.length, gd.ctypes.data, gg.ctypes.data, len(gd),
-                     sd.ctypes.data, ss.ctypes.data, len(speed.distances) if speed else 0, msg)
+                     sd.ctypes.data, ss.ctypes.data, len(speed.distances) if speed else 0, msg,
+                     cfg.speed_std_rel)
     return h, msg.value.decode()
 
 
@@ -113,11 +115,11 @@ def c_trace(lib, case: Case, ops: np.ndarray | None = None) -> np.ndarray:
         out = np.zeros((len(ops), NOUT))
         for i in range(len(ops)):
             lib.shim_apply(h, ops[i].ctypes.data, out[i].ctypes.data)
-        cfg = np.zeros(8)
+        cfg = np.zeros(9)
         lib.shim_config(h, cfg.ctypes.data)
         c = case.cfg
         assert list(cfg) == [c.dt, c.speed_std, c.position_std, c.position_std_rel, c.gamma, c.kind,
-                             c.length, case.speed is not None]
+                             c.length, case.speed is not None, c.speed_std_rel]
     finally:
         lib.shim_free(h)
     return out
@@ -232,7 +234,7 @@ def station_runs(seed: int, cfg: FilterConfig, n: int = 3000, faults: bool = Tru
         dt = 0.05 if rng.random() < 0.05 else cfg.dt
         v_new = max(v + G / 1000.0 * snf * dt + rng.normal(0.0, 0.01), 0.0) if not dwell else 0.0
         # measurements of this sample
-        vm = v + rng.normal(0.0, cfg.speed_std)
+        vm = v + rng.normal(0.0, cfg.speed_std + cfg.speed_std_rel * v)   # rel 0: the same draws
         xm = x + rng.normal(0.0, cfg.position_std + cfg.position_std_rel * x) + jump
         if faults:
             if stuck is None and k >= 300 and br > 0.0:
@@ -390,6 +392,45 @@ def test_random_calls_with_hostile_values(lib, seed):
         assert (theirs[:, 0] == RC_MATH).sum() > 500     # every prediction divides by zero
 
 
+# ---------------------------------------------------------------- sensor.speed_std_rel
+
+@pytest.mark.parametrize("kind,rel", [(1, 0.02), (2, 0.02), (3, 0.02), (2, 0.5), (0, 0.02)])
+def test_relative_speed_noise_gives_the_same_filter_in_c(lib, kind, rel):
+    """R_v = (speed_std + speed_std_rel |V_meas|)^2 at the measured speed in the gate, the
+    update (both measurements and the speed alone), the start from a measurement and the
+    reacquisitions: station_runs' faults, the whole state after every call, == Python's; and
+    the relative part changes the trace (it is not ignored)."""
+    cfg = FilterConfig(dt=0.1, speed_std=0.02, position_std=1.0, speed_std_rel=rel, kind=kind,
+                       position_std_rel=0.01 if kind == 1 else 0.0, length=60.0 if kind == 1 else 0.0)
+    case = Case(cfg, SPEED, station_runs(600 + kind + int(10 * rel), cfg, start_measured=kind == 2))
+    theirs = py_trace(case)
+    assert_same(c_trace(lib, case), theirs, case)
+    col = {n: OUT_NAMES.index(n) for n in OUT_NAMES}
+    assert theirs[-1, col["reacquired"]] >= 3
+    absolute = py_trace(Case(FilterConfig(**{**cfg.__dict__, "speed_std_rel": 0.0}), SPEED, case.ops))
+    p00 = col["P[0][0]"]
+    assert not np.array_equal(np.nan_to_num(theirs[:, p00]), np.nan_to_num(absolute[:, p00]))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_calls_with_relative_speed_noise(lib, seed):
+    """Hostile calls (NaN, inf, speeds whose variance overflows only through the relative part:
+    rel 1e150 at |V| > ~1e4) with speed_std_rel > 0: RC_MATH exactly where Python raises, the
+    same state after it."""
+    rng = np.random.default_rng(3000 + seed)
+    kind = seed % 4
+    speed = SPEED if kind in (1, 3) or seed % 3 == 0 else None
+    rel = (0.02, 0.5, 1e150)[seed % 3]
+    cfg = FilterConfig(dt=0.1, speed_std=float(rng.uniform(0.01, 0.2)),
+                       position_std=float(rng.uniform(0.5, 3.0)),
+                       position_std_rel=float(rng.choice([0.0, 0.01])), speed_std_rel=rel,
+                       kind=kind, length=float(rng.choice([0.0, 60.0])))
+    case = Case(cfg, speed, random_calls(rng, 3000), numpy_theta=False)
+    theirs = py_trace(case)
+    assert_same(c_trace(lib, case), theirs, case)
+    assert (theirs[:, 0] == RC_MATH).sum() > 0
+
+
 def test_the_math_errors_are_where_python_raises(lib):
     """Each RC_MATH on its own, with the state Python leaves at its exception."""
     cfg = FilterConfig(dt=0.1, position_std_rel=0.01, kind=2)
@@ -486,7 +527,7 @@ int main(int argc, char **argv)
     char msg[RC_MSG_SIZE];
     FILE *in;
     long size, gn, sn, nops;
-    double c[7], out[3 + SHIM_NSTATE];
+    double c[8], out[3 + SHIM_NSTATE];
     const double *gd, *gg, *sd, *ss;
     shim *s;
     if (argc != 2 || !(in = fopen(argv[1], "rb"))) return 2;
@@ -496,12 +537,12 @@ int main(int argc, char **argv)
     all = malloc((size_t)size * sizeof *all);
     if (!all || fread(all, sizeof *all, (size_t)size, in) != (size_t)size) return 2;
     fclose(in);
-    for (int i = 0; i < 7; i++) c[i] = next();
+    for (int i = 0; i < 8; i++) c[i] = next();
     gn = (long)next(); gd = all + at; at += gn; gg = all + at; at += gn;
     sn = (long)next(); sd = all + at; at += sn; ss = all + at; at += sn;
     nops = (long)next();
-    if (shim_new(0.1, -1.0, 1.0, 0.0, 0.0, 1, 0.0, gd, gg, gn, sd, ss, sn, msg) != NULL) return 3;
-    s = shim_new(c[0], c[1], c[2], c[3], c[4], (int)c[5], c[6], gd, gg, gn, sd, ss, sn, msg);
+    if (shim_new(0.1, -1.0, 1.0, 0.0, 0.0, 1, 0.0, gd, gg, gn, sd, ss, sn, msg, 0.0) != NULL) return 3;
+    s = shim_new(c[0], c[1], c[2], c[3], c[4], (int)c[5], c[6], gd, gg, gn, sd, ss, sn, msg, c[7]);
     if (!s) { fprintf(stderr, "%s\n", msg); return 2; }
     for (long i = 0; i < nops; i++) {
         shim_apply(s, all + at + 9 * i, out);
@@ -532,7 +573,7 @@ def test_the_filter_runs_clean_under_address_and_undefined_behaviour_sanitizers(
         c = case.cfg
         g, s = case.grade, case.speed
         data = [c.dt, c.speed_std, c.position_std, c.position_std_rel, c.gamma, c.kind, c.length,
-                len(g.distances), *g.distances, *g.grades, len(s.distances), *s.distances,
+                c.speed_std_rel, len(g.distances), *g.distances, *g.grades, len(s.distances), *s.distances,
                 *s.speeds, len(case.ops), *case.op_array().ravel()]
         (tmp_path / f"case{i}.bin").write_bytes(np.array(data, dtype=np.float64).tobytes())
         proc = subprocess.run([str(exe), str(tmp_path / f"case{i}.bin")], capture_output=True,

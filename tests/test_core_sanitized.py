@@ -183,8 +183,8 @@ MUTATIONS = {
                                 f"double k = RC_G * dt / 1000.0 / (1.0 + e->gamma) * {ONE_ULP};"),
     # the speed sensor's noise amplitude in RailCarChain._take_sample
     "railcar_speed_sensor": ("railcar.c",
-                             "c->sensor_speed = s->speed + f->speed_std * rc_stream_normal(",
-                             f"c->sensor_speed = s->speed + f->speed_std * {ONE_ULP} * rc_stream_normal("),
+                             "c->sensor_speed = s->speed + (f->speed_std + f->speed_std_rel",
+                             f"c->sensor_speed = s->speed + (f->speed_std * {ONE_ULP} + f->speed_std_rel"),
 }
 # One ulp can vanish in a scenario (the RK4 mutation leaves coasting_rusich_row1 unchanged, the
 # sensor one coasting_rusich_row2); each mutation above changes both of these.

@@ -90,7 +90,7 @@ def slib(tmp_path_factory):
 def config_values(cfg: FilterConfig) -> list[float]:
     return [cfg.dt, cfg.speed_std, cfg.position_std, cfg.position_std_rel, cfg.gamma, cfg.kind,
             cfg.length, cfg.singer_tau, cfg.singer_p0, cfg.singer_p_plus, cfg.singer_p_minus,
-            cfg.singer_w_max_plus, cfg.singer_w_max_minus]
+            cfg.singer_w_max_plus, cfg.singer_w_max_minus, cfg.speed_std_rel]
 
 
 def op_array(ops) -> np.ndarray:
@@ -359,6 +359,35 @@ def test_a_car_with_faulty_sensors_gives_the_same_singer_filter_in_c(slib, seed,
     assert (theirs[:, col["v"]] == 0.0).sum() > 10        # at rest (the clip and the restarts)
     acc = theirs[:, col["acceleration"]]
     assert np.nanmax(acc) - np.nanmin(acc) > 0.5
+
+
+@pytest.mark.parametrize("seed,rel", [(5, 0.02), (6, 0.5)])
+def test_relative_speed_noise_gives_the_same_singer_filter_in_c(slib, seed, rel):
+    """sensor.speed_std_rel: the Singer updates take the speed's std speed_std + rel |V_meas|,
+    the starts its square; station_runs' faults, the whole state after every call == Python's."""
+    cfg = FilterConfig(dt=0.1, speed_std=0.02, position_std=1.0, position_std_rel=0.01,
+                       speed_std_rel=rel, kind=SINGER)
+    ops = station_runs(40 + seed, cfg, n=2500, start_measured=seed % 2 == 0)
+    theirs = py_trace(cfg, ops)
+    assert_same(c_trace(slib, cfg, op_array(ops)), theirs, ops)
+    col = {n: OUT_NAMES.index(n) for n in OUT_NAMES}
+    assert theirs[-1, col["reacquired"]] >= 2
+    absolute = py_trace(FilterConfig(**{**cfg.__dict__, "speed_std_rel": 0.0}), ops)
+    assert not np.array_equal(np.nan_to_num(theirs[:, col["v"]]), np.nan_to_num(absolute[:, col["v"]]))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_random_calls_with_relative_speed_noise(slib, seed):
+    """Hostile calls with speed_std_rel > 0 (1e150: the std's square overflows at |V| > ~1e4):
+    RC_MATH exactly where Python raises, the same state after it."""
+    rng = np.random.default_rng(2100 + seed)
+    cfg = FilterConfig(dt=0.1, speed_std=float(rng.uniform(0.01, 0.2)),
+                       position_std=float(rng.uniform(0.5, 3.0)), position_std_rel=0.01,
+                       speed_std_rel=(0.02, 0.5, 1e150)[seed], kind=SINGER)
+    ops = random_calls(rng, 2500)
+    theirs = py_trace(cfg, ops)
+    assert_same(c_trace(slib, cfg, op_array(ops)), theirs, ops)
+    assert (theirs[:, 0] == RC_MATH).sum() > 0
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -207,6 +207,9 @@ CHAIN_CASES = [
     # FilterConfig.validate (length = car.length)
     {"sensor.position_std_rel": -0.1}, {"sensor.position_std_rel": NAN},
     {"sensor.position_std_rel": -0.0},
+    {"sensor.speed_std_rel": -0.1}, {"sensor.speed_std_rel": NAN}, {"sensor.speed_std_rel": INF},
+    {"sensor.speed_std_rel": -0.0}, {"sensor.speed_std_rel": 0.02},
+    {"sensor.speed_std_rel": -1.0, "car.length": -1.0}, {"sensor.position_std_rel": NAN, "sensor.speed_std_rel": NAN},
     {"sensor.speed_std": 0.0}, {"sensor.speed_std": -1.0}, {"sensor.speed_std": -0.0},
     {"sensor.position_std": 0.0}, {"sensor.position_std": NAN}, {"sensor.position_std": 0.3},
     {"filter.kind": 5}, {"filter.kind": -1},
@@ -251,6 +254,7 @@ EST_CASES = [
     {"est.mass_initial": -1.0}, {"est.sigma2_initial": INF}, {"est.A2_initial": NAN},
     {"est.gamma": -2.0}, {"sensor.speed_std": NAN},
     {"sensor.position_std_rel": -1.0}, {"car.length": -1.0}, {"car.length": NAN},
+    {"sensor.speed_std_rel": -1.0}, {"sensor.speed_std_rel": INF}, {"sensor.speed_std_rel": NAN},
     {"car.length": -0.0}, {"car.length": INF},
     {"sensor.speed_std": 0.0}, {"sensor.position_std": -2.5}, {"filter.kind": 9},
     ({"filter.kind": 1}, None), ({"filter.kind": 1}, SPEED), ({"filter.kind": 3}, None),

@@ -164,6 +164,14 @@ def test_replay_of_a_railcar_run_bit_identical_to_fmi2(pair, railcar_runner, ste
     assert out[-1] != out[1]                     # the estimate moved
 
 
+def test_relative_speed_noise_bit_identical_to_fmi2(pair, railcar_runner):  # noqa: F811
+    """sensor.speed_std_rel 2 % in the run and in the estimator (Singer filter): FMI 3 == FMI 2."""
+    extra = {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01}
+    params, rows, times, steps = est2._railcar_run(railcar_runner, "steep_grades", extra)
+    out, statuses, _ = _compare(pair, {**params, **extra, "filter.kind": 4}, rows, times, steps)
+    assert statuses == [OK] * len(rows) and len(rows) > 100
+
+
 def test_the_comparison_sees_a_difference(pair, railcar_runner):  # noqa: F811
     params, rows, times, steps = est2._railcar_run(railcar_runner, "station_day")
     rows, other = rows[:300], rows[:300].copy()
@@ -199,6 +207,7 @@ def test_bad_input_is_discarded_with_the_message(pair, column, value, named):
 @pytest.mark.parametrize("parameters, named", [
     ({"est.mass_initial": -1.0}, "est.mass_initial"),
     ({"filter.kind": 9}, "filter.kind"),
+    ({"sensor.speed_std_rel": -1.0}, "sensor.speed_std_rel"),
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
     ({"est.method": 1}, "est.method"),
 ])

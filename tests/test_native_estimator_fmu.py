@@ -99,6 +99,7 @@ def test_the_flat_configuration_is_compiled_estimator_chains():
     for _ in range(5):
         values = {v.name: v.start for v in table}
         for name in ("sensor.speed_std", "sensor.position_std", "sensor.position_std_rel",
+                     "sensor.speed_std_rel",
                      "sensor.track_base", "sensor.track_resolution", "car.length",
                      "track.station_dwell", "est.forgetting", "est.gamma", "est.mass_initial",
                      "est.mass_std_initial", "est.A0_initial", "est.A1_std_initial",
@@ -254,6 +255,22 @@ def test_track_sensor_speeds_singer_filter_and_spikes(pair, railcar_runner):
     assert len(warnings) >= 10 and "refused by the innovation gate" in warnings[0]
 
 
+@pytest.mark.parametrize("kind", [0, 4])
+def test_relative_speed_noise(pair, railcar_runner, kind):
+    """sensor.speed_std_rel 2 % in the RailCar run that makes the measurements and in the
+    estimator (its R_v at each measured speed), the EKF and the Singer filter, with speed spikes
+    the gate refuses: the native estimator == the pythonfmu one, every output, every step."""
+    extra = {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01}
+    params, rows, times, steps = _railcar_run(railcar_runner, "station_day", extra)
+    rows = rows.copy()
+    rng = np.random.default_rng(17)
+    rows[rng.choice(np.arange(100, len(rows)), size=10, replace=False), 2] += 8.0
+    params = {**params, **extra, "filter.kind": kind}
+    out, statuses, log = _compare(pair, params, rows, times, steps)
+    assert statuses == [OK] * len(rows)
+    assert any("refused by the innovation gate" in m for m in log)
+
+
 def test_speed_profile_and_nan_free_faults(pair, railcar_runner):
     """A speed profile (linearised filter), forgetting, a stuck speed sensor and a position
     sensor that drops to zero for a while: faults without NaN, all steps OK."""
@@ -322,6 +339,7 @@ def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
     ({"est.slope_window": 0}, "est.slope_window"),
     ({"sensor.speed_std": float("nan")}, "speed_std"),   # Python says est.speed_std
     ({"sensor.track_resolution": -1.0}, "sensor.track_resolution"),
+    ({"sensor.speed_std_rel": float("nan")}, "sensor.speed_std_rel"),
     ({"filter.kind": 9}, "filter.kind"),
     ({"filter.singer_p0": 0.95, "filter.kind": 4}, "filter.singer_*"),
     ({"track.station_dwell": -2.0}, "track.station_dwell"),

@@ -269,6 +269,7 @@ def test_nan_traction_is_discarded_with_the_message_and_the_instance_goes_on(run
 
 @pytest.mark.parametrize("parameters, named", [
     ({"car.mass": -1.0}, "car.mass"),
+    ({"sensor.speed_std_rel": -0.1}, "sensor.speed_std_rel"),
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
 ])
 def test_bad_parameter_fails_initialisation_with_the_message(runners, parameters, named):
@@ -297,6 +298,26 @@ def test_bad_parameter_fails_initialisation_with_the_message(runners, parameters
         fmu.freeInstance()
     assert named in texts[1]
     assert texts[0] == texts[1]
+
+
+@pytest.mark.parametrize("kind", [0, 4])
+def test_relative_speed_noise_bit_identical_to_fmi2_and_pythonfmu(runners, kind):
+    """sensor.speed_std_rel 2 %: the sensor's noise and the filter's R_v relative to the speed;
+    FMI 3 == FMI 2 == the pythonfmu RailCar, every Real output after every step; and it is
+    not ignored (rel = 0 gives other outputs)."""
+    py, c2, c3 = runners
+
+    def inputs(k):
+        return [30e3 if k < 300 else 0.0, 0.0 if k < 500 else 20e3, 0.0, 0.0]
+
+    times = [0.1 * k for k in range(700)]
+    params = {"seed": 6, "sensor.speed_std": 0.01, "sensor.speed_std_rel": 0.02, "filter.kind": kind}
+    a, b, c = (_drive(r, params, inputs, times) for r in (c3, c2, py))
+    assert a[1] == b[1] == c[1] == [OK] * len(times)
+    assert a[0] == b[0] == c[0]
+    assert a[2] == b[2]
+    d = _drive(c3, {**params, "sensor.speed_std_rel": 0.0}, inputs, times)
+    assert d[0][-1] != a[0][-1]
 
 
 def test_the_comparison_sees_a_difference(runners):

@@ -192,6 +192,10 @@ VARIANTS = {
         {"filter.kind": 4, "sensor.track_spacing": 150.0, "sensor.track_jitter": 1e-3,
          "seed": 7, "car.length": 20.0, "sensor.position_std_rel": 0.002,
          "track.grade_profile": "profiles/steep_grades.csv"}, 12.5),
+    "relative_speed_noise": (
+        {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01, "seed": 9}, 0.0),
+    "singer_relative_speed_noise": (
+        {"filter.kind": 4, "sensor.speed_std_rel": 0.02, "seed": 4}, 2.0),
     "speed_profile_linearised": (
         {"track.speed_profile": "profiles/default_speed.csv", "filter.kind": 0, "seed": 3,
          "est.forgetting": 0.01, "car.initial_speed": 5.0}, 0.0),
@@ -250,6 +254,8 @@ def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
 
 @pytest.mark.parametrize("parameters, named", [
     ({"car.mass": -1.0}, "car.mass"),
+    ({"sensor.speed_std_rel": -0.1}, "sensor.speed_std_rel"),
+    ({"sensor.speed_std_rel": float("inf")}, "sensor.speed_std_rel"),
     ({"sensor.sample_period": 0.0}, "sensor.sample_period"),
     ({"filter.singer_p0": 0.95, "filter.kind": 4}, "filter.singer_*"),
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),

@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NES_NVARS 57
+#define NES_NVARS 58
 
 /* indexed by value reference */
 static const native_var NES_VARS[NES_NVARS] = {
@@ -67,12 +67,13 @@ static const native_var NES_VARS[NES_NVARS] = {
     /* 54 */ {"filter.speed_std", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 55 */ {"filter.position_std", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 56 */ {"filter.rejected", GLUE_INTEGER, GLUE_OUTPUT, GLUE_DISCRETE, 0.0, NULL},
+    /* 57 */ {"sensor.speed_std_rel", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
 };
 
 /* models/compiled.py CompiledEstimatorChain's configuration: index -> value reference of the parameter
  * it is, NATIVE_CONFIG_START_TIME (fmi2SetupExperiment's startTime) or
  * NATIVE_CONFIG_CONSTANT (NES_CONFIG_CONST[index]) */
-#define NES_NCONFIG 38
+#define NES_NCONFIG 39
 static const int NES_CONFIG_VR[NES_NCONFIG] = {
     /*  0 */ NATIVE_CONFIG_CONSTANT,   /* constant */
     /*  1 */ 16,   /* est.batch_size */
@@ -106,12 +107,13 @@ static const int NES_CONFIG_VR[NES_NCONFIG] = {
     /* 29 */ 37,   /* filter.singer_p_minus */
     /* 30 */ 38,   /* filter.singer_w_max_plus */
     /* 31 */ 39,   /* filter.singer_w_max_minus */
-    /* 32 */ 15,   /* track.station_dwell */
-    /* 33 */ NATIVE_CONFIG_CONSTANT,   /* constant */
+    /* 32 */ 57,   /* sensor.speed_std_rel */
+    /* 33 */ 15,   /* track.station_dwell */
     /* 34 */ NATIVE_CONFIG_CONSTANT,   /* constant */
-    /* 35 */ 9,   /* sensor.track_base */
-    /* 36 */ 10,   /* sensor.track_resolution */
-    /* 37 */ 11,   /* sensor.track_jitter */
+    /* 35 */ NATIVE_CONFIG_CONSTANT,   /* constant */
+    /* 36 */ 9,   /* sensor.track_base */
+    /* 37 */ 10,   /* sensor.track_resolution */
+    /* 38 */ 11,   /* sensor.track_jitter */
 };
 static const double NES_CONFIG_CONST[NES_NCONFIG] = {
     /*  0 */ 0x1.999999999999ap-4 /* 0.1 */,
@@ -152,6 +154,7 @@ static const double NES_CONFIG_CONST[NES_NCONFIG] = {
     /* 35 */ 0.0,
     /* 36 */ 0.0,
     /* 37 */ 0.0,
+    /* 38 */ 0.0,
 };
 
 /* the chain's do_step inputs: traction_force, brake_force, sensor.speed, sensor.position, sensor.track_speed, sensor.track_time */

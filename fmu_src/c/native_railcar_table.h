@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NRC_NVARS 84
+#define NRC_NVARS 85
 
 /* indexed by value reference */
 static const native_var NRC_VARS[NRC_NVARS] = {
@@ -94,12 +94,13 @@ static const native_var NRC_VARS[NRC_NVARS] = {
     /* 81 */ {"filter.speed_std", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 82 */ {"filter.position_std", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 83 */ {"filter.rejected", GLUE_INTEGER, GLUE_OUTPUT, GLUE_DISCRETE, 0.0, NULL},
+    /* 84 */ {"sensor.speed_std_rel", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
 };
 
 /* models/compiled.py _config_values: index -> value reference of the parameter
  * it is, NATIVE_CONFIG_START_TIME (fmi2SetupExperiment's startTime) or
  * NATIVE_CONFIG_CONSTANT (NRC_CONFIG_CONST[index]) */
-#define NRC_NCONFIG 57
+#define NRC_NCONFIG 58
 static const int NRC_CONFIG_VR[NRC_NCONFIG] = {
     /*  0 */ 4,   /* car.mass */
     /*  1 */ 5,   /* car.A0 */
@@ -153,11 +154,12 @@ static const int NRC_CONFIG_VR[NRC_NCONFIG] = {
     /* 49 */ 52,   /* filter.singer_p_minus */
     /* 50 */ 53,   /* filter.singer_w_max_plus */
     /* 51 */ 54,   /* filter.singer_w_max_minus */
-    /* 52 */ 19,   /* sensor.track_spacing */
-    /* 53 */ 24,   /* sensor.track_base */
-    /* 54 */ 25,   /* sensor.track_resolution */
-    /* 55 */ 26,   /* sensor.track_jitter */
-    /* 56 */ NATIVE_CONFIG_START_TIME,   /* start time */
+    /* 52 */ 84,   /* sensor.speed_std_rel */
+    /* 53 */ 19,   /* sensor.track_spacing */
+    /* 54 */ 24,   /* sensor.track_base */
+    /* 55 */ 25,   /* sensor.track_resolution */
+    /* 56 */ 26,   /* sensor.track_jitter */
+    /* 57 */ NATIVE_CONFIG_START_TIME,   /* start time */
 };
 static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {
     /*  0 */ 0.0,
@@ -217,6 +219,7 @@ static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {
     /* 54 */ 0.0,
     /* 55 */ 0.0,
     /* 56 */ 0.0,
+    /* 57 */ 0.0,
 };
 
 /* the chain's do_step inputs: traction_force_demand, brake_force_demand, wind_speed, car.payload */

@@ -27,6 +27,7 @@ long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
         &c->filter.position_std_rel, &c->filter.gamma, NULL /* kind */, &c->filter.length,
         &c->filter.singer_tau, &c->filter.singer_p0, &c->filter.singer_p_plus,
         &c->filter.singer_p_minus, &c->filter.singer_w_max_plus, &c->filter.singer_w_max_minus,
+        &c->filter.speed_std_rel,
         &c->track_spacing, &c->track_base, &c->track_resolution, &c->track_jitter,
         &c->start_time,
     };
@@ -61,6 +62,7 @@ long rc_estchain_config_from_values(rc_estchain_config *c, const double *v, long
         &c->filter.position_std_rel, &c->filter.gamma, NULL /* kind */, &c->filter.length,
         &c->filter.singer_tau, &c->filter.singer_p0, &c->filter.singer_p_plus,
         &c->filter.singer_p_minus, &c->filter.singer_w_max_plus, &c->filter.singer_w_max_minus,
+        &c->filter.speed_std_rel,
         &c->station.dwell, &c->station.speed_threshold, &c->station.position_threshold,
         &c->track_base, &c->track_resolution, &c->track_jitter,
     };

@@ -44,6 +44,8 @@ rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed, rc_erro
         err->msg[0] = '\0';
     if (!(cfg->position_std_rel >= 0 && isfinite(cfg->position_std_rel)))
         return bad(err, "sensor.position_std_rel must be >= 0", cfg->position_std_rel);
+    if (!(cfg->speed_std_rel >= 0 && isfinite(cfg->speed_std_rel)))
+        return bad(err, "sensor.speed_std_rel must be >= 0", cfg->speed_std_rel);
     if (!(cfg->length >= 0 && isfinite(cfg->length)))
         return bad(err, "car.length must be >= 0", cfg->length);
     if (!(cfg->speed_std > 0 && isfinite(cfg->speed_std)))
@@ -161,13 +163,31 @@ static rc_status position_noise_var(const rc_filter *f, double x, double *out)
     return square(f->cfg.position_std + f->cfg.position_std_rel * fabs(x), out);
 }
 
+/* SingerKind.update's std_v: speed_std + speed_std_rel * |v|, speed_std when rel is 0 */
+static double speed_noise_std(const rc_filter *f, double speed_meas)
+{
+    if (f->cfg.speed_std_rel != 0.0)
+        return f->cfg.speed_std + f->cfg.speed_std_rel * fabs(speed_meas);
+    return f->cfg.speed_std;
+}
+
+/* MotionFilter.speed_variance: (speed_std + speed_std_rel * |v|) ** 2, r0 when rel is 0 */
+static rc_status speed_variance(const rc_filter *f, double speed_meas, double *out)
+{
+    if (f->cfg.speed_std_rel != 0.0)
+        return square(f->cfg.speed_std + f->cfg.speed_std_rel * fabs(speed_meas), out);
+    *out = f->r0;
+    return RC_OK;
+}
+
 rc_status rc_filter_start_from_measurement(rc_filter *f, double speed_meas, double position_meas)
 {
-    double vzad, p11;
+    double vzad, p00, p11;
     rc_filter_restart(f);
     if (f->kind == RC_SINGER) {
-        double speed = rc_max(speed_meas, 0.0), p_v = rc_square(f->cfg.speed_std), p_x;
-        if (position_noise_var(f, position_meas, &p_x) != RC_OK)
+        double speed = rc_max(speed_meas, 0.0), p_v, p_x;
+        if (speed_variance(f, speed_meas, &p_v) != RC_OK
+                || position_noise_var(f, position_meas, &p_x) != RC_OK)
             return RC_MATH;
         singer_restart(f, speed, position_meas, p_v, p_x);
         return RC_OK;
@@ -176,9 +196,10 @@ rc_status rc_filter_start_from_measurement(rc_filter *f, double speed_meas, doub
     f->vzad_hat = f->vzad_bar = vzad;
     f->xh0 = rc_max(speed_meas, 0.0) - vzad;
     f->xh1 = position_meas;
-    if (position_noise_var(f, position_meas, &p11) != RC_OK)
+    if (speed_variance(f, speed_meas, &p00) != RC_OK
+            || position_noise_var(f, position_meas, &p11) != RC_OK)
         return RC_MATH;
-    f->p00 = rc_square(f->cfg.speed_std);
+    f->p00 = p00;
     f->p11 = p11;
     return RC_OK;
 }
@@ -199,13 +220,14 @@ static rc_status position_variance(const rc_filter *f, double position_meas, dou
 rc_status rc_filter_gate(rc_filter *f, double speed_meas, double position_meas, int *use_v,
                          int *use_x)
 {
-    double vzad = vzad_predicted(f), r1, e0, e1, s00, s11, g2;
+    double vzad = vzad_predicted(f), r0, r1, e0, e1, s00, s11, g2;
     int v, x;
-    if (position_variance(f, position_meas, &r1) != RC_OK)
+    if (position_variance(f, position_meas, &r1) != RC_OK
+            || speed_variance(f, speed_meas, &r0) != RC_OK)
         return RC_MATH;
     e0 = speed_meas - vzad - f->xb0;
     e1 = position_meas - f->xb1;
-    s00 = f->m00 + f->r0;
+    s00 = f->m00 + r0;
     s11 = f->m11 + r1;
     g2 = RC_GATE_SIGMAS * RC_GATE_SIGMAS;
     v = e0 * e0 <= g2 * s00;                             /* false for NaN */
@@ -252,9 +274,11 @@ static rc_status update_one(rc_filter *f, double speed_meas, double position_mea
 {
     double vzad = vzad_predicted(f);
     double m00 = f->m00, m01 = f->m01, m11 = f->m11;
-    double s, e, k0, k1, r1, xh0;
+    double s, e, k0, k1, r0, r1, xh0;
     if (speed) {
-        s = m00 + f->r0;
+        if (speed_variance(f, speed_meas, &r0) != RC_OK)
+            return RC_MATH;
+        s = m00 + r0;
         e = speed_meas - vzad - f->xb0;
         if (s == 0.0)
             return RC_MATH;
@@ -307,7 +331,8 @@ rc_status rc_filter_update(rc_filter *f, double speed_meas, double position_meas
         f->use_speed = f->use_position = 1;
         if (f->kind == RC_SINGER) {
             if (use_v) {
-                if (rc_singer_update_speed(&f->singer, speed_meas, f->cfg.speed_std) != RC_OK)
+                if (rc_singer_update_speed(&f->singer, speed_meas, speed_noise_std(f, speed_meas))
+                        != RC_OK)
                     return RC_MATH;
             } else if (use_x) {
                 double std = f->cfg.position_std + f->cfg.position_std_rel * fabs(position_meas);
@@ -323,16 +348,17 @@ rc_status rc_filter_update(rc_filter *f, double speed_meas, double position_meas
         return RC_OK;
     }
     if (f->kind == RC_SINGER) {
+        double std_v = speed_noise_std(f, speed_meas);
         double std = f->cfg.position_std + f->cfg.position_std_rel * fabs(position_meas);
         if (rc_singer_update_speed_distance(&f->singer, speed_meas, position_meas,
-                                            f->cfg.speed_std, std) != RC_OK)
+                                            std_v, std) != RC_OK)
             return RC_MATH;
         singer_copy(f, 1);
         return RC_OK;
     }
     vzad = vzad_predicted(f);
-    r0 = f->r0;
-    if (position_variance(f, position_meas, &r1) != RC_OK)
+    if (speed_variance(f, speed_meas, &r0) != RC_OK
+            || position_variance(f, position_meas, &r1) != RC_OK)
         return RC_MATH;
     m00 = f->m00;
     m01 = f->m01;

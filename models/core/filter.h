@@ -33,6 +33,8 @@ typedef struct {               /* models.filters.FilterConfig */
     double singer_tau;         /* [s]: the Singer filter's settings (kind 4) */
     double singer_p0, singer_p_plus, singer_p_minus;   /* [-] */
     double singer_w_max_plus, singer_w_max_minus;      /* [m/s^2] */
+    double speed_std_rel;      /* [-]: last, so that positional initialisers of the fields above
+                                * stay valid (0 when omitted) */
 } rc_filter_config;
 
 typedef struct {               /* models.filters.MotionFilter */
@@ -62,11 +64,11 @@ rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed_profile,
 void rc_filter_init(rc_filter *f, const rc_filter_config *cfg, const rc_grade_profile *grade,
                     const rc_speed_profile *speed);
 void rc_filter_restart(rc_filter *f);
-/* RC_MATH: position_noise_std(position_meas) ** 2 overflows (after the restart and the state
- * set, p00 and p11 left at 0, as Python leaves them) */
+/* RC_MATH: speed_noise_std(speed_meas) ** 2 or position_noise_std(position_meas) ** 2 overflows
+ * (after the restart and the state set, p00 and p11 left at 0, as Python leaves them) */
 rc_status rc_filter_start_from_measurement(rc_filter *f, double speed_meas, double position_meas);
-/* MotionFilter.gate: *use_v, *use_x (bools). RC_MATH: the distance's variance overflows
- * (nothing changed) */
+/* MotionFilter.gate: *use_v, *use_x (bools). RC_MATH: the distance's or the speed's variance
+ * overflows (nothing changed) */
 rc_status rc_filter_gate(rc_filter *f, double speed_meas, double position_meas, int *use_v,
                          int *use_x);
 void rc_filter_hold(rc_filter *f);

@@ -48,7 +48,8 @@ static void take_sample(rc_chain *c)
 {
     const rc_plant_state *s = &c->plant.state;
     const rc_filter_config *f = &c->cfg.filter;
-    c->sensor_speed = s->speed + f->speed_std * rc_stream_normal(&c->streams[RC_SPEED_SENSOR]);
+    c->sensor_speed = s->speed + (f->speed_std + f->speed_std_rel * fabs(s->speed))
+                      * rc_stream_normal(&c->streams[RC_SPEED_SENSOR]);
     c->sensor_position = s->position + (f->position_std + f->position_std_rel * fabs(s->position))
                          * rc_stream_normal(&c->streams[RC_POSITION_SENSOR]);
     rc_estimator_measure(&c->est, c->sensor_speed, c->sensor_position);

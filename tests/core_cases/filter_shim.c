@@ -16,10 +16,11 @@ typedef struct {
  * sn == 0: no speed profile */
 shim *shim_new(double dt, double speed_std, double position_std, double position_std_rel,
                double gamma, int kind, double length, const double *gd, const double *gg, long gn,
-               const double *sd, const double *ss, long sn, char *msg)
+               const double *sd, const double *ss, long sn, char *msg, double speed_std_rel)
 {
     rc_filter_config cfg = {dt, speed_std, position_std, position_std_rel, gamma, kind, length,
-                            10.0, 0.3, 0.1, 0.1, 1.3, -1.5};   /* FilterConfig's singer_* */
+                            10.0, 0.3, 0.1, 0.1, 1.3, -1.5,    /* FilterConfig's singer_* */
+                            speed_std_rel};
     rc_error err;
     shim *s;
     if (rc_filter_validate(&cfg, sn > 0, &err) != RC_OK) {
@@ -133,7 +134,8 @@ void shim_apply(shim *s, const double *op, double *out)
 void shim_config(const shim *s, double *out)
 {
     const rc_filter *f = &s->f;
-    double v[8] = {f->cfg.dt, f->cfg.speed_std, f->cfg.position_std, f->cfg.position_std_rel,
-                   f->cfg.gamma, f->cfg.kind, f->cfg.length, f->speed != NULL};
+    double v[9] = {f->cfg.dt, f->cfg.speed_std, f->cfg.position_std, f->cfg.position_std_rel,
+                   f->cfg.gamma, f->cfg.kind, f->cfg.length, f->speed != NULL,
+                   f->cfg.speed_std_rel};
     memcpy(out, v, sizeof v);
 }

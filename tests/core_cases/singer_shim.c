@@ -15,10 +15,10 @@ typedef struct {
     double gd[1], gg[1], gc[1];   /* a level track (kind 4 never reads it) */
 } shim;
 
-#define SHIM_NCONFIG 13           /* FilterConfig: dt, speed_std, position_std,
+#define SHIM_NCONFIG 14           /* FilterConfig: dt, speed_std, position_std,
                                      position_std_rel, gamma, kind, length, singer_tau,
                                      singer_p0, singer_p_plus, singer_p_minus,
-                                     singer_w_max_plus, singer_w_max_minus */
+                                     singer_w_max_plus, singer_w_max_minus, speed_std_rel */
 
 /* NULL when rc_filter_validate refuses the config (its message in msg[RC_MSG_SIZE]) */
 shim *shim_new(const double *c, char *msg)
@@ -39,6 +39,7 @@ shim *shim_new(const double *c, char *msg)
     cfg.singer_p_minus = c[10];
     cfg.singer_w_max_plus = c[11];
     cfg.singer_w_max_minus = c[12];
+    cfg.speed_std_rel = c[13];
     if (rc_filter_validate(&cfg, 0, &err) != RC_OK) {
         memcpy(msg, err.msg, RC_MSG_SIZE);
         return NULL;
