@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .metrics import RunSummary, summarise
 
 MASS_BOUND_PCT = 1.0
@@ -24,7 +26,7 @@ STOP_BOUND_M = 0.3     # [m] the ATO's |stop error| (seed 004)
 @dataclass
 class Row:
     name: str
-    speed_std: float            # [m/s]
+    speed_std: float            # [m/s] the largest speed noise sd (speed_std + rel x top speed)
     summary: RunSummary | None
     error: str = ""
     fmu: str = ""               # which FMU ran: "native" or "python" (harness.fmus)
@@ -68,7 +70,9 @@ def library_rows(results) -> list[Row]:
     those its recorded outputs give (harness.ato_scenario.replay_steps: the same as the run's)."""
     rows = []
     for s, r in results:
-        std = s.parameter("sensor.speed_std")
+        std = s.parameter("sensor.speed_std")     # [m/s]; a relative part counts at top speed
+        if not isinstance(r, Exception) and s.parameter("sensor.speed_std_rel"):
+            std += s.parameter("sensor.speed_std_rel") * float(np.max(np.abs(r["car.speed"])))
         if isinstance(r, Exception):
             rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", "")))
             continue

@@ -145,10 +145,14 @@ class AtoTuning:
     creep_speed: float = 0.3          # [m/s] creeping to the mark after a short stop
     creep_accel: float = 0.2          # [m/s^2]
     stop_window: float = 0.15         # [m] standing closer than this to the aim: arrived
-    aim_sigma: float = 3.0            # aim this many filter.speed_std x (the EP stage's
-    aim_max: float = 0.5              # duration) short of the mark, at most aim_max [m]
-    settle_std: float = 0.1           # [m] filter.position_std above this at the final braking
-    #                                   curve: stop short, stand, creep on (below: one stop)
+    aim_sigma: float = 1.0            # aim this many filter.speed_std x (the EP stage's
+    aim_max: float = 0.5              # duration) short of the mark, at most aim_max [m] (3:
+    #                                   stops 0.06 m short on average, 1: 0.02 m)
+    settle_std: float = 0.13          # [m] filter.position_std above this at the final braking
+    #                                   curve and still at the EP stage: stop short, stand, creep
+    #                                   on (else one stop). +-0.3 m in 95 % needs an error sd of
+    #                                   0.3 / 1.96 = 0.15 m, and under speed noise the filter
+    #                                   claims ~15 % too little (its distance lags): 0.13 m
     settle_sigma: float = 6.0         # the short stop aims this many filter.position_std short
     settle_aim_max: float = 1.5       # [m] at most
     settle_time: float = 5.0          # [s] standing before the creep (the filter's distance
@@ -461,6 +465,8 @@ class AtoController:
             self.phase = STOP_EP
             if self.aim_offset == 0.0:     # straight into the EP stage (no braking curve)
                 self._set_aim(sd)
+            else:                          # the low speeds may have settled the filter: the aim
+                self._refine_aim(t, sd)    # moves towards the mark (less braking), never away
         if self.phase == STOP_EP:
             return self._stop_ep(t, s, v, sd, self.relay.stop - s, car, g)
         if self.phase == RUN and tn.replan and tau - self._last_replan >= tn.replan_period - 1e-9:
@@ -513,6 +519,21 @@ class AtoController:
             t_ep = self.course.v_relay / tn.a_ep
             self.aim_offset = min(tn.aim_sigma * sd * t_ep, tn.aim_max)
         self.relay.stop = self.span.stop - self.aim_offset
+
+    def _refine_aim(self, t: float, sd: float):
+        """At the EP stage's start: where filter.position_std has fallen to settle_std (a speed
+        sensor whose noise falls with the speed), no short stop after all; and the aim from the
+        filter.speed_std now, where that is closer to the mark. Only ever towards the mark, so
+        the relay never needs more than the curve's deceleration."""
+        tn = self.tuning
+        if self._settle and not self.settled and self._psd <= tn.settle_std:
+            self._settle = False
+            self.events.append((t, f"filter.position_std {self._psd:.3f} m at the "
+                                                  f"EP stage: one stop, no settling"))
+        if not (self._settle and not self.settled):
+            t_ep = self.course.v_relay / tn.a_ep
+            self.aim_offset = min(self.aim_offset, tn.aim_sigma * sd * t_ep, tn.aim_max)
+            self.relay.stop = self.span.stop - self.aim_offset
 
     def _settle_step(self, t: float, s: float) -> AtoCommand:
         """Standing short of the mark (the holding brake) for settle_time while the filter's

@@ -421,8 +421,8 @@ def test_a0_off_by_half_and_speed_noise():
     settle_std (0.1 m), so the controller stops short (6 x filter.position_std: 0.73 and 0.88 m
     short, true, for these seeds), stands 5 s while the filter's distance catches up with the
     car, and creeps on: the final stop within +-0.3 m, the first one at least 0.3 m short (never
-    past the mark); the first standstill (the running time) within +-2.5 s; no intervention;
-    the true speed stays under V_lim."""
+    past the mark); the first standstill within +-2.5 s (the final one comes ~9 s later: the
+    price of the settle, docs/ato.md); no intervention; the true speed stays under V_lim."""
     for a0 in (1.5 * CAR.A0, 0.5 * CAR.A0):
         for tuning in (REGULATED, FIXED):
             run = closed_loop(tuning, 21, {"car.A0": a0})
@@ -494,3 +494,19 @@ def test_estimates_wait_for_min_samples_since_departure():
     out["est.samples"] = 5100
     ctrl.demands(10.0, out)
     assert ctrl._using_estimates and ctrl._car_now.mass == 33.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rel", [0.01, 0.02])
+def test_relative_speed_noise_stops_once_on_time_and_on_the_mark(rel):
+    """Seed 003's 2 % read as it is written, relative to the speed (sensor.speed_std_rel, 2 % as
+    2 sigma and as 1 sigma, over a 0.01 m/s floor): at the EP stage the filter's distance is
+    certain again (filter.position_std ~0.09 / 0.12 m, below settle_std = 0.13 m), so the
+    controller cancels the short stop it chose at speed and stops once, aiming from the low
+    speed's filter.speed_std: the one standstill within +-2.5 s and +-0.3 m, never over V_lim."""
+    for seed in (21, 22):
+        run = closed_loop(REGULATED, seed, {"sensor.speed_std": 0.01, "sensor.speed_std_rel": rel})
+        assert AtoMode.SETTLE not in run.modes and AtoMode.CREEP not in run.modes, seed
+        assert run.first_stop == run.stop and run.ctrl.finished, seed
+        assert abs(run.arrival) <= ARRIVAL_TOL and abs(run.stop) <= STOP_TOL, (seed, run)
+        assert run.margin > 0.0, seed

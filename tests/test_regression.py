@@ -75,11 +75,6 @@ def test_library_targets_met(library_results):
 
 
 ATO_NAMES = [n for n in NAMES if n.startswith("ato_")]
-# a known miss, stated rather than hidden (strict=False: it passes silently once the controller
-# is tuned; then remove the mark)
-ATO_KNOWN = {"ato_speed_noise": "under 0.22 m/s speed noise models/ato.py stops short, stands while "
-                                "the filter's distance settles (mode SETTLE) and creeps on: the car "
-                                "rests at the mark ~8 s after the schedule (arrival is the last standstill)"}
 
 
 def test_the_library_has_the_ato_scenarios():
@@ -87,8 +82,7 @@ def test_the_library_has_the_ato_scenarios():
             "ato_speed_noise", "ato_line"} <= set(ATO_NAMES)
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=ATO_KNOWN[n], strict=False))
-                                  if n in ATO_KNOWN else n for n in ATO_NAMES])
+@pytest.mark.parametrize("name", ATO_NAMES)
 def test_the_ato_scenario_meets_the_atos_targets(library_results, name):
     """Every span, on the FMU: arrived, |arrival error| <= 2.5 s, |stop error| <= 0.3 m, never
     over V_lim, no safety intervention (library_report's bounds, seeds 003 and 004). The
