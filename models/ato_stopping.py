@@ -36,6 +36,9 @@ import math
 
 from .ato_motion import PlanCar
 
+A_PROG_MIN = 0.3   # the programmed deceleration is at least this share of a_ep (a slower entry
+#                    creeps on instead of taking tens of seconds)
+
 
 def track_force(car: PlanCar, v: float, v_ref: float, a_ref: float, grade: float,
                 gain: float) -> float:
@@ -62,14 +65,19 @@ class RelayBrake:
         self.stop_window = stop_window
         self.stage = None        # stages on; None until the first command
         self._switched = -math.inf
+        self.a_prog = a_ep       # the programmed deceleration [m/s^2] (set at the first command)
 
     def programmed_speed(self, s: float) -> float:
-        """V_p(s) = sqrt(2 a_ep (stop - s)), 0 at and past the mark [m/s]."""
+        """V_p(s) = sqrt(2 a_prog (stop - s)), 0 at and past the mark [m/s]."""
         d = self.stop - s
-        return math.sqrt(2.0 * self.a_ep * d) if d > 0.0 else 0.0
+        return math.sqrt(2.0 * self.a_prog * d) if d > 0.0 else 0.0
 
     def command(self, t: float, s: float, v: float, car: PlanCar, grade: float):
         d = self.stop - s
+        if self.stage is None and d > 0.0 and v > 0.0:
+            # a car that comes in below V_p (its aim moved towards the mark) gets the curve
+            # through where it is, v^2 / (2 d), not a_ep: else the relay lets it coast and creep
+            self.a_prog = min(max(v * v / (2.0 * d), A_PROG_MIN * self.a_ep), self.a_ep)
         v_p = self.programmed_speed(s)
         if d <= 0.0:
             self.stage = self.n_stages
@@ -78,7 +86,7 @@ class RelayBrake:
         if self.stage is None:
             # the stages the feed-forward needs for a_ep with the identified mass, rounded; for
             # v^2 / (2 d) where the car comes in above V_p (it must stop at the aim all the same)
-            a = max(self.a_ep, v * v / (2.0 * d))
+            a = max(self.a_prog, v * v / (2.0 * d))
             need = car.m_in * a - car.pg * (car.w0(v) + grade)
             self.stage = min(max(int(round(need / self.stage_force)), 0), self.n_stages)
             self._switched = t

@@ -309,6 +309,17 @@ def test_relay_enters_with_the_stages_the_remaining_distance_needs():
     pc = PlanCar(CAR, 30.0, CAR.A0, CAR.A1, CAR.A2)
     assert relay().command(0.0, 99.0, 2.0, pc, 0.0)[1:3] == (45000.0, 6)
     assert relay().command(0.0, 99.0, math.sqrt(2.0), pc, 0.0)[1:3] == (30000.0, 4)
+    # below V_p (its aim moved towards the mark: 1.2 m/s with 2 m to go, V_p would be 2 m/s)
+    # the programmed curve runs through where the car is, 0.36 m/s^2, and the relay brakes for
+    # it (10.5 kN: 1 stage, not the a_ep's 4, nor 0 and a coast); never below 0.3 a_ep (then it
+    # creeps on)
+    r = relay()
+    _, brake, stage, v_p = r.command(0.0, 98.0, 1.2, pc, 0.0)
+    assert r.a_prog == pytest.approx(0.36, rel=1e-12) and v_p == pytest.approx(1.2, rel=1e-12)
+    assert (brake, stage) == (7500.0, 1)
+    r = relay()
+    r.command(0.0, 90.0, 1.0, pc, 0.0)
+    assert r.a_prog == 0.3                       # 1 / 20 = 0.05 m/s^2, bounded
 
 
 def test_after_the_stand_the_car_creeps_once():
