@@ -168,7 +168,14 @@ def _make_callbacks(sink: list) -> fmi2CallbackFunctions:
     cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
     from fmpy.logging import addLoggerProxy   # formats the variadic message in C
     addLoggerProxy(byref(cb))
+    # fmpy's proxy keeps the Python logger in a C global, which every later FMU whose logger is
+    # the proxy calls: the logger must live as long as the process (freed with its Slave, a
+    # later fmpy.simulate_fmu's log message jumped into freed memory and segfaulted)
+    _PROXIED.append((cb, cb.logger))
     return cb
+
+
+_PROXIED = []   # every logger handed to fmpy's logging proxy (see _make_callbacks)
 
 
 _LEAKED = []   # instances after fmi2Fatal (FMI forbids freeing them) and their callbacks

@@ -183,3 +183,18 @@ def test_every_tuning_field_and_input_of_the_controller_is_a_variable(ato_fmu):
         if f.init:
             assert float(v[f"car.{f.name}"].start) == getattr(car, f.name), f"car.{f.name}"
     assert {n for n, x in v.items() if x.causality == "input"} == set(INPUTS)
+
+
+def test_terminate_and_free_after_a_failed_initialisation(ato_fmu, slave_factory):
+    """pythonfmu's own binary segfaults on freeInstance after a failed initialisation; ours
+    (the same glue as RailCar's) refuses nothing and frees the instance, and the next instance
+    in the process runs."""
+    s = slave_factory(ato_fmu)
+    s.setup({"span.schedule": 10.0})
+    assert s.exit_init() == ERROR
+    assert s.call("terminate") in (OK, ERROR)
+    assert s.call("freeInstance") == OK
+    s.freed = True
+    t = slave_factory(ato_fmu)
+    t.initialize({})
+    assert t.do_step(0.0, STEP) == OK and t.get("traction_force_demand") > 0.0

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import FMU_NAMES, ROOT
+from conftest import ROOT
 
 DRIVER = Path(__file__).resolve().parent / "fmu_cases" / "driver.py"
 sys.path.insert(0, str(DRIVER.parent))
@@ -38,6 +38,7 @@ from driver import OUTPUTS  # noqa: E402  (the outputs the driver's "run" op rea
 OK, DISCARD, ERROR, FATAL = 0, 2, 3, 4
 MARKER = b"railcar-fmu fmi2 binary 1"
 RC, EST = "RailCar", "RailCarEstimator"
+FMU_NAMES = (RC, EST)    # AtoController runs the same binary; its own calls: test_ato_fmu.py
 PARAMS = {RC: {"car.mass": 34.0, "traction_force_demand": 30e3, "seed": 7}, EST: {}}
 N = 12                    # steps of the comparison runs (0.1 s each)
 
