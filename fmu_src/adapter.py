@@ -99,17 +99,20 @@ def read_profile_text(values: dict, param: str, resources: str | None) -> tuple[
         raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
 
 
+def read_grade(values: dict, param: str, resources: str | None) -> GradeProfile:
+    """The grade profile the parameter ``param`` names (level track if empty); ParameterError
+    names the parameter, the file and the line."""
+    src = read_profile_text(values, param, resources)
+    try:
+        return GradeProfile.from_csv_text(*src) if src else GradeProfile.level()
+    except ProfileError as e:
+        raise ParameterError(f"{param}: {e}") from None
+
+
 def load_profiles(values: dict, resources: str | None) -> tuple[GradeProfile, SpeedProfile | None]:
     """Read track.grade_profile and track.speed_profile; ParameterError names file and line."""
-    def read(param: str) -> tuple[str, str] | None:
-        return read_profile_text(values, param, resources)
-
-    grade_src = read("track.grade_profile")
-    try:
-        grade = GradeProfile.from_csv_text(*grade_src) if grade_src else GradeProfile.level()
-    except ProfileError as e:
-        raise ParameterError(f"track.grade_profile: {e}") from None
-    speed_src = read("track.speed_profile")
+    grade = read_grade(values, "track.grade_profile", resources)
+    speed_src = read_profile_text(values, "track.speed_profile", resources)
     try:
         speed = SpeedProfile.from_csv_text(*speed_src) if speed_src else None
     except ProfileError as e:
@@ -235,15 +238,8 @@ def open_ato(v: dict, resources: str | None):
     from models.track import parse_profile_csv
     from .variables import _CAR_ROWS, _TUNING_ROWS
 
-    def text(param: str) -> tuple[str, str] | None:
-        return read_profile_text(v, param, resources)
-
-    grade_src = text("span.grade_profile")
-    try:
-        grade = GradeProfile.from_csv_text(*grade_src) if grade_src else GradeProfile.level()
-    except ProfileError as e:
-        raise ParameterError(f"span.grade_profile: {e}") from None
-    limit_src = text("span.speed_limit_profile")
+    grade = read_grade(v, "span.grade_profile", resources)
+    limit_src = read_profile_text(v, "span.speed_limit_profile", resources)
     if limit_src:
         try:
             distances, limits = parse_profile_csv(*limit_src, SPEED_LIMIT_COLUMNS)
