@@ -1,4 +1,4 @@
-"""Build dist/RailCar.fmu and dist/RailCarEstimator.fmu, the native FMUs, and validate them.
+"""Build dist/RailCar.fmu, dist/RailCarEstimator.fmu, dist/AtoController.fmu and the native FMUs; validate them.
 
     python build.py [--dest dist] [--pythonfmu-binary] [--no-native]
 
