@@ -196,6 +196,7 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
     ("mass_band", "1", "est.mass is used within [car.mass / this, car.mass x this]"),
     ("limit_margin", "m/s", "planned speeds stay this far below the speed limit"),
     ("k_sigma", "1", "supervisor: filter.speed + k_sigma x filter.speed_std must stay under the supervision curve"),
+    ("gap_sigma", "1", "and this many filter.speed_std more (filter.speed jumps under speed noise)"),
     ("supervisor_gap", "m/s", "the controller keeps that speed this far below the supervision curve"),
     ("mass_reserve", "1", "the supervisor's braking curves assume this share more mass"),
     ("brake_share", "1", "share of the electric brake the planned braking curves use"),

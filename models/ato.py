@@ -52,7 +52,7 @@ whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve r
 filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
 full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
 the stop mark; the controller itself keeps filter.speed + k_sigma filter.speed_std a
-``supervisor_gap`` below that curve, so a noisy filter slows the car rather than waking the
+``supervisor_gap`` + ``gap_sigma`` filter.speed_std below that curve, so a noisy filter slows the car rather than waking the
 supervisor. (A filter that is wrong by more than k_sigma of its own stds, as the lagging one
 above, can still take the car past the line: the controller cannot see that error.)
 
@@ -124,6 +124,10 @@ class AtoTuning:
     limit_margin: float = 0.5         # [m/s] planned speeds stay this far below V_lim
     #                                   (1.8 km/h, about seed 003's 2 % speed error at 80 km/h)
     k_sigma: float = 3.0              # supervisor: filter.speed + k_sigma * filter.speed_std
+    gap_sigma: float = 2.5            # and gap_sigma x filter.speed_std more: under speed noise
+    #                                   filter.speed jumps by up to ~2 sigma in one update (0.4
+    #                                   m/s at sigma 0.2), which woke the supervisor in every run
+    #                                   at 2 % of V as 1 sigma (0.5 / 1.5: still 100 % / 60 %)
     supervisor_gap: float = 0.1       # [m/s] the controller keeps filter.speed + k_sigma *
     #                                   filter.speed_std this far below the supervision curve
     mass_reserve: float = 0.2         # supervisor's curves: this share more mass than planned
@@ -563,7 +567,8 @@ class AtoController:
         a_u = 0.5 * dq                          # dV/dt along U at speed u: V dV/ds = dq/ds / 2
         qs, dqs = self._interp(self._sup_q, s + self.tuning.k_sigma * self._psd)
         vs = math.sqrt(qs) if qs > 0.0 else 0.0
-        w = vs - self.tuning.k_sigma * sd - self.tuning.supervisor_gap
+        tn = self.tuning
+        w = vs - (tn.k_sigma + tn.gap_sigma) * sd - tn.supervisor_gap
         if w < u:
             return max(w, 0.0), 0.5 * dqs
         return u, a_u

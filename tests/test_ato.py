@@ -484,7 +484,7 @@ def test_the_speed_limit_check_can_fail_without_the_margins():
     """Negative control for the margin assertions: with no planning margin, no uncertainty term
     and no gap to the supervisor, the car holds V_lim on the filter's estimate and the true
     speed goes over it (by the filter's error), which the margin > 0 checks above would catch."""
-    bare = AtoTuning(limit_margin=0.0, k_sigma=0.0, supervisor_gap=0.0)
+    bare = AtoTuning(limit_margin=0.0, k_sigma=0.0, supervisor_gap=0.0, gap_sigma=0.0)
     run = closed_loop(bare, 1)
     assert run.margin < 0.0
 
