@@ -44,7 +44,7 @@ class AtoController(Fmi2Slave):
         v["ato.mode"], v["ato.planned_speed"], v["ato.ep_stage"] = int(mode), float(planned), int(stage)
         v["ato.finished"] = bool(ctrl.finished)
         v["ato.replans"] = int(ctrl.replans)
-        v["ato.using_estimates"] = bool(getattr(ctrl, "_using_estimates", False))
+        v["ato.using_estimates"] = ctrl.using_estimates
         v["ato.predicted_arrival"] = float(ctrl.plan.arrival)
 
     def do_step(self, current_time, step_size):

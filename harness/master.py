@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import shutil
+import sys
 import tempfile
 import zipfile
 from dataclasses import dataclass, field
@@ -38,9 +39,18 @@ import numpy as np
 
 from .ssp import LoadedSystem, SspError, TYPES, read_ssp, split_name, ssp_type, unit_of
 
-__all__ = ["MasterError", "Result", "run_system", "time_grid", "plan_reads", "default_outputs"]
+__all__ = ["MasterError", "Result", "run_system", "time_grid", "plan_reads", "default_outputs",
+           "report_failure"]
 
 STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
+EXIT_FAILED_RUN, EXIT_INVALID_INPUT = 1, 2
+
+
+def report_failure(e: Exception) -> int:
+    """Print a failed system run's error on stderr; its exit code: 2 for a package or
+    description that is invalid (SspError), 1 for a run that failed (MasterError)."""
+    print(f"error: {e}", file=sys.stderr)
+    return EXIT_INVALID_INPUT if isinstance(e, SspError) else EXIT_FAILED_RUN
 
 
 class MasterError(RuntimeError):

@@ -26,7 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .master import MasterError, Result, check_outputs, default_outputs, steps_for, time_grid, to_ns
+from .master import (MasterError, Result, check_outputs, default_outputs, report_failure, steps_for,
+                     time_grid, to_ns)
 from .ssp import LoadedSystem, SspError, read_ssp, split_name, ssp_type, unit_of
 
 __all__ = ["LibcosimMissing", "run_libcosim"]
@@ -189,12 +190,8 @@ def _child(argv: list[str]) -> int:
     req = json.loads(request)
     try:
         r = run_libcosim(path, n_steps=req["n_steps"], outputs=req["outputs"], log_level=req["log_level"])
-    except SspError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except MasterError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+    except (SspError, MasterError) as e:
+        return report_failure(e)
     np.savez(out, time=r.time, **{f"s{j}": r.signals[o] for j, o in enumerate(req["outputs"])})
     return 0
 

@@ -93,7 +93,7 @@ def build_system(description: str | Path, out: str | Path, dist: str | Path = DI
 
 
 def main(argv=None, prog: str = "python -m harness.ssp_systems") -> int:
-    from .master import MasterError, run_system
+    from .master import MasterError, report_failure, run_system
     p = argparse.ArgumentParser(prog=prog,
                                 description="Build an SSP system from a description, or run one.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -117,12 +117,8 @@ def main(argv=None, prog: str = "python -m harness.ssp_systems") -> int:
             result = run_libcosim(args.ssp, stop_time=args.stop, outputs=args.output, isolated=True)
         else:
             result = run_system(args.ssp, stop_time=args.stop, outputs=args.output)
-    except SspError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except MasterError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+    except (SspError, MasterError) as e:
+        return report_failure(e)
     except ImportError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

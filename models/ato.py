@@ -305,6 +305,11 @@ class AtoController:
 
     # ----------------------------------------------------------------- helpers
     @property
+    def using_estimates(self) -> bool:
+        """True while the plan and the feed-forward use est.* (else the configured car)."""
+        return self._using_estimates
+
+    @property
     def finished(self) -> bool:
         """True once the car stands within tuning.stop_window of the stop mark (or past it)."""
         return self.phase == HOLD
