@@ -60,7 +60,7 @@ def bench_models(n: int, solver_step: float = 0.05, engine: str = "c") -> None:
     (models/compiled.py's CompiledChain) or "python" (the reference, models/chain.py)."""
     from models.chain import ChainConfig, RailCarChain
     from models.compiled import CompiledChain
-    from models.track import GradeProfile
+    from models.plant.track import GradeProfile
     kind = CompiledChain if engine == "c" else RailCarChain
     chain = kind(ChainConfig(solver_step=solver_step),
                  GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
@@ -79,7 +79,7 @@ def bench_batched(n: int) -> None:
     import numpy as np
     from models.chain import ChainConfig
     from models.compiled import OUTPUT_NAMES, CompiledChain
-    from models.track import GradeProfile
+    from models.plant.track import GradeProfile
     chain = CompiledChain(ChainConfig(), GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0)))
     k = np.arange(BATCH)
     out = np.empty((BATCH, len(OUTPUT_NAMES)))
@@ -207,11 +207,11 @@ def build_floor(dest: Path) -> Path:
 
 def bench_replay(estimator_fmu: Path, n: int, repeat: int) -> float:
     import numpy as np
-    from harness.replay import Log
-    from harness.runner import FmuRunner
+    from harness.run.replay import Log
+    from harness.run.runner import FmuRunner
     from models.chain import ChainConfig
     from models.compiled import open_chain
-    from models.track import GradeProfile
+    from models.plant.track import GradeProfile
     chain = open_chain(ChainConfig(), GradeProfile.level())
     rows = []
     for k in range(n):
@@ -232,7 +232,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     n, rep = args.steps, args.repeat
-    from harness.fmus import ensure_built
+    from harness.run.fmus import ensure_built
     fmus = ensure_built(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
         floor = build_floor(Path(tmp))

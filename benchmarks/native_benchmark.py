@@ -126,7 +126,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     from fmu_src.native import build_native_fmu
-    from harness.fmus import ensure_built
+    from harness.run.fmus import ensure_built
     fmus = ensure_built(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -5,12 +5,12 @@
    RMS 2x, and the acceleration error's maximum 3x and RMS 7x. Our set-up: a metro run (jerk-
    limited traction at 1 m/s^2, power zone, coasting, service braking at 1 m/s^2 to a stop),
    three axle speed sensors at 10 Hz each with unequal phase offsets and white noise
-   0.05 m/s, a control tick every 0.1 s. LS = ``models.differentiation.fuse_sensors`` (merged,
+   0.05 m/s, a control tick every 0.1 s. LS = ``models.estimation.differentiation.fuse_sensors`` (merged,
    time-aligned stream, order 1, window 6, evaluated at the tick); ZOH = latest merged sample,
    acceleration = difference of consecutive ZOH speeds over the tick. Ratios are ZOH error /
    LS error (> 1: LS better), median and range over ``REPS`` seeded noise realisations.
 2. Seed 002: speed from two point track sensors; Monte Carlo std vs the first-order formula
-   sigma_v = v^2/b sqrt(delta^2/6 + 2 jitter^2) (``models.track_sensors``).
+   sigma_v = v^2/b sqrt(delta^2/6 + 2 jitter^2) (``models.plant.track_sensors``).
 
 Reproducible: every random draw comes from ``SEED``. Run: ``python benchmarks/sensor_claims.py``.
 """
@@ -24,8 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from models.differentiation import fuse_sensors, zero_order_hold  # noqa: E402
-from models.track_sensors import TrackSensorPair, track_sensor_speed_std  # noqa: E402
+from models.estimation.differentiation import fuse_sensors, zero_order_hold  # noqa: E402
+from models.plant.track_sensors import TrackSensorPair, track_sensor_speed_std  # noqa: E402
 
 SEED = 20240517
 REPS = 50
@@ -183,7 +183,7 @@ TRACK_SPEEDS = (5.0, 10.0, 20.0, 30.0)                                 # [m/s]
 def track_sensor_mc(v_nominal: float, n: int, rng: np.random.Generator,
                     pair: TrackSensorPair = TRACK, spread: float = 0.02) -> tuple[float, float]:
     """Monte Carlo std [m/s] of the measured speed's error, speeds uniform within +-spread of
-    v_nominal [m/s] (so that b/(v delta) covers many ticks: see models.track_sensors), the
+    v_nominal [m/s] (so that b/(v delta) covers many ticks: see models.plant.track_sensors), the
     error normalised to v_nominal by v_nominal^2/v^2. Returns (MC std, formula std)."""
     v = v_nominal * (1.0 + spread * rng.uniform(-1.0, 1.0, n))
     meas, _ = pair.measure(v, rng)

@@ -32,12 +32,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: E402
-from harness.metrics import summarise  # noqa: E402
-from harness.runner import FmuRunner  # noqa: E402
-from harness.sweep import run_sweep  # noqa: E402
-from harness.sweep_exec import ReusableRunner, execute_run  # noqa: E402
-from harness.sweep_spec import load_sweep  # noqa: E402
+from harness.run.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: E402
+from harness.metrics.estimation import summarise  # noqa: E402
+from harness.run.runner import FmuRunner  # noqa: E402
+from harness.sweep.main import run_sweep  # noqa: E402
+from harness.sweep.execute import ReusableRunner, execute_run  # noqa: E402
+from harness.sweep.spec import load_sweep  # noqa: E402
 
 STEPS = 1500
 

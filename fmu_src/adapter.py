@@ -17,10 +17,10 @@ from pathlib import Path
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
 
-from models.estimator import StationConfig
-from models.filters import FilterConfig
-from models.identification import IdentifierConfig
-from models.track import GradeProfile, ProfileError, SpeedProfile
+from models.estimation.online import StationConfig
+from models.filtering.motion_filter import FilterConfig
+from models.estimation.identification import IdentifierConfig
+from models.plant.track import GradeProfile, ProfileError, SpeedProfile
 
 from .variables import Var, variables_for
 
@@ -189,7 +189,7 @@ def track_settings(v: dict):
 def chain_config(v: dict):
     """RailCar's parameter values -> models.chain.ChainConfig (also used by studies)."""
     from models.chain import ChainConfig
-    from models.dynamics import VehicleParams
+    from models.plant.dynamics import VehicleParams
     vehicle = VehicleParams(
         mass=v["car.mass"], A0=v["car.A0"], A1=v["car.A1"], A2=v["car.A2"], gamma=v["car.gamma"],
         length=v["car.length"], traction_force_max=v["car.traction_force_max"],
@@ -229,13 +229,13 @@ SPEED_LIMIT_COLUMNS = ("distance_m", "speed_limit_mps")
 
 
 def open_ato(v: dict, resources: str | None):
-    """AtoController's parameter values -> models.ato.AtoController (span, configured car,
+    """AtoController's parameter values -> models.ato.controller.AtoController (span, configured car,
     tuning; the profiles read as RailCar reads its own, ``resolve_profile_path``). Raises
     ParameterError naming the parameter (a profile: its file and line): an infeasible schedule,
     a stop mark beyond the span, a limit the brakes cannot keep, a bad tuning value."""
-    from models.ato import AtoController, AtoTuning
-    from models.span import CarTraction, Span
-    from models.track import parse_profile_csv
+    from models.ato.controller import AtoController, AtoTuning
+    from models.planning.span import CarTraction, Span
+    from models.plant.track import parse_profile_csv
     from .variables import _CAR_ROWS, _TUNING_ROWS
 
     grade = read_grade(v, "span.grade_profile", resources)

@@ -1,7 +1,7 @@
-"""AtoController FMU: the train operation of one span (models.ato) closed around the estimator.
+"""AtoController FMU: the train operation of one span (models.ato.controller) closed around the estimator.
 
 Each doStep(t, h) reads the estimator's outputs at t (inputs of the same names), asks
-models.ato.AtoController for the command and holds it as the outputs for the next step: in a
+models.ato.controller.AtoController for the command and holds it as the outputs for the next step: in a
 system the car applies it one communication step later (an actuator delay of h). After
 initialisation the outputs are a holding brake. Bad parameters fail exitInitializationMode with
 a message naming them (an infeasible schedule, a stop mark beyond the span, a limit the brakes
@@ -13,7 +13,7 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_src.adapter import initialise, not_initialised, open_ato, register_variables
 from fmu_src.variables import ATO, variables_for
-from models.ato import AtoMode
+from models.ato.controller import AtoMode
 
 READS = tuple(v.name for v in variables_for(ATO) if v.causality == "input")
 
@@ -54,7 +54,7 @@ class AtoController(Fmi2Slave):
         try:
             cmd = ctrl.demands(current_time, {n: self.values[n] for n in READS})
             self._publish(ctrl, cmd.traction, cmd.brake, cmd.mode, cmd.planned_speed, cmd.ep_stage)
-        except Exception as e:   # models.ato never raises here; if it did, brake, never crash
+        except Exception as e:   # models.ato.controller never raises here; if it did, brake, never crash
             self.log(f"t = {current_time:.3f} s: {type(e).__name__}: {e}: safe brake", Fmi2Status.error)
             safe = ctrl.tuning.safe_brake * ctrl.car.brake_force_max
             self._publish(ctrl, 0.0, safe, int(AtoMode.SAFE), 0.0, 0)

@@ -364,13 +364,13 @@ def _rel(p: Path) -> Path:
 
 def build_native(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
     """Compile and zip ``dest_dir/<spec.native_name>.fmu``; ``python_fmu`` is the pythonfmu FMU
-    whose description it takes (default: dist/, built by harness.fmus.ensure_built when missing
+    whose description it takes (default: dist/, built by harness.run.fmus.ensure_built when missing
     or stale). Refuses to build when the table header is out of date."""
     header = _header_path(spec)
     if not header.is_file() or header.read_text(encoding="utf-8") != generate_header(spec):
         raise RuntimeError(f"{_rel(header)} is out of date: run python -m fmu_src.native")
     if python_fmu is None:
-        from harness.fmus import ensure_built
+        from harness.run.fmus import ensure_built
         python_fmu = ensure_built(quiet=True, native=False)[spec.fmu]
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)

@@ -199,14 +199,14 @@ def build_description(spec: NativeSpec = RAILCAR_SPEC) -> bytes:
 
 def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
     """Compile and zip ``dest_dir/<spec.native_name>3.fmu``. ``python_fmu`` (the pythonfmu FMU
-    of ``spec.fmu``, default dist/ via harness.fmus.ensure_built) only supplies the profiles
+    of ``spec.fmu``, default dist/ via harness.run.fmus.ensure_built) only supplies the profiles
     under resources/. Refuses to build when the backend's table header is out of date."""
     header = native._header_path(spec)
     if (not header.is_file()
             or header.read_text(encoding="utf-8") != native.generate_header(spec)):
         raise RuntimeError(f"{header.name} is out of date: run python -m fmu_src.native")
     if python_fmu is None:
-        from harness.fmus import ensure_built
+        from harness.run.fmus import ensure_built
         python_fmu = ensure_built(quiet=True, native=False)[spec.fmu]
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)

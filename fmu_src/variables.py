@@ -161,9 +161,9 @@ VARIABLES: tuple[Var, ...] = (
 
 
 # ------------------------------------------------------------------------------- AtoController
-# The controller (models.ato.AtoController) as an FMU: inputs are the estimator's outputs it reads
+# The controller (models.ato.controller.AtoController) as an FMU: inputs are the estimator's outputs it reads
 # (same names, so a system connects them name to name), parameters the span, the configured car
-# (models.span.CarTraction) and the tuning (models.ato.AtoTuning, defaults taken from there),
+# (models.planning.span.CarTraction) and the tuning (models.ato.controller.AtoTuning, defaults taken from there),
 # outputs the demands RailCar takes (same names) and what the controller is doing.
 A = (ATO,)
 _CAR_ROWS = (   # CarTraction field, unit, description (the car as configured, not the truth)
@@ -227,8 +227,8 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
 
 
 def _ato_rows() -> tuple[Var, ...]:
-    from models.ato import AtoTuning
-    from models.span import CarTraction
+    from models.ato.controller import AtoTuning
+    from models.planning.span import CarTraction
     from models.units import kmh_to_mps
     car, tuning = CarTraction(), AtoTuning()
     typed = {"bool": "Boolean", "int": "Integer", "float": "Real"}

@@ -10,7 +10,7 @@
     python -m harness list
 
 Every command that runs an FMU (run, replay, regress, report, filters, sweep) takes
-``--fmu auto|native|python`` (harness.fmus): the native FMU (the C core, no Python, bit-identical
+``--fmu auto|native|python`` (harness.run.fmus): the native FMU (the C core, no Python, bit-identical
 outputs), the pythonfmu FMU, or by default ``auto``: the native FMU when the C core covers the
 parameters of everything the command runs, else the pythonfmu FMU. The choice is printed
 ("fmu: ...") and recorded (summary.md, library.md, the sweep's ``fmu`` column).
@@ -29,8 +29,8 @@ import os
 import sys
 from pathlib import Path
 
-from .scenario import ScenarioError, load_scenario
-from .textio import InputError, check_out_dir
+from harness.run.scenario import ScenarioError, load_scenario
+from harness.textio import InputError, check_out_dir
 
 EXIT_OK, EXIT_RUN_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -43,7 +43,7 @@ def _init_failed(where, e, hint: str = "") -> int:
 
 def _native_hint(choice, model: str, parameters: dict) -> str:
     """For a native FMU refusing an option the C core does not cover: how to run it anyway."""
-    from .fmus import uncovered
+    from harness.run.fmus import uncovered
     if choice.kind == "native" and uncovered(model, parameters):
         return " (--fmu auto or --fmu python runs it on the pythonfmu FMU)"
     return ""
@@ -60,10 +60,10 @@ def _check_log_path(path: str) -> None:
 
 
 def cmd_run(args) -> int:
-    from .fmus import select
-    from .metrics import summarise
-    from .report import format_run_summary, write_report
-    from .runner import FmuRunner, InitError, RunError
+    from harness.run.fmus import select
+    from harness.metrics.estimation import summarise
+    from harness.reports.run_report import format_run_summary, write_report
+    from harness.run.runner import FmuRunner, InitError, RunError
 
     scenario = load_scenario(args.scenario)
     out = Path(args.out) if args.out else Path("out") / scenario.name
@@ -88,12 +88,12 @@ def cmd_run(args) -> int:
     print(format_run_summary(summary, result))
     ato_steps = driver.steps if scenario.ato is not None else None
     if ato_steps is not None:
-        from .ato_metrics import ato_metrics, format_ato
+        from harness.metrics.ato import ato_metrics, format_ato
         print("ATO, per span:")
         print(format_ato(ato_metrics(scenario, result, ato_steps)))
     files = write_report(result, summary, true_A, out, fmu=choice.describe(), ato_steps=ato_steps)
     if args.log:
-        from .replay import write_log
+        from harness.run.replay import write_log
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         print(f"log for replay: {write_log(Path(args.log), result)}")
     print(f"report: {files[1]} (with {', '.join(p.name for p in files[2:])}; data {files[0].name})")
@@ -101,7 +101,7 @@ def cmd_run(args) -> int:
 
 
 def _library(names: list[str]) -> list:
-    from .regress import library_scenarios
+    from harness.run.regress import library_scenarios
     from fnmatch import fnmatchcase
     paths = library_scenarios()
     if names:
@@ -117,9 +117,9 @@ def _library(names: list[str]) -> list:
 
 
 def _choose_each(scenarios, kind: str, dist, rebuild: bool) -> dict:
-    """The FMU for each scenario (--fmu, harness.fmus.choose: auto decides per scenario), printed
+    """The FMU for each scenario (--fmu, harness.run.fmus.choose: auto decides per scenario), printed
     as one line per FMU used."""
-    from .fmus import DIST, choose, ensure_built
+    from harness.run.fmus import DIST, choose, ensure_built
     dist = Path(dist) if dist else DIST
     ensure_built(dist, force=rebuild, native=kind != "python")
     choices = {s.name: choose(kind, "RailCar", dist, [(str(s.path or s.name), s.parameters)]) for s in scenarios}
@@ -137,8 +137,8 @@ def _choose_each(scenarios, kind: str, dist, rebuild: bool) -> dict:
 def _run_all(scenarios, dist, rebuild=False, kind: str = "auto"):
     """Run scenarios, each on the FMU --fmu picks for it (each FMU extracted once); yields
     (scenario, result or RunError). A RunError carries ``fmu``, the kind that ran."""
-    from .progress import Progress
-    from .runner import FmuRunner, RunError
+    from harness.progress import Progress
+    from harness.run.runner import FmuRunner, RunError
     choices = _choose_each(scenarios, kind, dist, rebuild)
     bar = Progress(len(scenarios), "scenarios")
     runners: dict = {}
@@ -161,7 +161,7 @@ def _run_all(scenarios, dist, rebuild=False, kind: str = "auto"):
 
 def _init_failures(results) -> int | None:
     """EXIT_USAGE (with a line per scenario) if the FMU refused a library scenario's parameters."""
-    from .runner import InitError
+    from harness.run.runner import InitError
     bad = [(s, r) for s, r in results if isinstance(r, InitError)]
     for s, r in bad:
         _init_failed(f"{s.path or s.name}: parameters", r)
@@ -169,7 +169,7 @@ def _init_failures(results) -> int | None:
 
 
 def cmd_regress(args) -> int:
-    from .regress import compare, write_reference
+    from harness.run.regress import compare, write_reference
     scenarios = _library(args.names)
     failed = False
     results = []
@@ -199,7 +199,7 @@ def cmd_regress(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from .library_report import format_table, library_rows, write_table
+    from harness.reports.library_report import format_table, library_rows, write_table
     scenarios = _library(args.names)
     out = Path(args.out) if args.out else Path("out") / "library"
     check_out_dir(out)
@@ -212,9 +212,9 @@ def cmd_report(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from .fmus import select
-    from .replay import estimator_parameters, read_log, replay_report
-    from .runner import FmuRunner, InitError, RunError
+    from harness.run.fmus import select
+    from harness.run.replay import estimator_parameters, read_log, replay_report
+    from harness.run.runner import FmuRunner, InitError, RunError
     log = read_log(args.log)                     # LogError, ParamError: invalid input (exit 2)
     params = estimator_parameters(args.param, dt=float(log.time[1] - log.time[0]))
     out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
@@ -234,10 +234,10 @@ def cmd_replay(args) -> int:
 
 
 def cmd_filters(args) -> int:
-    from .fmus import select
-    from .filter_compare import KINDS, compare_filters, format_rows
-    from .progress import Progress
-    from .runner import FmuRunner
+    from harness.run.fmus import select
+    from harness.metrics.filter_compare import KINDS, compare_filters, format_rows
+    from harness.progress import Progress
+    from harness.run.runner import FmuRunner
     scenarios = _library(args.names)
     choice = select(args.fmu, "RailCar", args.dist, args.rebuild,
                     [(f"{s.name} with filter.kind = {k}", {**s.parameters, "filter.kind": k})
@@ -250,7 +250,7 @@ def cmd_filters(args) -> int:
 
 
 def cmd_plan(args) -> int:
-    from .plan import plan_speed_profile, profile_csv_text
+    from harness.run.plan import plan_speed_profile, profile_csv_text
     scenario = load_scenario(args.scenario)
     if Path(args.out).is_dir():
         raise InputError(f"--out {args.out}: is a folder; give a CSV file name")
@@ -263,7 +263,7 @@ def cmd_plan(args) -> int:
 def cmd_list(args) -> int:
     """The scenarios (default and library), the sweep and the system files, one line each: name and purpose."""
     import tomllib
-    from .regress import library_scenarios
+    from harness.run.regress import library_scenarios
     root = Path(__file__).resolve().parent.parent / "scenarios"
     print("scenarios (python -m harness run scenarios/...; library: regress, report)")
     for path in [root / "default.toml", *library_scenarios()]:
@@ -283,12 +283,12 @@ def cmd_list(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .sweep import cli_sweep
+    from harness.sweep.main import cli_sweep
     return cli_sweep(args)
 
 
 def _fmu_options(p) -> None:
-    from .fmus import DEFAULT_KIND, KINDS
+    from harness.run.fmus import DEFAULT_KIND, KINDS
     p.add_argument("--dist", metavar="DIR", help="folder of RailCar.fmu and RailCarEstimator.fmu and their native "
                    "twins in DIR/native (default: dist/); they are built there when missing or built from other "
                    "sources")
@@ -301,8 +301,8 @@ def _fmu_options(p) -> None:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["system"]:          # harness.ssp_systems parses its own arguments (and -h)
-        from .ssp_systems import main as system_main
+    if argv[:1] == ["system"]:          # harness.systems.cli parses its own arguments (and -h)
+        from harness.systems.cli import main as system_main
         return system_main(argv[1:], prog="python -m harness system")
     ap = argparse.ArgumentParser(prog="python -m harness", description="RailCar FMU validation harness")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -355,7 +355,7 @@ def main(argv=None) -> int:
     _fmu_options(p)
     p.set_defaults(func=cmd_sweep)
     args = ap.parse_args(argv)
-    from .fmus import BuildError
+    from harness.run.fmus import BuildError
     try:
         return args.func(args)
     except InputError as e:                  # ScenarioError, SweepError, LogError, ParamError, ...

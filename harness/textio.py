@@ -57,7 +57,7 @@ def read_text(path: str | Path, error: type[Exception] = InputError, bom: str = 
 
 
 def check_text_file(path: str | Path, error: type[Exception] = InputError, reader: str = "") -> None:
-    """Check that a file another reader will open (the FMU, ``harness.driver``) is UTF-8 text without
+    """Check that a file another reader will open (the FMU, ``harness.run.driver``) is UTF-8 text without
     a BOM, so that a bad file is reported here, naming it, rather than there."""
     read_text(path, error, bom="reject", reader=reader)
 

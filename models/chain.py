@@ -10,13 +10,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-from .dynamics import CarPlant, VehicleParams
-from .estimator import OnlineEstimator, StationConfig
-from .filters import FilterConfig
-from .identification import IdentifierConfig
-from .noise import noise_streams
-from .track import GradeProfile, SpeedProfile
-from .units import G
+from models.plant.dynamics import CarPlant, VehicleParams
+from models.estimation.online import OnlineEstimator, StationConfig
+from models.filtering.motion_filter import FilterConfig
+from models.estimation.identification import IdentifierConfig
+from models.plant.noise import noise_streams
+from models.plant.track import GradeProfile, SpeedProfile
+from models.units import G
 
 
 class StepRejected(ValueError):
@@ -81,7 +81,7 @@ class TrackSensorConfig:
 
     def speed_std(self, v: float) -> float:
         """Std of a measured speed [m/s] at speed v [m/s]: v^2/b sqrt(delta^2/6 + 2 jitter^2)."""
-        from .track_sensors import track_sensor_speed_std
+        from models.plant.track_sensors import track_sensor_speed_std
         return float(track_sensor_speed_std(v, self.base, self.resolution, self.jitter))
 
 
@@ -139,7 +139,7 @@ def build_estimator(id_cfg: IdentifierConfig, filt: FilterConfig, station: Stati
                     grade_profile: GradeProfile, speed_profile: SpeedProfile | None,
                     dt: float, method=None, noise=None) -> OnlineEstimator:
     """The estimator both FMUs run, sampling every dt [s] (private copies of the configs);
-    ``method``, ``noise``: strategy objects instead of the configured ones (models/methods.py)."""
+    ``method``, ``noise``: strategy objects instead of the configured ones (models/estimation/methods.py)."""
     id_cfg = replace(id_cfg, dt=dt, speed_std=filt.speed_std)
     filt = replace(filt, dt=dt, gamma=id_cfg.gamma)
     return OnlineEstimator(id_cfg, filt, station, grade_profile, speed_profile, method, noise)
@@ -149,7 +149,7 @@ class RailCarChain:
     """Plant + sensors + estimator; one instance per FMU instance. The Python reference: the
     C core (models/compiled.py) is its bit-identical twin. ``method``, ``noise``: the
     estimator's strategy objects instead of the configured ones (an experiment, a study:
-    models/methods.py)."""
+    models/estimation/methods.py)."""
 
     engine = "python"
 
@@ -223,7 +223,7 @@ class RailCarChain:
                 return
 
     def _track_reading(self, t_first: float, t_second: float) -> None:
-        from .track_sensors import quantise_time, speed_from_times
+        from models.plant.track_sensors import quantise_time, speed_from_times
         tc = self.cfg.track
         j1, j2 = tc.jitter * self._track_noise(), tc.jitter * self._track_noise()
         v = float(speed_from_times(t_first, t_second, tc.base, tc.resolution, 0.0, j1, j2))

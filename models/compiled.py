@@ -3,7 +3,7 @@
 ``open_chain(cfg, grade, speed, start_time)`` is what the FMU, the harness and the studies
 build: a ``CompiledChain`` when the C core is compiled and covers the configuration, else the
 Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs for the same seed
-(tests/test_core_chain.py). Which one runs is visible: ``chain.engine`` is "c" or "python", and
+(tests/model_tests/core/test_core_chain.py). Which one runs is visible: ``chain.engine`` is "c" or "python", and
 ``ENGINES`` counts the chains opened with each.
 
 The C core covers filter kinds 0-4 (the Singer filter included), est.method 0, est.physical 0,
@@ -20,12 +20,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from .chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected, TrackSensorConfig,
+from models.chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected, TrackSensorConfig,
                     build_estimator)
-from .estimator import StationConfig
-from .filters import FilterConfig
-from .identification import IdentifierConfig
-from .track import GradeProfile, SpeedProfile
+from models.estimation.online import StationConfig
+from models.filtering.motion_filter import FilterConfig
+from models.estimation.identification import IdentifierConfig
+from models.plant.track import GradeProfile, SpeedProfile
 
 try:
     from . import _railcar

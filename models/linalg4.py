@@ -1,6 +1,6 @@
 """Small dense linear algebra in scalar Python with a fixed operation order.
 
-The solves, inverses and eigen-decompositions of models/identification.py (the first batch and
+The solves, inverses and eigen-decompositions of models/estimation/identification.py (the first batch and
 the running estimate before it, a mass restart, regularised forgetting, the positive-definiteness
 repair). numpy/LAPACK's blocked, FMA-using kernels could not be reproduced bit for bit; here every
 sum runs in the order written (left to right, no fused multiply-add), so models/core/linalg4.c,

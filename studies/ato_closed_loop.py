@@ -6,25 +6,25 @@ The RailCar chain (models.compiled.open_chain: plant, sensors, estimator, config
 RailCar FMU with its default parameters) runs a 2.15 km span (the library's demo grade profile
 extended: level, +15, -10, level, +5 permille; 80 km/h with a 60 km/h zone from 900 to 1300 m;
 stop mark at 2150 m; schedule 135 s, 9.6 % above the minimum-time run) under
-models.ato.AtoController, one communication step of 0.1 s at a time. Per case and variant,
+models.ato.controller.AtoController, one communication step of 0.1 s at a time. Per case and variant,
 seeds 1..N (the chain's noise seed):
 
   arrival   true time of the final standstill at the stop minus the schedule [s] (as
-            harness/ato_metrics.py counts it); share within +-2.5 s (seeds 003, 004)
+            harness/metrics/ato.py counts it); share within +-2.5 s (seeds 003, 004)
   settle    where the filter's distance is uncertain (filter.position_std above
             AtoTuning.settle_std: the noise cases) the controller stops short, stands and creeps
-            on to the mark (models/ato.py): the mean time [s] from the first standstill to the
+            on to the mark (models/ato/controller.py): the mean time [s] from the first standstill to the
             final one, over all runs (0: one stop); the first standstill is arrival - settle
   stop      true final stop position minus the stop mark [m]; share within +-0.3 m (seed 004),
             max
   margin    min over the run of V_lim(s) - V (true speed and position) [m/s]: > 0 = never over
   energy    traction work / eta_f - eta x regenerated work [kWh] (MODEL.md section 9), from the
             true speeds and the demands as the plant applies them; "vs manual" against
-            models.trajectory.manual_driver on the true car (flat out, coast, brake: what a
+            models.planning.trajectory.manual_driver on the true car (flat out, coast, brake: what a
             driver does to meet the schedule), "MP" the maximum-principle plan's own saving
   safety    runs with a safe-brake or supervisor intervention
 (the per-step energy, the standstill time and what counts as an intervention are
-harness/ato_metrics.py's, which the harness's span scenarios report too: one copy)
+harness/metrics/ato.py's, which the harness's span scenarios report too: one copy)
 
 Variants: identified parameters + re-planning (the regulator), configured coefficients + a
 fixed plan (planned once, no re-planning: the reference the issue asks for), configured
@@ -70,11 +70,11 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from harness.ato_metrics import INTERVENTIONS, energy_kwh, standstill_time, step_work  # noqa: E402
-from models.ato import AtoController, AtoTuning  # noqa: E402
-from models.dynamics import VehicleParams  # noqa: E402
-from models.span import CarTraction, Span  # noqa: E402
-from models.track import GradeProfile  # noqa: E402
+from harness.metrics.ato import INTERVENTIONS, energy_kwh, standstill_time, step_work  # noqa: E402
+from models.ato.controller import AtoController, AtoTuning  # noqa: E402
+from models.plant.dynamics import VehicleParams  # noqa: E402
+from models.planning.span import CarTraction, Span  # noqa: E402
+from models.plant.track import GradeProfile  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
 
 V80, V60 = kmh_to_mps(80.0), kmh_to_mps(60.0)
@@ -107,7 +107,7 @@ VARIANTS = {
 
 
 def railcar_values(seed: int, overrides: dict) -> dict:
-    from harness.scenario import railcar_values as defaults
+    from harness.run.scenario import railcar_values as defaults
     return defaults({**overrides, "seed": seed})
 
 
@@ -170,8 +170,8 @@ def _batch(args):
 
 def references(cases=tuple(CASES)):
     """Energy [kWh] of the manual driver and of the maximum-principle plan on each case's true
-    car (the planners of models/trajectory.py, 5 m steps)."""
-    from models.trajectory import manual_driver, synthesize
+    car (the planners of models/planning/trajectory.py, 5 m steps)."""
+    from models.planning.trajectory import manual_driver, synthesize
     out = {}
     for case in cases:
         overrides, wind = CASES[case]

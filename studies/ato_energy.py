@@ -7,13 +7,13 @@ eta times regenerated energy) of
 
   manual   the minimum-time run up to a coast point, then coasting and the braking curve
            (issue 20's reference: "flat-out then coast/brake, what a manual driver does")
-  MP       seed 003's maximum-principle plan (models.trajectory.synthesize)
+  MP       seed 003's maximum-principle plan (models.planning.trajectory.synthesize)
   DP       seed 004's DP, K = 2 traction applications, 25 m stages, 121 speeds
   BF       the brute-force optimum: DP over speed only, every 5 m, 6 controls, 201 and 401
            speeds (two grid sizes show how far the discretised optimum is from converged)
 
 with the saving of MP (and DP) against the manual driver and the gaps to the finer BF. The car
-is models.span.CarTraction's default (the RailCar FMU's 30 t car, 40 kN / 400 kW drive,
+is models.planning.span.CarTraction's default (the RailCar FMU's 30 t car, 40 kN / 400 kW drive,
 eta_f = 0.9, eta = 0.6). Every plan meets the schedule within 0.01 s. Deterministic; ~1 min
 of CPU on one core.
 """
@@ -27,9 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from models.span import CarTraction, Span  # noqa: E402
-from models.track import GradeProfile  # noqa: E402
-from models.trajectory import brute_force, dp_plan, manual_driver, min_time_run, synthesize  # noqa: E402
+from models.planning.span import CarTraction, Span  # noqa: E402
+from models.plant.track import GradeProfile  # noqa: E402
+from models.planning.trajectory import brute_force, dp_plan, manual_driver, min_time_run, synthesize  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
 
 CAR = CarTraction()

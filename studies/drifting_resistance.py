@@ -12,7 +12,7 @@ car and line, ten inter-station runs, passengers at every stop) twice per seed:
            A0 + A2 Vw^2, A1 + 2 A2 Vw (MODEL.md section 2), which the estimator must follow
 
 with est.method 2 (LS on seed 004's slopes) and each est.run_forgetting f, and prints the mean
-w0 relative RMS error after the 10th run against the coefficients then in force (harness.metrics
+w0 relative RMS error after the 10th run against the coefficients then in force (harness.metrics.estimation
 .w0_relative_rms_error over the travelled speed range), with the share of days within 2 %.
 Seeded (days 1..N, the seeds of estimation_quality's ten-run Monte Carlo); ~1 min on 2 cores
 with 20 days.
@@ -32,8 +32,8 @@ for p in (ROOT, ROOT / "studies"):
 import numpy as np  # noqa: E402
 
 import estimation_quality as eq  # noqa: E402
-from harness.metrics import true_theta, w0_relative_rms_error  # noqa: E402
-from harness.scenario import WindStep  # noqa: E402
+from harness.metrics.estimation import true_theta, w0_relative_rms_error  # noqa: E402
+from harness.run.scenario import WindStep  # noqa: E402
 
 FORGETTING = (0.0, 0.1, 0.3, 0.5)
 HEADWIND = 10.0          # [m/s] from the 6th run on

@@ -4,24 +4,24 @@
 
 Compares, on runs of the models chain (plant -> sensors -> online estimator, no FMI):
 
-  paper LS   models.identification.ParameterIdentifier with default settings, as
-             models.estimator.OnlineEstimator feeds it (read from est.* of models.chain.RailCarChain)
+  paper LS   models.estimation.identification.ParameterIdentifier with default settings, as
+             models.estimation.online.OnlineEstimator feeds it (read from est.* of models.chain.RailCarChain)
   LS slopes  the same chain with est.method 2: the LS fed with seed 004's centred least-squares
              slopes of the measured speed (est.slope_window 10), online as in the FMU
-  OE         models.output_error.fit_segment, output error (deterministic simulation of eq. (2)),
+  OE         models.estimation.output_error.fit_segment, output error (deterministic simulation of eq. (2)),
              covariance the process-noise sandwich
   FE         fit_segment(method="filter_error"): output error refined by the filter-error method
              (Kalman innovations as residuals, maximum likelihood under process noise)
-  EKF        models.coast_ekf.CoastEKF, seed 003's coasting EKF (coasting rows only)
+  EKF        models.estimation.coast_ekf.CoastEKF, seed 003's coasting EKF (coasting rows only)
   oracle     the true coefficients
 
 (a) the four coasting logs shaped like seed 003 Table 1 rows 1-4 (scenarios/library/
     coasting_rusich_row*.toml): coast run-time prediction error with each method's coefficients
-    (harness.metrics.coast_time) against the published bounds (0.25, 0.15, 0.12, 1.45 s), for the
+    (harness.metrics.estimation.coast_time) against the published bounds (0.25, 0.15, 0.12, 1.45 s), for the
     library seed and over Monte Carlo seeds (mean |error|, share within the bound);
 (b) ten consecutive inter-station runs with the same resistance (station_day.toml's car and line,
     10 stops, passengers boarding and alighting at every stop): w0(V) relative RMS error over the
-    travelled speed range after the ten runs (harness.metrics.w0_relative_rms_error), the A's
+    travelled speed range after the ten runs (harness.metrics.estimation.w0_relative_rms_error), the A's
     carried over from run to run;
 (c) coverage of +-2 sigma for A0, A1, A2 and w0 at a few speeds over the Monte Carlo seeds;
 (d) the FMU's online estimator over station_day's Monte Carlo seeds (every stop's mass within 1 %,
@@ -32,20 +32,20 @@ Compares, on runs of the models chain (plant -> sensors -> online estimator, no 
     final comparison, met or its gap in numbers.
 
 Conventions (decided here, printed with the results):
-- The coast time is computed two ways. "true v0" is harness.metrics.summarise's convention: the
+- The coast time is computed two ways. "true v0" is harness.metrics.estimation.summarise's convention: the
   re-run starts from the *true* speed at the coast's first row; the targets are judged on it.
   "recomputed" re-runs the coast from the initial speed each model fits best to the measured
-  coast (models.output_error.fit_initial_state), a reading of seed 003's "recomputed coast". It
+  coast (models.estimation.output_error.fit_initial_state), a reading of seed 003's "recomputed coast". It
   is printed to show that it measures nothing: a fitted start speed absorbs any reasonable w0's
   error (every method, even the paper LS with 13 % w0 error, lands within 0.04 s).
 - Process noise density q is not taken from the truth: it is estimated by restricted maximum
-  likelihood from the output-error fits (models.output_error.estimate_process_noise_psd),
+  likelihood from the output-error fits (models.estimation.output_error.estimate_process_noise_psd),
   pooled over each row's coasts in (a) (the library seed and the Monte Carlo seeds: the same
   train and line; one 33 s coast cannot pin q down and its coverage then falls to 87 %), over
   the day's ten runs in (b). Sensor noise stds are the configured sensor.speed_std /
   sensor.position_std (the estimator knows its sensors).
 - Priors: OE, FE and EKF use the weak physical prior A0 = 1 +- 1, A1 = 0.03 +- 0.03, A2 = 0.01 +-
-  0.01 (models.output_error.physical_prior) and a mass prior of 30 +- 10 t. In the Monte Carlo
+  0.01 (models.estimation.output_error.physical_prior) and a mass prior of 30 +- 10 t. In the Monte Carlo
   its mean is drawn per seed from N(truth, prior std) (simulation-based calibration, Cook, Gelman
   & Rubin 2006): a prior centred on the truth would make the coverage of prior-dominated
   directions meaninglessly 100 %. The library-seed rows use the nominal prior. LS slopes gets
@@ -68,12 +68,12 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from harness.driver import drive_chain  # noqa: E402
-from harness.metrics import coast_segments, coast_time, w0_relative_rms_error  # noqa: E402
-from harness.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from harness.run.driver import drive_chain  # noqa: E402
+from harness.metrics.estimation import coast_segments, coast_time, w0_relative_rms_error  # noqa: E402
+from harness.run.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
 from models.chain import RailCarChain  # noqa: E402
-from models.coast_ekf import CoastEKF, CoastEKFConfig  # noqa: E402
-from models.output_error import (Prior, ResistanceCarryOver, estimate_process_noise_psd,  # noqa: E402
+from models.estimation.coast_ekf import CoastEKF, CoastEKFConfig  # noqa: E402
+from models.estimation.output_error import (Prior, ResistanceCarryOver, estimate_process_noise_psd,  # noqa: E402
                                  fit_initial_state, fit_segment, grade_per_interval,
                                  reference_track)
 from models.units import G  # noqa: E402
@@ -132,7 +132,7 @@ def est_A(run: Run, row: int) -> np.ndarray:
 
 
 class ForceLog:
-    """An estimator's identification method (models/methods.py) that also keeps the forces [N]
+    """An estimator's identification method (models/estimation/methods.py) that also keeps the forces [N]
     of every prediction (the hook OnlineEstimator.propagate calls); the rest is the method's."""
 
     def __init__(self, method):
@@ -149,7 +149,7 @@ class ForceLog:
 
 def run_scenario(scenario: Scenario, seed: int) -> Run:
     """The scenario's driver on models.chain.RailCarChain (what the RailCar FMU runs, without
-    FMI; the loop of harness.runner.FmuRunner.run). The forces the estimator is given per
+    FMI; the loop of harness.run.runner.FmuRunner.run). The forces the estimator is given per
     sample interval are recorded by its method wrapped in a ForceLog (before the first step)."""
     setup = scenario.chain_setup({"seed": int(seed)})
     if abs(scenario.step_s - setup.config.sample_period) > 1e-12:
@@ -398,8 +398,8 @@ class StationDay:
 def station_day_run(job) -> StationDay:
     """(configuration, seed): station_day on the models chain, the mass at each arrival (the
     run's last row before the stop is confirmed) and the filter's coverage while moving."""
-    from harness.driver import run_on_chain
-    from harness.metrics import _segments
+    from harness.run.driver import run_on_chain
+    from harness.metrics.estimation import _segments
     config, seed = job
     r = run_on_chain(load_scenario(LIBRARY / "station_day.toml"), {"seed": int(seed), **ONLINE[config]})
     m, est, sd = r["car.total_mass"], r["est.mass"], r["est.mass_std"]

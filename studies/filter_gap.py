@@ -3,11 +3,11 @@
     python studies/filter_gap.py [NAME ...]
 
 Issue 5 asks for the filter's speed RMSE within 10 % of the oracle filter's (the same filter
-fed the true mass, A's and process noise: harness.metrics.oracle_filter). This runs each
+fed the true mass, A's and process noise: harness.metrics.estimation.oracle_filter). This runs each
 library scenario with speed noise <= 0.05 m/s and no wind (the wind moves the A's: "true A's"
 would need the oracle's wind model) on the models chain (no FMI) and hands the
 learning filter one piece of the truth at a time, through the estimator's strategy objects
-(models/methods.py; the compiled core then stands aside and the Python code runs):
+(models/estimation/methods.py; the compiled core then stands aside and the Python code runs):
 
   as built       the FMU's default estimator (est.method 0)
   true sigma2    the noise model KnownNoise: sigma2 = car.process_noise_psd * dt throughout
@@ -20,7 +20,7 @@ learning filter one piece of the truth at a time, through the estimator's strate
   sigma2 by ML   est.sigma2_method = 1: sigma2 from the innovation likelihood of a bank of
                  13 scalar speed filters, q on a log grid over three decades around
                  est.sigma2_initial, log-normal prior of one decade; the posterior's geometric
-                 mean (multiple-model adaptive estimation, Magill 1965; models.filters.ProcessNoiseBank)
+                 mean (multiple-model adaptive estimation, Magill 1965; models.filtering.motion_filter.ProcessNoiseBank)
 
 Prints the filter/oracle speed RMSE ratio per scenario and variant and the LAG estimate of
 sigma2 against the truth. Seeded (the scenarios' seeds); ~1 min on 2 cores.
@@ -37,11 +37,11 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from harness.driver import chain_result  # noqa: E402
-from harness.metrics import summarise  # noqa: E402
-from harness.scenario import load_scenario  # noqa: E402
+from harness.run.driver import chain_result  # noqa: E402
+from harness.metrics.estimation import summarise  # noqa: E402
+from harness.run.scenario import load_scenario  # noqa: E402
 from models.chain import RailCarChain  # noqa: E402
-from models.methods import KnownNoise, PaperLS  # noqa: E402
+from models.estimation.methods import KnownNoise, PaperLS  # noqa: E402
 from models.units import G  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"

@@ -4,7 +4,7 @@
     python studies/method_table.py [NAME ...] [--methods K ...] [--with NAME=VALUE ...]
 
 The FMU parameter est.method selects how the estimator identifies the mass and the resistance
-coefficients (models.identification.IdentifierConfig):
+coefficients (models.estimation.identification.IdentifierConfig):
 
   0  paper LS          the paper's recursive least squares
   1  LS + FE refit     LS, plus a filter-error refit of each run at the next station stop
@@ -15,7 +15,7 @@ This runs every library scenario (scenarios/library/*.toml; NAME restricts them)
 method (--methods restricts them, default 0 1 2 3; each --with NAME=VALUE adds every method
 again with that FMU parameter set, e.g. --with est.physical=1 --with est.sigma2_method=1) on the
 models chain (no FMI), as
-studies/filter_gap.py does, and summarises each run with harness.metrics.summarise. A method the
+studies/filter_gap.py does, and summarises each run with harness.metrics.estimation.summarise. A method the
 configuration rejects (ValueError when the chain is built) is a row "n/a (rejected: ...)".
 Per row:
 
@@ -29,7 +29,7 @@ Per row:
   coverage   the filter's +-2 sigma coverage of speed and distance over the moving rows
              (car.speed > 0) [%]; an honest filter is at 90-98 %
 
-and one "oracle" row per scenario: harness.metrics.oracle_filter (the same filter fed the true
+and one "oracle" row per scenario: harness.metrics.estimation.oracle_filter (the same filter fed the true
 mass, A's and process noise), so mass and w0 errors 0; its coast errors are the coast-time
 prediction with the true A's (the floor of that metric: the plant's process noise). The oracle
 replays the recorded measurements and demands, which do not depend on est.method (the driver
@@ -64,11 +64,11 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from harness.driver import chain_result  # noqa: E402
-from harness.metrics import _segments, coast_time_errors, summarise  # noqa: E402
-from harness.runner import RunResult  # noqa: E402
-from harness.scenario import RAILCAR_PARAMETERS as PARAMETERS, load_scenario  # noqa: E402
-from models.identification import METHODS as ID_METHODS  # noqa: E402
+from harness.run.driver import chain_result  # noqa: E402
+from harness.metrics.estimation import _segments, coast_time_errors, summarise  # noqa: E402
+from harness.run.runner import RunResult  # noqa: E402
+from harness.run.scenario import RAILCAR_PARAMETERS as PARAMETERS, load_scenario  # noqa: E402
+from models.estimation.identification import METHODS as ID_METHODS  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
 OUT = ROOT / "out" / "methods"

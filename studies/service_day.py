@@ -13,12 +13,12 @@ The day (seeded, reproducible; numbers in DayConfig and FaultConfig):
   within 28-44 t (the change is applied on the step after the arrival, so the arrival row is
   "before passengers board");
 - each run: traction with the car's limit force to a target of 40-80 km/h, then a cruise
-  (demand = mass * CRUISE_GAIN * (target - v), harness.driver's controller) of 10-40 s on half
+  (demand = mass * CRUISE_GAIN * (target - v), harness.run.driver's controller) of 10-40 s on half
   of the runs, or of 10-40 min on 3 % of them (long cruises), then coast, then brake to a stop
   on a braking curve of 0.6-0.9 m/s^2 planned so that the run lasts its drawn time;
 - a piecewise-constant head/tailwind, |wind| <= 5 m/s, changing every 10-60 min;
 - the estimator configured for service (SERVICE_PARAMETERS: est.run_forgetting = 0.3).
-The driver sees the TRUE speed and distance (as harness.driver.PhaseDriver); the communication
+The driver sees the TRUE speed and distance (as harness.run.driver.PhaseDriver); the communication
 step is 0.1 s (= sensor.sample_period), so 864,000 steps for 24 h.
 
 Two estimators are scored on the same run:
@@ -29,7 +29,7 @@ Two estimators are scored on the same run:
   sensor.position at t, corrupted by spikes (one sample off by 5-100 m/s, either sign, 4 per hour;
   the distance off by 20-500 m, 1 per hour) and speed dropouts (0.5-3 s reading 0, or holding
   its last value, 4 per hour), and the forces the plant applied over [t, t+h] (car.traction_force,
-  car.brake_force after the step, harness.replay's convention). A step the estimator refuses
+  car.brake_force after the step, harness.run.replay's convention). A step the estimator refuses
   (StepRejected) is counted and redone with the last accepted measurement held.
 Note that EstimatorChain's filter.* after a step is the one-step prediction for t + h from the
 measurement at t, RailCarChain's the posterior with the measurement at t + h: the faulty
@@ -39,7 +39,7 @@ Figures (one table, both estimators; targets printed PASS/FAIL, exit 0 anyway):
 - steps, and non-finite values among all outputs() (target 0);
 - share of moving samples, after the first est.batch_size identified samples of each run, with
   |est.mass - car.total_mass| <= 3 est.mass_std (target >= 99 %);
-- est.mass error at each station stop (at the arrival row, harness.metrics.stop_indices'
+- est.mass error at each station stop (at the arrival row, harness.metrics.estimation.stop_indices'
   definition, before passengers board), share within 1 % (target >= 95 %) and the worst;
 - filter.speed RMSE against car.speed overall and while moving, per hour while moving (target:
   the last hour <= 1.5 x the first);
@@ -67,11 +67,11 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 from fmu_src.adapter import chain_config, estimator_settings  # noqa: E402
-from harness.driver import CRUISE_GAIN  # noqa: E402
-from harness.scenario import railcar_values  # noqa: E402
+from harness.run.driver import CRUISE_GAIN  # noqa: E402
+from harness.run.scenario import railcar_values  # noqa: E402
 from models.chain import StepRejected  # noqa: E402
 from models.compiled import open_chain, open_estimator_chain  # noqa: E402
-from models.track import GradeProfile  # noqa: E402
+from models.plant.track import GradeProfile  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
 
 # targets (the issue's)
@@ -220,7 +220,7 @@ class FaultySensors:
 
 class ServiceDriver:
     """Closed-loop driver on the true speed [m/s] and distance [m]: dwell, traction, cruise,
-    coast, brake_to_stop (harness.driver's phases), with each run drawn from ``rng``."""
+    coast, brake_to_stop (harness.run.driver's phases), with each run drawn from ``rng``."""
 
     STOPPED = 1e-6   # [m/s] below this the car stands
 
@@ -366,7 +366,7 @@ class _Score:
             self.hour_n[hour] += 1
         elif samples is not None:                     # standing: the run's count starts here
             self.samples_at_departure = samples
-        if v <= 0.0 < v_prev:                         # arrival: harness.metrics.stop_indices
+        if v <= 0.0 < v_prev:                         # arrival: harness.metrics.estimation.stop_indices
             self.stop_errors.append((out["est.mass"] - mass) / mass)
         self.se_all += e * e
         self.n_all += 1

@@ -1,4 +1,4 @@
-"""Helpers for tests/test_native_csv_host.py: build the C host tests/fmu_cases/csv_host.c, unpack
+"""Helpers for tests/fmu_tests/test_native_csv_host.py: build the C host tests/fmu_cases/csv_host.c, unpack
 a native FMU for it, write its PARAMS/INPUTS files, run it and read OUT.csv back.
 
 The host's command line and file formats are documented in the header of csv_host.c.

@@ -1,5 +1,5 @@
 """Running a sanitized C host in a subprocess and reading what it prints: shared by the native
-FMI 2 and FMI 3 sanitizer tests (tests/test_native_sanitized.py, tests/test_native3_sanitized.py).
+FMI 2 and FMI 3 sanitizer tests (tests/fmu_tests/test_native_sanitized.py, tests/fmu_tests/test_native3_sanitized.py).
 
 A host prints "rss_kb CYCLE KB" and "live_bytes CYCLE BYTES" lines at cycles 100 and 1000, and
 ends with "ok" when every expectation held."""

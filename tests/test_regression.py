@@ -12,10 +12,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from harness.library_report import library_rows
-from harness.regress import KEY_SIGNALS, compare, library_scenarios, read_inputs
-from harness.runner import INPUTS, FmuRunner
-from harness.scenario import load_scenario
+from harness.reports.library_report import library_rows
+from harness.run.regress import KEY_SIGNALS, compare, library_scenarios, read_inputs
+from harness.run.runner import INPUTS, FmuRunner
+from harness.run.scenario import load_scenario
 
 NAMES = [p.stem for p in library_scenarios()]
 LIBRARY_PATHS = {p.stem: p for p in library_scenarios()}
@@ -65,7 +65,7 @@ def test_a_deliberate_model_change_fails_naming_scenario_and_signal(built_fmus):
 
 def test_library_targets_met(library_results):
     """Speed noise <= 0.05 m/s: mass within 1 % at every stop; filter RMSE <= 0.6x sensor's."""
-    from harness.scenario import load_scenario as load
+    from harness.run.scenario import load_scenario as load
     rows = library_rows([(load(p), library_results[p.stem]) for p in library_scenarios()])
     checked = [r for r in rows if r.targets_apply]
     assert len(checked) >= 8
@@ -87,7 +87,7 @@ def test_the_ato_scenario_meets_the_atos_targets(library_results, name):
     """Every span, on the FMU: arrived, |arrival error| <= 2.5 s, |stop error| <= 0.3 m, never
     over V_lim, no safety intervention (library_report's bounds, seeds 003 and 004). The
     message gives the measured figures."""
-    from harness.ato_metrics import format_ato
+    from harness.metrics.ato import format_ato
     (row,) = library_rows([(load_scenario(LIBRARY_PATHS[name]), library_results[name])])
     assert row.ato, name
     assert all(row.ato_checks.values()), (row.ato_checks, "\n" + format_ato(row.ato))

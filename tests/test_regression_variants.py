@@ -1,9 +1,9 @@
 """The estimator options beyond the FMU's defaults, pinned to stored references (FMI cross-check
 layout, tests/regression/variants/): station_day with every issue-5 option on at once, run on
-the models chain (the FMU runs the same code; tests/test_fmu_fmpy.py checks the options reach
+the models chain (the FMU runs the same code; tests/fmu_tests/test_fmu_fmpy.py checks the options reach
 it). The defaults run the C core (models/core via models/compiled.py) and are pinned by the
 library's references (test_regression.py); these options run the Python chain, which nothing
-else pins number by number. Tolerances: harness.regress.KEY_SIGNALS.
+else pins number by number. Tolerances: harness.run.regress.KEY_SIGNALS.
 
 To rewrite the references after a deliberate change:
     RAILCAR_UPDATE_VARIANTS=1 python -m pytest tests/test_regression_variants.py
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.driver import run_on_chain
-from harness.regress import REFERENCES, compare, write_reference
-from harness.scenario import load_scenario
+from harness.run.driver import run_on_chain
+from harness.run.regress import REFERENCES, compare, write_reference
+from harness.run.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 FOLDER = REFERENCES / "variants"

@@ -87,9 +87,9 @@ def test_mass_at_stops_within_one_percent(day, name):
 
 
 def test_arrivals_are_the_harness_stops():
-    """The study scores the arrivals harness.metrics.stop_indices finds (its definition, applied
+    """The study scores the arrivals harness.metrics.estimation.stop_indices finds (its definition, applied
     step by step): the same count on the stored speed trace of a short day."""
-    from harness.metrics import stop_indices
+    from harness.metrics.estimation import stop_indices
     trace = []
     s = sd.run_day(0.25, SEED, rss_every_s=3600.0, speed_trace=trace)
     assert len(trace) == s["steps"]

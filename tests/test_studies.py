@@ -14,7 +14,7 @@ import filter_gap  # noqa: E402
 
 def test_the_chains_filter_fed_the_truth_is_the_harness_oracle():
     """filter_gap's "= oracle" variant (the learning filter with the true mass, A's and sigma^2,
-    no parameter-uncertainty term) must reproduce harness.metrics.oracle_filter, or the study's
+    no parameter-uncertainty term) must reproduce harness.metrics.estimation.oracle_filter, or the study's
     decomposition of the gap compares against something else. Not bit-equal: the oracle takes
     the plant's force law from the recorded demands, the chain its applied impulse (same forces
     up to rounding); 1e-3 of the ratio is 20x below the smallest gap the study reports."""

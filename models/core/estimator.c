@@ -1,4 +1,4 @@
-/* estimator.c -- see estimator.h; the bodies of models/estimator.py's StationDetector and
+/* estimator.c -- see estimator.h; the bodies of models/estimation/online.py's StationDetector and
  * OnlineEstimator (est.method 0), same expressions in the same order. */
 #include "rc_fp_contract.h"
 #include "estimator.h"

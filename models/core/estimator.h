@@ -1,4 +1,4 @@
-/* estimator.h -- models.estimator: StationDetector and OnlineEstimator for est.method 0 (the
+/* estimator.h -- models.estimation.online: StationDetector and OnlineEstimator for est.method 0 (the
  * paper's LS), est.sigma2_method 0, est.physical 0, filter kinds 1-4: per sample, measure()
  * (identification of the pair, station logic, the filter's gate and update), then propagate()
  * (the filter's prediction with the forces applied until the next sample), and the outputs with
@@ -12,13 +12,13 @@
 
 #define RC_MOVING_RUN 3          /* StationDetector.MOVING_RUN */
 
-typedef struct {                 /* models.estimator.StationConfig */
+typedef struct {                 /* models.estimation.online.StationConfig */
     double dwell;                /* [s] */
     double speed_threshold;      /* [m/s], 0 = automatic */
     double position_threshold;   /* [m], 0 = automatic */
 } rc_station_config;
 
-typedef struct {                 /* models.estimator.StationDetector */
+typedef struct {                 /* models.estimation.online.StationDetector */
     double v_thr, x_thr, dwell, still_time;
     long fast_run;
     int moving, restarted;       /* bools */
@@ -34,7 +34,7 @@ enum { RC_STATUS_PRIOR = 0, RC_STATUS_IDENTIFYING = 1, RC_STATUS_HOLDING = 2, RC
 #define RC_EST_OUTPUTS 17
 #define RC_FINISH_MAX 40         /* values finish_outputs can guard (the chain's 12 + 15) */
 
-typedef struct {                 /* models.estimator.OnlineEstimator (method 0) */
+typedef struct {                 /* models.estimation.online.OnlineEstimator (method 0) */
     rc_ident ident;
     rc_filter filter;
     rc_station station;

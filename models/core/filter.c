@@ -1,5 +1,5 @@
-/* filter.c -- see filter.h; the bodies of models/filters.py's MotionFilter (kinds 1-4) with
- * models/kalman2.py's pure functions (specific_net_force, linearised_model, ekf_model, gain,
+/* filter.c -- see filter.h; the bodies of models/filtering/motion_filter.py's MotionFilter (kinds 1-4) with
+ * models/filtering/kalman.py's pure functions (specific_net_force, linearised_model, ekf_model, gain,
  * update, update_one, forward, predict_paper, predict) inlined in the same operand order; the
  * Singer branches call singer.c. */
 #include "rc_fp_contract.h"
@@ -110,7 +110,7 @@ static double vzad_at(const rc_filter *f, double x)      /* MotionFilter._vzad *
     return has_speed_profile(f) ? rc_speed_at(f->speed, x) : 0.0;
 }
 
-/* SingerKind._publish (models/filter_kinds.py): the (v, r) block of the Singer state into the posterior's
+/* SingerKind._publish (models/filtering/kinds.py): the (v, r) block of the Singer state into the posterior's
  * (posterior true) or the prediction's fields */
 static void singer_copy(rc_filter *f, int posterior)
 {

@@ -1,8 +1,8 @@
-/* filter.h -- models.filters.MotionFilter for kinds 1-4 (linearised, EKF, paper verbatim,
+/* filter.h -- models.filtering.motion_filter.MotionFilter for kinds 1-4 (linearised, EKF, paper verbatim,
  * Singer): the innovation gate, the update ((15), (17), (18) with H = I, or one measurement
  * alone), the prediction ((16), (19) or the EKF's) and the outputs. Kind 4 runs the Singer
  * filter of singer.h on [w, v, r] and copies its (v, r) block into the posterior's and the
- * prediction's fields, as SingerKind._publish (models/filter_kinds.py) does.
+ * prediction's fields, as SingerKind._publish (models/filtering/kinds.py) does.
  *
  * Where Python raises (ZeroDivisionError, OverflowError of x ** 2), the C function returns
  * RC_MATH and leaves the state as Python leaves it at the raise (mostly unchanged; the few
@@ -22,7 +22,7 @@ enum { RC_REACQUIRE_BOTH = 1, RC_REACQUIRE_DISTANCE = 2 };
 #define RC_FIT_SIGMAS 4.5      /* MotionFilter.FIT_SIGMAS */
 #define RC_REACQUIRE 50        /* MotionFilter.REACQUIRE [samples] */
 
-typedef struct {               /* models.filters.FilterConfig */
+typedef struct {               /* models.filtering.motion_filter.FilterConfig */
     double dt;                 /* [s] */
     double speed_std;          /* [m/s] */
     double position_std;       /* [m] */
@@ -37,7 +37,7 @@ typedef struct {               /* models.filters.FilterConfig */
                                 * stay valid (0 when omitted) */
 } rc_filter_config;
 
-typedef struct {               /* models.filters.MotionFilter */
+typedef struct {               /* models.filtering.motion_filter.MotionFilter */
     rc_filter_config cfg;
     const rc_grade_profile *grade;   /* the chain's */
     const rc_speed_profile *speed;   /* the chain's; NULL or n == 0: none */

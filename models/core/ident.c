@@ -1,4 +1,4 @@
-/* ident.c -- see ident.h; the bodies of models/identification.py's ParameterIdentifier for
+/* ident.c -- see ident.h; the bodies of models/estimation/identification.py's ParameterIdentifier for
  * est.method 0, expression for expression (the Python line is quoted where it is not obvious). */
 #include "rc_fp_contract.h"
 #include <stdlib.h>

@@ -1,4 +1,4 @@
-/* ident.h -- models.identification.ParameterIdentifier for the paper's differenced rows
+/* ident.h -- models.estimation.identification.ParameterIdentifier for the paper's differenced rows
  * (est.method 0; the other methods' rows are not here): the first batch with its prior, the
  * running estimate before it, the recursive step (8), (9), (11) with mu = 1/n or a constant
  * forgetting mu0 (J kept), the sandwich covariance, sigma^2 from LAG sums, the mass restart at a
@@ -16,7 +16,7 @@
 
 #define RC_LAG 50              /* ParameterIdentifier.LAG */
 
-typedef struct {               /* models.identification.IdentifierConfig (method 0) */
+typedef struct {               /* models.estimation.identification.IdentifierConfig (method 0) */
     double dt;                 /* [s] */
     long batch_size;           /* >= 4 */
     double forgetting;         /* mu0 in [0, 1) */
@@ -30,7 +30,7 @@ typedef struct {               /* models.identification.IdentifierConfig (method
     double run_forgetting;     /* [0, 1) */
 } rc_ident_config;
 
-typedef struct {               /* models.identification.ParameterIdentifier */
+typedef struct {               /* models.estimation.identification.ParameterIdentifier */
     rc_ident_config cfg;
     double theta0[4], scale, s2_ref, s2_prior[4], j0[4];
     double end_factor, end_weight;     /* 2 and 1 for the paper's rows */

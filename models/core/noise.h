@@ -1,4 +1,4 @@
-/* noise.h -- seeded standard-normal streams, draw for draw those of models/noise.py.
+/* noise.h -- seeded standard-normal streams, draw for draw those of models/plant/noise.py.
  *
  * numpy's SeedSequence(seed).spawn(k)[child] -> PCG64 -> Generator.standard_normal, written from
  * the published algorithms: SeedSequence (numpy's documented hash mixing after M. O'Neill's

@@ -1,4 +1,4 @@
-/* plant.c -- see plant.h; the bodies of models/dynamics.py's held_input_dynamics, _rk4 and
+/* plant.c -- see plant.h; the bodies of models/plant/dynamics.py's held_input_dynamics, _rk4 and
  * CarPlant, expression for expression (operand order and association as in Python). */
 #include "rc_fp_contract.h"
 #include "plant.h"
@@ -69,7 +69,7 @@ static double dyn_accel(const dyn *d, double v, double x)
     return (v > 0.0 || a > 0.0) ? a : 0.0;          /* at rest: no backward roll */
 }
 
-/* models.dynamics._rk4 */
+/* models.plant.dynamics._rk4 */
 static void rk4(const dyn *d, double v, double x, double h, double *v_out, double *x_out)
 {
     if (v <= 0.0 && dyn_accel(d, 0.0, x) <= 0.0) {

@@ -1,4 +1,4 @@
-/* plant.h -- the true car of models/dynamics.py: forces, RK4 with inputs held, CarPlant.advance
+/* plant.h -- the true car of models/plant/dynamics.py: forces, RK4 with inputs held, CarPlant.advance
  * (fixed internal grid, process noise at grid points, station stops) and its outputs. */
 #ifndef RAILCAR_PLANT_H
 #define RAILCAR_PLANT_H
@@ -9,7 +9,7 @@
 
 enum { RC_STANDSTILL = 0, RC_TRACTION = 1, RC_COASTING = 2, RC_BRAKING = 3 };   /* car.mode */
 
-typedef struct {               /* models.dynamics.VehicleParams */
+typedef struct {               /* models.plant.dynamics.VehicleParams */
     double mass;               /* [t] (the chain sets base mass + payload before each step) */
     double A0, A1, A2;         /* [N/kN], [N/kN/(m/s)], [N/kN/(m/s)^2] */
     double gamma;              /* [-] */
@@ -20,14 +20,14 @@ typedef struct {               /* models.dynamics.VehicleParams */
     double adhesion_mass_fraction, adhesion_factor;   /* [-] */
 } rc_vehicle;
 
-typedef struct {               /* models.dynamics.PlantState */
+typedef struct {               /* models.plant.dynamics.PlantState */
     double speed, position, acceleration, traction_force, brake_force, grade;
     int mode;
     double still_time;         /* [s] */
     long stops;
 } rc_plant_state;
 
-typedef struct {               /* models.dynamics.CarPlant */
+typedef struct {               /* models.plant.dynamics.CarPlant */
     rc_vehicle p;
     const rc_grade_profile *grade;   /* the chain's */
     double h;                  /* internal step [s] */

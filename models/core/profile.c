@@ -1,4 +1,4 @@
-/* profile.c -- the track profiles' CSV reader of models/track.py (parse_profile_csv), with its
+/* profile.c -- the track profiles' CSV reader of models/plant/track.py (parse_profile_csv), with its
  * messages, and the file reading of harness/textio.py and fmu_src/adapter.py (profile.h).
  *
  * Python's pieces it reproduces, each in one function below:
@@ -184,7 +184,7 @@ static int py_space(long cp)
 }
 
 /* The decimal digit value of a character (unicodedata.decimal, Unicode 14.0), or -1: the
- * decimal digits come in runs of ten from these zeros (tests/test_core_profile.py checks the
+ * decimal digits come in runs of ten from these zeros (tests/model_tests/core/test_core_profile.py checks the
  * table against the running Python's unicodedata). */
 static const long DECIMAL_ZEROS[] = {
     0x30, 0x660, 0x6F0, 0x7C0, 0x966, 0x9E6, 0xA66, 0xAE6, 0xB66, 0xBE6, 0xC66, 0xCE6,

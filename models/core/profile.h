@@ -1,9 +1,9 @@
-/* profile.h -- reading the track profiles (CSV) in C, the twin of models/track.py's
+/* profile.h -- reading the track profiles (CSV) in C, the twin of models/plant/track.py's
  * parse_profile_csv, GradeProfile.from_csv_text and SpeedProfile.from_csv_text: the same rules,
  * the same doubles bit for bit, and Python's ProfileError messages byte for byte (they name the
  * source and the 1-based line). For the native FMUs, which have no Python.
  *
- * Text is UTF-8 (as Python decodes the file). The rules (models/track.py):
+ * Text is UTF-8 (as Python decodes the file). The rules (models/plant/track.py):
  *   - a UTF-8 byte-order mark at the start is skipped;
  *   - lines are split as Python's str.splitlines() splits them: "\n", "\r\n", "\r", "\v", "\f",
  *     "\x1c", "\x1d", "\x1e" and the Unicode ones U+0085, U+2028, U+2029 (all matched);
@@ -27,8 +27,8 @@
 
 #include "rc_common.h"
 
-#define RC_MAX_GRADE 200.0   /* [permille] models.track.MAX_GRADE */
-#define RC_MAX_SPEED 200.0   /* [m/s] models.track.MAX_SPEED */
+#define RC_MAX_GRADE 200.0   /* [permille] models.plant.track.MAX_GRADE */
+#define RC_MAX_SPEED 200.0   /* [m/s] models.plant.track.MAX_SPEED */
 
 typedef enum {
     RC_PROFILE_GRADE = 0,    /* distance_m,grade_permille; |grade| <= RC_MAX_GRADE */
@@ -62,7 +62,7 @@ int rc_profile_parse_kind(const char *text, size_t len, const char *source, rc_p
  * Python reader that reads such a file (the path in them is str(pathlib.Path(path)): repeated
  * and trailing '/' and "." parts dropped, "" is "."; POSIX paths):
  *
- *   param == NULL: the harness (harness/scenario.py: textio.read_text, then from_csv_text with
+ *   param == NULL: the harness (harness/run/scenario.py: textio.read_text, then from_csv_text with
  *     source str(path)): "PATH: cannot read: <strerror>", "PATH: is a folder, not a file",
  *     "PATH: not UTF-8 text (byte offset N)[ (UTF-16? save it as UTF-8)| (a binary file?)]",
  *     "PATH: not UTF-8 text (byte offset N) (a NUL byte: a binary file?)"; a leading BOM is

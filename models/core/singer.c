@@ -1,4 +1,4 @@
-/* singer.c -- see singer.h; the bodies of models/singer.py's scalar path, expression for
+/* singer.c -- see singer.h; the bodies of models/filtering/singer.py's scalar path, expression for
  * expression (operands, order and association kept; x ** n is libm pow as in CPython). */
 #include "rc_fp_contract.h"
 #include <stdio.h>
@@ -7,7 +7,7 @@
 #include "singer.h"
 
 /* singer._COEFFS: Taylor coefficients of each function, exact rationals rounded once (printed
- * with repr(); tests/test_core_singer.py checks them against Python's) */
+ * with repr(); tests/model_tests/core/test_core_singer.py checks them against Python's) */
 static const double COEFFS[RC_SF_COUNT][RC_SINGER_SERIES_TERMS] = {
     {   /* phi1 */
     1.0, -0.5, 0.16666666666666666, -0.041666666666666664,

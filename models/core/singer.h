@@ -1,4 +1,4 @@
-/* singer.h -- models/singer.py: seed 002's Singer model on z = [w, v, r] (acceleration [m/s^2],
+/* singer.h -- models/filtering/singer.py: seed 002's Singer model on z = [w, v, r] (acceleration [m/s^2],
  * speed [m/s], distance [m]) and its Kalman filter, the scalar path SingerFilter runs
  * (_predict, _update, _project), bit for bit: the exact discretisation (Phi, Q, u with the
  * Taylor series below SERIES_SWITCH and the closed forms above), the prediction, the update
@@ -20,7 +20,7 @@
 enum { RC_SF_PHI1, RC_SF_PHI2, RC_SF_PHI3, RC_SF_WW, RC_SF_WV, RC_SF_WR, RC_SF_VV, RC_SF_VR,
        RC_SF_RR, RC_SF_COUNT };
 
-typedef struct {               /* models.singer.SingerFilter */
+typedef struct {               /* models.filtering.singer.SingerFilter */
     double tau, sigma_w, m_w;  /* SingerParams [s], [m/s^2], [m/s^2]; alpha = 1.0 / tau */
     int clip;                  /* bool */
     double x[3];               /* _x: w, v, r */

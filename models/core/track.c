@@ -1,4 +1,4 @@
-/* track.c -- see track.h; the bodies of models/track.py's GradeProfile and SpeedProfile. */
+/* track.c -- see track.h; the bodies of models/plant/track.py's GradeProfile and SpeedProfile. */
 #include "rc_fp_contract.h"
 #include "track.h"
 

@@ -1,4 +1,4 @@
-/* track.h -- the grade profile i(X) and the speed profile V_zad(X) of models/track.py.
+/* track.h -- the grade profile i(X) and the speed profile V_zad(X) of models/plant/track.py.
  * The arrays are the caller's (the chain keeps its own copy); nothing here allocates. */
 #ifndef RAILCAR_TRACK_H
 #define RAILCAR_TRACK_H

@@ -1,4 +1,4 @@
-/* track_sensors.c -- see track_sensors.h; the expressions of models/track_sensors.py and
+/* track_sensors.c -- see track_sensors.h; the expressions of models/plant/track_sensors.py and
  * models/chain.py in their order (numpy's elementwise ops on scalars are IEEE double ops). */
 #include "rc_fp_contract.h"
 #include "track_sensors.h"

@@ -1,4 +1,4 @@
-/* track_sensors.h -- point track sensors (seed 002) as models/chain.py and models/track_sensors.py
+/* track_sensors.h -- point track sensors (seed 002) as models/chain.py and models/plant/track_sensors.py
  * compute them: a pair of sensors a base b apart, speed = b / (t2' - t1') from a timer's stamps.
  * Pure functions of their arguments (the noise draws are the caller's); nothing allocates. */
 #ifndef RAILCAR_TRACK_SENSORS_H
@@ -9,10 +9,10 @@
  * jitter [s]) */
 double rc_track_speed_std(double v, double base, double resolution, double jitter);
 
-/* models.track_sensors.quantise_time(t, resolution) with phase 0 [s]: t itself at resolution 0 */
+/* models.plant.track_sensors.quantise_time(t, resolution) with phase 0 [s]: t itself at resolution 0 */
 double rc_track_quantise(double t, double resolution);
 
-/* float(models.track_sensors.speed_from_times(t1, t2, base, resolution, 0.0, j1, j2)) [m/s]:
+/* float(models.plant.track_sensors.speed_from_times(t1, t2, base, resolution, 0.0, j1, j2)) [m/s]:
  * +inf when both stamps fall on one tick (or the second before the first) */
 double rc_track_speed_from_times(double t1, double t2, double base, double resolution,
                                  double j1, double j2);

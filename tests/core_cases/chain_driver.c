@@ -1,5 +1,5 @@
 /* chain_driver.c -- a plain C host of the model core (models/core/, no Python): one run of the
- * RailCar chain from a file, its outputs to a file. tests/test_core_sanitized.py builds it with
+ * RailCar chain from a file, its outputs to a file. tests/model_tests/core/test_core_sanitized.py builds it with
  * AddressSanitizer/UndefinedBehaviorSanitizer and from mutated copies of the core.
  *
  *   chain_driver INPUT OUTPUT

@@ -1,5 +1,5 @@
 /* filter_shim.c -- test-only flat functions around models/core/filter.c for ctypes
- * (tests/test_core_filter.py): one heap block holds the filter and copies of its profiles. */
+ * (tests/model_tests/core/test_core_filter.py): one heap block holds the filter and copies of its profiles. */
 #include <stdlib.h>
 #include <string.h>
 
@@ -89,7 +89,7 @@ int shim_nstate(void) { return SHIM_NSTATE; }
 
 /* Every field mirroring an attribute of MotionFilter (r0, r1 its R; xb*, m* its x_bar and M's
  * upper triangle; xh*, p* x_hat and P's), then the eight properties (the order of
- * tests/test_core_filter.py's FIELDS) */
+ * tests/model_tests/core/test_core_filter.py's FIELDS) */
 void shim_state(const shim *s, double *out)
 {
     const rc_filter *f = &s->f;
@@ -108,7 +108,7 @@ void shim_state(const shim *s, double *out)
 }
 
 /* One call of the test's op records: op[0] the code, op[1..8] the arguments (see
- * tests/test_core_filter.py's OPS). out[0] the status, out[1], out[2] gate's answers (0 for the
+ * tests/model_tests/core/test_core_filter.py's OPS). out[0] the status, out[1], out[2] gate's answers (0 for the
  * other calls), out[3..] shim_state after the call. */
 enum { OP_RESTART, OP_START, OP_GATE, OP_HOLD, OP_UPDATE, OP_UPDATE_SPEED, OP_PREDICT };
 void shim_apply(shim *s, const double *op, double *out)

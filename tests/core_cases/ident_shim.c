@@ -1,5 +1,5 @@
 /* ident_shim.c -- test-only flat functions around models/core/ident.c for ctypes
- * (tests/test_core_ident.py). */
+ * (tests/model_tests/core/test_core_ident.py). */
 #include <stdlib.h>
 #include <string.h>
 
@@ -53,7 +53,7 @@ static double *put(double *o, const double *x, int n, int have)
 static double *put1(double *o, double x) { *o = x; return o + 1; }
 
 /* The state (caches excepted: their presence depends on when outputs were asked for), fields
- * absent in Python (None) as has = 0 and zeros. Layout: see STATE in tests/test_core_ident.py */
+ * absent in Python (None) as has = 0 and zeros. Layout: see STATE in tests/model_tests/core/test_core_ident.py */
 long shim_state(const rc_ident *id, double *o)
 {
     double *s = o, win[RC_LAG];

@@ -1,4 +1,4 @@
-/* plant_shim.c -- test-only flat functions around rc_plant for ctypes (tests/test_core_plant.py).
+/* plant_shim.c -- test-only flat functions around rc_plant for ctypes (tests/model_tests/core/test_core_plant.py).
  * One malloc'd block owns the plant, its "process" stream and a copy of the grade profile. */
 #include <stdint.h>
 #include <stdlib.h>
@@ -15,7 +15,7 @@ typedef struct {
 
 /* veh: mass, A0, A1, A2, gamma, length, traction_force_max, traction_power_max,
  * brake_force_max, adhesion_mass_fraction, adhesion_factor (VehicleParams' field order);
- * the stream is models.noise.noise_streams(seed, <4 names>)["process"] = child 0 */
+ * the stream is models.plant.noise.noise_streams(seed, <4 names>)["process"] = child 0 */
 void *shim_new(const double *veh, const double *distances, const double *grades, long n,
                double step, double noise_psd, double station_dwell, uint64_t seed)
 {

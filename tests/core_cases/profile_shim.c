@@ -1,4 +1,4 @@
-/* profile_shim.c -- test-only access to models/core/profile.c for tests/test_core_profile.py.
+/* profile_shim.c -- test-only access to models/core/profile.c for tests/model_tests/core/test_core_profile.py.
  *
  * As a shared library (ctypes): shim_parse / shim_read_file run one parse or file read and copy
  * the outcome into the caller's buffers: distances and values (room for cap each), *n, the whole

@@ -1,5 +1,5 @@
 /* singer_shim.c -- test-only flat functions around models/core/singer.c and the Singer branches
- * of models/core/filter.c (kind 4) for ctypes (tests/test_core_singer.py). Built with
+ * of models/core/filter.c (kind 4) for ctypes (tests/model_tests/core/test_core_singer.py). Built with
  * -DSINGER_SHIM_MAIN it is a program instead (the sanitizer run): it reads a configuration and
  * op records from a file of doubles and writes the shim_apply rows to another. */
 #include <stdio.h>

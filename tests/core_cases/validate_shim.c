@@ -1,6 +1,6 @@
 /* validate_shim.c -- test-only: rc_chain_validate / rc_estchain_validate (models/core/validate.c)
  * on the flat arrays of models/compiled.py (_config_values; CompiledEstimatorChain's list),
- * turned into configurations by config.c. Loaded with ctypes by tests/test_core_validate.py.
+ * turned into configurations by config.c. Loaded with ctypes by tests/model_tests/core/test_core_validate.py.
  *
  * With -DVALIDATE_MAIN it is a program for the sanitizer run: each line of stdin is
  *   <c|e> <slope_window> <has_speed_profile> <n> <n values as strtod reads them>

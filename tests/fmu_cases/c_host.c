@@ -1,4 +1,4 @@
-/* A plain C FMI 2.0 host for tests/test_fmu_calls.py: no Python of its own. Run it with
+/* A plain C FMI 2.0 host for tests/fmu_tests/test_fmu_calls.py: no Python of its own. Run it with
  * libpython preloaded (LD_PRELOAD) so that the FMU binary finds the Python C API; the FMU then
  * starts the interpreter itself.
  *

@@ -59,7 +59,7 @@
  * different arguments" (here: other inputs, the same interval).
  *
  * Build: cc -std=c99 -O2 -Wall -Wextra -Werror -pedantic -I FMPY/c-code csv_host.c -o csv_host -ldl
- * Tested by tests/test_native_csv_host.py. */
+ * Tested by tests/fmu_tests/test_native_csv_host.py. */
 #define _XOPEN_SOURCE 700   /* dlopen, realpath */
 
 #include <dlfcn.h>

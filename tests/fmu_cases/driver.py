@@ -1,4 +1,4 @@
-"""Run one catalogue case of tests/test_fmu_calls.py in a fresh process and print what happened.
+"""Run one catalogue case of tests/fmu_tests/test_fmu_calls.py in a fresh process and print what happened.
 
     python driver.py CASE.json
 
@@ -50,7 +50,7 @@ OUTPUTS = {"RailCar": ["car.speed", "car.position", "sensor.speed", "est.mass", 
 
 
 def estimator_inputs(k: int) -> dict:
-    """A plausible measured run (as tests/test_fmu_fmpy.py): 20 kN on 30 t from rest."""
+    """A plausible measured run (as tests/fmu_tests/test_fmu_fmpy.py): 20 kN on 30 t from rest."""
     t = k * STEP
     return {"traction_force": 20e3, "brake_force": 0.0,
             "sensor.speed": 0.6 * t + 0.05 * math.sin(7.0 * k), "sensor.position": 0.3 * t * t}

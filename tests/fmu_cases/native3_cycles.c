@@ -1,4 +1,4 @@
-/* A plain C host for tests/test_native3_sanitized.py: one native backend (RailCar, or
+/* A plain C host for tests/fmu_tests/test_native3_sanitized.py: one native backend (RailCar, or
  * RailCarEstimator with -DNATIVE_ESTIMATOR) behind the FMI 3.0 glue (fmu_src/c/fmi3_glue.c) and
  * the C core, linked in (no dlopen, no Python), built with -fsanitize=address,undefined
  * -fno-sanitize-recover=all.
@@ -43,7 +43,7 @@
  * MODE "twin_control": section 4 with the first input one ulp off at every step of one twin:
  *   must fail ("differs from the twin"), proving that comparison can.
  * MODE "null_resources": fmi3InstantiateCoSimulation with resourcePath = NULL, which FMI 3.0
- *   allows (see tests/test_native3_sanitized.py), then a default run and a relative profile
+ *   allows (see tests/fmu_tests/test_native3_sanitized.py), then a default run and a relative profile
  *   looked up in the working directory.
  *
  * Leak controls (the test's proof that the memory checks can fail):

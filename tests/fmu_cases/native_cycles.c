@@ -1,4 +1,4 @@
-/* A plain C host for tests/test_native_sanitized.py: one native FMI 2.0 backend (RailCar, or
+/* A plain C host for tests/fmu_tests/test_native_sanitized.py: one native FMI 2.0 backend (RailCar, or
  * RailCarEstimator with -DNATIVE_ESTIMATOR), the glue and the C core linked in (no dlopen, no
  * Python), built with -fsanitize=address,undefined -fno-sanitize-recover=all.
  *

@@ -1,4 +1,4 @@
-/* A C host for tests/test_native_fmu.py's sanitizer run: the native RailCar backend, the glue and
+/* A C host for tests/fmu_tests/test_native_fmu.py's sanitizer run: the native RailCar backend, the glue and
  * the core linked in (no dlopen), built with -fsanitize=address,undefined.
  *
  *   native_host RESOURCE_URI GUID VR_CAR_MASS VR_TRACTION VR_GRADE_PROFILE VR_SPEED_PROFILE VR_CAR_SPEED

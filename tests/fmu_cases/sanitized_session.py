@@ -1,5 +1,5 @@
 """A hostile session against RailCar with its binary built under -fsanitize=address,undefined
-(tests/test_fmu_sanitized.py runs it with the sanitizer runtimes preloaded): good runs with
+(tests/fmu_tests/test_fmu_sanitized.py runs it with the sanitizer runtimes preloaded): good runs with
 reset and free, failed initialisations, a second free and a doStep on a freed instance. Any
 sanitizer report aborts the process; the last line says it got through."""
 import pythonfmu  # noqa: F401  (before the FMU is loaded)

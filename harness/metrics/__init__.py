@@ -1,0 +1,1 @@
+"""Metrics computed once from a RunResult: estimation quality, filter comparison, ATO targets."""

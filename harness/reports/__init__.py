@@ -1,0 +1,1 @@
+"""Reports that only draw: summary tables, plots and the library table from computed metrics."""

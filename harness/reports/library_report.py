@@ -1,0 +1,173 @@
+"""One table of metrics over the scenario library, with the harness's targets checked.
+
+Targets, for scenarios whose speed noise is <= 0.05 m/s: est.mass within 1 % of the
+truth at every stop, and the filter's speed and distance RMSE at most 0.6x the raw sensor's.
+A span scenario (the ATO drives, harness/run/span_scenario.py) also gets a table of its own, and the
+ATO's targets (seeds 003 and 004), at any noise: on every span arrival within +-2.5 s of the
+schedule, the stop within +-0.3 m of the mark, never over the speed limit, no safety intervention.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from harness.metrics.estimation import RunSummary, summarise
+
+MASS_BOUND_PCT = 1.0
+RMSE_RATIO_BOUND = 0.6
+NOISE_LIMIT = 0.05     # [m/s] the targets apply up to this speed noise
+ARRIVAL_BOUND_S = 2.5  # [s] the ATO's |arrival error| (seeds 003, 004)
+STOP_BOUND_M = 0.3     # [m] the ATO's |stop error| (seed 004)
+
+
+@dataclass
+class Row:
+    name: str
+    speed_std: float            # [m/s] the largest speed noise sd (speed_std + rel x top speed)
+    summary: RunSummary | None
+    error: str = ""
+    fmu: str = ""               # which FMU ran: "native" or "python" (harness.run.fmus)
+    ato: list | None = None     # a span scenario's harness.metrics.ato.SpanMetrics, else None
+
+    @property
+    def targets_apply(self) -> bool:
+        return self.speed_std <= NOISE_LIMIT + 1e-12
+
+    @property
+    def checks(self) -> dict[str, bool]:
+        s = self.summary
+        if s is None:
+            return {"run": False}
+        return {
+            "mass": all(abs(e) <= MASS_BOUND_PCT for e in s.mass_errors_at_stops_pct),
+            "speed": s.speed_rmse_filter <= RMSE_RATIO_BOUND * s.speed_rmse_sensor,
+            "distance": s.position_rmse_filter <= RMSE_RATIO_BOUND * s.position_rmse_sensor,
+        }
+
+    @property
+    def ato_checks(self) -> dict[str, bool]:
+        """The ATO's targets over every span (empty for a scripted scenario)."""
+        if not self.ato:
+            return {}
+        m = self.ato
+        return {"arrived": all(x.arrived for x in m),
+                "arrival": all(abs(x.arrival_error_s) <= ARRIVAL_BOUND_S for x in m),
+                "stop": all(abs(x.stop_error_m) <= STOP_BOUND_M for x in m),
+                "limit": all(x.margin_mps > 0.0 for x in m),
+                "safety": all(x.interventions == 0 for x in m)}
+
+    @property
+    def ok(self) -> bool:
+        return (self.summary is not None and (not self.targets_apply or all(self.checks.values()))
+                and all(self.ato_checks.values()))
+
+
+def library_rows(results) -> list[Row]:
+    """(scenario, RunResult or exception) pairs -> rows. A span scenario's ATO commands are
+    those its recorded outputs give (harness.run.span_scenario.replay_steps: the same as the run's)."""
+    rows = []
+    for s, r in results:
+        std = s.parameter("sensor.speed_std")     # [m/s]; a relative part counts at top speed
+        if not isinstance(r, Exception) and s.parameter("sensor.speed_std_rel"):
+            std += s.parameter("sensor.speed_std_rel") * float(np.max(np.abs(r["car.speed"])))
+        if isinstance(r, Exception):
+            rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", "")))
+            continue
+        ato = None
+        if s.ato is not None:
+            from harness.metrics.ato import ato_metrics
+            from harness.run.span_scenario import replay_steps
+            ato = ato_metrics(s, r, replay_steps(s, r).steps)
+        rows.append(Row(s.name, std, summarise(r), fmu=r.fmu, ato=ato))
+    return rows
+
+
+def _fmt(x, spec):
+    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+HEADER = ("scenario", "V noise [m/s]", "stops", "max abs mass err at stops [%]", "mass within 1 % after [s]",
+          "w0 RMS err [%]", "coast time err [s]", "speed RMSE sensor/filter/oracle [m/s]", "filter/sensor",
+          "dist. RMSE sensor/filter/oracle [m]", "filter/sensor", "NEES v/x", "targets")
+
+
+def table_rows(rows: list[Row]) -> list[tuple[str, ...]]:
+    out = []
+    for r in rows:
+        s = r.summary
+        if s is None:
+            out.append((r.name, _fmt(r.speed_std, ".3g"), "–", "–", "–", "–", "–", "–", "–", "–", "–", "–",
+                        f"FAILED: {r.error}"))
+            continue
+        errs = s.mass_errors_at_stops_pct
+        target = ("ok" if all(r.checks.values()) else
+                  "MISSED " + ",".join(k for k, v in r.checks.items() if not v)) if r.targets_apply else "n/a (noisy)"
+        if r.ato_checks:
+            missed = [k for k, v in r.ato_checks.items() if not v]
+            target += "; ATO " + ("ok" if not missed else "MISSED " + ",".join(missed))
+        out.append((
+            r.name, _fmt(r.speed_std, ".3g"), str(s.stops),
+            _fmt(max((abs(e) for e in errs), default=float("nan")), ".3f"),
+            ", ".join(_fmt(x, ".0f") for x in s.mass_time_within_1pct_s) or "n/a",
+            _fmt(100 * s.w0_rel_rms_error, ".1f"),
+            ", ".join(f"{e:+.2f}" for e in s.coast_time_errors_s) or "n/a",
+            f"{s.speed_rmse_sensor:.4f}/{s.speed_rmse_filter:.4f}/{_fmt(s.speed_rmse_oracle, '.4f')}",
+            f"{s.speed_rmse_filter / s.speed_rmse_sensor:.2f}",
+            f"{s.position_rmse_sensor:.2f}/{s.position_rmse_filter:.2f}/{_fmt(s.position_rmse_oracle, '.2f')}",
+            f"{s.position_rmse_filter / s.position_rmse_sensor:.2f}",
+            f"{s.speed_nees:.2f}/{s.position_nees:.2f}", target))
+    return out
+
+
+ATO_HEADER = ("scenario", "span", "schedule [s]", "arrival err [s]", "stop err [m]", "energy [kWh]",
+              "V_lim margin [m/s]", "interventions [steps]", "arrived")
+
+
+def ato_table_rows(rows: list[Row]) -> list[tuple[str, ...]]:
+    from harness.metrics.ato import rows_text
+    return [(r.name, *cells) for r in rows if r.ato for cells in rows_text(r.ato)]
+
+
+def _fixed(header, body) -> str:
+    widths = [max(len(h), *(len(b[j]) for b in body)) for j, h in enumerate(header)]
+    line = "  ".join(h.ljust(w) for h, w in zip(header, widths))
+    return "\n".join([line, "  ".join("-" * w for w in widths)] +
+                     ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body])
+
+
+def format_table(rows: list[Row]) -> str:
+    text = _fixed(HEADER, table_rows(rows))
+    ato = ato_table_rows(rows)
+    return text + ("\n\nATO, per span:\n" + _fixed(ATO_HEADER, ato) if ato else "")
+
+
+def fmu_line(rows: list[Row]) -> str:
+    """Which FMU ran which scenarios: 'native for all 12 scenarios' or 'native: a, b; python: c'."""
+    kinds: dict[str, list[str]] = {}
+    for r in rows:
+        kinds.setdefault(r.fmu or "?", []).append(r.name)
+    if len(kinds) == 1 and len(rows) > 1:
+        return f"{next(iter(kinds))} for all {len(rows)} scenarios"
+    return "; ".join(f"{k}: {', '.join(names)}" for k, names in kinds.items())
+
+
+def write_table(rows: list[Row], out: Path) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# Scenario library: truth vs estimates", "",
+             f"Targets for speed noise <= {NOISE_LIMIT} m/s: |mass error| <= {MASS_BOUND_PCT} % at every stop, "
+             f"filter RMSE <= {RMSE_RATIO_BOUND} x sensor RMSE (speed and distance).", "",
+             f"FMU (python -m harness report --fmu): {fmu_line(rows)}.", "",
+             "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
+    lines += ["| " + " | ".join(b) + " |" for b in table_rows(rows)]
+    ato = ato_table_rows(rows)
+    if ato:
+        lines += ["", f"ATO targets, every span (any noise): |arrival error| <= {ARRIVAL_BOUND_S} s, "
+                      f"|stop error| <= {STOP_BOUND_M} m, margin to V_lim > 0, no safety intervention.", "",
+                  "| " + " | ".join(ATO_HEADER) + " |", "|" + "---|" * len(ATO_HEADER)]
+        lines += ["| " + " | ".join(b) + " |" for b in ato]
+    path = out / "library.md"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,271 @@
+"""Writing a run's results: CSV with units in the header, a markdown summary, PNG plots.
+
+The figures are built by ``*_figure`` functions that return the matplotlib figure (the tests
+read its artists); ``plot_*`` save them. Uncertainty bands are +-2 sigma of the estimator's own
+standard deviations; the band of the identified resistance curve w0(V) comes from the covariance
+of (A0, A1, A2) (``resistance_covariance``), which the FMU does not output.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from harness.metrics.estimation import RunSummary, format_summary
+
+A_NAMES = (("A0", "N/kN"), ("A1", "N/kN/(m/s)"), ("A2", "N/kN/(m/s)2"))
+"""The main resistance coefficients of eq. (1) and their units."""
+
+MAX_REPLAY_STEPS = 100_000
+"""``resistance_covariance`` replays at most this many steps (~30 s of Python at the ~0.3 ms a
+step measured on the library scenarios): a longer run's resistance band falls back to the stds
+alone, and says so."""
+
+
+def write_result_csv(result, path: Path) -> Path:
+    """All signals over time; header cells are 'name [unit]' (time first)."""
+    names = list(result.signals)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time [s]"] + [f"{n} [{result.units.get(n) or '-'}]" for n in names])
+        cols = np.column_stack([result.time] + [result.signals[n] for n in names])
+        for row in cols:
+            w.writerow([repr(float(x)) for x in row])
+    return path
+
+
+def format_run_summary(summary: RunSummary, result) -> str:
+    """``metrics.format_summary`` with each A's standard deviation at the end of the run
+    (est.A0_std, ... from ``result``), as the mass has it: 'A0 true / est  0.89 / 0.4688 +- 2.001
+    N/kN'."""
+    lines = format_summary(summary).split("\n")
+    for name, unit in A_NAMES:
+        sd = float(result[f"est.{name}_std"][-1])
+        for i, line in enumerate(lines):
+            if line.lstrip().startswith(f"{name} true / est") and "+-" not in line and line.endswith(unit):
+                lines[i] = f"{line[:-len(unit)].rstrip()} +- {sd:.4g} {unit}"
+    return "\n".join(lines)
+
+
+def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Path], fmu: str = "",
+                     result=None, ato: list[str] | None = None) -> Path:
+    """``fmu``: which FMU ran and why (harness.run.fmus.FmuChoice.line), a line of its own.
+    ``result``: the run, for the A's standard deviations (``format_run_summary``). ``ato``: a
+    span scenario's ATO table in markdown (harness.reports.ato_report), first."""
+    lines = [f"# Run report: {summary.scenario}", "", scenario.purpose or "", ""]
+    if fmu:
+        lines += [f"FMU: {fmu}", ""]
+    if ato:
+        lines += ["ATO, per span (docs/ato.md):", "", *ato, "", "Estimation:", ""]
+    text = format_summary(summary) if result is None else format_run_summary(summary, result)
+    lines += ["```", text, "```", ""]
+    for fig in figures:
+        lines += [f"![{fig.stem}]({fig.name})", ""]
+    lines += ["Raw values:", "", "| metric | value |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in asdict(summary).items()]
+    if result is not None:
+        lines.append(f"| A_std | {tuple(float(result[f'est.{n}_std'][-1]) for n, _ in A_NAMES)} |")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(fig, title: str, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def run_figures(result) -> tuple:
+    """(speed figure, estimates figure): speed and its error vs distance (true, measured,
+    filtered, the filter's +-2 sigma); mass identified vs true with +-2 sigma, the distance error
+    with the filter's +-2 sigma, and the true speed, vs time."""
+    plt = _pyplot()
+    t = result.time
+    x = result["car.position"]
+
+    fig1, ax = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    ax[0].plot(x, result["sensor.speed"], ".", ms=1.5, color="0.6", label="measured")
+    ax[0].plot(x, result["car.speed"], color="k", lw=1.2, label="true")
+    ax[0].plot(x, result["filter.speed"], color="tab:red", lw=1.0, label="filtered")
+    ax[0].set_ylabel("speed [m/s]")
+    ax[0].legend(loc="best")
+    ax[1].plot(x, result["sensor.speed"] - result["car.speed"], ".", ms=1.5, color="0.6", label="measured - true")
+    ax[1].plot(x, result["filter.speed"] - result["car.speed"], color="tab:red", lw=1.0, label="filtered - true")
+    ax[1].fill_between(x, -2 * result["filter.speed_std"], 2 * result["filter.speed_std"],
+                       color="tab:red", alpha=0.15, label="filter +-2 sigma")
+    ax[1].set_ylabel("speed error [m/s]")
+    ax[1].set_xlabel("distance from the previous station [m]")
+    ax[1].legend(loc="best")
+
+    fig2, ax = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    m, s = result["est.mass"], result["est.mass_std"]
+    ax[0].plot(t, result["car.total_mass"], color="k", label="true")
+    ax[0].plot(t, m, color="tab:blue", label="identified")
+    ax[0].fill_between(t, m - 2 * s, m + 2 * s, color="tab:blue", alpha=0.15, label="+-2 sigma")
+    mt = result["car.total_mass"]
+    ax[0].set_ylim(0.8 * mt.min(), 1.2 * mt.max())
+    ax[0].set_ylabel("mass [t]")
+    ax[0].legend(loc="best")
+    ax[1].plot(t, result["filter.position"] - x, color="tab:red", label="filtered - true")
+    ax[1].plot(t, result["sensor.position"] - x, ".", ms=1, color="0.6", label="measured - true")
+    ax[1].fill_between(t, -2 * result["filter.position_std"], 2 * result["filter.position_std"],
+                       color="tab:red", alpha=0.15, label="filter +-2 sigma")
+    ax[1].set_ylabel("distance error [m]")
+    ax[1].legend(loc="best")
+    ax[2].plot(t, result["car.speed"], color="k", label="true speed [m/s]")
+    ax[2].set_ylabel("speed [m/s]")
+    ax[2].set_xlabel("time [s]")
+    return fig1, fig2
+
+
+def plot_run(result, out_dir: Path) -> list[Path]:
+    """speed.png and estimates.png (``run_figures``)."""
+    fig1, fig2 = run_figures(result)
+    name = result.scenario.name
+    return [_save(fig1, f"{name}: speed vs distance", out_dir / "speed.png"),
+            _save(fig2, f"{name}: identification and filter vs time", out_dir / "estimates.png")]
+
+
+def _same_bits(a: float, b: float) -> bool:
+    return np.float64(a).tobytes() == np.float64(b).tobytes()
+
+
+def resistance_covariance(result) -> np.ndarray | None:
+    """Covariance (3x3) of the identified (A0, A1, A2) at the end of a RailCar run, or None.
+
+    The FMU outputs the three standard deviations only, and the A's are strongly correlated
+    (A0 with A2 about -0.8 at the end of the default scenario), so a band from the stds alone
+    overstates w0's uncertainty at speed. The covariance comes from re-running the run on the
+    Python reference chain (``models.chain.RailCarChain``, bit-identical to both FMUs), fed the
+    inputs the run recorded (``result.inputs``, held over each step): the estimator's own
+    covariance of Theta-hat (``OnlineEstimator.method.with_resistance_covariance``, what
+    est.A*_std are the square roots of the diagonal of). It is accepted only when the re-run ends
+    on the run's est.A0..A2 and est.A0_std..A2_std bit for bit; otherwise (no recorded inputs, a
+    parameter the reference refuses, a run over ``MAX_REPLAY_STEPS``) None."""
+    from models.chain import RailCarChain
+    from harness.run.runner import INPUTS
+
+    s = result.scenario
+    n = len(result.time)
+    if not result.inputs or any(len(result.inputs.get(k, ())) < n - 1 for k in INPUTS) \
+            or n - 1 > MAX_REPLAY_STEPS:
+        return None
+    try:
+        setup = s.chain_setup()
+        chain = RailCarChain(setup.config, setup.grade, setup.speed)
+        u = [np.asarray(result.inputs[k], dtype=float) for k in INPUTS]
+        for k in range(n - 1):
+            chain.do_step(float(result.time[k]), s.step_s, *(float(c[k]) for c in u))
+        out = chain.outputs()
+    except (ValueError, KeyError, OSError):      # StepRejected, ParameterError are ValueErrors
+        return None
+    names = [f"est.{a}" for a, _ in A_NAMES] + [f"est.{a}_std" for a, _ in A_NAMES]
+    if not all(_same_bits(out[k], result[k][-1]) for k in names):
+        return None
+    e = chain.estimator
+    return np.array(e.method.with_resistance_covariance(e.ident.covariance())[1:, 1:], dtype=float)
+
+
+def resistance_band(v: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Standard deviation of w0(V) = A0 + A1 V + A2 V^2 at speeds ``v`` [m/s] for a covariance
+    ``cov`` of (A0, A1, A2): sqrt(phi^T cov phi), phi = (1, V, V^2) (w0 is linear in the A's, so
+    this is exact, not a linearisation) [N/kN]."""
+    phi = np.stack([np.ones_like(v), v, v * v])
+    return np.sqrt(np.maximum(np.einsum("in,ij,jn->n", phi, cov, phi), 0.0))
+
+
+def resistance_figure(result, true_A: tuple, cov: np.ndarray | None = None):
+    """w0(V) identified (end of run) with +-2 sigma vs true, over 0 .. the run's top speed.
+
+    ``cov``: covariance of (A0, A1, A2); by default ``resistance_covariance(result)``, and when
+    that is None the diagonal of the end-of-run est.A*_std (the band then ignores the A's
+    correlations, and its legend says so)."""
+    from harness.metrics.estimation import w0
+    plt = _pyplot()
+    v = np.linspace(0.0, max(float(result["car.speed"].max()), 1.0), 100)
+    est = tuple(float(result[f"est.{a}"][-1]) for a, _ in A_NAMES)
+    how = "covariance of A0, A1, A2"
+    if cov is None:
+        cov = resistance_covariance(result)
+    if cov is None:
+        cov = np.diag([float(result[f"est.{a}_std"][-1]) ** 2 for a, _ in A_NAMES])
+        how = "stds of A0, A1, A2 alone: correlations ignored"
+    w_est, sd = w0(v, *est), resistance_band(v, cov)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.plot(v, w0(v, *true_A), color="k", label="true")
+    ax.plot(v, w_est, color="tab:blue", label="identified")
+    ax.fill_between(v, w_est - 2 * sd, w_est + 2 * sd, color="tab:blue", alpha=0.15,
+                    label=f"identified +-2 sigma ({how})")
+    ax.set_xlabel("speed [m/s]")
+    ax.set_ylabel("w0 [N/kN]")
+    ax.legend(loc="best")
+    return fig
+
+
+def plot_resistance(result, true_A: tuple, out_dir: Path, cov: np.ndarray | None = None) -> Path:
+    """resistance.png (``resistance_figure``)."""
+    return _save(resistance_figure(result, true_A, cov), f"{result.scenario.name}: main resistance eq. (1)",
+                 out_dir / "resistance.png")
+
+
+def resistance_vs_time_figure(result, true_A: tuple):
+    """A0, A1, A2 identified vs time with +-2 sigma bands, and the truth. Each axis is scaled to
+    the estimate and the truth (10 % margin), not to the band: the prior's band (A0 +-10 N/kN
+    against A0 ~ 1) would hide the estimate's error. The legend (right of each axis) gives the
+    band's half-width at the end and says when the axes cut the band."""
+    plt = _pyplot()
+    t = result.time
+    fig, ax = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
+    for j, (name, unit) in enumerate(A_NAMES):
+        est, sd = result[f"est.{name}"], result[f"est.{name}_std"]
+        lo, hi = min(float(est.min()), true_A[j]), max(float(est.max()), true_A[j])
+        pad = 0.1 * (hi - lo) if hi > lo else 0.1 * max(abs(hi), 1e-6)
+        lo, hi = lo - pad, hi + pad
+        clipped = bool(np.any(est - 2 * sd < lo) or np.any(est + 2 * sd > hi))
+        ax[j].plot(t, est, color="tab:blue", label="identified")
+        ax[j].fill_between(t, est - 2 * sd, est + 2 * sd, color="tab:blue", alpha=0.15,
+                           label=f"+-2 sigma (+-{2 * float(sd[-1]):.3g} {unit} at the end)"
+                                 + ("\ncut by the axes" if clipped else ""))
+        ax[j].axhline(true_A[j], color="k", lw=1, label="true (at the end)")
+        ax[j].set_ylim(lo, hi)
+        ax[j].set_ylabel(f"{name} [{unit}]")
+        ax[j].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    ax[2].set_xlabel("time [s]")
+    return fig
+
+
+def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
+    """resistance_vs_time.png (``resistance_vs_time_figure``)."""
+    return _save(resistance_vs_time_figure(result, true_A),
+                 f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
+
+
+def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path, fmu: str = "",
+                 ato_steps=None) -> list[Path]:
+    """Everything for one run into ``out_dir``; returns the files written. ``fmu``: which FMU ran
+    (a line of summary.md; default: the kind the result records). ``ato_steps``: for a span
+    scenario, the ATO's calls (AtoDriver.steps): ato.png and the ATO table come first."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path = write_result_csv(result, out_dir / f"{result.scenario.name}_result.csv")
+    figs, ato_md = [], None
+    if ato_steps is not None:
+        from harness.reports.ato_report import write_ato_report
+        png, _, _, ato_md = write_ato_report(result, ato_steps, out_dir)
+        figs.append(png)
+    figs += plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir),
+                                         plot_resistance_vs_time(result, true_A, out_dir)]
+    md = write_summary_md(summary, result.scenario, out_dir / "summary.md", figs,
+                          fmu or getattr(result, "fmu", ""), result, ato_md)
+    return [csv_path, md, *figs]

@@ -1,0 +1,222 @@
+"""Replay of recorded data: logs in, RailCarEstimator's estimates out.
+
+A log is a CSV whose header cells are ``name [unit]``, time first:
+
+    time [s],traction_force [N],brake_force [N],sensor.speed [m/s],sensor.position [m]
+
+``sensor.speed`` may be given in [km/h] (converted here, at the edge). Optional truth columns
+``car.speed [m/s]``, ``car.position [m]``, ``car.total_mass [t]`` enable error metrics. Rows
+are the measurement instants; forces on a row are applied until the next row (finite, >= 0, as
+RailCarEstimator requires). The file is UTF-8 text; a BOM is skipped (harness.textio).
+
+``estimator_parameters`` checks ``--param NAME=VALUE`` against RailCarEstimator's variable table
+and the FMU's own rules (profiles parsed, the estimator configured as the FMU configures it), so
+that a bad parameter is invalid input before any FMU runs.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fmu_src.variables import ESTIMATOR, variables_for
+from models.units import kmh_to_mps
+
+from harness.run.scenario import PATH_PARAMETERS, check_integer, named_parameter, profile_file, read_profile
+from harness.textio import InputError, read_text
+
+REQUIRED = {"time": ("s",), "traction_force": ("N",), "brake_force": ("N",),
+            "sensor.speed": ("m/s", "km/h"), "sensor.position": ("m",)}
+OPTIONAL = {"car.speed": ("m/s",), "car.position": ("m",), "car.total_mass": ("t",)}
+_HEADER = re.compile(r"^\s*\"?([A-Za-z0-9_.]+)\s*\[([^\]]*)\]\"?\s*$")
+
+
+NONNEGATIVE = ("traction_force", "brake_force")     # [N] the estimator refuses negative forces
+
+
+class LogError(InputError):
+    """A log that cannot be replayed; names the file, line and column."""
+
+
+class ParamError(InputError):
+    """A ``--param NAME=VALUE`` that RailCarEstimator cannot start with; names the parameter."""
+
+
+@dataclass
+class Log:
+    path: str
+    time: np.ndarray                       # [s]
+    columns: dict[str, np.ndarray]         # SI units
+
+
+def read_log(path: str | Path) -> Log:
+    """Read and check a log; speeds in km/h are converted to m/s."""
+    path = Path(path)
+    reader = csv.reader(read_text(path, LogError).splitlines())
+    try:
+        rows = list(reader)
+    except csv.Error as e:
+        raise LogError(f"{path}: line {reader.line_num + 1}: not valid CSV: {e}") from None
+    if len(rows) < 3:
+        raise LogError(f"{path}: needs a header and at least two rows")
+    names, units = [], []
+    for j, cell in enumerate(rows[0]):
+        m = _HEADER.match(cell)
+        if not m:
+            raise LogError(f"{path}: line 1, column {j + 1}: header cell '{cell}' is not 'name [unit]'")
+        names.append(m.group(1))
+        units.append(m.group(2).strip())
+    if names[0] != "time":
+        raise LogError(f"{path}: line 1: the first column must be 'time [s]'")
+    for j, name in enumerate(names):
+        if name in names[:j]:
+            raise LogError(f"{path}: line 1, column {j + 1}: column '{name}' appears twice")
+    for name, allowed in REQUIRED.items():
+        if name not in names:
+            raise LogError(f"{path}: line 1: missing column '{name} [{allowed[0]}]'")
+    for name, unit in zip(names, units):
+        allowed = REQUIRED.get(name) or OPTIONAL.get(name)
+        if allowed and unit not in allowed:
+            raise LogError(f"{path}: line 1: column '{name}' must be in [{' or '.join(allowed)}], got [{unit}]")
+    data = np.empty((len(rows) - 1, len(names)))
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(names):
+            raise LogError(f"{path}: line {i}: expected {len(names)} values, got {len(row)}")
+        for j, cell in enumerate(row):
+            try:
+                x = float(cell)
+            except ValueError:
+                raise LogError(f"{path}: line {i}, column '{names[j]}': not a number: '{cell}'") from None
+            if not math.isfinite(x):
+                raise LogError(f"{path}: line {i}, column '{names[j]}': not finite: '{cell}'")
+            if x < 0 and names[j] in NONNEGATIVE:
+                raise LogError(f"{path}: line {i}, column '{names[j]}': must be >= 0 [N], got {cell}")
+            data[i - 2, j] = x
+    t = data[:, 0]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        raise LogError(f"{path}: line {bad[0] + 3}: time must increase")
+    cols = {n: data[:, j] for j, n in enumerate(names)}
+    if units[names.index("sensor.speed")] == "km/h":
+        cols["sensor.speed"] = kmh_to_mps(cols["sensor.speed"])
+    return Log(str(path), t, cols)
+
+
+_ESTIMATOR_PARAMETERS = {v.name: v for v in variables_for(ESTIMATOR) if v.causality == "parameter"}
+
+
+def estimator_parameters(items: list[str] | None, dt: float = 1.0) -> dict:
+    """``--param NAME=VALUE`` strings -> RailCarEstimator parameter values, checked as the FMU
+    checks them at initialisation; ``dt`` [s] is the log's first step (the estimator's sampling
+    period). A profile path that names a file here is made absolute (the FMU would look in its
+    resources first); one that does not is checked where the FMU looks. ParamError names the
+    parameter (and the file and line of a bad profile)."""
+    from fmu_src.adapter import estimator_settings, track_settings
+    from models.chain import build_estimator
+    from models.plant.track import GradeProfile
+    out, profiles = {}, {}
+    for item in items or []:
+        if "=" not in item:
+            raise ParamError(f"--param {item!r}: expected NAME=VALUE")
+        name, text = item.split("=", 1)
+        key = f"--param {name}"
+        var = _ESTIMATOR_PARAMETERS.get(name)
+        if var is None:
+            raise ParamError(f"{key}: not a RailCarEstimator parameter (see the README's variable table)")
+        if var.type == "Real":
+            try:
+                value = float(text)
+            except ValueError:
+                raise ParamError(f"{key}: '{text}' is not a number") from None
+        elif var.type == "Integer":
+            try:
+                value = int(text)
+            except ValueError:
+                raise ParamError(f"{key}: '{text}' is not an integer") from None
+            check_integer(name, value, key, ParamError)
+        else:
+            value = text
+            if name in PATH_PARAMETERS and text:
+                local = Path(text)
+                found = local if local.is_file() else profile_file(text, None)
+                profiles[name] = read_profile(name, found, key, ParamError)
+                if local.is_file():
+                    value = str(local.resolve())
+        out[name] = value
+    v = {n: out.get(n, var.start) for n, var in _ESTIMATOR_PARAMETERS.items()}
+    try:
+        ident, filt, station = estimator_settings(v)
+        track_settings(v).validate()
+        build_estimator(ident, filt, station, profiles.get("track.grade_profile") or GradeProfile.level(),
+                        profiles.get("track.speed_profile"), dt)
+    except (ValueError, ArithmeticError) as e:
+        name = named_parameter(str(e), _ESTIMATOR_PARAMETERS)
+        where = f"--param {name}" if name else "--param"
+        if name and name not in out:
+            where += f" (not set: the FMU's default {_ESTIMATOR_PARAMETERS[name].start!r})"
+        raise ParamError(f"{where}: {e}") from None
+    return out
+
+
+def _applied_until_next_row(x: np.ndarray) -> np.ndarray:
+    """RailCar reports the force applied up to each row; a log wants the force from it on."""
+    return np.append(x[1:], x[-1:])
+
+
+def write_log(path: Path, result) -> Path:
+    """A RailCar run as a replayable log (measurements, applied forces, and the truth)."""
+    cols = [("time", "s", result.time),
+            ("traction_force", "N", _applied_until_next_row(result["car.traction_force"])),
+            ("brake_force", "N", _applied_until_next_row(result["car.brake_force"])),
+            ("sensor.speed", "m/s", result["sensor.speed"]),
+            ("sensor.position", "m", result["sensor.position"]), ("car.speed", "m/s", result["car.speed"]),
+            ("car.position", "m", result["car.position"]), ("car.total_mass", "t", result["car.total_mass"])]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow([f"{n} [{u}]" for n, u, _ in cols])
+        for k in range(len(result.time)):
+            w.writerow([repr(float(c[k])) for _, _, c in cols])
+    return path
+
+
+def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path, fmu: str = "") -> str:
+    """Write the estimates (CSV, units in the header) and return a short summary text.
+
+    RailCarEstimator's outputs at row k are its estimates for row k's instant (the one-step
+    prediction made at row k-1), so they compare directly with truth columns on the same row.
+    ``fmu``: which FMU ran (harness.run.fmus.FmuChoice.describe), a line of the text.
+    """
+    from harness.metrics.estimation import rmse
+    out.mkdir(parents=True, exist_ok=True)
+    names = [n for n in signals if n.startswith(("est.", "filter."))]
+    units = {"est.mass": "t", "est.mass_std": "t", "est.A0": "N/kN", "est.A1": "N/kN/(m/s)",
+             "est.A2": "N/kN/(m/s)2", "est.sigma2": "m2/s2", "filter.speed": "m/s", "filter.position": "m",
+             "filter.speed_std": "m/s", "filter.position_std": "m"}
+    path = out / "estimates.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time [s]"] + [f"{n} [{units.get(n, '-')}]" for n in names])
+        for k in range(len(log.time)):
+            w.writerow([repr(float(log.time[k]))] + [repr(float(signals[n][k])) for n in names])
+    lines = [f"replayed {log.path}: {len(log.time)} rows, {log.time[-1] - log.time[0]:.1f} s",
+             f"  est.mass at the end      {signals['est.mass'][-1]:.3f} +- {signals['est.mass_std'][-1]:.3f} t",
+             f"  est.A0, A1, A2           {signals['est.A0'][-1]:.4g}, {signals['est.A1'][-1]:.4g}, "
+             f"{signals['est.A2'][-1]:.4g}"]
+    c = log.columns
+    if "car.speed" in c:
+        lines.append(f"  speed RMSE sensor/filter {rmse(c['sensor.speed'], c['car.speed']):.4f} / "
+                     f"{rmse(signals['filter.speed'][1:], c['car.speed'][1:]):.4f} m/s")
+    if "car.position" in c:
+        lines.append(f"  distance RMSE s./filter  {rmse(c['sensor.position'], c['car.position']):.3f} / "
+                     f"{rmse(signals['filter.position'][1:], c['car.position'][1:]):.3f} m")
+    if "car.total_mass" in c:
+        err = 100 * (signals["est.mass"][-1] - c["car.total_mass"][-1]) / c["car.total_mass"][-1]
+        lines.append(f"  mass error at the end    {err:+.3f} %")
+    if fmu:
+        lines.append(f"  ran on the FMU {fmu}")
+    lines.append(f"  estimates: {path}")
+    return "\n".join(lines)

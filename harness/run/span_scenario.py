@@ -1,0 +1,333 @@
+"""Span scenarios: the ATO (models.ato.controller.AtoController) as a scenario's driver.
+
+A scenario with a ``[span]`` table (one span) or ``[[span]]`` tables (a line of spans) instead
+of ``[[driver]]`` phases is driven by the ATO through the one loop (harness.run.driver.drive), on
+the RailCar FMU and on the models chain alike:
+
+    [parameters]
+    "track.grade_profile" = "../profiles/ato_span_grade.csv"   # the span's grade: one source
+
+    [span]
+    stop_m = 2150.0            # stop mark, from the previous station [m]
+    schedule_s = 135.0         # running time from departure to rest at the mark [s]
+    length_m = 2200.0          # optional, default stop_m
+    limit_kmh = [[0, 80], [900, 60], [1300, 80]]   # [distance_m, km/h] from each distance on
+    # (or limit_mps = [[0, 22.22], ...])
+
+    [ato]                      # optional: models.ato.controller.AtoTuning fields by name
+    replan_period = 2.0
+    [ato.car]                  # optional: the car the ATO is configured with (CarTraction
+    mass = 30.0                # fields); default CarTraction() = the RailCar FMU's defaults
+
+Disturbances are the plant's own parameters and wind (car.mass, car.A0, car.adhesion_factor,
+sensor.speed_std, [[wind]]): the ATO does not see them, it sees the estimator's outputs.
+
+**A line** is one continuous run over several spans, each with its own stop mark, limits and
+schedule, standing ``dwell_s`` at each intermediate station (passengers boarding ``boarding_t``
+at its start). Why one run and not a sequence of runs each starting from the previous run's
+identified values (est.*_initial): the plant and the estimator were built for station stops
+(the distance restarts at 0 on departure, the filter restarts from the station, the mass is
+identified again after boarding, the resistance carries over), so one run exercises exactly
+what the estimates exist for, through the same loop, and stays one library scenario that the
+regression and the FMU-vs-chain checks run as they run the others. The price: the plant keys
+its grade profile by the distance from the previous station, so every span of a line runs over
+the same profile, from 0 to its own stop mark.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Mapping
+
+from models.ato.controller import INPUTS as ATO_INPUTS
+from models.ato.controller import AtoCommand, AtoController, AtoMode, AtoTuning
+from models.planning.span import CarTraction, Span
+from models.plant.track import GradeProfile
+from models.units import kmh_to_mps
+
+from harness.run.driver import Demands
+
+SPAN_KEYS = ("stop_m", "schedule_s", "length_m", "limit_kmh", "limit_mps", "dwell_s", "boarding_t")
+LINE_ONLY = ("dwell_s", "boarding_t")     # the station before a span of a line, not the first
+END_MARGIN_S = 60.0    # [s] default duration_s: the schedules and dwells plus this
+
+
+@dataclass(frozen=True)
+class LineSpan:
+    """One span of a span scenario: models.planning.span.Span, and for the second and later spans of a
+    line the standstill before departure [s] and the passengers boarding then [t]."""
+    span: Span
+    dwell_s: float = 0.0
+    boarding_t: float = 0.0
+
+
+@dataclass(frozen=True)
+class AtoSetup:
+    """The ATO side of a span scenario: the spans in order, the tuning, the configured car."""
+    spans: tuple[LineSpan, ...]
+    tuning: AtoTuning
+    car: CarTraction
+    grade_profile: str = ""      # the track.grade_profile value the spans' grade was read from
+
+    def controllers(self) -> list[AtoController]:
+        return [AtoController(s.span, self.car, self.tuning) for s in self.spans]
+
+    def with_grade(self, grade: GradeProfile, grade_profile: str) -> "AtoSetup":
+        """The same spans over another grade (read from ``grade_profile``)."""
+        spans = tuple(replace(s, span=Span(s.span.length, s.span.schedule, s.span.stop, grade,
+                                           s.span.limit_distances, s.span.limit_speeds))
+                      for s in self.spans)
+        return replace(self, spans=spans, grade_profile=grade_profile)
+
+    @property
+    def scheduled_s(self) -> float:
+        """[s] the schedules and the dwells: the run's least duration."""
+        return sum(s.span.schedule + s.dwell_s for s in self.spans)
+
+    @property
+    def default_duration_s(self) -> float:
+        return self.scheduled_s + END_MARGIN_S
+
+
+def _num(value, where: str, error) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise error(f"{where}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _limits(raw: dict, where: str, error) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """limit_kmh or limit_mps: [[distance_m, speed], ...] -> (distances [m], speeds [m/s])."""
+    given = [k for k in ("limit_kmh", "limit_mps") if k in raw]
+    if len(given) != 1:
+        raise error(f"{where}: give the speed limits as limit_kmh or limit_mps "
+                    f"([[distance_m, speed], ...]), {'not both' if given else 'none given'}")
+    key = given[0]
+    rows = raw[key]
+    if not isinstance(rows, list) or not rows:
+        raise error(f"{where}.{key}: expected a non-empty array of [distance_m, speed], got {rows!r}")
+    d, v = [], []
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != 2:
+            raise error(f"{where}.{key}[{i}]: expected [distance_m, speed], got {row!r}")
+        x = _num(row[0], f"{where}.{key}[{i}][0]", error)
+        s = _num(row[1], f"{where}.{key}[{i}][1]", error)
+        if s <= 0:
+            raise error(f"{where}.{key}[{i}][1]: a speed limit must be > 0, got {s}")
+        d.append(x)
+        v.append(kmh_to_mps(s) if key == "limit_kmh" else s)
+    if d[0] != 0.0:
+        raise error(f"{where}.{key}[0]: the first limit must start at distance 0, got {d[0]}")
+    for i in range(1, len(d)):
+        if d[i] <= d[i - 1]:
+            raise error(f"{where}.{key}[{i}]: distances must increase ({d[i]} after {d[i - 1]})")
+    return tuple(d), tuple(v)
+
+
+def parse_span(raw, where: str, grade: GradeProfile, first: bool, error) -> LineSpan:
+    """One [span] table -> LineSpan (models.planning.span.Span over ``grade``); ``error`` names ``where``."""
+    if not isinstance(raw, dict):
+        raise error(f"{where}: expected a table, got {raw!r}")
+    for key in raw:
+        if key not in SPAN_KEYS:
+            raise error(f"{where}: unknown key '{key}' (known: {', '.join(SPAN_KEYS)})")
+        if first and key in LINE_ONLY:
+            raise error(f"{where}.{key}: only for the second and later spans of a line (the "
+                        f"station before them)")
+    for key in ("stop_m", "schedule_s"):
+        if key not in raw:
+            raise error(f"{where}: {key} is missing")
+    stop = _num(raw["stop_m"], f"{where}.stop_m", error)
+    schedule = _num(raw["schedule_s"], f"{where}.schedule_s", error)
+    length = _num(raw["length_m"], f"{where}.length_m", error) if "length_m" in raw else stop
+    if stop <= 0:
+        raise error(f"{where}.stop_m: must be > 0, got {stop}")
+    if stop > length:
+        raise error(f"{where}.stop_m: {stop} m is beyond the span (length_m = {length} m)")
+    if schedule <= 0:
+        raise error(f"{where}.schedule_s: must be > 0, got {schedule}")
+    d, v = _limits(raw, where, error)
+    for i, x in enumerate(d):
+        if x >= length:
+            raise error(f"{where}: speed limit {i} starts at {x} m, not inside the span [0, {length}) m")
+    dwell = _num(raw.get("dwell_s", 0.0), f"{where}.dwell_s", error)
+    boarding = _num(raw.get("boarding_t", 0.0), f"{where}.boarding_t", error)
+    if not first and dwell <= 0:
+        raise error(f"{where}.dwell_s: the standstill at the station before this span is missing "
+                    f"or <= 0 (it must be at least track.station_dwell)")
+    try:
+        span = Span(length, schedule, stop=stop, grade=grade, limit_distances=d, limit_speeds=v)
+    except ValueError as e:
+        raise error(f"{where}: {e}") from None
+    return LineSpan(span, dwell, boarding)
+
+
+def _typed_fields(cls, raw: dict, where: str, error, skip=()) -> dict:
+    """The fields of dataclass ``cls`` given in ``raw``: known names, true/false for a bool
+    field, a number for the others (the dataclass checks the values)."""
+    types = {f.name: f.type for f in fields(cls) if f.init}
+    out = {}
+    for key, value in raw.items():
+        if key in skip:
+            continue
+        if key not in types:
+            raise error(f"{where}: unknown key '{key}' (known: {', '.join(list(types) + list(skip))})")
+        if types[key] == "bool":
+            if not isinstance(value, bool):
+                raise error(f"{where}.{key}: expected true or false, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise error(f"{where}.{key}: expected a number, got {value!r}")
+        out[key] = value
+    return out
+
+
+def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float, error,
+              grade_profile: str = "") -> AtoSetup:
+    """The [span] / [[span]] and [ato] tables of a scenario -> AtoSetup. Every controller is
+    built once here, so that an infeasible schedule, a limit the brakes cannot keep or bad
+    tuning (AtoController's ValueError) is invalid input naming the file and the span."""
+    raw_ato = data.get("ato", {})
+    if not isinstance(raw_ato, dict):
+        raise error(f"{source}: ato: expected a table [ato], got {raw_ato!r}")
+    try:
+        tuning = AtoTuning(**_typed_fields(AtoTuning, raw_ato, f"{source}: ato", error, skip=("car",)))
+    except ValueError as e:      # "tuning.<field> must ..."
+        raise error(f"{source}: ato: {e}") from None
+    except TypeError as e:
+        raise error(f"{source}: ato: {e}") from None
+    raw_car = raw_ato.get("car", {})
+    if not isinstance(raw_car, dict):
+        raise error(f"{source}: ato.car: expected a table [ato.car], got {raw_car!r}")
+    try:
+        car = CarTraction(**_typed_fields(CarTraction, raw_car, f"{source}: ato.car", error))
+    except ValueError as e:      # "car.<field> must ..."
+        raise error(f"{source}: ato.car: {e}") from None
+    raw = data["span"]
+    line = isinstance(raw, list)
+    tables = raw if line else [raw]
+    if not tables:
+        raise error(f"{source}: span: no spans given")
+    spans = []
+    for i, t in enumerate(tables):
+        where = f"{source}: span[{i}]" if line else f"{source}: span"
+        s = parse_span(t, where, grade, i == 0, error)
+        if i > 0 and s.dwell_s < station_dwell:
+            raise error(f"{where}.dwell_s: {s.dwell_s} s is shorter than track.station_dwell = "
+                        f"{station_dwell} s: the plant and the estimator would not see a station")
+        try:
+            AtoController(s.span, car, tuning)
+        except ValueError as e:
+            raise error(f"{where}: the ATO cannot run this span: {e}") from None
+        spans.append(s)
+    return AtoSetup(tuple(spans), tuning, car, grade_profile)
+
+
+# ------------------------------------------------------------------------------ the driver
+
+@dataclass(frozen=True)
+class AtoStep:
+    """What the ATO driver did at one call (time t [s]): the span (0-based), the command, and
+    whether it was a station dwell between spans (then the command is the holding brake)."""
+    t: float
+    span: int
+    command: AtoCommand
+    dwell: bool = False
+
+
+class _Shifted(Mapping):
+    """The outputs with filter.position less ``offset`` [m]: from a station until the estimator
+    has recognised it (est.station_stops), the filter still counts from the previous station."""
+
+    def __init__(self, outputs: Mapping[str, float], offset: float):
+        self._o, self._offset = outputs, offset
+
+    def __getitem__(self, name):
+        v = self._o[name]
+        return v - self._offset if name == "filter.position" else v
+
+    def __iter__(self):
+        return iter(self._o)
+
+    def __len__(self):
+        return len(self._o)
+
+
+class AtoDriver:
+    """A harness.run.driver Driver over a span scenario's spans: one AtoController per span, a
+    holding brake of ``dwell_s`` between them (``boarding_t`` boarding at its start). It records
+    every call (``steps``: AtoStep) for the metrics and the report.
+
+    The controllers read the estimator's outputs only; the driver reads two more: car.speed, the
+    bench's truth, to end a span once the car really stands (a test bench ends a run so; no
+    control decision uses it), and est.station_stops, to know when the estimator has restarted
+    its filter at a station. ``finished``: the last span's car stands at its mark."""
+
+    def __init__(self, setup: AtoSetup):
+        self.setup = setup
+        self.controllers = setup.controllers()
+        self.steps: list[AtoStep] = []
+        self.departures: list[float] = []      # [s] each span's first command
+        self.k = 0
+        self._dwell_from: float | None = None
+        self._offset: float | None = None
+        self.finished = False
+
+    reads = tuple(ATO_INPUTS) + ("car.speed", "est.station_stops")
+
+    def demands(self, t: float, outputs: Mapping[str, float]) -> Demands:
+        ctrl = self.controllers[self.k]
+        if self._dwell_from is not None:             # standing at a station between spans
+            nxt = self.setup.spans[self.k + 1]
+            if t - self._dwell_from < nxt.dwell_s - 1e-9:
+                cmd = AtoCommand(0.0, ctrl.tuning.hold_brake * ctrl.car.brake_force_max,
+                                 int(AtoMode.HOLD), 0.0)
+                first = not self.steps[-1].dwell
+                self.steps.append(AtoStep(t, self.k, cmd, dwell=True))
+                return Demands(cmd.traction, cmd.brake, nxt.boarding_t if first else 0.0)
+            self._dwell_from = None
+            self.k += 1
+            ctrl = self.controllers[self.k]
+            self._offset = float(outputs["filter.position"])
+        view = outputs
+        if self._offset is not None:
+            if outputs["est.station_stops"] >= self.k:      # the estimator restarted its filter
+                self._offset = None
+            else:
+                view = _Shifted(outputs, self._offset)
+        if len(self.departures) == self.k:
+            self.departures.append(t)
+        cmd = ctrl.demands(t, view)
+        self.steps.append(AtoStep(t, self.k, cmd))
+        if ctrl.finished and outputs["car.speed"] == 0.0:
+            if self.k == len(self.controllers) - 1:
+                self.finished = True
+            else:
+                self._dwell_from = t
+        return Demands(cmd.traction, cmd.brake)
+
+    def events(self) -> list[tuple[int, float, str]]:
+        """(span, t [s], text) of every controller's events."""
+        return [(k, t, e) for k, c in enumerate(self.controllers) for t, e in c.events]
+
+
+def replay_steps(scenario, result) -> AtoDriver:
+    """A fresh AtoDriver fed the outputs a run of ``scenario`` recorded (``result``, every row
+    but the last, as the loop fed them): the controllers read nothing but those outputs, so this
+    gives the run's commands again (tests check them equal to the run's own, bit for bit)."""
+    driver = AtoDriver(scenario.ato_setup())
+    names = [n for n in driver.reads if n in result.signals]
+    missing = set(driver.reads) - set(names)
+    if missing:
+        raise ValueError(f"{scenario.name}: the run did not record {', '.join(sorted(missing))}")
+    cols = [result.signals[n] for n in names]
+    log = logging.getLogger("models.ato.controller")
+    was = log.disabled
+    log.disabled = True                 # the run has logged these events once already
+    try:
+        for j in range(len(result.time)):
+            driver.demands(float(result.time[j]), {n: float(c[j]) for n, c in zip(names, cols)})
+            if driver.finished:
+                break
+    finally:
+        log.disabled = was
+    return driver

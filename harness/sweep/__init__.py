@@ -1,0 +1,1 @@
+"""Parameter sweeps: spec (TOML), execution on dask workers, results table, plots."""

@@ -1,0 +1,340 @@
+"""Running a sweep's runs on dask.distributed worker processes: the cluster, the workers' FMU
+instances, and one run turned into one row.
+
+Every run is one dask task on a worker *process* (one thread each: FMU calls hold the GIL).
+Each worker process extracts the FMU once and keeps one live instance, reset between runs
+(``fmi2Reset``; gives the same results bit for bit as a fresh instance, see the tests); after
+an initialisation failure (pythonfmu: fmi2Fatal) that instance is leaked, never called again,
+and the next run gets a fresh one. The FMU is shipped by *path*: a remote cluster must see the
+same path (and the project on its PYTHONPATH). A run whose scenario is invalid or whose FMU
+fails becomes a row with status "failed" and the message, and the sweep goes on.
+
+Which FMU: ``--fmu`` (harness.run.fmus.choose). One FMU runs the whole sweep: by default (``auto``)
+the native RailCar (the C core, no Python, bit-identical rows) when the C core covers every
+valid run's parameters, else the pythonfmu RailCar. The ``fmu`` column (last) of every row that
+ran says which kind ran it. A worker that finds a rebuilt native FMU at the same path loads the
+new one (no Python modules are cached for it); a rebuilt pythonfmu FMU still needs fresh worker
+processes.
+
+The embedded cluster's scratch space and its workers' FMU extractions live in one temporary
+folder, removed when the sweep ends, also on an error, Ctrl-C or SIGTERM.
+"""
+from __future__ import annotations
+
+import pythonfmu  # noqa: F401  (import before any FMU is loaded in this process)
+
+import contextlib
+import os
+import shutil
+import signal
+import tempfile
+import threading
+import time
+import uuid
+from collections import Counter
+from pathlib import Path
+from typing import Callable
+
+from harness.run.runner import FmuRunner, RunError
+from harness.sweep.spec import RunSpec, Sweep
+from harness.sweep.table import TEXT_STATUS_FAILED, TEXT_STATUS_OK, calibration, flatten_summary
+
+_LEAKED: list = []            # instances after fmi2Fatal: FMI allows no further call (pythonfmu segfaults)
+_WORKER_FMUS: dict = {}       # per process: FMU path -> ReusableRunner (one extraction, one live instance)
+FATAL = 4
+
+
+# ======================================================================== the worker side
+
+class _Lease:
+    """The live instance lent to one FmuRunner.run: freeInstance() hands it back instead of freeing."""
+
+    def __init__(self, fmu, owner: "ReusableRunner"):
+        self._fmu, self._owner, self.fatal = fmu, owner, False
+
+    def __getattr__(self, name):
+        attr = getattr(self._fmu, name)
+        if name in ("doStep", "terminate", "exitInitializationMode"):
+            def call(*a, **k):
+                try:
+                    return attr(*a, **k)
+                except Exception as e:
+                    if getattr(e, "status", FATAL) >= FATAL:
+                        self.fatal = True
+                    raise
+            return call
+        setattr(self, name, attr)          # cache plain forwards (getReal, setReal, ...)
+        return attr
+
+    def freeInstance(self):
+        self._owner._give_back(self._fmu, self.fatal)
+
+
+class ReusableRunner(FmuRunner):
+    """An FmuRunner whose runs share one live FMU instance, reset between runs.
+
+    ``run(scenario)`` is FmuRunner.run (same stepping, same results); only the instance's life
+    cycle differs: instantiate once, then fmi2Reset before each later run. An instance whose
+    initialisation failed (pythonfmu reports fmi2Fatal) is leaked and replaced by a fresh one.
+    """
+
+    def __init__(self, fmu_path, unzip_root=None):
+        super().__init__(fmu_path, unzip_root)
+        self.live = None                  # the instance kept between runs
+        self.sink: list[str] = []         # the current run's log
+        self.counts = Counter()           # instantiate / reset / leaked
+
+    def _instantiate(self, log):
+        self.counts["instantiate"] += 1      # messages go into the current run's log
+        return self._new_instance(lambda: self.sink,
+                                  f"{self.md.modelName}_{os.getpid()}_{self.counts['instantiate']}")
+
+    def _leak(self, fmu) -> None:
+        _LEAKED.append(fmu)
+        self.counts["leaked"] += 1
+
+    def start(self, parameters, stop_time, log, what):
+        """The live instance reset (or a new one), initialised with ``parameters``; RunError if that fails."""
+        self.sink = log
+        fmu, self.live = self.live, None
+        if fmu is not None:
+            try:
+                fmu.reset()
+                self.counts["reset"] += 1
+            except Exception:
+                self._leak(fmu)
+                fmu = None
+        if fmu is None:
+            fmu = self._instantiate(log)
+        try:
+            self.initialise(fmu, parameters, stop_time, log, what)
+        except RunError:
+            self._leak(fmu)                   # fmi2Fatal: never call this instance again
+            raise
+        return _Lease(fmu, self)
+
+    def _give_back(self, fmu, fatal: bool) -> None:
+        if fatal:
+            self._leak(fmu)
+        else:
+            self.live = fmu
+
+    def close(self) -> None:
+        fmu, self.live = self.live, None
+        if fmu is not None:
+            for call in (fmu.terminate, fmu.freeInstance):
+                try:
+                    call()
+                except Exception:
+                    pass
+        super().close()
+
+
+def worker_runner(fmu_path: str, guid: str | None = None, extract_root: str | None = None):
+    """This process's runner of ``fmu_path`` (extracted once, below ``extract_root`` if given);
+    checks it is the build expected. A native FMU rebuilt at the same path replaces the old one
+    (a fresh extraction, its own shared library); a pythonfmu one cannot (its Python modules are
+    cached in the process)."""
+    runner = _WORKER_FMUS.get(fmu_path)
+    if runner is not None and guid is not None and runner.md.guid != guid and runner.kind == "native":
+        _WORKER_FMUS.pop(fmu_path).close()
+        runner = None
+    if runner is None:
+        runner = _WORKER_FMUS[fmu_path] = ReusableRunner(fmu_path, extract_root)
+    if guid is not None and runner.md.guid != guid:
+        raise RuntimeError(f"this worker process (pid {os.getpid()}) already loaded another build of "
+                           f"{fmu_path} (GUID {runner.md.guid}, wanted {guid}); a process caches the FMU's "
+                           f"Python modules: restart the workers")
+    return runner
+
+
+def _one_line(text: str, limit: int = 600) -> str:
+    s = " | ".join(line.strip() for line in str(text).splitlines() if line.strip())
+    return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
+def base_row(spec: RunSpec) -> dict:
+    row = {"run_id": spec.run_id, **dict(spec.values)}
+    if spec.scenario is not None:
+        row["seed"] = spec.scenario.parameter("seed")
+    elif "seed" not in row:
+        row["seed"] = None
+    return row
+
+
+def execute_run(fmu_path: str, guid: str | None, spec: RunSpec, extract_root: str | None = None) -> dict:
+    """Run one sweep point in this (worker) process; never raises: a failure is a row. The FMU is
+    extracted below ``extract_root`` (the embedded cluster's scratch folder, removed at its end)
+    or, by default, in the system's temporary folder for the worker process's life."""
+    from harness.metrics.estimation import summarise
+    row = base_row(spec)
+    t0 = time.perf_counter()
+    if spec.error is not None:
+        row.update(status=TEXT_STATUS_FAILED, error=_one_line(spec.error), wall_time=0.0)
+        return row
+    try:
+        runner = worker_runner(fmu_path, guid, extract_root)
+        row["fmu"] = runner.kind
+        result = runner.run(spec.scenario)
+    except RunError as e:
+        row.update(status=TEXT_STATUS_FAILED, error=_one_line(e))
+    except Exception as e:
+        row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"{type(e).__name__}: {e}"))
+    else:
+        try:
+            row.update(flatten_summary(summarise(result)))
+            row.update(calibration(result))
+            row.update(status=TEXT_STATUS_OK, error="")
+        except Exception as e:
+            row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"metrics: {type(e).__name__}: {e}"))
+    row["wall_time"] = time.perf_counter() - t0
+    return row
+
+
+def worker_check(fmu_path: str) -> dict:
+    """Run on every worker before a sweep: can it import the harness and read the FMU path?"""
+    return {"pid": os.getpid(), "fmu_readable": os.access(fmu_path, os.R_OK),
+            "harness": str(Path(__file__).resolve().parents[1]), "threads": threading.active_count()}
+
+
+# ======================================================================== the cluster
+
+@contextlib.contextmanager
+def scratch_folder(prefix: str = "railcar-sweep-"):
+    """A temporary folder for an embedded cluster: dask's worker space and every FMU its worker
+    processes extract (execute_run's ``extract_root``). Removed on leaving, after the cluster is
+    closed (the ``with`` encloses it), also on an exception or Ctrl-C; a SIGTERM is turned into
+    KeyboardInterrupt meanwhile so that it is cleaned up too."""
+    path = tempfile.mkdtemp(prefix=prefix)
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        def on_term(signum, frame):
+            raise KeyboardInterrupt(f"signal {signum}")
+        previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield path
+    finally:
+        try:
+            shutil.rmtree(path, ignore_errors=True)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def workers_ignore_ctrl_c():
+    """Worker processes started inside inherit SIGINT ignored (a Python process keeps an ignored
+    SIGINT), so that a Ctrl-C on the terminal reaches the sweep's process alone: it stops the
+    sweep and closes the cluster, instead of every worker printing a KeyboardInterrupt."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def dask_client(client=None, scheduler: str | None = None, workers: int | None = None):
+    """(client, extract_root): ``client`` as given, or one of the scheduler at ``scheduler``, or
+    one of an embedded LocalCluster of ``workers`` single-threaded processes (default: one per
+    core) whose files are in a scratch folder (``extract_root``). What it opened it closes on
+    leaving: the client, the cluster, then the scratch folder."""
+    if client is not None:
+        yield client, None
+        return
+    from distributed import Client, LocalCluster
+    if scheduler:
+        own = Client(scheduler, timeout="30s")
+        try:
+            yield own, None
+        finally:
+            own.close()
+        return
+    import logging
+    with scratch_folder() as root:
+        with workers_ignore_ctrl_c():
+            cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                                   processes=True, dashboard_address=None, host="127.0.0.1",
+                                   silence_logs=logging.ERROR, local_directory=root,
+                                   scheduler_kwargs={"local_directory": root})
+        try:
+            own = Client(cluster)
+            try:
+                yield own, root
+            finally:
+                own.close()
+        finally:
+            cluster.close()
+
+
+def check_workers(client, fmu_path: Path, log) -> int:
+    """The number of workers; RuntimeError if one cannot import the harness or read the FMU."""
+    info = client.scheduler_info()
+    if not info.get("workers"):
+        client.wait_for_workers(1, timeout=60)
+    checks = client.run(worker_check, str(fmu_path), on_error="return")
+    bad = {w: r for w, r in checks.items() if isinstance(r, BaseException)}
+    if bad:
+        w, e = next(iter(bad.items()))
+        raise RuntimeError(f"{len(bad)} dask worker(s) cannot run the harness (e.g. {w}: {type(e).__name__}: {e}); "
+                           f"start them from the project folder or with the project on PYTHONPATH")
+    unreadable = [w for w, r in checks.items() if not r["fmu_readable"]]
+    if unreadable:
+        raise RuntimeError(f"{len(unreadable)} dask worker(s) cannot read {fmu_path} (e.g. {unreadable[0]}); "
+                           f"the FMU is shipped by path: it must be reachable at that path on every worker")
+    threads = {w: n for w, n in client.nthreads().items() if n > 1}
+    if threads:
+        log(f"warning: {len(threads)} worker(s) run {max(threads.values())} threads: every FMU call takes "
+            f"the GIL, so only one thread per worker is useful (dask worker --nthreads 1)")
+    return len(checks)
+
+
+def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid, record: Callable[[dict], bool],
+                extract_root: str | None) -> int:
+    """Every spec as a dask task; each row goes to ``record`` as it comes. The rows recorded."""
+    from distributed import as_completed
+    nonce = uuid.uuid4().hex[:8]
+    futures = {}
+    for spec in specs:
+        f = client.submit(execute_run, fmu_path, guid, spec, extract_root, pure=False, retries=2,
+                          key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{spec.run_id}")
+        futures[f.key] = (f, spec)
+    ran = 0
+    try:
+        # with_results: results come in batches with the completions (no round trip per run)
+        for f, result in as_completed([f for f, _ in futures.values()], with_results=True, raise_errors=False):
+            _, spec = futures.pop(f.key)
+            if isinstance(result, dict):
+                row = result
+            else:                    # an exception: KilledWorker (the run killed its worker every time), ...
+                row = base_row(spec)
+                row.update(status=TEXT_STATUS_FAILED, wall_time=None,
+                           error=_one_line(f"dask: {type(result).__name__}: {result}"))
+            f.release()
+            if record(row):
+                ran += 1
+    finally:
+        for f, _ in futures.values():
+            f.cancel()
+    return ran
+
+
+def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path, guid: str | None,
+                 record: Callable[[dict], bool], client=None, scheduler: str | None = None,
+                 workers: int | None = None, log=print) -> tuple[int, int]:
+    """Run ``specs`` and hand each row to ``record`` (True if it kept the row): the invalid ones
+    at once, here, the others on dask (see dask_client). Returns (rows recorded, dask workers)."""
+    ran = 0
+    for spec in [s for s in specs if s.error is not None]:        # invalid scenarios: rows now
+        record(execute_run(str(fmu_path), guid, spec))
+        ran += 1
+    valid = [s for s in specs if s.error is None]
+    if not valid:
+        return ran, 0
+    with dask_client(client, scheduler, workers) as (c, extract_root):
+        n_workers = check_workers(c, fmu_path, log)
+        ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
+    return ran, n_workers

@@ -1,0 +1,153 @@
+"""Batch parameter sweeps of RailCar on dask.distributed worker processes: ``run_sweep`` and the
+command ``python -m harness sweep`` (``cli_sweep``; its arguments are in harness/__main__.py).
+
+A sweep file names a base scenario and the values to run it with; each run becomes one row of
+``DIR/results.csv`` (and results.parquet), with ``DIR/summary.md`` and plots in ``DIR/plots``.
+The parts, one module each:
+
+- harness/sweep/spec.py: the sweep file (grid, zip, Latin hypercube, seeds) -> ``Sweep`` of ``RunSpec``
+- harness/sweep/execute.py: the dask cluster, the workers' FMU instances, one run -> one row
+- harness/sweep/table.py: the columns, a run's result -> row, the summary text (pure computing)
+- harness/sweep/results.py: the results folder: CSV/Parquet, sweep.json, lock, --resume/--overwrite
+- harness/sweep/plots.py: the plots
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+from harness.sweep.execute import execute_runs
+from harness.sweep.plots import plot_sweep
+from harness.sweep.results import ResultsWriter, check_rerun, read_results, write_summary
+from harness.sweep.spec import Sweep, load_sweep
+from harness.sweep.table import TEXT_STATUS_OK, SweepOutcome, format_sweep_summary
+from harness.textio import check_out_dir
+
+# Re-exported: tests/harness_tests/run/test_cli_errors.py and tests/harness_tests/run/test_harness_fmu_kind.py import them from here.
+from harness.sweep.execute import _WORKER_FMUS, execute_run, worker_runner  # noqa: F401
+from harness.sweep.spec import RunSpec, SweepError  # noqa: F401
+
+
+class _Progress:
+    """harness.progress.Progress (runs done/failed, ETA) on a terminal; else a line every 10 %
+    of the runs (at most one per 5 s, and the last)."""
+
+    def __init__(self, total: int, label: str, enabled: bool | None):
+        from harness.progress import Progress
+        self.bar = Progress(total, label, enabled)
+        self.lines = enabled is None and not self.bar.enabled
+        self.next_share, self.last_line = 0.1, 0.0
+
+    def advance(self, what: str, failed: bool) -> None:
+        self.bar.advance(what, failed)
+        b = self.bar
+        if not self.lines or not b.total:
+            return
+        now = time.monotonic()
+        if b.done == b.total or (b.done / b.total >= self.next_share and now - self.last_line >= 5.0):
+            self.next_share = b.done / b.total + 0.1
+            self.last_line = now
+            elapsed = now - b.t0
+            eta = elapsed / b.done * (b.total - b.done)
+            print(f"  {b.done}/{b.total} runs, {b.failed} failed, {elapsed:.0f} s, ETA {eta:.0f} s", flush=True)
+
+
+def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler: str | None = None,
+              workers: int | None = None, resume: bool = False, limit: int | None = None,
+              progress: bool | None = None, plots: bool = True, client=None, log=print,
+              overwrite: bool = False, fmu_note: str = "") -> SweepOutcome:
+    """Run the sweep's runs (those not in DIR yet with ``resume``; the first ``limit`` of them).
+    A DIR that holds results is refused (SweepError) unless ``resume`` or ``overwrite``.
+
+    Runs on ``client`` if given, else on the dask scheduler at ``scheduler``, else on a
+    LocalCluster of ``workers`` (default: one per core) single-threaded worker processes whose
+    scratch space and FMU extractions are in one temporary folder, removed when the sweep ends.
+    ``fmu_path`` is either kind of RailCar FMU (harness.run.fmus); ``fmu_note`` says which and why,
+    for the summary (default: its kind and path).
+    """
+    from fmpy import read_model_description
+    from harness.run.fmus import fmu_guid, is_native
+    out_dir = Path(out_dir)
+    fmu_path = Path(fmu_path).resolve()
+    if not fmu_path.is_file():
+        raise FileNotFoundError(f"FMU not found: {fmu_path}")
+    guid = fmu_guid(fmu_path)
+    kind = "native" if is_native(read_model_description(str(fmu_path))) else "python"
+    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind)
+    todo = [s for s in sweep.runs if s.run_id not in writer.done]
+    if limit is not None:
+        todo = todo[:limit]
+    t0 = time.monotonic()
+    bar = _Progress(len(todo), f"sweep {sweep.name}", progress)
+
+    def record(row: dict) -> bool:
+        if not writer.write(row):            # a run id already written (a retried task)
+            return False
+        bar.advance(f"run {row['run_id']}", failed=row["status"] != TEXT_STATUS_OK)
+        return True
+
+    try:
+        ran, n_workers = execute_runs(sweep, todo, fmu_path, guid, record, client=client, scheduler=scheduler,
+                                      workers=workers, log=log)
+    finally:
+        writer.close()
+    table = read_results(out_dir)
+    done = {r["run_id"] for r in table.rows}
+    outcome = SweepOutcome(table=table, ran=ran, resumed=writer.resumed,
+                           missing=[s.run_id for s in sweep.runs if s.run_id not in done],
+                           wall_s=time.monotonic() - t0, workers=n_workers, fmu=fmu_note or f"{kind} {fmu_path}")
+    outcome.files = [out_dir / "results.csv"] + ([writer.parquet_path] if writer.parquet_path.is_file() else [])
+    outcome.files.append(write_summary(out_dir, sweep, outcome))
+    if plots:
+        outcome.files += plot_sweep(sweep, table, out_dir / "plots")
+    return outcome
+
+
+def _usage_error(args) -> str | None:
+    """What is wrong with the combination of sweep options, None if nothing."""
+    if args.scheduler and args.workers:
+        return "--workers sets the size of the embedded local cluster; not with --scheduler"
+    if args.workers is not None and args.workers < 1:
+        return "--workers must be >= 1"
+    if args.limit is not None and args.limit < 0:
+        return "--limit must be >= 0"
+    if args.resume and args.overwrite:
+        return "--resume continues the results in --out, --overwrite discards them: give one"
+    return None
+
+
+def cli_sweep(args) -> int:
+    """``python -m harness sweep``: see harness/__main__.py for the arguments."""
+    from harness.run.fmus import select
+    problem = _usage_error(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+    sweep = load_sweep(args.sweep)
+    out = Path(args.out) if args.out else Path("out") / "sweeps" / sweep.name
+    check_out_dir(out)
+    check_rerun(out, sweep.fingerprint, args.resume, args.overwrite)   # before any build
+    choice = select(getattr(args, "fmu", "auto"), "RailCar", args.dist, args.rebuild,
+                    [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
+    where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
+    print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)
+    print(choice.line(), flush=True)
+    try:
+        o = run_sweep(sweep, out, choice.path, scheduler=args.scheduler, workers=args.workers,
+                      resume=args.resume, limit=args.limit, plots=not args.no_plots, overwrite=args.overwrite,
+                      fmu_note=choice.describe())
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: the finished runs are in {out / 'results.csv'}; --resume continues", file=sys.stderr)
+        return 1
+    except (OSError, RuntimeError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(format_sweep_summary(sweep, o))
+    print(f"results: {', '.join(str(p) for p in o.files if p.suffix != '.png')}"
+          + (f"; plots: {out / 'plots'} ({sum(p.suffix == '.png' for p in o.files)} files)" if not args.no_plots else ""))
+    failed = sum(r["status"] != TEXT_STATUS_OK for r in o.table.rows)
+    if failed:
+        print(f"{failed} run(s) failed (status and message in results.csv)", file=sys.stderr)
+    return 1 if failed else 0

@@ -1,0 +1,276 @@
+"""The results table of a sweep: its columns, how one run's result becomes a row, cells as text,
+and the summary over the rows. Pure computing: the files are read and written by
+harness/sweep/results.py.
+
+A row holds the run id, status ("ok" or "failed") and error message, the wall time, the swept
+values (and the seed), the flattened ``RunSummary`` of harness.metrics.estimation, the calibration counts
+and, last, ``fmu``: which FMU kind ran it. List-valued metrics of ``RunSummary`` become two
+columns: ``NAME.max_abs`` (largest absolute value; nan when the list is empty or holds a nan)
+and ``NAME.list`` (the values, ';'-joined reprs). Tuples of A coefficients become ``A0_true`` ...
+In the CSV, floats are written by repr (they read back bit for bit) and units stand in the
+header cells, ``name [unit]``.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from harness.sweep.spec import Sweep, name_kind, name_unit, unit_from_suffix
+
+TEXT_STATUS_OK, TEXT_STATUS_FAILED = "ok", "failed"
+
+
+@dataclass(frozen=True)
+class Column:
+    key: str
+    unit: str          # '' for text and ids; '-' for dimensionless numbers
+    kind: str          # 'int', 'float' or 'str'
+
+    @property
+    def header(self) -> str:
+        return f"{self.key} [{self.unit}]" if self.unit else self.key
+
+
+_METRIC_UNITS = {"duration_s": "s", "stops": "-", "mass_true_t": "t", "mass_est_t": "t", "mass_std_t": "t",
+                 "mass_error_pct": "%", "mass_errors_at_stops_pct": "%", "mass_time_within_1pct_s": "s",
+                 "w0_rel_rms_error": "-", "coast_time_errors_s": "s", "speed_nees": "-",
+                 "position_nees": "-"}
+_A_UNITS = ("N/kN", "N/kN/(m/s)", "N/kN/(m/s)2")
+CALIBRATION_COLUMNS = (
+    Column("mass_stops_covered", "-", "int"),          # arrivals with |est.mass - truth| <= 2 est.mass_std
+    Column("mass_z_at_stops.max_abs", "-", "float"),   # (est.mass - truth) / est.mass_std at each arrival
+    Column("mass_z_at_stops.list", "-", "str"),
+    Column("moving_samples", "-", "int"),              # rows with car.speed > 0
+    Column("speed_within_2sigma", "-", "int"),         # ... of them with |filter.speed - car.speed| <= 2 std
+    Column("position_within_2sigma", "-", "int"),
+    Column("speed_within_2sigma_pct", "%", "float"),
+    Column("position_within_2sigma_pct", "%", "float"),
+)
+FMU_COLUMN = Column("fmu", "", "str")          # which FMU ran the row: native, python ('' none ran)
+
+
+def _metric_unit(name: str) -> str:
+    if name in _METRIC_UNITS:
+        return _METRIC_UNITS[name]
+    if name.startswith("speed_"):
+        return "m/s"
+    if name.startswith("position_"):
+        return "m"
+    return unit_from_suffix(name) or "-"
+
+
+def metric_columns() -> list[Column]:
+    """Columns of a flattened RunSummary (derived from its fields and their annotations)."""
+    from harness.metrics.estimation import RunSummary
+    cols = []
+    for f in fields(RunSummary):
+        ann = str(f.type)
+        if f.name == "scenario":
+            continue
+        if f.name in ("A_true", "A_est"):
+            suffix = f.name[2:]
+            cols += [Column(f"A{i}_{suffix}", _A_UNITS[i], "float") for i in range(3)]
+        elif ann.startswith(("list", "tuple")):
+            unit = _metric_unit(f.name)
+            cols += [Column(f"{f.name}.max_abs", unit, "float"), Column(f"{f.name}.list", unit, "str")]
+        elif ann == "int" or f.name == "stops":
+            cols.append(Column(f.name, _metric_unit(f.name), "int"))
+        elif ann == "str":
+            cols.append(Column(f.name, "", "str"))
+        else:
+            cols.append(Column(f.name, _metric_unit(f.name), "float"))
+    return cols
+
+
+def sweep_columns(sweep: Sweep) -> list[Column]:
+    cols = [Column("run_id", "", "int"), Column("status", "", "str"), Column("error", "", "str"),
+            Column("wall_time", "s", "float")]
+    cols += [Column(n, name_unit(n) or ("-" if name_kind(n) != "str" else ""), name_kind(n)) for n in sweep.axes]
+    if "seed" not in sweep.axes:
+        cols.append(Column("seed", "-", "int"))
+    return cols + metric_columns() + list(CALIBRATION_COLUMNS) + [FMU_COLUMN]
+
+
+def _max_abs(xs) -> float:
+    if not xs:
+        return float("nan")
+    a = [abs(float(x)) for x in xs]
+    return float("nan") if any(math.isnan(x) for x in a) else max(a)
+
+
+def _joined(xs) -> str:
+    return ";".join(repr(float(x)) for x in xs)
+
+
+def flatten_summary(summary) -> dict:
+    """RunSummary -> scalars (see the module docstring: lists -> .max_abs and .list)."""
+    out = {}
+    for f in fields(summary):
+        v = getattr(summary, f.name)
+        if f.name == "scenario":
+            continue
+        if f.name in ("A_true", "A_est"):
+            for i, x in enumerate(v):
+                out[f"A{i}_{f.name[2:]}"] = float(x)
+        elif isinstance(v, (list, tuple)):
+            out[f"{f.name}.max_abs"] = _max_abs(v)
+            out[f"{f.name}.list"] = _joined(v)
+        elif isinstance(v, (bool, str)):
+            out[f.name] = v
+        elif isinstance(v, (int, np.integer)):
+            out[f.name] = int(v)
+        else:
+            out[f.name] = float(v)
+    return out
+
+
+def calibration(result) -> dict:
+    """Is the truth inside the estimator's and the filter's +-2 sigma? Counts for one run.
+
+    Mass: at the arrival at each stop (harness.metrics.estimation.stop_indices, before passengers board),
+    |est.mass - car.total_mass| <= 2 est.mass_std. Filter: over the moving rows (car.speed > 0),
+    |filter.speed - car.speed| <= 2 filter.speed_std, and the same for the distance.
+    """
+    from harness.metrics.estimation import stop_indices
+    v = result["car.speed"]
+    stops = stop_indices(v)
+    err = result["est.mass"] - result["car.total_mass"]
+    std = result["est.mass_std"]
+    z = [float(err[k] / std[k]) if std[k] > 0 else (0.0 if err[k] == 0 else math.copysign(math.inf, err[k]))
+         for k in stops]
+    moving = v > 0.0
+    n = int(moving.sum())
+    sv = np.abs(result["filter.speed"] - v) <= 2.0 * result["filter.speed_std"]
+    sx = np.abs(result["filter.position"] - result["car.position"]) <= 2.0 * result["filter.position_std"]
+    nv, nx = int((sv & moving).sum()), int((sx & moving).sum())
+    return {"mass_stops_covered": int(sum(abs(err[k]) <= 2.0 * std[k] for k in stops)),
+            "mass_z_at_stops.max_abs": _max_abs(z), "mass_z_at_stops.list": _joined(z),
+            "moving_samples": n, "speed_within_2sigma": nv, "position_within_2sigma": nx,
+            "speed_within_2sigma_pct": 100.0 * nv / n if n else float("nan"),
+            "position_within_2sigma_pct": 100.0 * nx / n if n else float("nan")}
+
+
+def cell_text(value) -> str:
+    """A value as a CSV cell: floats by repr (read back bit for bit), None as ''."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    return str(value)
+
+
+def parse_cell(text: str, kind: str):
+    """A CSV cell back to a value of the column's kind; ValueError if it is not one."""
+    if text == "":
+        return None if kind != "str" else ""
+    if kind == "int":
+        return int(text)
+    if kind == "float":
+        return float(text)
+    return text
+
+
+@dataclass
+class Table:
+    """Rows of a sweep's results (dicts keyed by column key), typed by the columns."""
+    columns: list[Column]
+    rows: list[dict] = field(default_factory=list)
+
+    def column(self, key: str) -> list:
+        return [r.get(key) for r in self.rows]
+
+    def comparable(self, exclude=("wall_time",)) -> list[tuple]:
+        """Rows as tuples of exact cell texts (floats by repr), for bit-for-bit comparisons."""
+        keys = [c.key for c in self.columns if c.key not in exclude]
+        return [tuple(cell_text(r.get(k)) for k in keys) for r in self.rows]
+
+    def ok_rows(self) -> list[dict]:
+        return [r for r in self.rows if r.get("status") == TEXT_STATUS_OK]
+
+
+@dataclass
+class SweepOutcome:
+    table: Table                 # every row in DIR, sorted by run id
+    ran: int                     # runs executed by this call
+    resumed: int                 # rows kept from an earlier call (--resume)
+    missing: list                # run ids with no row (interrupted, --limit)
+    wall_s: float
+    workers: int
+    files: list = field(default_factory=list)
+    fmu: str = ""                # which FMU ran and why (harness.run.fmus.FmuChoice.describe)
+
+
+def finite_values(xs) -> list[float]:
+    """The finite numbers among ``xs`` (None, text, nan and inf left out)."""
+    return [float(x) for x in xs if x is not None and not isinstance(x, str) and math.isfinite(x)]
+
+
+def coverage(table: Table) -> dict:
+    """Pooled calibration over the ok rows: percentage of stops / moving samples inside +-2 sigma."""
+    ok = table.ok_rows()
+    stops = sum(r.get("stops") or 0 for r in ok)
+    covered = sum(r.get("mass_stops_covered") or 0 for r in ok)
+    n = sum(r.get("moving_samples") or 0 for r in ok)
+    nv = sum(r.get("speed_within_2sigma") or 0 for r in ok)
+    nx = sum(r.get("position_within_2sigma") or 0 for r in ok)
+    nan = float("nan")
+    return {"runs": len(ok), "stops": stops, "moving_samples": n,
+            "mass_pct": 100.0 * covered / stops if stops else nan,
+            "speed_pct": 100.0 * nv / n if n else nan,
+            "position_pct": 100.0 * nx / n if n else nan}
+
+
+SUMMARY_METRICS = ("mass_error_pct", "mass_errors_at_stops_pct.max_abs", "mass_time_within_1pct_s.max_abs",
+                   "mass_std_t", "w0_rel_rms_error", "coast_time_errors_s.max_abs", "speed_rmse_sensor",
+                   "speed_rmse_filter", "position_rmse_sensor", "position_rmse_filter", "speed_nees",
+                   "position_nees")
+
+
+def format_sweep_summary(sweep: Sweep, o: SweepOutcome) -> str:
+    t = o.table
+    ok = [r for r in t.rows if r["status"] == TEXT_STATUS_OK]
+    failed = [r for r in t.rows if r["status"] != TEXT_STATUS_OK]
+    units = {c.key: c.unit for c in t.columns}
+    lines = [f"sweep '{sweep.name}' on {sweep.base_path.name}: {len(sweep.runs)} runs over "
+             f"{', '.join(sweep.axes)}",
+             f"  rows {len(t.rows)}: {len(ok)} ok, {len(failed)} failed; this call ran {o.ran} in {o.wall_s:.1f} s"
+             + (f" ({o.ran / o.wall_s:.2f} runs/s on {o.workers} workers)" if o.ran and o.wall_s > 0 and o.workers else "")
+             + (f"; {o.resumed} rows kept from before (--resume)" if o.resumed else "")]
+    if o.fmu:
+        lines.append(f"  fmu: {o.fmu}")
+    if o.missing:
+        lines.append(f"  not run yet: {len(o.missing)} runs (first ids {', '.join(map(str, o.missing[:5]))}); "
+                     f"--resume continues")
+    if ok:
+        lines.append("")
+        w = max(len(m) for m in SUMMARY_METRICS) + 6
+        lines.append(f"  {'metric (over the ok runs)':<{w}} {'min':>10} {'median':>10} {'max':>10}")
+        for m in SUMMARY_METRICS:
+            xs = finite_values(r.get(m) for r in ok)
+            label = f"{m} [{units.get(m, '-')}]"
+            if xs:
+                lines.append(f"  {label:<{w}} {min(xs):>10.4g} {float(np.median(xs)):>10.4g} {max(xs):>10.4g}")
+            else:
+                lines.append(f"  {label:<{w}} {'n/a':>10}")
+        c = coverage(t)
+        lines += ["", "  calibration: truth inside the estimate +- 2 sigma (95.4 % for honest Gaussian errors)",
+                  f"    mass at the arrival at each stop    {_pct(c['mass_pct'])} of {c['stops']} stops",
+                  f"    filter speed (moving samples)       {_pct(c['speed_pct'])} of {c['moving_samples']} samples",
+                  f"    filter distance (moving samples)    {_pct(c['position_pct'])} of {c['moving_samples']} samples"]
+    if failed:
+        lines += ["", "  failures (by message):"]
+        for msg, n in Counter(r.get("error") or "?" for r in failed).most_common(5):
+            ids = [str(r["run_id"]) for r in failed if (r.get("error") or "?") == msg][:5]
+            lines.append(f"    {n} x (runs {', '.join(ids)}{', ...' if n > 5 else ''}): {msg[:300]}")
+    return "\n".join(lines)
+
+
+def _pct(x: float) -> str:
+    return "  n/a " if math.isnan(x) else f"{x:5.1f} %"

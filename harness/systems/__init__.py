@@ -1,0 +1,1 @@
+"""FMU systems: SSP packages written and read, our Jacobi master, libcosim, the system CLI."""

@@ -1,0 +1,385 @@
+"""Systems of FMUs as SSP 1.0 packages (.ssp): write one, read one back, checked against the FMUs.
+
+A system is a few co-simulation FMUs (components), connections from an output of one to an input
+of another, by variable NAME, and per component a set of start values (parameters, and inputs
+that nothing drives). ``write_ssp`` packs it as an SSP 1.0 archive that our own master
+(harness.systems.master) and libcosim (harness.systems.libcosim) both load:
+
+    SystemStructure.ssd        the system: components, their connectors (every input and output
+                               of the FMU, with type and unit), connections, units, the step
+    resources/<Name>.fmu       each component's FMU (its own file name)
+    resources/<Name>.ssv       each component's parameter set, bound by ssd:ParameterBinding
+
+What libcosim 0.11 (the libcosimpy 0.0.6 build) reads decides the details (docs/systems.md): the
+namespace prefixes must be literally ``ssd:``, ``ssc:``, ``ssv:`` (it looks up prefixed tag
+names), the step is the ``osp:FixedStepAlgorithm baseStepSize`` annotation of
+``ssd:DefaultExperiment`` (SSP 1.0 itself has no step size), and a parameter set is taken from an
+``.ssv`` file named relative to the .ssd, or inline. libcosim only warns about a parameter it
+cannot apply and silently drops nothing else it does not know; ``read_ssp`` refuses all of it:
+an unknown component or variable, a type or unit that does not match the FMU, an output bound as
+a parameter, a missing FMU, malformed XML (the reader is harness.systems.ssp_read). Every error is an
+``SspError`` naming the file, the element and the variable. fmpy's SSP reader (fmpy.ssp.ssd.read_ssd) validates the same file
+against the SSP 1.0 schema.
+"""
+from __future__ import annotations
+
+import io
+import math
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Sequence
+from xml.etree import ElementTree as ET
+
+from harness.textio import InputError
+
+__all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec",
+           "read_ssp", "write_ssp", "ssp_type", "unit_of", "split_name"]
+
+SSD_NAME = "SystemStructure.ssd"
+NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+      "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+      "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations"}
+OSP_ANNOTATION = "com.opensimulationplatform"
+TYPES = ("Real", "Integer", "Boolean", "String")
+NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")       # no dot: "Component.variable" splits at the first
+INT32 = (-2**31, 2**31 - 1)
+
+
+class SspError(InputError):
+    """A system that cannot be written or read; the message names the file, element and variable."""
+
+
+# --------------------------------------------------------------------------------- the model
+
+@dataclass(frozen=True)
+class Component:
+    """One FMU in a system. ``fmu``: the FMU file (writing), or its path inside the .ssp (read)."""
+    name: str
+    fmu: Path | str
+    parameters: Mapping[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Connection:
+    """``start`` output -> ``end`` input, each "Component.variable"."""
+    start: str
+    end: str
+
+    def __str__(self):
+        return f"{self.start} -> {self.end}"
+
+
+@dataclass(frozen=True)
+class SystemSpec:
+    name: str
+    components: Sequence[Component]
+    connections: Sequence[Connection]
+    step: float                       # communication step [s]
+    start: float = 0.0
+    stop: float | None = None
+    description: str = ""
+
+
+@dataclass
+class LoadedSystem:
+    """What read_ssp gives: the system (component.fmu = the path inside the archive) and each
+    component's model description (fmpy's), for value references and types by name."""
+    path: Path
+    spec: SystemSpec
+    models: dict                      # component name -> fmpy ModelDescription
+
+    def variable(self, full: str, what: str = ""):
+        """The model variable of "Component.variable"; SspError naming ``what`` if unknown."""
+        comp, var = split_name(full)
+        where = f"{self.path}: {what}" if what else str(self.path)
+        if comp not in self.models:
+            raise SspError(f"{where}: no component named '{comp}'")
+        return _variable(self.models[comp], comp, var, where)
+
+
+def split_name(full: str) -> tuple[str, str]:
+    """"Component.variable" -> ("Component", "variable") (component names have no dot)."""
+    comp, dot, var = full.partition(".")
+    if not dot or not comp or not var:
+        raise SspError(f"'{full}': expected Component.variable")
+    return comp, var
+
+
+# ------------------------------------------------------------------------- FMU variables
+
+def ssp_type(variable) -> str:
+    """The SSP connector type of an fmpy model variable (FMI 2 or 3)."""
+    t = variable.type
+    if t in ("Real", "Float64", "Float32"):
+        return "Real"
+    if t in ("Integer", "Enumeration") or t.startswith(("Int", "UInt")):
+        return "Integer"
+    if t in ("Boolean", "String"):
+        return t
+    return t                          # Binary, Clock: no SSP 1.0 connector type; refused by callers
+
+
+def unit_of(variable) -> str:
+    return variable.unit or (variable.declaredType.unit if variable.declaredType is not None
+                             and getattr(variable.declaredType, "unit", None) else "") or ""
+
+
+def _variable(md, comp: str, name: str, where: str):
+    for v in md.modelVariables:
+        if v.name == name:
+            return v
+    raise SspError(f"{where}: component '{comp}' ({md.modelName}) has no variable '{name}'")
+
+
+def _interface(md) -> list:
+    """The variables a component exposes as connectors: every input and output."""
+    return [v for v in md.modelVariables if v.causality in ("input", "output")]
+
+
+def _typed(value, typ: str, what: str):
+    """``value`` (a Python value or the text of an SSV attribute) as a value of SSP type ``typ``."""
+    bad = SspError(f"{what}: {value!r} is not a valid {typ}")
+    if typ == "Real":
+        try:
+            x = float(value) if not isinstance(value, bool) else None
+        except (TypeError, ValueError):
+            x = None
+        if x is None:
+            raise bad
+        if not math.isfinite(x):
+            raise SspError(f"{what}: {value!r} is not a finite Real")
+        return x
+    if typ == "Integer":
+        try:
+            x = int(value) if not isinstance(value, (bool, float)) else \
+                int(value) if isinstance(value, float) and value.is_integer() else None
+        except (TypeError, ValueError):
+            x = None
+        if x is None:
+            raise bad
+        if not INT32[0] <= x <= INT32[1]:
+            raise SspError(f"{what}: {value!r} is outside the 32-bit Integer range")
+        return x
+    if typ == "Boolean":
+        if isinstance(value, bool):
+            return value
+        if str(value) in ("true", "1", "false", "0"):
+            return str(value) in ("true", "1")
+        raise bad
+    if typ == "String":
+        if not isinstance(value, (str, Path)):
+            raise bad
+        return str(value)
+    raise SspError(f"{what}: type {typ} is not supported")
+
+
+def _text(value, typ: str) -> str:
+    if typ == "Real":
+        return repr(float(value))     # shortest text that reads back to the same double
+    if typ == "Boolean":
+        return "true" if value else "false"
+    return str(value)
+
+
+# ------------------------------------------------------------------------------ checking
+
+def check_system(spec: SystemSpec, models: Mapping[str, object], where: str) -> SystemSpec:
+    """Check ``spec`` against the components' model descriptions; returns it with every
+    parameter value converted to its variable's type. SspError names ``where`` and the element."""
+    if not NAME_RE.match(spec.name or ""):
+        raise SspError(f"{where}: system name {spec.name!r}: letters, digits and _ only")
+    if not (isinstance(spec.step, (int, float)) and math.isfinite(spec.step) and spec.step > 0):
+        raise SspError(f"{where}: step {spec.step!r}: expected a step > 0 [s]")
+    if round(spec.step * 1e9) < 1:
+        raise SspError(f"{where}: step {spec.step!r} is below 1 ns")
+    seen: set[str] = set()
+    components = []
+    for c in spec.components:
+        if not NAME_RE.match(c.name or ""):
+            raise SspError(f"{where}: component name {c.name!r}: letters, digits and _ only (no dot)")
+        if c.name in seen:
+            raise SspError(f"{where}: component '{c.name}' appears twice")
+        seen.add(c.name)
+        md = models[c.name]
+        if md.coSimulation is None:
+            raise SspError(f"{where}: component '{c.name}' ({c.fmu}): not a co-simulation FMU")
+        params = {}
+        for name, value in c.parameters.items():
+            v = _variable(md, c.name, name, f"{where}: parameter binding of '{c.name}'")
+            what = f"{where}: parameter binding {c.name}.{name}"
+            if v.causality not in ("parameter", "input"):
+                raise SspError(f"{what}: '{name}' is an {v.causality}, not a parameter or input")
+            if v.variability == "constant":
+                raise SspError(f"{what}: '{name}' is a constant")
+            typ = ssp_type(v)
+            if typ not in TYPES:
+                raise SspError(f"{what}: type {v.type} is not supported")
+            params[name] = _typed(value, typ, f"{what} ({typ})")
+        components.append(Component(c.name, c.fmu, params))
+    driven: dict[str, Connection] = {}
+    for k, conn in enumerate(spec.connections, 1):
+        what = f"{where}: connection {k} ({conn})"
+        ends = []
+        for full, kind in ((conn.start, "output"), (conn.end, "input")):
+            comp, name = split_name(full)
+            if comp not in models:
+                raise SspError(f"{what}: no component named '{comp}'")
+            v = _variable(models[comp], comp, name, what)
+            if v.causality != kind:
+                raise SspError(f"{what}: {full} is an {v.causality}; a connection goes from an "
+                               f"output to an input")
+            ends.append(v)
+        (a, b) = ends
+        if ssp_type(a) != ssp_type(b) or ssp_type(a) not in TYPES:
+            raise SspError(f"{what}: type mismatch: {conn.start} is {a.type}, {conn.end} is {b.type}")
+        if unit_of(a) != unit_of(b):
+            raise SspError(f"{what}: unit mismatch: {conn.start} [{unit_of(a) or '-'}], {conn.end} "
+                           f"[{unit_of(b) or '-'}] (no unit conversion)")
+        if conn.end in driven:
+            raise SspError(f"{what}: {conn.end} is already driven by {driven[conn.end].start}")
+        driven[conn.end] = conn
+    return SystemSpec(spec.name, tuple(components), tuple(spec.connections), float(spec.step),
+                      float(spec.start), None if spec.stop is None else float(spec.stop), spec.description)
+
+
+# ------------------------------------------------------------------------------- writing
+
+def _unit_element(parent, name: str, base) -> None:
+    u = ET.SubElement(parent, "ssc:Unit", name=name)
+    attrs = {}
+    if base is not None:
+        for k in ("kg", "m", "s", "A", "K", "mol", "cd", "rad"):
+            if getattr(base, k, 0):
+                attrs[k] = str(getattr(base, k))
+        if getattr(base, "factor", 1.0) != 1.0:
+            attrs["factor"] = repr(float(base.factor))
+        if getattr(base, "offset", 0.0) != 0.0:
+            attrs["offset"] = repr(float(base.offset))
+    ET.SubElement(u, "ssc:BaseUnit", attrs)
+
+
+def _units_of(md) -> dict:
+    return {u.name: u.baseUnit for u in (md.unitDefinitions or [])}
+
+
+def _ssv(comp: Component, md) -> bytes:
+    root = ET.Element("ssv:ParameterSet", {"xmlns:ssv": NS["ssv"], "xmlns:ssc": NS["ssc"],
+                                           "version": "1.0", "name": comp.name})
+    params = ET.SubElement(root, "ssv:Parameters")
+    units = {}
+    for name, value in comp.parameters.items():
+        v = _variable(md, comp.name, name, "")
+        typ = ssp_type(v)
+        p = ET.SubElement(params, "ssv:Parameter", name=name)
+        attrs = {"value": _text(value, typ)}
+        if typ == "Real" and unit_of(v):
+            attrs["unit"] = units.setdefault(unit_of(v), unit_of(v))
+        ET.SubElement(p, f"ssv:{typ}", attrs)
+    if units:
+        u = ET.SubElement(root, "ssv:Units")
+        defs = _units_of(md)
+        for name in sorted(units):
+            _unit_element(u, name, defs.get(name))
+    return _xml(root)
+
+
+def _xml(root) -> bytes:
+    ET.indent(root, space="  ")
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
+
+
+def _ssd(spec: SystemSpec, models: Mapping[str, object], sources: Mapping[str, str]) -> bytes:
+    root = ET.Element("ssd:SystemStructureDescription", {
+        "xmlns:ssd": NS["ssd"], "xmlns:ssc": NS["ssc"], "xmlns:ssv": NS["ssv"],
+        "xmlns:osp": NS["osp"], "version": "1.0", "name": spec.name})
+    system = ET.SubElement(root, "ssd:System", name=spec.name)
+    if spec.description:
+        system.set("description", spec.description)
+    elements = ET.SubElement(system, "ssd:Elements")
+    units: dict[str, object] = {}
+    for c in spec.components:
+        md = models[c.name]
+        e = ET.SubElement(elements, "ssd:Component", name=c.name, source=sources[c.name],
+                          type="application/x-fmu-sharedlibrary")
+        connectors = ET.SubElement(e, "ssd:Connectors")
+        defs = _units_of(md)
+        for v in _interface(md):
+            typ = ssp_type(v)
+            if typ not in TYPES:
+                continue
+            k = ET.SubElement(connectors, "ssd:Connector", name=v.name, kind=v.causality)
+            attrs = {}
+            if typ == "Real" and unit_of(v):
+                attrs["unit"] = unit_of(v)
+                units.setdefault(unit_of(v), defs.get(unit_of(v)))
+            ET.SubElement(k, f"ssc:{typ}", attrs)
+        if c.parameters:
+            b = ET.SubElement(e, "ssd:ParameterBindings")
+            ET.SubElement(b, "ssd:ParameterBinding", source=f"resources/{c.name}.ssv",
+                          type="application/x-ssp-parameter-set")
+    if spec.connections:
+        conns = ET.SubElement(system, "ssd:Connections")
+        for conn in spec.connections:
+            (sc, sv), (ec, ev) = split_name(conn.start), split_name(conn.end)
+            ET.SubElement(conns, "ssd:Connection", startElement=sc, startConnector=sv,
+                          endElement=ec, endConnector=ev)
+    if units:
+        u = ET.SubElement(root, "ssd:Units")
+        for name in sorted(units):
+            _unit_element(u, name, units[name])
+    exp = ET.SubElement(root, "ssd:DefaultExperiment", startTime=repr(spec.start))
+    if spec.stop is not None:
+        exp.set("stopTime", repr(spec.stop))
+    ann = ET.SubElement(ET.SubElement(exp, "ssd:Annotations"), "ssc:Annotation", type=OSP_ANNOTATION)
+    ET.SubElement(ET.SubElement(ann, "osp:Algorithm"), "osp:FixedStepAlgorithm",
+                  baseStepSize=repr(spec.step))
+    return _xml(root)
+
+
+def _read_md(data_or_path, where: str):
+    from fmpy import read_model_description
+    try:
+        src = io.BytesIO(data_or_path) if isinstance(data_or_path, bytes) else str(data_or_path)
+        return read_model_description(src, validate=False)
+    except Exception as e:
+        raise SspError(f"{where}: not a readable FMU ({type(e).__name__}: {e})") from None
+
+
+def write_ssp(spec: SystemSpec, path: str | Path) -> Path:
+    """Check ``spec`` against its FMUs and write it as an .ssp package at ``path``."""
+    path = Path(path)
+    models, sources, used = {}, {}, {}
+    for c in spec.components:
+        fmu = Path(c.fmu)
+        if not fmu.is_file():
+            raise SspError(f"{path}: component '{c.name}': FMU file not found: {fmu}")
+        models[c.name] = _read_md(fmu, f"{path}: component '{c.name}' ({fmu})")
+        source = f"resources/{fmu.name}"
+        if source in used and Path(used[source]).resolve() != fmu.resolve():
+            raise SspError(f"{path}: components '{c.name}' and another use two FMU files named {fmu.name}")
+        used[source], sources[c.name] = fmu, source
+    spec = check_system(spec, models, str(path))
+    tmp = path.with_name(path.name + ".part")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr(SSD_NAME, _ssd(spec, models, sources))
+            for source, fmu in used.items():
+                z.write(fmu, source, compress_type=zipfile.ZIP_STORED)
+            for c in spec.components:
+                if c.parameters:
+                    z.writestr(f"resources/{c.name}.ssv", _ssv(c, models[c.name]))
+        tmp.replace(path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise SspError(f"{path}: cannot write: {e.strerror or e}") from None
+    return path
+
+
+def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
+    """Read and check an .ssp package (harness.systems.ssp_read.read_ssp); ``step`` overrides the file's."""
+    from harness.systems.ssp_read import read_ssp as read
+    return read(path, step)

@@ -1,0 +1,1 @@
+"""The automatic train operation for one span: re-planner, stopping, supervisor, controller."""

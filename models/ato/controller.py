@@ -1,0 +1,650 @@
+"""The automatic train operation (ATO) for one span, closed around the estimator's outputs:
+a running-time regulator that re-plans seed 003's energy-efficient run, targeted stopping with
+seed 004's relay-controlled electro-pneumatic brake, and a speed supervisor.
+
+``AtoController(span, car, tuning)`` is built once per span; each communication step
+``demands(t, outputs)`` takes the time [s] and the RailCar (or RailCarEstimator) FMU's outputs
+by name and returns an ``AtoCommand``: traction and brake demands [N], the mode code
+(``AtoMode``) and the planned speed [m/s]. It holds no loop; a host steps it.
+
+What it reads (and nothing else: not the truth car.*, whose grade it knows from the span):
+filter.speed, filter.position, filter.speed_std, filter.position_std (the motion filter),
+est.mass, est.A0..A2, est.status, est.samples (the identification).
+
+**Running-time regulator** (seed 003 ch. 4 uses a fuzzy regulator with predictive traction
+calculation; ours is its model-predictive form). Every ``replan_period`` seconds the rest of
+the span is re-planned from the filter's speed and position, with the identified mass and
+resistance when est.status says they are usable (else the configured ones), by
+models/ato/planner.py: seed 003's maximum-principle structure solved for the holding speed V_c
+that arrives on schedule (milliseconds; the full synthesis takes seconds). Between re-plans the
+controller executes the plan's *policy*, not its timetable: full traction below V_c, holding
+V_c by traction, coasting on a descent up to V_r and holding V_r by the regenerative brake,
+coasting from each planned coast point, following the envelope U(s) (limits less a margin and
+the braking curves) where the car reaches it. With ``replan=False`` and
+``use_estimates=False`` the same policy is planned once from the configured coefficients: the
+fixed plan the regulator is measured against. Estimates are used once est.status is 1 or 2,
+est.samples has grown by min_samples since departure (it runs on over station stops, where
+the mass identification restarts), est.mass is within mass_band of the configured mass and the
+resistance rises with speed; braking curves are planned for the heavier of the identified and
+the configured mass (an identified mass that is too low must not make them late).
+
+**Targeted stopping**: models/ato/stopping.py (the braking curve, then the relay stages of the
+electro-pneumatic brake below 7 km/h, then the holding brake). From the start of the final
+braking curve the whole curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP
+stage's duration) short of the mark: where the filter is uncertain, a stop errs to the short
+side. Under speed-sensor noise the filter's position lags the car by more than it claims (the
+identified mass comes out low, so the filter's model brakes the car harder than the brake
+does: at 0.444 m/s speed noise est.mass is ~8 % low and the lag at the stop 0.34 m on average,
+sd 0.32 m, while filter.position_std says 0.19 m). So where filter.position_std exceeds
+``settle_std`` when the final braking curve starts, the stop is in two parts: a short stop
+``settle_sigma`` x filter.position_std short (at most ``settle_aim_max``), ``settle_time``
+standing with the holding brake (mode SETTLE) while the filter's distance catches up with the
+car (its model holds at rest, and the distance sensor keeps averaging), then a creep on to the
+mark within ``settle_window``. It costs ~11 s at the stop; with filter.position_std below
+settle_std (a quiet speed sensor) the stop is one stop as before.
+
+**Safety**: bad construction inputs raise ValueError naming the value (an infeasible schedule, a
+stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit the margin
+leaves nothing of, bad tuning). At run time nothing raises: an output that is missing or not
+finite gives a safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged
+(logger ``models.ato.controller`` and ``AtoController.events``). The supervisor brakes with the full brake
+whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve read at
+filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
+full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
+the stop mark; the controller itself keeps filter.speed + k_sigma filter.speed_std a
+``supervisor_gap`` + ``gap_sigma`` filter.speed_std below that curve, so a noisy filter slows the car rather than waking the
+supervisor. (A filter that is wrong by more than k_sigma of its own stds, as the lagging one
+above, can still take the car past the line: the controller cannot see that error.)
+
+Units: s [m], V [m/s], t [s], force [N], mass [t], grade [permille].
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time as _time
+from dataclasses import dataclass, fields
+from enum import IntEnum
+from typing import Mapping
+
+from models.ato.motion import PlanCar
+from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
+from models.ato.stopping import RelayBrake, track_force
+from models.planning.span import CarTraction, Span, check_span_for_car
+from models.units import G
+
+LOG = logging.getLogger(__name__)
+
+INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "est.A0",
+          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
+"""The outputs the controller reads, by their FMU names."""
+
+EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
+
+
+class AtoMode(IntEnum):
+    """AtoCommand.mode. 0..6 are seed 003 Table 2's modes (models.planning.engine.Mode)."""
+    TG = 0          # full traction
+    C = 1           # speed holding by traction
+    VB = 2          # coasting
+    SR = 3          # speed holding by the regenerative brake
+    RK = 4          # regenerative braking (along a braking curve)
+    ST = 5          # holding by regenerative + mechanical brake
+    TM = 6          # braking with the mechanical brake (along a braking curve)
+    EP = 7          # relay stages of the electro-pneumatic brake (AtoCommand.ep_stage)
+    HOLD = 8        # holding brake at the stop mark
+    SAFE = 9        # safe brake: an input was missing or not finite (reason logged)
+    OVERSPEED = 10  # the supervisor brakes: the speed is above the supervision curve
+    CREEP = 11      # stopped short of the mark: creeping on
+    SETTLE = 12     # standing short of the mark while the filter's distance settles
+
+
+@dataclass(frozen=True)
+class AtoCommand:
+    """One step's output: demands [N], the mode, the planned speed [m/s], the EP stage."""
+    traction: float
+    brake: float
+    mode: int
+    planned_speed: float
+    ep_stage: int = 0
+
+
+@dataclass(frozen=True)
+class AtoTuning:
+    """The controller's settings (defaults justified in the comments)."""
+    replan: bool = True               # the running-time regulator re-plans the rest of the span
+    use_estimates: bool = True        # re-plan and feed forward with est.* when usable
+    replan_period: float = 2.0        # [s] a few s: the arrival error a step of model error
+    #                                   builds up in 2 s is far below the 2.5 s target
+    grid_step: float = 10.0           # [m] re-planner's grid (0.4 % energy of synthesize's)
+    time_tol: float = 0.05            # [s] re-plan's running-time tolerance (1/50 of 2.5 s)
+    min_samples: int = 100            # est.samples before est.* are used (10 s at 0.1 s)
+    mass_band: float = 1.6            # est.mass used within [car.mass / this, car.mass x this]
+    #                                   (the library's cars: 24 t empty to 44 t crush-loaded)
+    limit_margin: float = 0.5         # [m/s] planned speeds stay this far below V_lim
+    #                                   (1.8 km/h, about seed 003's 2 % speed error at 80 km/h)
+    k_sigma: float = 3.0              # supervisor: filter.speed + k_sigma * filter.speed_std
+    gap_sigma: float = 2.5            # and gap_sigma x filter.speed_std more: under speed noise
+    #                                   filter.speed jumps by up to ~2 sigma in one update (0.4
+    #                                   m/s at sigma 0.2), which woke the supervisor in every run
+    #                                   at 2 % of V as 1 sigma (0.5 / 1.5: still 100 % / 60 %)
+    supervisor_gap: float = 0.1       # [m/s] the controller keeps filter.speed + k_sigma *
+    #                                   filter.speed_std this far below the supervision curve
+    mass_reserve: float = 0.2         # supervisor's curves: this share more mass than planned
+    #                                   (the planned curves use 0.85 x 40 kN, the supervisor
+    #                                   45 kN / 1.2 = 37.5 kN per planned mass: never inside)
+    brake_share: float = 0.85         # planned braking curves use this share of the electric
+    #                                   brake: the rest (and the mechanical brake) is reserve
+    approach_gain: float = 1.0        # [1/s] speed feedback of holding and curve tracking
+    brake_integral_gain: float = 0.5  # [1/s^2] integral feedback on the final braking curve
+    brake_integral_max: float = 0.3   # [m/s^2] its bound (anti-windup: ~25 % of the curve)
+    a_ep: float = 1.0                 # [m/s^2] programmed deceleration of the EP stage (a
+    #                                   metro service rate; 0.7 costs 1 s and 2 % energy)
+    ep_stages: int = 6                # EP brake stages of car.mech_force_max / ep_stages
+    relay_hysteresis: float = 0.03    # [m/s] relay on above +, off below - this speed error
+    relay_stage_speed: float = 0.1    # [m/s] one more stage per this much further error
+    relay_dwell: float = 0.3          # [s] between stage changes (an EP valve's response)
+    stand_speed: float = 0.05         # [m/s] at or below for stand_time: the car stands
+    stand_time: float = 0.5           # [s]
+    creep_speed: float = 0.3          # [m/s] creeping to the mark after a short stop
+    creep_accel: float = 0.2          # [m/s^2]
+    stop_window: float = 0.15         # [m] standing closer than this to the aim: arrived
+    aim_sigma: float = 1.0            # aim this many filter.speed_std x (the EP stage's
+    aim_max: float = 0.5              # duration) short of the mark, at most aim_max [m] (3:
+    #                                   stops 0.06 m short on average, 1: 0.02 m)
+    settle_std: float = 0.13          # [m] filter.position_std above this at the final braking
+    #                                   curve and still at the EP stage: stop short, stand, creep
+    #                                   on (else one stop). +-0.3 m in 95 % needs an error sd of
+    #                                   0.3 / 1.96 = 0.15 m, and under speed noise the filter
+    #                                   claims ~15 % too little (its distance lags): 0.13 m
+    settle_sigma: float = 6.0         # the short stop aims this many filter.position_std short
+    settle_aim_max: float = 1.5       # [m] at most
+    settle_time: float = 5.0          # [s] standing before the creep (the filter's distance
+    #                                   catches up with the car at rest; < track.station_dwell);
+    #                                   0: never a short stop. 3 s: 95 % / 81 % within 0.3 m at
+    #                                   0.222 / 0.444 m/s speed noise, 4.5-6 s: 96-98 % / 86-91 %
+    settle_window: float = 0.05       # [m] the stop_window after the stand: the creep gets
+    #                                   within a few cm, a wider window only adds error
+    creep_aim: float = 0.05           # [m] the creep after the stand aims this far short:
+    #                                   after 5 s the filter's distance still lags ~0.05 m
+    safe_brake: float = 1.0           # share of car.brake_force_max on a bad input
+    hold_brake: float = 0.5           # share of car.brake_force_max held at the stop (at least
+    #                                   the last EP stage)
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.type in ("bool",):
+                if not isinstance(v, bool):
+                    raise ValueError(f"tuning.{f.name} must be True or False, got {v!r}")
+                continue
+            if f.type == "int":
+                if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                    raise ValueError(f"tuning.{f.name} must be an integer >= 1, got {v!r}")
+                continue
+            try:
+                x = float(v)
+            except (TypeError, ValueError):
+                raise ValueError(f"tuning.{f.name} must be a number, got {v!r}") from None
+            if not math.isfinite(x) or x < 0.0:
+                raise ValueError(f"tuning.{f.name} must be finite and >= 0, got {v!r}")
+            if f.name == "mass_band" and x < 1.0:
+                raise ValueError(f"tuning.mass_band must be >= 1, got {v!r}")
+            positive = ("replan_period", "grid_step", "time_tol", "approach_gain", "a_ep",
+                        "relay_stage_speed", "stand_speed", "creep_speed", "brake_share")
+            if f.name in positive and x == 0.0:
+                raise ValueError(f"tuning.{f.name} must be > 0, got {v!r}")
+            shares = ("brake_share", "safe_brake", "hold_brake")
+            if f.name in shares and x > 1.0:
+                raise ValueError(f"tuning.{f.name} must be in (0, 1], got {v!r}")
+
+
+RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
+
+
+class AtoController:
+    """The ATO for one span (module docstring). ``finished``: the car stands at the stop mark."""
+
+    def __init__(self, span: Span, car: CarTraction, tuning: AtoTuning | None = None):
+        if not isinstance(span, Span):
+            raise ValueError(f"span must be a models.planning.span.Span, got {type(span).__name__}")
+        if not isinstance(car, CarTraction):
+            raise ValueError(f"car must be a models.planning.span.CarTraction, got {type(car).__name__}")
+        tuning = AtoTuning() if tuning is None else tuning
+        if not isinstance(tuning, AtoTuning):
+            raise ValueError(f"tuning must be an AtoTuning, got {type(tuning).__name__}")
+        self.span, self.car, self.tuning = span, car, tuning
+        check_span_for_car(span, car)          # a start on the grade, limits the brakes keep
+        self.course = ReducedCourse(span, car, step=tuning.grid_step,
+                                    limit_margin=tuning.limit_margin,
+                                    v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
+        self.planner = ReducedPlanner(self.course, tol=tuning.time_tol)
+        self.configured = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
+        qU = self.planner.envelope(self.configured)
+        t_min = self.planner.min_time(self.configured, qU)
+        if span.schedule < t_min - tuning.time_tol:
+            raise ValueError(f"span.schedule = {span.schedule:.2f} s is infeasible: the fastest "
+                             f"run the controller plans (limits less {tuning.limit_margin} m/s) "
+                             f"takes {t_min:.2f} s")
+        self._check_ep(span, car, tuning)
+        t0 = _time.perf_counter()
+        plan = self.planner.plan(self.configured, 0.0, 0.0, 0.0, span.schedule, qU)
+        self.replan_seconds = [_time.perf_counter() - t0]
+        if plan.status == "early":
+            raise ValueError(f"span.schedule = {span.schedule:.2f} s is too long: holding "
+                             f"{plan.hold_speed:.2f} m/s still arrives after {plan.arrival:.2f} s")
+        self.plan: ReducedPlan = plan
+        self.initial_plan = plan
+        stage_force = car.mech_force_max / tuning.ep_stages
+        self.relay = RelayBrake(span.stop, tuning.a_ep, stage_force, tuning.ep_stages,
+                                tuning.relay_hysteresis, tuning.relay_stage_speed,
+                                tuning.relay_dwell, tuning.creep_speed, tuning.creep_accel,
+                                tuning.stop_window)
+        self._final_start = self._final_stretch_start(plan.qU)
+        self._sup_q = self._supervision(self.configured.brake_mass)
+        self.phase = RUN
+        self.t_departure = None
+        self._samples0 = 0.0                 # est.samples at departure
+        self._last_replan = -math.inf
+        self._using_estimates = False
+        self._car_now = self.configured
+        self._last_key = None
+        self.events: list[tuple[float, str]] = []
+        self._episodes: set = set()
+        self._last_status = "ok"
+        self._last_brake = 0.0
+        self._stand_since = None
+        self._usable_since = None
+        self._rejected = False
+        self.replans = 0
+        self.aim_offset = 0.0
+        self._brake_int, self._t_last = 0.0, None
+        self._psd = 0.0                     # filter.position_std at this step [m]
+        self._settle = None                 # None: not decided; True: stop short and settle
+        self._settle_since = None
+        self.settled = False                # the settle stand is over
+        self._crept = False                 # ... and the creep after it has begun
+        self.first_stop = None              # (t, filter.position) of the first standstill
+
+    # ----------------------------------------------------------------- construction checks
+    @staticmethod
+    def _check_ep(span: Span, car: CarTraction, tuning: AtoTuning):
+        """The EP stage must be able to give a_ep at the stop mark on its grade."""
+        g = span.grade.average(span.stop, car.length)
+        need = 1000.0 * car.mass * (1.0 + car.gamma) * tuning.a_ep - car.mass * G * (car.A0 + g)
+        if need > car.mech_force_max:
+            raise ValueError(f"tuning.a_ep = {tuning.a_ep} m/s^2 needs {need:.0f} N of "
+                             f"electro-pneumatic brake at the stop mark, car.mech_force_max is "
+                             f"{car.mech_force_max:.0f} N")
+
+    def _final_stretch_start(self, qU) -> float:
+        """Where the falling braking curve that ends at the stop mark starts [m]."""
+        s = self.course.s
+        j = len(qU) - 1
+        while j > 0 and qU[j - 1] > qU[j] * (1.0 + 1e-12):
+            j -= 1
+        return s[j]
+
+    def _supervision(self, mass: float) -> list:
+        """The supervision curve's V^2 on the course nodes: V_lim (no margin) and the full-brake
+        curves (brake_force_max, no resistance, (1 + mass_reserve) x mass) to every lower limit
+        ahead and to 1 m past the stop mark (seed 004's 'never past +1 m' as a hard line)."""
+        c, car, span = self.course, self.car, self.span
+        self._sup_mass = mass
+        m = 1000.0 * mass * (1.0 + self.tuning.mass_reserve) * (1.0 + car.gamma)
+        s = c.s
+        q = [0.0] * c.n
+        q_end = 2.0 * (car.brake_force_max / m) * 1.0          # at the stop: 1 m to rest
+        q[-1] = q_end
+        for i in range(c.n - 2, -1, -1):
+            b = min(car.brake_force_max, car.brake_total_max(math.sqrt(q[i + 1])))
+            a = b / m - G / 1000.0 / (1.0 + car.gamma) * (-c.g[i])   # deceleration [m/s^2]
+            qb = q[i + 1] + 2.0 * max(a, 0.0) * (s[i + 1] - s[i])
+            q[i] = min(qb, span.v_lim_at_node(s[i]) ** 2)
+        return q
+
+    # ----------------------------------------------------------------- helpers
+    @property
+    def using_estimates(self) -> bool:
+        """True while the plan and the feed-forward use est.* (else the configured car)."""
+        return self._using_estimates
+
+    @property
+    def finished(self) -> bool:
+        """True once the car stands within tuning.stop_window of the stop mark (or past it)."""
+        return self.phase == HOLD
+
+    def _log(self, t: float, reason: str, key: str):
+        """Record and log ``reason`` once per episode of ``key`` (a NaN held for 100 steps or a
+        supervisor intervention is one event, not 100); _clear(key) ends the episode."""
+        if key not in self._episodes:
+            self._episodes.add(key)
+            self.events.append((t, reason))
+            LOG.warning("ATO at t = %.2f s: %s", t, reason)
+
+    def _clear(self, key: str):
+        self._episodes.discard(key)
+
+    def _clear_inputs(self):
+        if self._episodes:
+            self._episodes = {k for k in self._episodes if not k.startswith("input:")}
+
+    def _interp(self, q, x: float) -> tuple[float, float]:
+        """q(x) on the course nodes (linear) and its slope dq/ds [m/s^2]."""
+        s = self.course.s
+        i = self.course.cell(x)
+        h = s[i + 1] - s[i]
+        slope = (q[i + 1] - q[i]) / h
+        w = min(max(x - s[i], 0.0), h)
+        return q[i] + w * slope, slope
+
+    def _grade(self, x: float) -> float:
+        return self.span.grade.average(x, self.car.length)
+
+    def _safe(self, t, reason, key) -> AtoCommand:
+        self._log(t, reason, key)
+        return AtoCommand(0.0, self.tuning.safe_brake * self.car.brake_force_max, int(AtoMode.SAFE),
+                          0.0)
+
+    def _estimates_usable(self, est) -> str | None:
+        """Why est.* cannot be used now, or None."""
+        mass, a0, a1, a2, status, samples = est
+        if int(status) not in EST_USABLE:
+            return f"est.status = {int(status)}"
+        if samples - self._samples0 < self.tuning.min_samples:
+            return (f"est.samples = {int(samples)}: {int(samples - self._samples0)} since departure "
+                    f"< {self.tuning.min_samples}")
+        m0, band = self.car.mass, self.tuning.mass_band
+        if not m0 / band <= mass <= m0 * band:
+            return f"est.mass = {mass:.2f} t outside [{m0 / band:.4g}, {m0 * band:.4g}] t"
+        # what the re-planner needs: a resistance force rising with speed (W' > 0: V_r and the
+        # co-state equation divide by it) and positive where the car cruises; a slightly
+        # negative A0 (the LS trades it against A1, A2 when the data are at speed) is harmless
+        v_lo, v_hi = self.course.v_relay, max(self.span.limit_speeds)
+        if not (a1 + 2.0 * a2 * v_lo > 0.0 and a1 + 2.0 * a2 * v_hi > 0.0
+                and a0 + 0.5 * v_hi * (a1 + 0.5 * a2 * v_hi) > 0.0):
+            return (f"est.A0..A2 = {a0:.4g}, {a1:.4g}, {a2:.4g} give a resistance that is not "
+                    f"rising on [{v_lo:.2f}, {v_hi:.2f}] m/s or not positive at "
+                    f"{0.5 * v_hi:.2f} m/s")
+        return None
+
+    # ----------------------------------------------------------------- the step
+    def demands(self, t: float, outputs: Mapping[str, float]) -> AtoCommand:
+        """The command for the step starting at ``t`` [s] from the outputs at ``t``. Never
+        raises: a bad input (missing, not a number, not finite) gives the safe brake, with the
+        reason in ``events`` and the log (once per episode)."""
+        try:
+            t_in = t
+            try:
+                t = float(t)
+            except (TypeError, ValueError):
+                t = math.nan
+            if not math.isfinite(t):
+                return self._safe(t, f"time t = {t_in!r} is not a finite number: safe brake",
+                                  "input:t")
+            vals = []
+            for name in INPUTS:
+                x = outputs.get(name) if hasattr(outputs, "get") else None
+                if x is None:
+                    return self._safe(t, f"{name} is missing: safe brake", "input:" + name)
+                try:
+                    x = float(x)
+                except (TypeError, ValueError):
+                    return self._safe(t, f"{name} = {x!r} is not a number: safe brake",
+                                      "input:" + name)
+                if not math.isfinite(x):
+                    return self._safe(t, f"{name} = {x} is not finite: safe brake",
+                                      "input:" + name)
+                vals.append(x)
+            self._clear_inputs()
+            cmd = self._step(t, vals)
+            self._last_brake = cmd.brake
+            return cmd
+        except Exception as e:      # a bug must not stop the host's loop: brake and say why
+            return self._safe(math.nan, f"internal error {type(e).__name__}: {e}: safe brake",
+                              "internal")
+
+    def _params(self, t: float, est) -> PlanCar:
+        """The car to plan and feed forward with: est.* when usable (after a rejection, only
+        once they have been usable for replan_period again: no flapping), else configured."""
+        why = self._estimates_usable(est) if self.tuning.use_estimates else "use_estimates off"
+        if why is None:
+            if self._usable_since is None:
+                self._usable_since = t
+            settled = (not self._rejected or
+                       t - self._usable_since >= self.tuning.replan_period - 1e-9)
+            if settled:
+                key = tuple(est[:4])
+                if key != self._last_key:
+                    self._car_now = PlanCar(self.car, *key, self.tuning.brake_share,
+                                            brake_mass=max(key[0], self.car.mass))
+                    self._last_key = key
+                if not self._using_estimates:
+                    self._clear("estimates")
+                    self._using_estimates = True
+                    self._last_replan = -math.inf          # re-plan now with the estimates
+                    self.events.append((t, "est.* usable: planning with the identified values"))
+        else:
+            self._usable_since = None
+            if self._using_estimates:
+                self._rejected = True
+                self._log(t, f"estimates not usable ({why}): configured values", "estimates")
+                self._using_estimates = False
+                self._car_now = self.configured
+        return self._car_now
+
+    def _replan(self, tau: float, s: float, v: float, car: PlanCar):
+        t0 = _time.perf_counter()
+        try:
+            plan = self.planner.plan(car, s, v, tau, self.span.schedule)
+        except ValueError as e:
+            self.events.append((tau, f"re-plan failed ({e}): the last plan is kept"))
+            return
+        self.replan_seconds.append(_time.perf_counter() - t0)
+        self.replans += 1
+        if plan.status != self._last_status:
+            self.events.append((tau, f"re-plan status {plan.status}: arrival planned "
+                                     f"{plan.arrival - self.span.schedule:+.2f} s off schedule"))
+            self._last_status = plan.status
+        self.plan = plan
+        self._final_start = self._final_stretch_start(plan.qU)
+        if abs(car.brake_mass - self._sup_mass) > 1e-3 * self._sup_mass:   # else unchanged
+            self._sup_q = self._supervision(car.brake_mass)
+
+    def _step(self, t: float, vals) -> AtoCommand:
+        v, s, sd = max(vals[0], 0.0), vals[1], vals[2]
+        est = vals[3:9]
+        self._psd = max(vals[9], 0.0)
+        if self.t_departure is None:
+            self.t_departure = t
+            self._samples0 = est[5]   # est.samples runs on over station stops: count from here
+        tau = t - self.t_departure
+        car = self._params(t, est)
+        tn = self.tuning
+        if self.phase == HOLD:
+            return self._hold()
+        if self.phase == SETTLE:
+            return self._settle_step(t, s)
+        g = self._grade(s)
+        if self.phase == BRAKE:
+            self._set_aim(sd)
+        d = self.relay.stop - s             # to the aim point (the mark until BRAKE)
+        if self.phase in (RUN, BRAKE) and (d <= self.course.d_relay or
+                                           (self.phase == BRAKE and v <= self.course.v_relay)):
+            self.phase = STOP_EP
+            if self.aim_offset == 0.0:     # straight into the EP stage (no braking curve)
+                self._set_aim(sd)
+            else:                          # the low speeds may have settled the filter: the aim
+                self._refine_aim(t, sd)    # moves towards the mark (less braking), never away
+        if self.phase == STOP_EP:
+            return self._stop_ep(t, s, v, sd, self.relay.stop - s, car, g)
+        if self.phase == RUN and tn.replan and tau - self._last_replan >= tn.replan_period - 1e-9:
+            self._last_replan = tau
+            self._replan(tau, s, v, car)
+        plan = self.plan
+        # on the final braking curve, the curve ends at the aim point: U is read aim_offset on
+        u, a_u = self._ceiling(s, sd, self.aim_offset if self.phase == BRAKE else 0.0)
+        f_ceil = track_force(car, v, u, a_u, g, tn.approach_gain)
+        if self.phase == BRAKE:
+            # PI on the braking curve: the integral takes out what the feed-forward's mass and
+            # resistance get wrong (a 20 % heavier car than planned lags ~0.2 m/s with P alone)
+            dt = t - self._t_last if self._t_last is not None else 0.0
+            lim = tn.brake_integral_max
+            self._brake_int = min(max(self._brake_int + tn.brake_integral_gain * (u - v) * dt,
+                                      -lim), lim)
+            f = min(f_ceil + car.m_in * self._brake_int, 0.0)
+            self._t_last = t
+            return self._supervised(t, s, v, sd, self._command(car, v, f, a_u, u))
+        f_want = 0.0
+        if not any(x <= s < y for x, y in plan.coasts):
+            f_c = track_force(car, v, plan.hold_speed, 0.0, g, tn.approach_gain)
+            if f_c > 0.0:
+                f_want = f_c
+            elif v > plan.regen_speed:
+                f_want = track_force(car, v, plan.regen_speed, 0.0, g, tn.approach_gain)
+        on_ceiling = f_ceil < f_want
+        f = f_ceil if on_ceiling else f_want
+        if on_ceiling and f < 0.0 and s >= self._final_start - 1e-9:
+            self.phase = BRAKE                 # on the braking curve to the stop mark
+            self._brake_int, self._t_last = 0.0, t
+            self._set_aim(sd)
+        return self._supervised(t, s, v, sd, self._command(car, v, f, a_u if on_ceiling else 0.0,
+                                                           plan.speed_at(s)))
+
+    def _set_aim(self, sd: float):
+        """The aim point: short of the mark by the way a speed error of aim_sigma x
+        filter.speed_std covers over the EP stage, at most aim_max (a filter that lags errs to
+        the short side). Set from the start of the final braking curve on, so that the whole
+        curve ends there (set only at the EP stage, it asked that stage for more than a_ep).
+        Where filter.position_std is above settle_std when that curve starts, the stop is a
+        short one instead: settle_sigma x filter.position_std short, at most settle_aim_max;
+        the car then stands settle_time and creeps on to the mark (_settle_step)."""
+        tn = self.tuning
+        if self._settle is None:
+            self._settle = tn.settle_time > 0.0 and self._psd > tn.settle_std
+        if self._settle and not self.settled:
+            self.aim_offset = min(tn.settle_sigma * self._psd, tn.settle_aim_max)
+        else:
+            t_ep = self.course.v_relay / tn.a_ep
+            self.aim_offset = min(tn.aim_sigma * sd * t_ep, tn.aim_max)
+        self.relay.stop = self.span.stop - self.aim_offset
+
+    def _refine_aim(self, t: float, sd: float):
+        """At the EP stage's start: where filter.position_std has fallen to settle_std (a speed
+        sensor whose noise falls with the speed), no short stop after all; and the aim from the
+        filter.speed_std now, where that is closer to the mark. Only ever towards the mark, so
+        the relay never needs more than the curve's deceleration."""
+        tn = self.tuning
+        if self._settle and not self.settled and self._psd <= tn.settle_std:
+            self._settle = False
+            self.events.append((t, f"filter.position_std {self._psd:.3f} m at the "
+                                                  f"EP stage: one stop, no settling"))
+        if not (self._settle and not self.settled):
+            t_ep = self.course.v_relay / tn.a_ep
+            self.aim_offset = min(self.aim_offset, tn.aim_sigma * sd * t_ep, tn.aim_max)
+            self.relay.stop = self.span.stop - self.aim_offset
+
+    def _settle_step(self, t: float, s: float) -> AtoCommand:
+        """Standing short of the mark (the holding brake) for settle_time while the filter's
+        distance catches up with the car; then creep on to the mark (STOP_EP's relay), or
+        finish if the filter now puts the car within stop_window of it."""
+        tn = self.tuning
+        if t - self._settle_since < tn.settle_time - 1e-9:
+            b = max(self._last_brake, tn.hold_brake * self.car.brake_force_max)
+            return AtoCommand(0.0, b, int(AtoMode.SETTLE), 0.0)
+        self.settled = True
+        self.aim_offset = tn.creep_aim
+        self.relay.stop = self.span.stop - tn.creep_aim
+        self.relay.stop_window = min(tn.settle_window, tn.stop_window)
+        self._stand_since = None
+        self.events.append((t, f"settled: {self.span.stop - s:+.3f} m short of the mark "
+                               f"(filter)"))
+        self.phase = STOP_EP            # the relay creeps on from the next step, or it stands
+        return AtoCommand(0.0, max(self._last_brake, tn.hold_brake * self.car.brake_force_max),
+                          int(AtoMode.SETTLE), 0.0)
+
+    def _ceiling(self, s: float, sd: float, shift: float = 0.0) -> tuple[float, float]:
+        """The speed the car must stay under at s [m/s] and its rate dV/dt along s [m/s^2]: the
+        plan's envelope U, or the supervision curve less k_sigma filter.speed_std and the gap
+        where that is lower (a noisy filter would otherwise wake the supervisor)."""
+        qu, dq = self._interp(self.plan.qU, s + shift)
+        u = math.sqrt(qu) if qu > 0.0 else 0.0
+        a_u = 0.5 * dq                          # dV/dt along U at speed u: V dV/ds = dq/ds / 2
+        qs, dqs = self._interp(self._sup_q, s + self.tuning.k_sigma * self._psd)
+        vs = math.sqrt(qs) if qs > 0.0 else 0.0
+        tn = self.tuning
+        w = vs - (tn.k_sigma + tn.gap_sigma) * sd - tn.supervisor_gap
+        if w < u:
+            return max(w, 0.0), 0.5 * dqs
+        return u, a_u
+
+    def _stop_ep(self, t, s, v, sd, d, car, g) -> AtoCommand:  # d: to the aim point
+        """Below v_relay: seed 004's relay stages; the holding brake once the car stands."""
+        tn = self.tuning
+        settle = self._settle and not self.settled
+        # after the stand, one creep: once it has crept and the relay braked, the car stands
+        # where it stops (the filter's distance at rest wanders ~filter.position_std: a second
+        # creep on that noise overran the mark by 0.5 m)
+        done = self._crept and (self.relay.stage or 0) > 0
+        if v <= tn.stand_speed and (d <= self.relay.stop_window or settle or done):
+            if self._stand_since is None:
+                self._stand_since = t
+            if t - self._stand_since >= tn.stand_time - 1e-9 and settle:
+                self.phase, self._settle_since = SETTLE, t
+                self.first_stop = (t, s)
+                self.events.append((t, f"stopped {self.span.stop - s:+.3f} m short of the mark "
+                                       f"(filter; aimed {self.aim_offset:.3f} m short): "
+                                       f"standing {tn.settle_time:g} s"))
+                return self._settle_step(t, s)
+            if t - self._stand_since >= tn.stand_time - 1e-9:
+                if self.first_stop is None:
+                    self.first_stop = (t, s)
+                self.phase = HOLD
+                self.events.append((t, f"stopped {self.span.stop - s:+.3f} m short of the "
+                                       f"mark (filter; aimed {self.aim_offset:.3f} m short)"))
+                return self._hold()
+            return AtoCommand(0.0, max(self._last_brake, tn.hold_brake * self.car.brake_force_max),
+                              int(AtoMode.EP), 0.0, self.relay.n_stages)
+        self._stand_since = None
+        f, b, stage, v_p = self.relay.command(t, s, v, car, g)
+        self._crept = self._crept or (self.settled and stage < 0)
+        mode = AtoMode.CREEP if stage < 0 else AtoMode.EP
+        return self._supervised(t, s, v, sd, AtoCommand(f, b, int(mode), v_p, max(stage, 0)))
+
+    def _hold(self) -> AtoCommand:
+        b = max(self._last_brake, self.tuning.hold_brake * self.car.brake_force_max)
+        return AtoCommand(0.0, b, int(AtoMode.HOLD), 0.0)
+
+    def _command(self, car: PlanCar, v: float, f: float, a_ref: float,
+                 planned: float) -> AtoCommand:
+        """Split a net force into demands and name the mode (Table 2's reading)."""
+        if f > 0.0:
+            fm = car.f_max(v)
+            mode = AtoMode.TG if f >= fm else AtoMode.C
+            return AtoCommand(min(f, self.car.traction_force_max), 0.0, int(mode), planned)
+        if f == 0.0:
+            return AtoCommand(0.0, 0.0, int(AtoMode.VB), planned)
+        b = -f
+        regen = car.r_full(v) if v >= car.v_fade else 0.0
+        decel = a_ref < 0.0
+        if b <= regen:
+            mode = AtoMode.RK if decel else AtoMode.SR
+        else:
+            mode = AtoMode.TM if decel else AtoMode.ST
+        return AtoCommand(0.0, min(b, self.car.brake_force_max), int(mode), planned)
+
+    def _supervised(self, t, s, v, sd, cmd: AtoCommand) -> AtoCommand:
+        """The speed supervisor: full brake above the supervision curve, read k_sigma x
+        filter.position_std further on than filter.position (where the car may be)."""
+        k = self.tuning.k_sigma
+        s_hi = s + k * self._psd
+        q, _ = self._interp(self._sup_q, s_hi)
+        v_hi = v + k * sd
+        if v_hi * v_hi > q:
+            self._log(t, f"speed {v:.3f} m/s + {k:g} x {sd:.3f} m/s above the supervision curve "
+                         f"{math.sqrt(max(q, 0.0)):.3f} m/s at s = {s:.1f} m + {k:g} x "
+                         f"{self._psd:.3f} m: full brake", "overspeed")
+            return AtoCommand(0.0, self.car.brake_force_max, int(AtoMode.OVERSPEED),
+                              cmd.planned_speed, cmd.ep_stage)
+        self._clear("overspeed")
+        return cmd

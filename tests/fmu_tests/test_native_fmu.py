@@ -1,0 +1,328 @@
+"""The native RailCar FMU (issue 18, fmu_src/native.py + fmu_src/c/native_railcar.c): the C core
+behind our FMI 2.0 glue, no Python. Built once per module from the current sources, next to a
+fresh pythonfmu RailCar.fmu (conftest's session build), and compared with it bit for bit.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.validation import validate_fmu
+
+from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
+from fmu_src import native
+from harness.run.runner import FmuRunner
+from harness.run.scenario import load_scenario
+
+LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
+
+
+@pytest.fixture(scope="module")
+def native_fmu(built_fmus, tmp_path_factory) -> Path:
+    return native.build_native_fmu(tmp_path_factory.mktemp("native"), built_fmus["RailCar"])
+
+
+@pytest.fixture(scope="module")
+def pair(built_fmus, native_fmu, tmp_path_factory) -> dict[str, FmuFile]:
+    """name -> FmuFile for the pythonfmu RailCar.fmu ("py") and the native one ("c")."""
+    out = {}
+    for key, path in (("py", built_fmus["RailCar"]), ("c", native_fmu)):
+        unzipdir = extract(str(path), unzipdir=str(tmp_path_factory.mktemp(f"unzip_native_{key}")))
+        out[key] = FmuFile("RailCar", path, read_model_description(str(path)), unzipdir)
+    return out
+
+
+@pytest.fixture(scope="module")
+def runners(built_fmus, native_fmu):
+    py, c = FmuRunner(built_fmus["RailCar"]), FmuRunner(native_fmu)
+    yield py, c
+    py.close()
+    c.close()
+
+
+def bits(a) -> np.ndarray:
+    """The float64 bit patterns (NaN == NaN, -0.0 != 0.0)."""
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.int64)
+
+
+# ------------------------------------------------------------------------------- the header
+
+def test_table_header_is_current():
+    proc = subprocess.run([sys.executable, "-m", "fmu_src.native", "--check"], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_check_fails_on_a_stale_header(tmp_path, monkeypatch, capsys):
+    stale = tmp_path / "native_railcar_table.h"
+    stale.write_text(native.generate_header().replace("/* 14 */ 20,", "/* 14 */ 21,"))
+    monkeypatch.setattr(native, "TABLE_HEADER", stale)
+    monkeypatch.setattr(native, "ROOT", tmp_path)
+    assert native.main(["--check"]) == 1
+    assert "out of date" in capsys.readouterr().err
+
+
+def test_every_config_index_is_explained():
+    sources, constants = native.config_sources()
+    from models.compiled import _config_values
+    from fmu_src.adapter import chain_config
+    from fmu_src.variables import variables_for
+    table = variables_for("RailCar")
+    # a random configuration: every index is what the mapping says
+    rng = np.random.default_rng(18)
+    values = {}
+    for v in table:
+        if v.type == "Real":
+            values[v.name] = float(rng.uniform(0.01, 9.0))
+        elif v.type == "Integer":
+            values[v.name] = int(rng.integers(0, 1000))
+        else:
+            values[v.name] = ""
+    cfg = _config_values(chain_config(values), 3.5)
+    for k, s in enumerate(sources):
+        want = (constants[k] if s == native.CONFIG_CONSTANT else 3.5
+                if s == native.CONFIG_START_TIME else values[table[s].name])
+        assert cfg[k] == want, (k, s)
+
+
+# ------------------------------------------------------------------------------ the package
+
+def test_binary_needs_no_python(native_fmu, tmp_path):
+    with zipfile.ZipFile(native_fmu) as z:
+        so = tmp_path / "RailCar.so"
+        so.write_bytes(z.read("binaries/linux64/RailCar.so"))
+        names = z.namelist()
+    undefined = subprocess.run(["nm", "-D", "--undefined-only", str(so)], capture_output=True,
+                               text=True, check=True).stdout
+    python = [line for line in undefined.splitlines()
+              if line.split()[-1].startswith(("Py", "_Py"))]
+    assert not python, python
+    ldd = subprocess.run(["ldd", str(so)], capture_output=True, text=True).stdout
+    assert "python" not in ldd.lower(), ldd
+    assert b"native C core backend" in so.read_bytes()
+    assert not [n for n in names if n.endswith(".py") or "/models/" in n], names
+
+
+def test_validates_and_describes_the_same_variables(native_fmu, built_fmus):
+    assert validate_fmu(str(native_fmu)) == []
+    md_c = read_model_description(str(native_fmu))
+    md_py = read_model_description(str(built_fmus["RailCar"]))
+    assert md_c.guid != md_py.guid
+    assert md_c.coSimulation.modelIdentifier == "RailCar"
+    assert ([(v.name, v.valueReference, v.type, v.causality, v.variability, v.start, v.unit)
+             for v in md_c.modelVariables]
+            == [(v.name, v.valueReference, v.type, v.causality, v.variability, v.start, v.unit)
+                for v in md_py.modelVariables])
+    assert md_c.coSimulation.needsExecutionTool is False or \
+        str(md_c.coSimulation.needsExecutionTool).lower() == "false"
+    with zipfile.ZipFile(native_fmu) as z:
+        sources = sorted(n[len("sources/"):] for n in z.namelist() if n.startswith("sources/"))
+        profiles = [n for n in z.namelist() if n.startswith("resources/profiles/")]
+    listed = md_c.buildConfigurations[0].sourceFileSets[0].sourceFiles
+    assert listed and set(listed) <= set(sources)
+    assert {s.name for s in native.c_sources()} == set(listed)
+    assert "profiles/steep_grades.csv" in [p[len("resources/"):] for p in profiles]
+
+
+def test_sources_compile_flat(native_fmu, tmp_path):
+    """sources/ is a working source FMU: its .c files build from that one folder."""
+    build = native._build_py()
+    with zipfile.ZipFile(native_fmu) as z:
+        z.extractall(tmp_path)
+        md = read_model_description(str(native_fmu))
+    src = tmp_path / "sources"
+    out = tmp_path / "flat.so"
+    cmd = [*build.find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC", "-shared",
+           "-pthread", "-Wl,--no-undefined", "-I", str(src), "-I", str(build.fmi2_headers()),
+           *[str(src / f) for f in md.buildConfigurations[0].sourceFileSets[0].sourceFiles], "-o", str(out), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
+# ---------------------------------------------------------------- bit for bit with pythonfmu
+
+@pytest.mark.parametrize("path", LIBRARY, ids=[p.stem for p in LIBRARY])
+def test_library_scenario_bit_identical(runners, path):
+    py, c = runners
+    scenario = load_scenario(path)
+    a, b = py.run(scenario), c.run(scenario)
+    assert np.array_equal(bits(a.time), bits(b.time))
+    assert a.signals.keys() == b.signals.keys()
+    for name in a.signals:
+        diff = np.flatnonzero(bits(a.signals[name]) != bits(b.signals[name]))
+        assert diff.size == 0, (f"{path.stem}: {name} differs first at row {diff[0]}: "
+                                f"{a.signals[name][diff[0]]!r} vs {b.signals[name][diff[0]]!r}")
+    assert a.log == b.log
+
+
+def _outputs(s: Slave) -> list:
+    reals = [v.name for v in s.fmu_file.md.modelVariables
+             if v.causality == "output" and v.type == "Real"]
+    ints = [v.name for v in s.fmu_file.md.modelVariables
+            if v.causality == "output" and v.type == "Integer"]
+    return (list(bits(s.get_reals(reals)))
+            + list(s.fmu.getInteger([s.fmu_file.vr[n] for n in ints])))
+
+
+def _drive(fmu: FmuFile, parameters: dict, start_time: float, inputs, n_steps: int,
+           step: float = 0.1, times=None):
+    """Outputs in initialisation mode, after it, and after every step; statuses; the log.
+    Step k starts at times[k] (default start_time + k * step) with inputs(k)."""
+    with Slave(fmu, "drive") as s:
+        s.setup(parameters, start_time)
+        rows = [_outputs(s)]
+        assert s.exit_init() == OK, s.log_text()
+        rows.append(_outputs(s))
+        statuses = []
+        for k in range(n_steps):
+            s.set(inputs(k))
+            t = times[k] if times is not None else start_time + k * step
+            statuses.append(s.do_step(t, step))
+            rows.append(_outputs(s))
+        return rows, statuses, [str(m) for m in s.messages]
+
+
+VARIANTS = {
+    "singer_track_sensors_start_time": (
+        {"filter.kind": 4, "sensor.track_spacing": 150.0, "sensor.track_jitter": 1e-3,
+         "seed": 7, "car.length": 20.0, "sensor.position_std_rel": 0.002,
+         "track.grade_profile": "profiles/steep_grades.csv"}, 12.5),
+    "relative_speed_noise": (
+        {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01, "seed": 9}, 0.0),
+    "singer_relative_speed_noise": (
+        {"filter.kind": 4, "sensor.speed_std_rel": 0.02, "seed": 4}, 2.0),
+    "speed_profile_linearised": (
+        {"track.speed_profile": "profiles/default_speed.csv", "filter.kind": 0, "seed": 3,
+         "est.forgetting": 0.01, "car.initial_speed": 5.0}, 0.0),
+}
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_variants_with_relative_profiles_and_start_time(pair, variant):
+    parameters, start_time = VARIANTS[variant]
+
+    def inputs(k):
+        return {"traction_force_demand": 30e3 if k < 300 else 0.0,
+                "brake_force_demand": 0.0 if k < 500 else 20e3,
+                "wind_speed": 3.0 if 200 <= k < 400 else 0.0, "car.payload": 2.0 if k > 100 else 0.0}
+
+    a = _drive(pair["py"], parameters, start_time, inputs, 700)
+    b = _drive(pair["c"], parameters, start_time, inputs, 700)
+    assert a[1] == b[1] == [OK] * 700
+    for k, (ra, rb) in enumerate(zip(a[0], b[0])):
+        assert ra == rb, f"row {k}"
+    assert a[2] == b[2]
+
+
+def test_nan_traction_is_discarded_and_the_instance_goes_on(pair):
+    """Step 50 (t = 5.0) is discarded; step 51 retries t = 5.0 with a good input and goes on."""
+    def inputs(k):
+        return {"traction_force_demand": float("nan") if k == 50 else 20e3,
+                "brake_force_demand": 0.0, "wind_speed": 0.0, "car.payload": 0.0}
+
+    times = [0.1 * k for k in range(51)] + [0.1 * (k - 1) for k in range(51, 120)]
+    a = _drive(pair["py"], {"seed": 5}, 0.0, inputs, 120, times=times)
+    b = _drive(pair["c"], {"seed": 5}, 0.0, inputs, 120, times=times)
+    assert b[1][50] == DISCARD and b[1].count(DISCARD) == 1
+    assert a[1] == b[1]
+    assert a[0] == b[0]                          # step 51 goes on from where step 49 ended
+    discards = [m for m in b[2] if m.startswith("[discard]")]
+    assert len(discards) == 1 and discards[0].startswith("[discard] step discarded: ")
+    assert "traction_force_demand" in discards[0]
+    assert [m for m in a[2] if m.startswith("[discard]")] == discards
+
+
+def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
+    """exitInitializationMode's status and message (after "initialisation failed: ", the FMU's
+    unzip folder written <FMU>)."""
+    with Slave(fmu, "bad") as s:
+        s.setup(parameters)
+        status = s.exit_init()
+        text = [m.message for m in s.messages if m.status == ERROR]
+        # the instance stays usable: reset, then a good initialisation
+        assert s.reset() == OK
+        s.initialize({})
+        s.step_to(0.1)
+    text = text[0].split("initialisation failed: ", 1)[1] if text else ""
+    return status, text.replace(str(Path(fmu.unzipdir).resolve()), "<FMU>")
+
+
+@pytest.mark.parametrize("parameters, named", [
+    ({"car.mass": -1.0}, "car.mass"),
+    ({"sensor.speed_std_rel": -0.1}, "sensor.speed_std_rel"),
+    ({"sensor.speed_std_rel": float("inf")}, "sensor.speed_std_rel"),
+    ({"sensor.sample_period": 0.0}, "sensor.sample_period"),
+    ({"filter.singer_p0": 0.95, "filter.kind": 4}, "filter.singer_*"),
+    ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
+    ({"track.speed_profile": "profiles/steep_grades.csv"}, "track.speed_profile"),
+])
+def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, named):
+    status_py, text_py = _init_failure(pair["py"], parameters)
+    status_c, text_c = _init_failure(pair["c"], parameters)
+    assert status_c == status_py == ERROR
+    assert named in text_c
+    assert text_c == text_py.splitlines()[0]
+
+
+def test_an_option_only_python_runs_is_refused_naming_it(pair):
+    status, text = _init_failure(pair["c"], {"est.method": 1})
+    assert status == ERROR
+    assert "est.method" in text and "1" in text and "RailCar.fmu" in text
+
+
+def test_innovation_gate_warning_as_python_logs_it(pair):
+    """Sensors far better than the process noise the estimator assumes: the gate refuses
+    measurements, each such step logs guarded_step's warning (and the step is OK)."""
+    parameters = {"car.process_noise_psd": 1.0, "est.sigma2_initial": 1e-12,
+                  "sensor.speed_std": 1e-4, "sensor.position_std": 1e-3}
+
+    def inputs(k):
+        return {"traction_force_demand": 30e3 if k % 40 < 20 else 0.0,
+                "brake_force_demand": 0.0 if k % 40 < 20 else 40e3}
+
+    a = _drive(pair["py"], parameters, 0.0, inputs, 200)
+    b = _drive(pair["c"], parameters, 0.0, inputs, 200)
+    assert a[1] == b[1] == [OK] * 200
+    assert a[0] == b[0]
+    warnings = [m for m in b[2] if m.startswith("[warning]")]
+    assert len(warnings) > 10 and warnings[0].startswith(
+        "[warning] 2 measurement(s) refused by the innovation gate in this step")
+    assert a[2] == b[2]
+
+
+def test_the_comparison_sees_a_difference(pair):
+    """Another seed on one side: the rows differ (the equality above is not vacuous)."""
+    def inputs(k):
+        return {"traction_force_demand": 20e3}
+
+    a = _drive(pair["py"], {"seed": 1}, 0.0, inputs, 20)
+    b = _drive(pair["c"], {"seed": 2}, 0.0, inputs, 20)
+    assert a[0][0] == b[0][0] and a[0][-1] != b[0][-1]
+
+
+def test_clean_under_address_and_undefined_sanitizers(pair, tmp_path):
+    """The backend, glue and core linked into a C host under ASan/UBSan (fmu_cases/native_host.c):
+    steps, a discarded step and its retry, failed initialisations, reset, strings, free."""
+    build = native._build_py()
+    exe = tmp_path / "native_host"
+    cmd = [*build.find_compiler(), "-std=c99", "-O1", "-g", "-ffp-contract=off",
+           "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-pthread",
+           "-I", str(native.C_DIR), "-I", str(native.CORE_DIR), "-I", str(build.fmi2_headers()),
+           str(ROOT / "tests" / "fmu_cases" / "native_host.c"),
+           *[str(s) for s in native.c_sources()], "-o", str(exe), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    f = pair["c"]
+    uri = (Path(f.unzipdir).resolve() / "resources").as_uri()
+    args = [str(f.vr[n]) for n in ("car.mass", "traction_force_demand", "track.grade_profile",
+                                   "track.speed_profile", "car.speed")]
+    run = subprocess.run([str(exe), uri, f.md.guid, *args], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 0 and run.stdout.rstrip().endswith("ok"), run.stdout + run.stderr
+    assert "runtime error" not in run.stderr and "Sanitizer" not in run.stderr, run.stderr
+    assert "step discarded: " in run.stdout and "car.mass" in run.stdout

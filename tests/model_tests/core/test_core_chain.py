@@ -1,0 +1,367 @@
+"""The C chain (models/core/ through models/_railcar.c, models/compiled.py) against the Python
+reference (models/chain.py): bit for bit.
+
+Each library scenario, and variants that reach the other covered paths (forgetting, run
+forgetting, grade averaging over the car's length, odometry drift, the linearised and the paper
+filter on a speed profile, a coarser solver step, gamma, a small batch), runs on both chains with
+the same closed-loop driver; every output at every step, and the internal state at the end, must
+be *equal* -- no tolerance: same seed, same numbers. The estimator alone (RailCarEstimator's
+chain) is replayed through faults (spikes, a stuck sensor, a distance jump, station stops).
+"""
+from __future__ import annotations
+
+import math
+import os
+import random
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.run.driver import drive_chain
+from harness.run.scenario import load_scenario
+from models import compiled
+from models.chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected,
+                          TrackSensorConfig)
+from models.compiled import CompiledChain, CompiledEstimatorChain, open_chain, open_estimator_chain
+from models.plant.dynamics import VehicleParams
+from models.estimation.online import StationConfig
+from models.filtering.motion_filter import FilterConfig
+from models.estimation.identification import IdentifierConfig
+from models.plant.track import GradeProfile
+
+ROOT = Path(__file__).resolve().parents[3]
+LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
+
+
+def test_the_c_core_is_built():
+    """pip install -e . compiles models/_railcar (gcc and the Python headers are on every machine
+    we support); without it everything still runs, in Python (test_pure_python_switch)."""
+    assert compiled._railcar is not None, "models/_railcar was not compiled: pip install -e ."
+    assert compiled.enabled()
+
+
+def same(a, b) -> bool:
+    """Equal bit for bit (NaN equals NaN; ints and floats compared by value and type)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b and math.copysign(1.0, a) == math.copysign(1.0, b) or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return list(a) == list(b) and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b
+
+
+def python_state(chain: RailCarChain) -> tuple:
+    """The Python chain's internal state in CompiledChain.state()'s order (models/_railcar.c)."""
+    ident, f, st, p = chain.estimator.ident, chain.estimator.filter, chain.estimator.station, chain.plant
+    S = ident._S if ident._S is not None else [math.nan] * 16
+    values = [*ident._theta, *S, *ident._W, *ident._D, ident.n, ident.q_e, ident.s2, ident.c0,
+              ident.c1, math.nan if ident.cL is None else ident.cL, ident._n_cL, ident._n_c1,
+              *f.x_bar, f.M[0][0], f.M[0][1], f.M[1][1], *f.x_hat, f.P[0][0], f.P[0][1], f.P[1][1],
+              st.still_time, st._fast_run, p.time, p._grid_index, p.traction_impulse,
+              p.brake_impulse, p.state.still_time, p.state.stops, chain._sample_index,
+              math.nan if chain._track_t1 is None else chain._track_t1,
+              *(chain._pending_track or (math.nan, math.nan))]
+    return tuple(float(x) for x in values)
+
+
+def scenario_chains(path: Path, overrides: dict):
+    sc = load_scenario(path)
+    sc = replace(sc, parameters={**sc.parameters, **overrides})
+    s = sc.chain_setup()            # each chain runs a private copy of the configuration
+    return sc, RailCarChain(s.config, s.grade, s.speed), CompiledChain(s.config, s.grade, s.speed)
+
+
+def assert_identical(path: Path, overrides: dict, max_steps: int | None = None) -> int:
+    sc, py, c = scenario_chains(path, overrides)
+    rows_py, rows_c = drive_chain(py, sc, max_steps), drive_chain(c, sc, max_steps)
+    assert len(rows_py) == len(rows_c)
+    for i, (a, b) in enumerate(zip(rows_py, rows_c)):
+        if not same(a, b):
+            diff = [(k, a[k], b[k]) for k in a if not same(a[k], b.get(k))]
+            raise AssertionError(f"{path.stem} {overrides}: row {i} differs: {diff[:4]}")
+    state_py, state_c = python_state(py), c.state()
+    diff = [k for k, (x, y) in enumerate(zip(state_py, state_c)) if not same(x, y)]
+    assert not diff, f"{path.stem} {overrides}: internal state differs at {diff}"
+    return len(rows_py)
+
+
+@pytest.mark.parametrize("path", LIBRARY, ids=[p.stem for p in LIBRARY])
+def test_library_scenario_bit_identical(path):
+    assert assert_identical(path, {}) > 100
+
+
+# a relative profile path is looked up where the RailCar FMU looks (Scenario.chain_setup): its
+# resources, i.e. scenarios/ (build.py bundles scenarios/profiles)
+VARIANTS = {
+    "forgetting": {"est.forgetting": 0.002},
+    "run_forgetting": {"est.run_forgetting": 0.3},
+    "car_length_and_odometry_drift": {"car.length": 60.0, "sensor.position_std_rel": 0.01},
+    "relative_speed_noise": {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01},
+    "singer_relative_speed_noise": {"filter.kind": 4, "sensor.speed_std_rel": 0.02,
+                                    "sensor.position_std_rel": 0.001},
+    "paper_filter": {"filter.kind": 3, "track.speed_profile": "profiles/default_speed.csv"},
+    "linearised_filter": {"filter.kind": 1, "track.speed_profile": "profiles/default_speed.csv"},
+    "solver_step_0.1": {"solver.step": 0.1},
+    "gamma_and_small_batch": {"car.gamma": 0.08, "est.gamma": 0.08, "est.batch_size": 4},
+    "start_time": {"seed": 2147483647},
+}
+
+
+@pytest.mark.parametrize("name", VARIANTS)
+def test_variant_bit_identical(name):
+    path = ROOT / "scenarios" / "library" / ("station_day.toml" if "forgetting" in name else "steep_grades.toml")
+    assert assert_identical(path, dict(VARIANTS[name]), max_steps=3000) > 100
+
+
+def test_start_time_and_odd_steps_bit_identical():
+    """A host that starts at t = 1000 s and steps at irregular points (0.037 s, 0.5 s, 1.3 s)."""
+    cfg = ChainConfig(vehicle=VehicleParams(mass=34.0), seed=7)
+    grade = GradeProfile((0.0, 300.0, 800.0), (0.0, 15.0, -10.0))
+    py, c = RailCarChain(cfg, grade, start_time=1000.0), CompiledChain(cfg, grade, start_time=1000.0)
+    rng = random.Random(5)
+    t = 1000.0
+    for k in range(3000):
+        h = rng.choice((0.037, 0.1, 0.5, 1.3))
+        args = (t, h, 40e3 if k < 400 else 0.0, 30e3 if 1500 < k < 1800 else 0.0, rng.uniform(-5, 5))
+        py.do_step(*args)
+        c.do_step(*args)
+        assert same(py.outputs(), c.outputs()), f"step {k}"
+        t += h
+    assert same(python_state(py), c.state())
+
+
+def test_batched_run_equals_the_step_by_step_outputs():
+    cfg = ChainConfig(seed=11)
+    grade = GradeProfile((0.0, 300.0), (0.0, 10.0))
+    n = 4000
+    t = np.arange(n) * 0.1
+    inputs = np.column_stack([t, np.full(n, 0.1), np.where(t < 30, 40e3, 0.0),
+                              np.where((t > 200) & (t < 240), 30e3, 0.0), np.zeros(n), np.zeros(n)])
+    batched = CompiledChain(cfg, grade).run_steps(inputs)
+    py = RailCarChain(cfg, grade)
+    for k in range(n):
+        py.do_step(*inputs[k])
+        row = py.outputs()
+        assert list(row) == list(compiled.OUTPUT_NAMES)
+        assert same([float(x) for x in row.values()], batched[k].tolist()), f"step {k}"
+
+
+def test_batched_run_names_the_rejected_row_and_keeps_the_rows_before():
+    chain = CompiledChain(ChainConfig(), GradeProfile.level())
+    inputs = np.array([[0.0, 0.1, 40e3, 0.0, 0.0, 0.0], [0.1, 0.1, 40e3, 0.0, 0.0, 0.0],
+                       [0.2, 0.1, math.nan, 0.0, 0.0, 0.0]])
+    with pytest.raises(StepRejected, match="inputs row 2: traction_force_demand"):
+        chain.run_steps(inputs)
+    assert chain.next_sample_time() == pytest.approx(0.3, abs=1e-12)   # two steps done, 0.1 s each
+    with pytest.raises(ValueError, match="6 columns"):
+        chain.run_steps(np.zeros((3, 5)))
+
+
+@pytest.mark.parametrize("bad", [
+    dict(traction_demand=math.nan), dict(brake_demand=-1.0), dict(wind_speed=math.inf),
+    dict(wind_speed=150.0), dict(payload=-400.0), dict(payload=-100.0), dict(current_time=5.0),
+    dict(step_size=0.0), dict(step_size=4000.0), dict(current_time=math.nan),
+    dict(traction_demand=1e300), dict(payload=1e-320),
+])
+def test_bad_input_same_message_and_the_next_step_continues_exactly(bad):
+    def fresh(kind):
+        chain = kind(ChainConfig(), GradeProfile.level())
+        for k in range(30):
+            chain.do_step(k * 0.1, 0.1, 40e3, 0.0, 0.0)
+        return chain
+    py, c = fresh(RailCarChain), fresh(CompiledChain)
+    args = dict(current_time=3.0, step_size=0.1, traction_demand=40e3, brake_demand=0.0,
+                wind_speed=0.0, payload=0.0)
+    messages = []
+    for chain in (py, c):
+        try:
+            chain.do_step(**{**args, **bad})
+            messages.append(None)
+        except StepRejected as e:
+            messages.append(str(e))
+    assert messages[0] == messages[1]
+    for chain in (py, c):
+        chain.do_step(**{**args, "current_time": 3.0 if messages[0] else 3.1})
+    assert same(py.outputs(), c.outputs())
+
+
+def test_messages_write_values_as_python_repr():
+    """rc_repr (models/core/repr.c) is Python's repr() of a float: 2,000 values, edge cases too."""
+    rng = random.Random(3)
+    values = [0.0, -0.0, 1e16, 1e15, 9999999999999998.0, 1e-4, 1e-5, 0.1, 123.456, 5e-324,
+              1.7976931348623157e308, -2.5e-7, 1234567890123456789.0, 100.0, 1e22]
+    values += [rng.uniform(-1e3, 1e3) for _ in range(500)]
+    values += [math.ldexp(rng.random(), rng.randint(-1070, 1020)) for _ in range(1500)]
+    chain = CompiledChain(ChainConfig(), GradeProfile.level())
+    for x in values:
+        with pytest.raises(StepRejected) as e:
+            chain.do_step(0.0, 0.1, -abs(x) - 1e-300 if x else -1.0, 0.0, 0.0)
+        x_bad = -abs(x) - 1e-300 if x else -1.0
+        assert str(e.value) == f"traction_force_demand must be finite and >= 0 [N], got {x_bad!r}"
+
+
+# ---------------------------------------------------------------- the estimator alone (faults)
+
+def measurements(seconds: float, seed: int, stops: int) -> list[tuple]:
+    """(t, h, traction, brake, speed, distance) of a 34 t car that runs ``stops`` station legs
+    (traction, cruise, brake, 30 s dwell), recorded from the Python chain."""
+    chain = RailCarChain(ChainConfig(vehicle=VehicleParams(mass=34.0), seed=seed), GradeProfile.level())
+    rows, t, leg = [], 0.0, 0
+    phase_t = 0.0
+    while t < seconds and leg < stops:
+        out = chain.outputs()
+        v = out["car.speed"]
+        if phase_t < 40.0:
+            f, b = 40e3, 0.0
+        elif phase_t < 120.0:
+            d = 1000.0 * 34.0 * 0.5 * (16.7 - v)
+            f, b = (min(d, 40e3), 0.0) if d >= 0 else (0.0, min(-d, 45e3))
+        elif v > 0.0 or phase_t < 130.0:
+            f, b = 0.0, 40e3
+        else:
+            f, b = 0.0, 0.0
+        if phase_t > 120.0 and v <= 0.0 and phase_t > 200.0:
+            leg, phase_t = leg + 1, 0.0
+        rows.append((t, 0.1, out["car.traction_force"], out["car.brake_force"],
+                     out["sensor.speed"], out["sensor.position"]))
+        chain.do_step(t, 0.1, f, b, 0.0)
+        t += 0.1
+        phase_t += 0.1
+    return rows
+
+
+def replay(chain, rows) -> list[dict]:
+    outs = []
+    for r in rows:
+        chain.do_step(*r)
+        outs.append(chain.outputs())
+    return outs
+
+
+def with_faults(rows, seed: int):
+    """Spikes, a stuck speed sensor for 30 s, a distance jump that the filter must reacquire."""
+    rng = random.Random(seed)
+    rows = [list(r) for r in rows]
+    for k in rng.sample(range(100, len(rows)), 40):
+        rows[k][4] += rng.choice((-1, 1)) * rng.uniform(2.0, 30.0)
+    stuck = len(rows) // 3
+    for k in range(stuck, min(stuck + 300, len(rows))):
+        rows[k][4] = rows[stuck][4]
+    jump = len(rows) // 2
+    for k in range(jump, min(jump + 200, len(rows))):
+        rows[k][5] += 250.0
+    return [tuple(r) for r in rows]
+
+
+@pytest.mark.parametrize("kind, faulty", [(2, False), (2, True), (0, True)])
+def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty):
+    rows = measurements(1500.0, seed=4, stops=4)
+    if faulty:
+        rows = with_faults(rows, seed=9)
+    args = (IdentifierConfig(mass_initial=30.0), FilterConfig(kind=kind), StationConfig(dwell=20.0),
+            GradeProfile.level())
+    py, c = EstimatorChain(*args), CompiledEstimatorChain(*args)
+    assert c.outputs() == py.outputs() == {}
+    out_py, out_c = replay(py, rows), replay(c, rows)
+    assert out_py[-1]["est.station_stops"] >= (2 if faulty else 3)   # a fault can hide a stop
+    if faulty:
+        assert out_py[-1]["filter.rejected"] > 40
+    for k, (a, b) in enumerate(zip(out_py, out_c)):
+        assert same(a, b), f"row {k}: {[(n, a[n], b[n]) for n in a if not same(a[n], b[n])][:4]}"
+
+
+def test_estimator_chain_track_speeds_bit_identical():
+    rows = measurements(400.0, seed=6, stops=1)
+    track = TrackSensorConfig(spacing=200.0, base=5.0, resolution=1e-3, jitter=1e-4)
+    args = (IdentifierConfig(), FilterConfig(), StationConfig(), GradeProfile.level(), None, track)
+    py, c = EstimatorChain(*args), CompiledEstimatorChain(*args)
+    rng = random.Random(2)
+    last = 0.0
+    for k, r in enumerate(rows):
+        extra = ()
+        if k % 50 == 0 and r[4] > 1.0:
+            last = r[0] - rng.uniform(0.0, 0.1)
+            extra = (r[4] + rng.gauss(0.0, 0.05), last)
+        py.do_step(*r, *extra)
+        c.do_step(*r, *extra)
+        assert same(py.outputs(), c.outputs()), f"row {k}"
+    assert py.estimator.track_speeds > 5
+
+
+def test_estimator_chain_bad_input_same_message():
+    args = (IdentifierConfig(), FilterConfig(), StationConfig(), GradeProfile.level())
+    for bad in [(0.0, 0.1, 0.0, 0.0, math.nan, 0.0), (0.0, 0.1, 0.0, 0.0, 0.0, 2e7),
+                (0.0, 0.1, -5.0, 0.0, 0.0, 0.0), (0.0, 0.1, 3e7, 0.0, 0.0, 0.0),
+                (0.0, 0.1, 0.0, 0.0, 0.0, 0.0, math.inf)]:
+        messages = []
+        for kind in (EstimatorChain, CompiledEstimatorChain):
+            with pytest.raises(StepRejected) as e:
+                kind(*args).do_step(*bad)
+            messages.append(str(e.value))
+        assert messages[0] == messages[1]
+
+
+# ---------------------------------------------------------------- which engine runs
+
+def test_open_chain_runs_c_where_covered_and_python_elsewhere():
+    grade = GradeProfile.level()
+    before = dict(compiled.ENGINES)
+    assert open_chain(ChainConfig(), grade).engine == "c"
+    assert open_chain(ChainConfig(track=TrackSensorConfig(spacing=200.0)), grade).engine == "c"
+    assert open_chain(ChainConfig(filter=FilterConfig(kind=4)), grade).engine == "c"   # Singer
+    for cfg in (ChainConfig(identifier=IdentifierConfig(method=2)),
+                ChainConfig(identifier=IdentifierConfig(physical=1)),
+                ChainConfig(identifier=IdentifierConfig(sigma2_method=1))):
+        chain = open_chain(cfg, grade)
+        assert chain.engine == "python" and isinstance(chain, RailCarChain)
+    assert compiled.ENGINES["c"] == before.get("c", 0) + 3
+    assert compiled.ENGINES["python"] == before.get("python", 0) + 3
+    assert open_estimator_chain(IdentifierConfig(), FilterConfig(), StationConfig(), grade).engine == "c"
+    assert open_estimator_chain(IdentifierConfig(method=1), FilterConfig(), StationConfig(),
+                                grade).engine == "python"
+
+
+def test_a_bad_configuration_reads_as_in_python():
+    for cfg in (ChainConfig(seed=-1), ChainConfig(sample_period=0.0),
+                ChainConfig(identifier=IdentifierConfig(batch_size=2)),
+                ChainConfig(filter=FilterConfig(kind=1)),
+                ChainConfig(station=StationConfig(dwell=0.0)),
+                ChainConfig(vehicle=VehicleParams(mass=-1.0))):
+        messages = []
+        for kind in (RailCarChain, CompiledChain):
+            with pytest.raises(ValueError) as e:
+                kind(cfg, GradeProfile.level())
+            messages.append(str(e.value))
+        assert messages[0] == messages[1]
+
+
+def test_pure_python_switch():
+    """RAILCAR_PURE_PYTHON=1 (and a machine without the compiled core) runs the Python chain."""
+    code = ("from models.compiled import open_chain, enabled\n"
+            "from models.chain import ChainConfig\nfrom models.plant.track import GradeProfile\n"
+            "c = open_chain(ChainConfig(), GradeProfile.level())\n"
+            "c.do_step(0.0, 0.1, 1e4, 0.0, 0.0)\nprint(enabled(), c.engine)\n")
+    env = {**os.environ, "RAILCAR_PURE_PYTHON": "1"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["False", "python"]
+
+
+def test_reset_gives_the_first_run_again():
+    chain = CompiledChain(ChainConfig(seed=3), GradeProfile.level())
+    first = [chain.outputs()]
+    for k in range(500):
+        chain.do_step(k * 0.1, 0.1, 30e3, 0.0, 0.0)
+        first.append(chain.outputs())
+    chain.reset()
+    again = [chain.outputs()]
+    for k in range(500):
+        chain.do_step(k * 0.1, 0.1, 30e3, 0.0, 0.0)
+        again.append(chain.outputs())
+    assert same(first, again)

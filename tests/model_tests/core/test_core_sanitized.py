@@ -1,0 +1,244 @@
+"""The C model core (models/core/) without Python, under the sanitizers, and a mutation test.
+
+tests/core_cases/chain_driver.c hosts the core in a plain C program: a file in (the flat
+configuration, the profiles, the inputs of every step), a file out (the outputs at the start and
+after every step). Here
+
+- it is built once with -fsanitize=address,undefined -fno-sanitize-recover=all and runs every
+  library scenario with the closed-loop inputs the Python chain (models.chain.RailCarChain) saw:
+  exit 0, not a byte on stderr (any sanitizer report would be there), and every output of every
+  step equal bit for bit to the Python chain's;
+- a one-ulp-sized change of one expression (issue 17: "a one-ulp change in one C expression must
+  fail a test") in plant.c, filter.c, ident.c, linalg4.c, estimator.c and railcar.c -- a
+  re-associated sum or one operand times (1 + 2**-52) -- makes the outputs differ from Python's,
+  while the unmutated copy built the same way gives them exactly.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.run.driver import drive_chain
+from harness.run.scenario import load_scenario
+from models import compiled
+from models.chain import RailCarChain
+
+ROOT = Path(__file__).resolve().parents[3]
+CORE = ROOT / "models" / "core"
+DRIVER = ROOT / "tests" / "core_cases" / "chain_driver.c"
+LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
+MAX_STEPS = None       # whole scenarios: station_day reaches its station stops (9000 steps)
+STRICT = ["-std=c99", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+SANITIZE = ["-g", "-O1", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
+ONE_ULP = "(1.0 + 2.220446049250313e-16)"
+
+
+def gcc() -> str:
+    path = shutil.which("gcc")
+    assert path, "gcc is needed (it builds the C core on every supported machine)"
+    return path
+
+
+def compile_(*args: str) -> None:
+    proc = subprocess.run([gcc(), *args], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, f"gcc {' '.join(args)}:\n{proc.stderr}"
+
+
+# ---------------------------------------------------------------- the Python chain's runs
+
+class Run:
+    """One library scenario on the Python chain: the driver's input file and the outputs."""
+
+    def __init__(self, path: Path):
+        sc = load_scenario(path)
+        setup = sc.chain_setup()
+        grade, speed = setup.grade, setup.speed
+        chain = RailCarChain(setup.config, grade, speed)
+        demands: list = []
+        rows = drive_chain(chain, sc, MAX_STEPS, demands=demands)
+        assert len(rows) == len(demands) + 1 > 100
+        names = list(compiled.OUTPUT_NAMES)
+        assert all(list(r) == names for r in rows), "RailCarChain.outputs() order != OUTPUT_NAMES"
+        self.name = path.stem
+        self.expected = np.array([[float(r[n]) for n in names] for r in rows])
+        h = sc.step_s
+        steps = np.array([(k * h, h, *d) for k, d in enumerate(demands)], dtype=float).reshape(-1, 6)
+        self.cfg = compiled.validate(setup.config, speed, 0.0)
+        self.grade, self.speed, self.steps = grade, speed, steps
+        self.data = self.file_data(self.cfg)
+
+    def file_data(self, cfg) -> np.ndarray:
+        """The driver's input for this configuration (tests/core_cases/chain_driver.c)."""
+        config = compiled._config_values(cfg, 0.0)
+        grade, speed, steps = self.grade, self.speed, self.steps
+        sd, sv = (speed.distances, speed.speeds) if speed else ((), ())
+        return np.concatenate([
+            [len(config), len(grade.distances), len(sd), len(steps)], config,
+            grade.distances, grade.grades, sd, sv, steps.ravel()]).astype("<f8")
+
+    def write(self, directory: Path) -> Path:
+        path = directory / f"{self.name}.in"
+        self.data.tofile(path)
+        return path
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, Run]:
+    return {p.stem: Run(p) for p in LIBRARY}
+
+
+def run_driver(exe: Path, run: Run, directory: Path, env: dict | None = None):
+    """(exit status, stderr, outputs as rows of OUTPUT_NAMES)"""
+    out = directory / f"{run.name}.out"
+    proc = subprocess.run([str(exe), str(run.write(directory)), str(out)], capture_output=True,
+                          text=True, timeout=120, env=env)
+    rows = np.fromfile(out, dtype="<f8") if out.exists() else np.empty(0)
+    return proc.returncode, proc.stderr, rows.reshape(-1, len(compiled.OUTPUT_NAMES))
+
+
+def differences(a: np.ndarray, b: np.ndarray) -> list[tuple[int, str]]:
+    """(row, output name) where a and b are not the same float64 bits (NaN equals NaN)."""
+    if a.shape != b.shape:
+        return [(-1, f"shape {a.shape} != {b.shape}")]
+    same = (a.view(np.uint64) == b.view(np.uint64)) | (np.isnan(a) & np.isnan(b))
+    return [(int(i), compiled.OUTPUT_NAMES[j]) for i, j in zip(*np.nonzero(~same))]
+
+
+# ---------------------------------------------------------------- sanitizers
+
+@pytest.fixture(scope="module")
+def sanitized_driver(tmp_path_factory) -> Path:
+    exe = tmp_path_factory.mktemp("sanitized") / "chain_driver"
+    compile_(*STRICT, *SANITIZE, "-I", str(CORE), str(DRIVER),
+             *sorted(str(p) for p in CORE.glob("*.c")), "-lm", "-o", str(exe))
+    return exe
+
+
+@pytest.mark.parametrize("name", [p.stem for p in LIBRARY])
+def test_library_scenario_under_sanitizers_bit_identical(name, runs, sanitized_driver, tmp_path):
+    run = runs[name]
+    env = dict(os.environ, ASAN_OPTIONS="detect_leaks=1:halt_on_error=1",
+               UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
+    status, stderr, rows = run_driver(sanitized_driver, run, tmp_path, env)
+    assert status == 0, stderr[-3000:]
+    assert stderr == "", stderr[-3000:]
+    diff = differences(rows, run.expected)
+    assert not diff, f"{name}: {len(diff)} outputs differ, first {diff[:5]}"
+
+
+def test_driver_reports_a_rejected_step_and_a_refused_configuration(runs, sanitized_driver, tmp_path):
+    run = runs["level_run"]
+    n_steps = int(run.data[3])
+    first_step = len(run.data) - 6 * n_steps
+    bad = run.data.copy()
+    bad[first_step + 6 * 10 + 2] = np.nan           # step 10's traction demand
+    path = tmp_path / "bad.in"
+    bad.tofile(path)
+    proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "bad.out")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 3
+    assert proc.stderr.startswith("step 10 rejected: traction_force_demand must be finite"), proc.stderr
+    written = np.fromfile(tmp_path / "bad.out", dtype="<f8").reshape(-1, len(compiled.OUTPUT_NAMES))
+    assert not differences(written, run.expected[:11])   # the start and the 10 steps before it
+    run.file_data(replace(run.cfg, identifier=replace(run.cfg.identifier, method=1))).tofile(path)
+    proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "refused.out")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method"), \
+        proc.stderr
+    path.write_bytes(run.data[:-1].tobytes())           # one value short
+    proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "short.out")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and "expected exactly" in proc.stderr
+
+
+# ---------------------------------------------------------------- mutations
+
+MUTATIONS = {
+    # the position of the RK4 step: (v + 2 v2 + 2 v3) + v4 -> (v + 2 v2) + (2 v3 + v4)
+    "plant_rk4_position": ("plant.c",
+                           "double x_new = x + h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4);",
+                           "double x_new = x + h / 6.0 * (v + 2.0 * v2 + (2.0 * v3 + v4));"),
+    # the filter's speed after an update with both measurements, eq. (15), re-associated
+    "filter_update_speed": ("filter.c",
+                            "xh0 = f->xb0 + k00 * e0 + k01 * e1;",
+                            "xh0 = f->xb0 + (k00 * e0 + k01 * e1);"),
+    # the identification's regressand y: the speed difference one ulp larger
+    "ident_regressand": ("ident.c",
+                         "* (speed_next - speed) / (RC_G * dtu)",
+                         f"* ((speed_next - speed) * {ONE_ULP}) / (RC_G * dtu)"),
+    # Gaussian elimination's back substitution (the batch and the running estimate)
+    "linalg4_back_substitution": ("linalg4.c",
+                                  "x[i] = s / a[ri + i];",
+                                  f"x[i] = s * {ONE_ULP} / a[ri + i];"),
+    # the process noise's gain k of OnlineEstimator.process_noise
+    "estimator_process_noise": ("estimator.c",
+                                "double k = RC_G * dt / 1000.0 / (1.0 + e->gamma);",
+                                f"double k = RC_G * dt / 1000.0 / (1.0 + e->gamma) * {ONE_ULP};"),
+    # the speed sensor's noise amplitude in RailCarChain._take_sample
+    "railcar_speed_sensor": ("railcar.c",
+                             "c->sensor_speed = s->speed + (f->speed_std + f->speed_std_rel",
+                             f"c->sensor_speed = s->speed + (f->speed_std * {ONE_ULP} + f->speed_std_rel"),
+}
+# One ulp can vanish in a scenario (the RK4 mutation leaves coasting_rusich_row1 unchanged, the
+# sensor one coasting_rusich_row2); each mutation above changes both of these.
+MUTATION_SCENARIOS = ("station_day", "crush_load")
+
+
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory) -> Path:
+    """A copy of models/core with every unit compiled to an object (-O2, the strict flags)."""
+    d = tmp_path_factory.mktemp("core_copy")
+    for p in [*CORE.glob("*.c"), *CORE.glob("*.h"), DRIVER]:
+        shutil.copy(p, d / p.name)
+    sources = sorted(d.glob("*.c"))
+    procs = [subprocess.Popen([gcc(), *STRICT, "-O2", "-c", str(s), "-o", str(s.with_suffix(".o"))],
+                              cwd=d, stderr=subprocess.PIPE, text=True) for s in sources]
+    for s, p in zip(sources, procs):
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, f"{s.name}: {err}"
+    return d
+
+
+def build_mutant(pristine: Path, directory: Path, mutation: tuple[str, str, str] | None) -> Path:
+    """The driver from the copy with at most one source file mutated (only that unit recompiled:
+    the mutations are in .c files, whose code no other unit includes)."""
+    objects = {p.stem: p for p in pristine.glob("*.o")}
+    if mutation is not None:
+        filename, target, replacement = mutation
+        text = (pristine / filename).read_text()
+        assert text.count(target) == 1, f"{filename}: the mutation's target occurs {text.count(target)} times: {target!r}"
+        mutated = directory / filename
+        mutated.write_text(text.replace(target, replacement))
+        obj = mutated.with_suffix(".o")
+        compile_(*STRICT, "-O2", "-I", str(pristine), "-c", str(mutated), "-o", str(obj))
+        objects[mutated.stem] = obj
+    exe = directory / "chain_driver"
+    compile_(*[str(o) for o in objects.values()], "-lm", "-o", str(exe))
+    return exe
+
+
+def test_the_unmutated_copy_gives_python_s_outputs(pristine, runs, tmp_path):
+    exe = build_mutant(pristine, tmp_path, None)
+    for name in MUTATION_SCENARIOS:
+        status, stderr, rows = run_driver(exe, runs[name], tmp_path)
+        assert status == 0 and stderr == "", stderr
+        assert not differences(rows, runs[name].expected), name
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+def test_a_one_ulp_mutation_changes_the_outputs(mutation, pristine, runs, tmp_path):
+    """The mutation must fail the comparison (in at least one of the scenarios)."""
+    exe = build_mutant(pristine, tmp_path, MUTATIONS[mutation])
+    changed = {}
+    for name in MUTATION_SCENARIOS:
+        status, stderr, rows = run_driver(exe, runs[name], tmp_path)
+        assert status == 0 and stderr == "", stderr
+        changed[name] = len(differences(rows, runs[name].expected))
+    assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
