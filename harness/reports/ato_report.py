@@ -13,6 +13,7 @@ import numpy as np
 
 from models.ato.controller import AtoMode
 
+from harness.reports.plotting import pyplot
 from harness.metrics.ato import ato_metrics, format_ato, markdown_ato
 
 MODE_COLOURS = {
@@ -50,8 +51,7 @@ def span_rows(steps, k: int, n: int) -> list[int]:
 def ato_figure(result, steps):
     """Planned vs actual V(s) and the mode bar of every span of a span scenario's run
     (``steps``: the ATO's calls, row by row)."""
-    from harness.reports.run_report import _pyplot
-    plt = _pyplot()
+    plt = pyplot()
     spans = result.scenario.ato_setup().spans
     n = len(spans)
     fig = plt.figure(figsize=(11, 4.6 * n))

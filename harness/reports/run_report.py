@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.reports.plotting import pyplot, save_figure
 from harness.metrics.estimation import RunSummary, format_summary
 
 A_NAMES = (("A0", "N/kN"), ("A1", "N/kN/(m/s)"), ("A2", "N/kN/(m/s)2"))
@@ -71,27 +72,11 @@ def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Pa
     return path
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _save(fig, title: str, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def run_figures(result) -> tuple:
     """(speed figure, estimates figure): speed and its error vs distance (true, measured,
     filtered, the filter's +-2 sigma); mass identified vs true with +-2 sigma, the distance error
     with the filter's +-2 sigma, and the true speed, vs time."""
-    plt = _pyplot()
+    plt = pyplot()
     t = result.time
     x = result["car.position"]
 
@@ -134,8 +119,8 @@ def plot_run(result, out_dir: Path) -> list[Path]:
     """speed.png and estimates.png (``run_figures``)."""
     fig1, fig2 = run_figures(result)
     name = result.scenario.name
-    return [_save(fig1, f"{name}: speed vs distance", out_dir / "speed.png"),
-            _save(fig2, f"{name}: identification and filter vs time", out_dir / "estimates.png")]
+    return [save_figure(fig1, f"{name}: speed vs distance", out_dir / "speed.png"),
+            save_figure(fig2, f"{name}: identification and filter vs time", out_dir / "estimates.png")]
 
 
 def _same_bits(a: float, b: float) -> bool:
@@ -193,7 +178,7 @@ def resistance_figure(result, true_A: tuple, cov: np.ndarray | None = None):
     that is None the diagonal of the end-of-run est.A*_std (the band then ignores the A's
     correlations, and its legend says so)."""
     from harness.metrics.estimation import w0
-    plt = _pyplot()
+    plt = pyplot()
     v = np.linspace(0.0, max(float(result["car.speed"].max()), 1.0), 100)
     est = tuple(float(result[f"est.{a}"][-1]) for a, _ in A_NAMES)
     how = "covariance of A0, A1, A2"
@@ -216,7 +201,7 @@ def resistance_figure(result, true_A: tuple, cov: np.ndarray | None = None):
 
 def plot_resistance(result, true_A: tuple, out_dir: Path, cov: np.ndarray | None = None) -> Path:
     """resistance.png (``resistance_figure``)."""
-    return _save(resistance_figure(result, true_A, cov), f"{result.scenario.name}: main resistance eq. (1)",
+    return save_figure(resistance_figure(result, true_A, cov), f"{result.scenario.name}: main resistance eq. (1)",
                  out_dir / "resistance.png")
 
 
@@ -225,7 +210,7 @@ def resistance_vs_time_figure(result, true_A: tuple):
     the estimate and the truth (10 % margin), not to the band: the prior's band (A0 +-10 N/kN
     against A0 ~ 1) would hide the estimate's error. The legend (right of each axis) gives the
     band's half-width at the end and says when the axes cut the band."""
-    plt = _pyplot()
+    plt = pyplot()
     t = result.time
     fig, ax = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
     for j, (name, unit) in enumerate(A_NAMES):
@@ -248,7 +233,7 @@ def resistance_vs_time_figure(result, true_A: tuple):
 
 def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
     """resistance_vs_time.png (``resistance_vs_time_figure``)."""
-    return _save(resistance_vs_time_figure(result, true_A),
+    return save_figure(resistance_vs_time_figure(result, true_A),
                  f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
 
 

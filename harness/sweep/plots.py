@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.reports.plotting import pyplot, save_figure
 from harness.sweep.spec import Sweep
 from harness.sweep.table import CALIBRATION_COLUMNS, Column, Table, finite_values, metric_columns
 
@@ -35,10 +36,7 @@ def _plot_metrics(table: Table) -> list[Column]:
 
 def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path) -> list[Path]:
     """Each metric against each swept value (and heat maps of a two-axis grid) as PNGs."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     plot_dir.mkdir(parents=True, exist_ok=True)
     ok = table.ok_rows()
     metrics = _plot_metrics(table)
@@ -57,11 +55,7 @@ def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path) -> list[Path]:
         return fig, axs.flat
 
     def save(fig, name):
-        fig.tight_layout()
-        p = plot_dir / name
-        fig.savefig(p, dpi=90)
-        plt.close(fig)
-        files.append(p)
+        files.append(save_figure(fig, None, plot_dir / name, dpi=90))
 
     xs_names = [n for n in sweep.axes if n != "seed" and kinds.get(n) != "str"
                 and len({r.get(n) for r in ok}) > 1]
