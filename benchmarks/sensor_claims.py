@@ -196,12 +196,12 @@ def track_sensor_mc(v_nominal: float, n: int, rng: np.random.Generator,
 
 def main() -> None:
     results = [run_config(BASE)] + [run_config(c) for c in SENSITIVITY]
-    print(f"Seed 004: ZOH error / LS error (first-order fit over 6 samples); median over {REPS} "
-          f"seeded runs (seed {SEED}) and the range over runs; > 1 means LS is better")
+    print(f"Sidorenko (1997): ZOH error / LS error (first-order fit over 6 samples); median over "
+          f"{REPS} seeded runs (seed {SEED}) and the range over runs; > 1 means LS is better")
     head = f"{'configuration':<46}{'speed max':>10}{'speed RMS':>10}{'accel max':>10}{'accel RMS':>10}"
     print(head)
     print("-" * len(head))
-    print(f"{'source claim (seed 004)':<46}" + "".join(f"{CLAIMS[k]:>10.2f}" for k in CLAIMS))
+    print(f"{'source claim (Sidorenko 1997)':<46}" + "".join(f"{CLAIMS[k]:>10.2f}" for k in CLAIMS))
     for r in results:
         print(f"{r['config'].label:<46}" + "".join(f"{r['ratios'][k]:>10.2f}" for k in CLAIMS))
         print(f"{'   range over runs':<46}" + "".join(
@@ -214,7 +214,8 @@ def main() -> None:
           f"ZOH {s['zoh_a'][0]:.3f} / {s['zoh_a'][1]:.4f}")
 
     rng = np.random.default_rng(np.random.SeedSequence(SEED).spawn(REPS + 1)[-1])
-    print(f"\nSeed 002: two track sensors, base {TRACK.base} m, timer {TRACK.resolution * 1e3:g} ms, "
+    print(f"\nBoynik et al. (n.d.): two track sensors, base {TRACK.base} m, "
+          f"timer {TRACK.resolution * 1e3:g} ms, "
           f"jitter {TRACK.jitter_std * 1e3:g} ms; speed error std, Monte Carlo (2e5 passages) "
           f"vs v^2/b sqrt(delta^2/6 + 2 jitter^2)")
     print(f"{'v [m/s]':>8}{'MC [m/s]':>12}{'formula':>12}{'ratio':>8}")
