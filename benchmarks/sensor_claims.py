@@ -1,6 +1,6 @@
 """Check the sources' sensor claims on our own simulated data; prints what we measure vs them.
 
-1. Seed 004 (Sidorenko 1997, MODEL.md section 8): a first-order least-squares fit over the last
+1. Sidorenko (1997; docs/filters.md, axle sensors): a first-order least-squares fit over the last
    six samples (M = 5) cuts, against a zero-order hold (ZOH), the speed error's maximum 1.5x and
    RMS 2x, and the acceleration error's maximum 3x and RMS 7x. Our set-up: a metro run (jerk-
    limited traction at 1 m/s^2, power zone, coasting, service braking at 1 m/s^2 to a stop),
@@ -9,7 +9,7 @@
    time-aligned stream, order 1, window 6, evaluated at the tick); ZOH = latest merged sample,
    acceleration = difference of consecutive ZOH speeds over the tick. Ratios are ZOH error /
    LS error (> 1: LS better), median and range over ``REPS`` seeded noise realisations.
-2. Seed 002: speed from two point track sensors; Monte Carlo std vs the first-order formula
+2. Boynik et al. (n.d.): speed from two point track sensors; Monte Carlo std vs the first-order formula
    sigma_v = v^2/b sqrt(delta^2/6 + 2 jitter^2) (``models.plant.track_sensors``).
 
 Reproducible: every random draw comes from ``SEED``. Run: ``python benchmarks/sensor_claims.py``.
@@ -30,7 +30,7 @@ from models.plant.track_sensors import TrackSensorPair, track_sensor_speed_std  
 SEED = 20240517
 REPS = 50
 CLAIMS = {"speed_max": 1.5, "speed_rms": 2.0, "accel_max": 3.0, "accel_rms": 7.0}
-"""Seed 004: ZOH error / LS error for the first-order fit over 6 samples."""
+"""Sidorenko (1997): ZOH error / LS error for the first-order fit over 6 samples."""
 
 
 # --------------------------------------------------------------------------- the speed profile
@@ -95,7 +95,7 @@ def metro_profile(jerk: float = 1.0) -> Profile:
     return Profile.from_knots(knots)
 
 
-# ------------------------------------------------------------------------ seed 004 experiment
+# ---------------------------------------------------------------- Sidorenko (1997) experiment
 
 @dataclass(frozen=True)
 class Config:
@@ -174,7 +174,7 @@ def _ratios(stats) -> dict[str, float]:
             "accel_rms": stats["zoh_a"][1] / stats["ls_a"][1]}
 
 
-# ------------------------------------------------------------------- seed 002 track sensors
+# -------------------------------------------------------------- Boynik et al. track sensors
 
 TRACK = TrackSensorPair(base=5.0, resolution=1e-3, jitter_std=1e-4)   # [m], [s], [s]
 TRACK_SPEEDS = (5.0, 10.0, 20.0, 30.0)                                 # [m/s]
@@ -196,12 +196,12 @@ def track_sensor_mc(v_nominal: float, n: int, rng: np.random.Generator,
 
 def main() -> None:
     results = [run_config(BASE)] + [run_config(c) for c in SENSITIVITY]
-    print(f"Seed 004: ZOH error / LS error (first-order fit over 6 samples); median over {REPS} "
-          f"seeded runs (seed {SEED}) and the range over runs; > 1 means LS is better")
+    print(f"Sidorenko (1997): ZOH error / LS error (first-order fit over 6 samples); median over "
+          f"{REPS} seeded runs (seed {SEED}) and the range over runs; > 1 means LS is better")
     head = f"{'configuration':<46}{'speed max':>10}{'speed RMS':>10}{'accel max':>10}{'accel RMS':>10}"
     print(head)
     print("-" * len(head))
-    print(f"{'source claim (seed 004)':<46}" + "".join(f"{CLAIMS[k]:>10.2f}" for k in CLAIMS))
+    print(f"{'source claim (Sidorenko 1997)':<46}" + "".join(f"{CLAIMS[k]:>10.2f}" for k in CLAIMS))
     for r in results:
         print(f"{r['config'].label:<46}" + "".join(f"{r['ratios'][k]:>10.2f}" for k in CLAIMS))
         print(f"{'   range over runs':<46}" + "".join(
@@ -214,7 +214,8 @@ def main() -> None:
           f"ZOH {s['zoh_a'][0]:.3f} / {s['zoh_a'][1]:.4f}")
 
     rng = np.random.default_rng(np.random.SeedSequence(SEED).spawn(REPS + 1)[-1])
-    print(f"\nSeed 002: two track sensors, base {TRACK.base} m, timer {TRACK.resolution * 1e3:g} ms, "
+    print(f"\nBoynik et al. (n.d.): two track sensors, base {TRACK.base} m, "
+          f"timer {TRACK.resolution * 1e3:g} ms, "
           f"jitter {TRACK.jitter_std * 1e3:g} ms; speed error std, Monte Carlo (2e5 passages) "
           f"vs v^2/b sqrt(delta^2/6 + 2 jitter^2)")
     print(f"{'v [m/s]':>8}{'MC [m/s]':>12}{'formula':>12}{'ratio':>8}")

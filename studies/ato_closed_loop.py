@@ -10,15 +10,16 @@ models.ato.controller.AtoController, one communication step of 0.1 s at a time. 
 seeds 1..N (the chain's noise seed):
 
   arrival   true time of the final standstill at the stop minus the schedule [s] (as
-            harness/metrics/ato.py counts it); share within +-2.5 s (seeds 003, 004)
+            harness/metrics/ato.py counts it); share within +-2.5 s (Meleshin 2011,
+            Sidorenko 1997)
   settle    where the filter's distance is uncertain (filter.position_std above
             AtoTuning.settle_std: the noise cases) the controller stops short, stands and creeps
             on to the mark (models/ato/controller.py): the mean time [s] from the first standstill to the
             final one, over all runs (0: one stop); the first standstill is arrival - settle
-  stop      true final stop position minus the stop mark [m]; share within +-0.3 m (seed 004),
-            max
+  stop      true final stop position minus the stop mark [m]; share within +-0.3 m (Sidorenko
+            1997), max
   margin    min over the run of V_lim(s) - V (true speed and position) [m/s]: > 0 = never over
-  energy    traction work / eta_f - eta x regenerated work [kWh] (MODEL.md section 9), from the
+  energy    traction work / eta_f - eta x regenerated work [kWh] (docs/ato.md, The controller), from the
             true speeds and the demands as the plant applies them; "vs manual" against
             models.planning.trajectory.manual_driver on the true car (flat out, coast, brake: what a
             driver does to meet the schedule), "MP" the maximum-principle plan's own saving
@@ -32,12 +33,12 @@ coefficients + re-planning (what re-planning alone gives), and the regulator wit
 (AtoTuning.settle_time = 0: never stop short and settle, so time comes first where the filter's
 distance is uncertain; the same as the first variant where it is not).
 
-Cases (the configured car is the RailCar FMU's default 30 t car with seed 003's Rusich
-resistance; the truth differs): mass +-20 %; A0 off by +-50 %; a 5 m/s headwind; speed-sensor
-noise; wet rail (adhesion x 0.5). The speed noise: seed 003 (docs/model.md) says running-time
+Cases (the configured car is the RailCar FMU's default 30 t car with Meleshin's (2011)
+Rusich resistance; the truth differs): mass +-20 %; A0 off by +-50 %; a 5 m/s headwind; speed-sensor
+noise; wet rail (adhesion x 0.5). The speed noise: Meleshin (2011; docs/model.md) says running-time
 control to +-2.5 s needs the speed measured within 2 % (never above the truth), a bound
 relative to the speed. Two readings, each as 2 sigma (the library's convention) and as 1 sigma.
-Relative, as the seed writes it (RailCar's sensor.speed_std_rel over a 0.01 m/s floor):
+Relative, as Meleshin writes it (RailCar's sensor.speed_std_rel over a 0.01 m/s floor):
 
   noise 2 %V (2 sd) sensor.speed_std = 0.01 m/s + 1 % of the speed (ato_speed_noise)
   noise 2 %V (1 sd) sensor.speed_std = 0.01 m/s + 2 % of the speed
@@ -113,7 +114,7 @@ def railcar_values(seed: int, overrides: dict) -> dict:
 
 def true_car(overrides: dict, wind: float) -> CarTraction:
     """The car the plant runs, as the planner's CarTraction; a headwind Vw moves A0 and A1
-    (MODEL.md section 2: A0 + A2 Vw^2, A1 + 2 A2 Vw)."""
+    (docs/model.md, Forces on the car: A0 + A2 Vw^2, A1 + 2 A2 Vw)."""
     kw = {"mass": overrides.get("car.mass", CAR.mass), "A0": overrides.get("car.A0", CAR.A0),
           "adhesion_factor": overrides.get("car.adhesion_factor", CAR.adhesion_factor)}
     kw["A0"] += CAR.A2 * wind * wind

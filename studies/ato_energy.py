@@ -7,8 +7,8 @@ eta times regenerated energy) of
 
   manual   the minimum-time run up to a coast point, then coasting and the braking curve
            (issue 20's reference: "flat-out then coast/brake, what a manual driver does")
-  MP       seed 003's maximum-principle plan (models.planning.trajectory.synthesize)
-  DP       seed 004's DP, K = 2 traction applications, 25 m stages, 121 speeds
+  MP       Meleshin's (2011) maximum-principle plan (models.planning.trajectory.synthesize)
+  DP       Sidorenko's (1997) DP, K = 2 traction applications, 25 m stages, 121 speeds
   BF       the brute-force optimum: DP over speed only, every 5 m, 6 controls, 201 and 401
            speeds (two grid sizes show how far the discretised optimum is from converged)
 

@@ -9,9 +9,9 @@ car and line, ten inter-station runs, passengers at every stop) twice per seed:
 
   steady   the same resistance all day (the ten-run target's case: forgetting only costs)
   drift    a 10 m/s headwind from the 6th run on: eq. (2)'s coefficients move to
-           A0 + A2 Vw^2, A1 + 2 A2 Vw (MODEL.md section 2), which the estimator must follow
+           A0 + A2 Vw^2, A1 + 2 A2 Vw (docs/model.md, Forces on the car), which the estimator must follow
 
-with est.method 2 (LS on seed 004's slopes) and each est.run_forgetting f, and prints the mean
+with est.method 2 (LS on Sidorenko's (1997) slopes) and each est.run_forgetting f, and prints the mean
 w0 relative RMS error after the 10th run against the coefficients then in force (harness.metrics.estimation
 .w0_relative_rms_error over the travelled speed range), with the share of days within 2 %.
 Seeded (days 1..N, the seeds of estimation_quality's ten-run Monte Carlo); ~1 min on 2 cores

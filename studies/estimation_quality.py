@@ -6,16 +6,16 @@ Compares, on runs of the models chain (plant -> sensors -> online estimator, no 
 
   paper LS   models.estimation.identification.ParameterIdentifier with default settings, as
              models.estimation.online.OnlineEstimator feeds it (read from est.* of models.chain.RailCarChain)
-  LS slopes  the same chain with est.method 2: the LS fed with seed 004's centred least-squares
+  LS slopes  the same chain with est.method 2: the LS fed with Sidorenko's (1997) centred least-squares
              slopes of the measured speed (est.slope_window 10), online as in the FMU
   OE         models.estimation.output_error.fit_segment, output error (deterministic simulation of eq. (2)),
              covariance the process-noise sandwich
   FE         fit_segment(method="filter_error"): output error refined by the filter-error method
              (Kalman innovations as residuals, maximum likelihood under process noise)
-  EKF        models.estimation.coast_ekf.CoastEKF, seed 003's coasting EKF (coasting rows only)
+  EKF        models.estimation.coast_ekf.CoastEKF, Meleshin's (2011) coasting EKF (coasting rows only)
   oracle     the true coefficients
 
-(a) the four coasting logs shaped like seed 003 Table 1 rows 1-4 (scenarios/library/
+(a) the four coasting logs shaped like rows 1-4 of Meleshin's (2011) Table 1 (scenarios/library/
     coasting_rusich_row*.toml): coast run-time prediction error with each method's coefficients
     (harness.metrics.estimation.coast_time) against the published bounds (0.25, 0.15, 0.12, 1.45 s), for the
     library seed and over Monte Carlo seeds (mean |error|, share within the bound);
@@ -35,7 +35,7 @@ Conventions (decided here, printed with the results):
 - The coast time is computed two ways. "true v0" is harness.metrics.estimation.summarise's convention: the
   re-run starts from the *true* speed at the coast's first row; the targets are judged on it.
   "recomputed" re-runs the coast from the initial speed each model fits best to the measured
-  coast (models.estimation.output_error.fit_initial_state), a reading of seed 003's "recomputed coast". It
+  coast (models.estimation.output_error.fit_initial_state), a reading of Meleshin's "recomputed coast". It
   is printed to show that it measures nothing: a fitted start speed absorbs any reasonable w0's
   error (every method, even the paper LS with 13 % w0 error, lands within 0.04 s).
 - Process noise density q is not taken from the truth: it is estimated by restricted maximum
@@ -79,7 +79,7 @@ from models.estimation.output_error import (Prior, ResistanceCarryOver, estimate
 from models.units import G  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
-ROW_BOUNDS = {1: 0.25, 2: 0.15, 3: 0.12, 4: 1.45}     # seed 003 Table 1, identified coefficients [s]
+ROW_BOUNDS = {1: 0.25, 2: 0.15, 3: 0.12, 4: 1.45}     # Meleshin (2011) Table 1, identified coefficients [s]
 ROW_PAPER_LS = {1: 0.67, 2: 0.36, 3: 0.10, 4: 0.24}   # out/library/library.md (for reference) [s]
 W0_TARGET = 0.02                                      # ten runs: w0 within 2 % RMS
 COVERAGE = (0.90, 0.98)                               # +-2 sigma
@@ -483,7 +483,7 @@ def main(argv=None) -> int:
           f"row, {n_day} ten-run days. Units: s, m/s, N/kN.\n")
 
     # ---------------------------------------------------------------- (a)
-    print("(a) Coasting logs shaped like seed 003 Table 1 (coast run-time error of the identified w0)")
+    print("(a) Coasting logs shaped like Meleshin's (2011) Table 1 (coast run-time error of the identified w0)")
     print("    dT = predicted - actual coast time [s]; 'true v0' = harness convention (re-run from the true")
     print("    initial speed; the targets use it); 'rec' = re-run from the initial speed each model fits best")
     print("    (shown to make a point: a fitted start speed hides any w0 error, every method lands near 0).\n")

@@ -8,8 +8,8 @@ coefficients (models.estimation.identification.IdentifierConfig):
 
   0  paper LS          the paper's recursive least squares
   1  LS + FE refit     LS, plus a filter-error refit of each run at the next station stop
-  2  LS + poly diff    LS fed by seed 004's least-squares polynomial differentiation of speed
-  3  LS + coast EKF    seed 003's coasting EKF for A0, A1, A2; LS for the mass
+  2  LS + poly diff    LS fed by Sidorenko's (1997) least-squares polynomial differentiation of speed
+  3  LS + coast EKF    Meleshin's (2011) coasting EKF for A0, A1, A2; LS for the mass
 
 This runs every library scenario (scenarios/library/*.toml; NAME restricts them) with each
 method (--methods restricts them, default 0 1 2 3; each --with NAME=VALUE adds every method
