@@ -126,7 +126,8 @@ def _estimator_in_motion() -> OnlineEstimator:
 
 
 @pytest.fixture(scope="module")
-def estimator() -> OnlineEstimator:
+def moving_estimator() -> OnlineEstimator:
+    """(Not named "estimator": conftest takes that name for the RailCarEstimator FMU's layer.)"""
     est = _estimator_in_motion()
     assert est.filter.rejected == 0 and est.ident.samples > 100     # it is identifying
     return est
@@ -136,11 +137,11 @@ def estimator() -> OnlineEstimator:
     (FIT_TAKEN, 0, True), (FIT_SKIPPED, 0, False), (ACCEPTED, 0, False), (REFUSED, 1, False),
     (-ACCEPTED, 0, False), (-REFUSED, 1, False),
 ])
-def test_the_estimator_counts_a_speed_beyond_6_sigma_in_filter_rejected(estimator, sigmas, rejected,
-                                                                         identified):
+def test_the_estimator_counts_a_speed_beyond_6_sigma_in_filter_rejected(moving_estimator, sigmas,
+                                                                         rejected, identified):
     """filter.rejected (the FMU output) counts the refused speed; the identification takes
     the pair only within 4.5 sigma."""
-    est = copy.deepcopy(estimator)
+    est = copy.deepcopy(moving_estimator)
     speed, speed_scale, position, _ = _innovation_scale(est.filter)
     samples = est.ident.samples
     est.measure(speed + sigmas * speed_scale, position)
