@@ -87,10 +87,15 @@ def read_model_description(fmu: Path) -> dict[str, dict]:
 
 
 def read_build(dist: Path) -> dict[str, dict[str, dict]]:
-    """FMU name -> its variables, for every FMU of a build folder (``build.py --dest dist``)."""
+    """FMU name -> its variables, for every FMU of a build folder (``build.py --dest dist``);
+    an FMU there that FMU_FILES does not name is an error (every built FMU is frozen)."""
     missing = [str(dist / rel) for rel in FMU_FILES.values() if not (dist / rel).is_file()]
     if missing:
         raise FileNotFoundError(f"the build in {dist} lacks {', '.join(missing)}")
+    unknown = sorted({p.relative_to(dist).as_posix() for p in dist.rglob("*.fmu")} - set(FMU_FILES.values()))
+    if unknown:
+        raise ValueError(f"the build in {dist} makes {', '.join(unknown)}, which {Path(__file__).name}'s "
+                         "FMU_FILES does not name: add it there and freeze its value references")
     return {name: read_model_description(dist / rel) for name, rel in FMU_FILES.items()}
 
 
