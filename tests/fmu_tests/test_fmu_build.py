@@ -232,7 +232,7 @@ def test_guid_is_reproducible_and_follows_the_sources(built_fmus, tmp_path):
     shutil.copy2(ROOT / "build.py", copy / "build.py")
     for folder in ("fmu_src", "models", "scenarios"):
         shutil.copytree(ROOT / folder, copy / folder, ignore=shutil.ignore_patterns("__pycache__"))
-    noise = copy / "models" / "noise.py"
+    noise = copy / "models" / "plant" / "noise.py"
     noise.write_text(noise.read_text() + "\n# touched\n")
     proc = subprocess.run([sys.executable, "build.py", "--dest", str(tmp_path / "c"), "--no-native"],
                           cwd=copy,
