@@ -2,7 +2,7 @@
 
     python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild] [--fmu KIND]
     python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
-    python -m harness regress [--update] [NAME ...]    (a NAME may be a pattern: 'ato_*')
+    python -m harness regress [--update] [--variants] [NAME ...]    (a NAME may be a pattern: 'ato_*')
     python -m harness report [--out DIR] [NAME ...]
     python -m harness filters [NAME ...]
     python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite]
@@ -169,33 +169,18 @@ def _init_failures(results) -> int | None:
 
 
 def cmd_regress(args) -> int:
-    from harness.run.regress import compare, write_reference
-    scenarios = _library(args.names)
-    failed = False
+    from harness.run.regress import VARIANT_REFERENCES, check_or_update, variant_runs
+    if args.variants:                   # the models chain: no FMU to choose
+        ok = check_or_update(variant_runs(args.names), args.update, VARIANT_REFERENCES)
+        return EXIT_OK if ok else EXIT_RUN_FAILED
     results = []
-    for s, result in _run_all(scenarios, args.dist, args.rebuild, args.fmu):
-        results.append((s, result))
-        if isinstance(result, Exception):
-            print(f"FAIL {s.name}: {result}")
-            failed = True
-            continue
-        if args.update:
-            before = compare(result)
-            write_reference(result)
-            if before.problems and before.max_abs:
-                changed = ", ".join(f"{k} (max |diff| {v:.3g})" for k, v in before.max_abs.items() if v > 0)
-                print(f"updated {s.name}: changed {changed or 'time grid'}")
-            elif before.problems:
-                print(f"updated {before.problems[0]}")
-            else:
-                print(f"unchanged {s.name}")
-            continue
-        c = compare(result)
-        print(f"{'ok  ' if c.ok else 'FAIL'} {s.name}")
-        for p in c.problems:
-            print(f"     {p}")
-        failed |= not c.ok
-    return _init_failures(results) or (EXIT_RUN_FAILED if failed else EXIT_OK)
+
+    def runs():
+        for s, result in _run_all(_library(args.names), args.dist, args.rebuild, args.fmu):
+            results.append((s, result))
+            yield s.name, result
+    ok = check_or_update(runs(), args.update)
+    return _init_failures(results) or (EXIT_OK if ok else EXIT_RUN_FAILED)
 
 
 def cmd_report(args) -> int:
@@ -320,8 +305,8 @@ def main(argv=None) -> int:
     _fmu_options(p)
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser("regress", help="run the library scenarios and compare with tests/regression references")
-    p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
-    p.add_argument("--update", action="store_true", help="rewrite the references and say what changed")
+    from harness.run.regress import add_arguments as regress_arguments
+    regress_arguments(p)                # names, --update, --variants (harness.run.regress)
     _fmu_options(p)
     p.set_defaults(func=cmd_regress)
     p = sub.add_parser("report", help="run the library scenarios and print and write one table of metrics")

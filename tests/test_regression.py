@@ -5,7 +5,13 @@ each matches its reference (explicit tolerances + fmpy's band test), the stored 
 those the driver applied, and every target of the library table is met. The span scenarios
 (scenarios/library/ato_*.toml: the ATO in closed loop on the FMU) are among them: their
 inputs are the ATO's demands, and the ATO's targets are checked on every span.
-After a change to models/ato*.py: python -m harness regress --update 'ato_*'.
+The references hold every output of the RailCar FMU (harness.run.regress.reference_outputs, from
+the model description's table); a reference lacking one fails, naming the columns and the command.
+The tests below also pin the tooling: tolerances for every output, exact integers, and --update
+writing a file only when its content changes and saying what changed.
+
+pytest only checks. To regenerate after a deliberate change (e.g. to models/ato/: 'ato_*'):
+    python -m harness regress --update [NAME ...]
 """
 from dataclasses import replace
 
@@ -13,7 +19,12 @@ import numpy as np
 import pytest
 
 from harness.reports.library_report import library_rows
-from harness.run.regress import KEY_SIGNALS, compare, library_scenarios, read_inputs
+from fmpy import read_model_description
+
+from harness.run import regress
+from harness.run.regress import (EXACT, FLOAT_TOLERANCES, check_or_update, compare, describe_csv_change,
+                                 library_scenarios, read_inputs, reference_outputs, tolerance,
+                                 write_reference)
 from harness.run.runner import INPUTS, FmuRunner
 from harness.run.scenario import load_scenario
 
@@ -71,7 +82,8 @@ def test_library_targets_met(library_results):
     assert len(checked) >= 8
     failures = {r.name: r.checks for r in checked if not all(r.checks.values())}
     assert not failures, failures
-    assert all(set(KEY_SIGNALS) <= set(library_results[r.name].signals) for r in rows)
+    outputs = {o.name for o in reference_outputs()}
+    assert all(outputs <= set(library_results[r.name].signals) for r in rows)
 
 
 ATO_NAMES = [n for n in NAMES if n.startswith("ato_")]
@@ -91,3 +103,116 @@ def test_the_ato_scenario_meets_the_atos_targets(library_results, name):
     (row,) = library_rows([(load_scenario(LIBRARY_PATHS[name]), library_results[name])])
     assert row.ato, name
     assert all(row.ato_checks.values()), (row.ato_checks, "\n" + format_ato(row.ato))
+
+
+# ------------------------------------------------------------------------------ the tooling
+
+def test_the_references_hold_every_output_of_the_model_description(built_fmus):
+    """reference_outputs is the built FMU's list of outputs (all 29 today), integers marked."""
+    md = read_model_description(str(built_fmus["RailCar"]))
+    declared = {v.name: v.type for v in md.modelVariables if v.causality == "output"}
+    outputs = reference_outputs()
+    assert [o.name for o in outputs] == list(declared)
+    assert len(outputs) >= 29
+    assert {o.name for o in outputs if o.integer} == {n for n, t in declared.items() if t != "Real"}
+    assert {"car.mode", "est.samples", "est.status", "filter.rejected"} <= {o.name for o in outputs if o.integer}
+
+
+def test_every_output_has_a_tolerance_and_integers_are_exact():
+    for o in reference_outputs():
+        atol, rtol = tolerance(o)
+        if o.integer:
+            assert (atol, rtol) == EXACT == (0.0, 0.0), o
+        else:
+            assert 0 < atol <= 1e-2 and 0 < rtol <= 1e-5, o
+    assert set(FLOAT_TOLERANCES) == {o.name for o in reference_outputs() if not o.integer}
+
+
+def test_a_real_output_without_a_tolerance_says_where_to_add_one():
+    with pytest.raises(KeyError, match="est.new_thing: .*FLOAT_TOLERANCES in harness/run/regress.py"):
+        tolerance(regress.Output("est.new_thing", integer=False))
+
+
+def _with_signal(result, name, values):
+    return replace(result, signals={**result.signals, name: values})
+
+
+def test_a_reference_lacking_columns_names_them_and_the_command(library_results, tmp_path):
+    """An old reference (13 columns) fails on the missing outputs, saying how to regenerate."""
+    result = library_results["level_run"]
+    write_reference(result, tmp_path)
+    path = tmp_path / "level_run_ref.csv"
+    lines = path.read_text().splitlines()
+    header = [n.strip('"') for n in lines[0].split(",")]
+    drop = [header.index("est.samples"), header.index("car.acceleration")]
+    path.write_text("\n".join(",".join(x for j, x in enumerate(line.split(",")) if j not in drop)
+                              for line in lines) + "\n")
+    c = compare(result, tmp_path)
+    assert not c.ok
+    assert ("level_run: reference lacks columns car.acceleration, est.samples; "
+            "regenerate with python -m harness regress --update level_run") in c.problems, c.problems
+
+
+def test_an_integer_output_off_by_one_fails_compared_exactly(library_results, tmp_path):
+    result = library_results["level_run"]
+    write_reference(result, tmp_path)
+    assert compare(result, tmp_path).ok
+    samples = result["est.samples"].copy()
+    rows = regress.reference_rows(result)
+    samples[rows[len(rows) // 2]] += 1                # in a stored row
+    c = compare(_with_signal(result, "est.samples", samples), tmp_path)
+    assert [p for p in c.problems if p.startswith("level_run: est.samples: 1 of ") and p.endswith("(exact)")], \
+        c.problems
+
+
+def test_update_writes_only_changed_files_and_says_what_changed(library_results, tmp_path):
+    """A second write is "unchanged" and leaves the files alone; a last-bit change of one float is
+    written and reported: file, column, rows, largest change, within tolerance."""
+    result = library_results["level_run"]
+    first = write_reference(result, tmp_path)
+    assert [u.status for u in first] == ["new"] * 3
+    stamps = {u.path: u.path.stat().st_mtime_ns for u in first}
+    again = write_reference(result, tmp_path)
+    assert [u.status for u in again] == ["unchanged"] * 3
+    assert {u.path: u.path.stat().st_mtime_ns for u in again} == stamps
+
+    speed = result["filter.speed"].copy()
+    rows = regress.reference_rows(result)
+    k = rows[len(rows) // 2]
+    speed[k] = np.nextafter(speed[k], np.inf)         # one last-bit change in a stored row
+    changed = write_reference(_with_signal(result, "filter.speed", speed), tmp_path)
+    by_name = {u.path.name: u for u in changed}
+    assert by_name["level_run_in.csv"].status == by_name["level_run_ref.opt"].status == "unchanged"
+    ref = by_name["level_run_ref.csv"]
+    assert ref.status == "changed"
+    t = result.time[k]
+    assert ref.changes[0] == (f"1 of {len(rows)} rows changed in 1 columns; largest change "
+                              f"{abs(speed[k] - result['filter.speed'][k]):.3g} in filter.speed at t = {t:g} s, "
+                              f"within its tolerance"), ref.changes
+    assert ref.changes[1].startswith("changed: filter.speed (1 rows, max ")
+
+
+def test_update_reports_beyond_tolerance_and_added_columns():
+    old = '"time","car.speed","est.samples"\n0.0,1.0,0\n0.5,2.0,1\n'
+    new = '"time","car.speed","est.samples","est.status"\n0.0,1.0,0,0\n0.5,2.5,2,1\n'
+    assert describe_csv_change(old, new) == [
+        "added 1 columns: est.status",
+        "1 of 2 rows changed in 2 columns; largest change 1 in est.samples at t = 0.5 s, BEYOND its tolerance in 1 rows",
+        "changed: est.samples (1 rows, max 1, 1 beyond tolerance), car.speed (1 rows, max 0.5, 1 beyond tolerance)"]
+    assert describe_csv_change('"time","a"\n0.0,1.0\n', '"time","a"\n0.0,1.0\n0.5,1.0\n') == [
+        "time grid changed: 1 rows -> 2 rows (last time 0.0 -> 0.5 s); values not compared row by row"]
+    assert describe_csv_change('"time","a"\n0.0,1.0\n', '"time","a"\n0.0,1\n') == [
+        "same values, different text (number formatting)"]
+
+
+def test_check_or_update_prints_unchanged_only_for_byte_identical_files(library_results, tmp_path):
+    result = library_results["level_run"]
+    printed = []
+    assert check_or_update([("level_run", result)], update=True, folder=tmp_path, out=printed.append)
+    assert printed[0] == "new level_run"
+    printed.clear()
+    assert check_or_update([("level_run", result)], update=True, folder=tmp_path, out=printed.append)
+    assert printed == ["unchanged level_run (3 files byte-identical)"]
+    printed.clear()
+    assert check_or_update([("level_run", result)], update=False, folder=tmp_path, out=printed.append)
+    assert printed == ["ok   level_run"]
