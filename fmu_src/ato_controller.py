@@ -21,7 +21,7 @@ READS = tuple(v.name for v in variables_for(ATO) if v.causality == "input")
 class AtoController(Fmi2Slave):
     author = "rail-car FMU team"
     description = ("Train operation for one span: energy-efficient running-time regulator, targeted "
-                   "stopping with relay-staged EP brake, speed supervision (seeds 003, 004)")
+                   "stopping with relay-staged EP brake, speed supervision (Meleshin 2011, Sidorenko 1997)")
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
