@@ -324,7 +324,8 @@ class OnlineEstimator:
         est.A2_std are the roots of (the LS's sandwich, or the method's carried A's), so that
         w0(V)'s variance phi^T C phi, phi = (1, V, V^2), follows from the outputs alone. As a std
         is 0 where its variance is not > 0, a covariance is 0 where either variance is not > 0,
-        or where it is not finite itself: never NaN or inf (C: rc_estimator_resistance_covariances)."""
+        or where it is not finite itself: never NaN or inf. The C twin is
+        rc_estimator_resistance_covariances (models/core/estimator.c)."""
         c = self.method.with_resistance_covariance(self.ident.covariance())
         out = {}
         for name, i, j in self.A_COVARIANCES:
