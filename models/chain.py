@@ -60,7 +60,7 @@ def check_bounded(name: str, value: float, limit: float, unit: str, why: str) ->
 
 @dataclass
 class TrackSensorConfig:
-    """Pairs of point track sensors (seed 002): speed = base / (t2 - t1) with a timer."""
+    """Pairs of point track sensors (Boynik et al., n.d.): speed = base / (t2 - t1) with a timer."""
     spacing: float = 0.0        # a pair every `spacing` metres from each station [m]; 0 = none
     base: float = 5.0           # distance between the two sensors of a pair [m]
     resolution: float = 1e-3    # timer resolution [s]

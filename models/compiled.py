@@ -41,6 +41,7 @@ OUTPUT_NAMES = (
     "est.mass", "est.mass_std", "est.A0", "est.A1", "est.A2", "est.A0_std", "est.A1_std",
     "est.A2_std", "est.sigma2", "est.samples", "est.station_stops", "filter.speed",
     "filter.position", "filter.speed_std", "filter.position_std", "est.status", "filter.rejected",
+    "est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2",
 )
 """RailCarChain.outputs()'s names in the C core's order (models/core/railcar.h)."""
 INTEGER_OUTPUTS = frozenset({"car.mode", "est.samples", "est.station_stops", "est.status",

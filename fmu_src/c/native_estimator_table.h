@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NES_NVARS 58
+#define NES_NVARS 61
 
 /* indexed by value reference */
 static const native_var NES_VARS[NES_NVARS] = {
@@ -68,6 +68,9 @@ static const native_var NES_VARS[NES_NVARS] = {
     /* 55 */ {"filter.position_std", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 56 */ {"filter.rejected", GLUE_INTEGER, GLUE_OUTPUT, GLUE_DISCRETE, 0.0, NULL},
     /* 57 */ {"sensor.speed_std_rel", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
+    /* 58 */ {"est.cov_A0_A1", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 59 */ {"est.cov_A0_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 60 */ {"est.cov_A1_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
 };
 
 /* models/compiled.py CompiledEstimatorChain's configuration: index -> value reference of the parameter
@@ -162,7 +165,7 @@ static const double NES_CONFIG_CONST[NES_NCONFIG] = {
 static const int NES_INPUT_VRS[NES_NINPUTS] = {0, 1, 2, 3, 4, 5};
 
 /* the core's output order (models/compiled.py) -> value reference */
-#define NES_NOUTPUTS 17
+#define NES_NOUTPUTS 20
 static const int NES_OUTPUT_VRS[NES_NOUTPUTS] = {
     40,   /* est.mass */
     41,   /* est.mass_std */
@@ -181,6 +184,9 @@ static const int NES_OUTPUT_VRS[NES_NOUTPUTS] = {
     55,   /* filter.position_std */
     51,   /* est.status */
     56,   /* filter.rejected */
+    58,   /* est.cov_A0_A1 */
+    59,   /* est.cov_A0_A2 */
+    60,   /* est.cov_A1_A2 */
 };
 
 /* parameters outside the flat configuration */

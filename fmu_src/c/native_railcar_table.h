@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NRC_NVARS 85
+#define NRC_NVARS 88
 
 /* indexed by value reference */
 static const native_var NRC_VARS[NRC_NVARS] = {
@@ -95,6 +95,9 @@ static const native_var NRC_VARS[NRC_NVARS] = {
     /* 82 */ {"filter.position_std", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 83 */ {"filter.rejected", GLUE_INTEGER, GLUE_OUTPUT, GLUE_DISCRETE, 0.0, NULL},
     /* 84 */ {"sensor.speed_std_rel", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
+    /* 85 */ {"est.cov_A0_A1", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 86 */ {"est.cov_A0_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 87 */ {"est.cov_A1_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
 };
 
 /* models/compiled.py _config_values: index -> value reference of the parameter
@@ -227,7 +230,7 @@ static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {
 static const int NRC_INPUT_VRS[NRC_NINPUTS] = {0, 1, 2, 3};
 
 /* the core's output order (models/compiled.py) -> value reference */
-#define NRC_NOUTPUTS 29
+#define NRC_NOUTPUTS 32
 static const int NRC_OUTPUT_VRS[NRC_NOUTPUTS] = {
     55,   /* car.speed */
     56,   /* car.position */
@@ -258,6 +261,9 @@ static const int NRC_OUTPUT_VRS[NRC_NOUTPUTS] = {
     82,   /* filter.position_std */
     78,   /* est.status */
     83,   /* filter.rejected */
+    85,   /* est.cov_A0_A1 */
+    86,   /* est.cov_A0_A2 */
+    87,   /* est.cov_A1_A2 */
 };
 
 /* parameters outside the flat configuration */

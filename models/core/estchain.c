@@ -111,7 +111,6 @@ int rc_estchain_outputs(rc_estchain *c, double *out)
 {
     if (!c->started)
         return 0;
-    rc_estimator_raw_outputs(&c->est, 1, out);
-    rc_estimator_finish_outputs(&c->est, out, RC_EST_RAW, 0);
+    rc_estimator_outputs(&c->est, 1, out);
     return 1;
 }

@@ -273,3 +273,21 @@ void rc_estimator_finish_outputs(rc_estimator *e, double *out, int n, int mass_i
     out[n] = (double)status;
     out[n + 1] = (double)e->filter.rejected;
 }
+
+void rc_estimator_resistance_covariances(rc_estimator *e, double *out)
+{
+    static const int rows[RC_EST_COVARIANCES][2] = {{1, 2}, {1, 3}, {2, 3}};  /* A_COVARIANCES */
+    const double *c = rc_ident_covariance(&e->ident);
+    for (int k = 0; k < RC_EST_COVARIANCES; k++) {
+        int i = rows[k][0], j = rows[k][1];
+        double cij = c[4 * i + j];
+        out[k] = c[5 * i] > 0.0 && c[5 * j] > 0.0 && isfinite(cij) ? cij : 0.0;
+    }
+}
+
+void rc_estimator_outputs(rc_estimator *e, int predicted, double *out)
+{
+    rc_estimator_raw_outputs(e, predicted, out);
+    rc_estimator_finish_outputs(e, out, RC_EST_RAW, 0);
+    rc_estimator_resistance_covariances(e, out + RC_EST_RAW + 2);
+}

@@ -29,9 +29,11 @@ enum { RC_STATUS_PRIOR = 0, RC_STATUS_IDENTIFYING = 1, RC_STATUS_HOLDING = 2, RC
 /* OnlineEstimator.outputs(): est.mass, est.mass_std, est.A0, est.A1, est.A2, est.A0_std,
  * est.A1_std, est.A2_std, est.sigma2, est.samples, est.station_stops, filter.speed,
  * filter.position, filter.speed_std, filter.position_std (RC_EST_RAW values, in this order, the
- * integers as doubles), then finish_outputs appends est.status and filter.rejected. */
+ * integers as doubles), then finish_outputs appends est.status and filter.rejected, then
+ * est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2 (RC_EST_COVARIANCES, resistance_covariances). */
 #define RC_EST_RAW 15
-#define RC_EST_OUTPUTS 17
+#define RC_EST_COVARIANCES 3
+#define RC_EST_OUTPUTS (RC_EST_RAW + 2 + RC_EST_COVARIANCES)
 #define RC_FINISH_MAX 40         /* values finish_outputs can guard (the chain's 12 + 15) */
 
 typedef struct {                 /* models.estimation.online.OnlineEstimator (method 0) */
@@ -67,5 +69,11 @@ void rc_estimator_raw_outputs(rc_estimator *e, int predicted, double *out);
 /* OnlineEstimator.finish_outputs on out[n] (n <= RC_FINISH_MAX; est.mass at out[mass_index],
  * est.mass_std right after it): writes est.status at out[n] and filter.rejected at out[n + 1] */
 void rc_estimator_finish_outputs(rc_estimator *e, double *out, int n, int mass_index);
+/* OnlineEstimator.resistance_covariances (method 0: the LS's covariance): est.cov_A0_A1,
+ * est.cov_A0_A2, est.cov_A1_A2 -> out[RC_EST_COVARIANCES], 0 where a variance is not > 0 or
+ * the covariance is not finite */
+void rc_estimator_resistance_covariances(rc_estimator *e, double *out);
+/* OnlineEstimator.outputs(predicted): all three above -> out[RC_EST_OUTPUTS] */
+void rc_estimator_outputs(rc_estimator *e, int predicted, double *out);
 
 #endif

@@ -284,6 +284,5 @@ void rc_chain_outputs(rc_chain *c, double *out)
     out[9] = c->sensor_position;
     out[10] = c->track_speed;
     out[11] = c->track_time;
-    rc_estimator_raw_outputs(&c->est, 0, out + 12);
-    rc_estimator_finish_outputs(&c->est, out + 12, RC_EST_RAW, 0);
+    rc_estimator_outputs(&c->est, 0, out + 12);
 }

@@ -1,3 +1,4 @@
+# Over 600 lines as one unit: ParameterIdentifier is the state that models/core/ident.c mirrors line by line.
 """Running identification of P, A0, A1, A2 and sigma^2 from measured motion, eqs. (3)-(12).
 
 Regression form of eq. (2) (docs/model.md, Identification), generalised by a known rotating-mass factor
@@ -138,10 +139,10 @@ class IdentifierConfig:
     frozen: bool = False             # keep the initial values (an oracle that knows the truth)
     method: int = 0                  # est.method: 0 the paper's LS; 1 LS plus a filter-error
                                      # refit of each run at the next station (models/estimation/output_error.py);
-                                     # 2 LS on seed 004's centred slopes (the rows come from
-                                     # models/estimation/methods.py SlopeLS); 3 LS for the mass, seed 003's
+                                     # 2 LS on Sidorenko's (1997) centred slopes (the rows come from
+                                     # models/estimation/methods.py SlopeLS); 3 LS for the mass, Meleshin's (2011)
                                      # coasting EKF for the A's
-    slope_window: int = 10           # est.method 2: samples in each seed 004 fit (>= 2)
+    slope_window: int = 10           # est.method 2: samples in each Sidorenko (1997) fit (>= 2)
     physical: int = 0                # est.physical: 1 keeps the reported A0, A2 >= 0 (project_physical)
     run_forgetting: float = 0.0      # est.run_forgetting: share of the A's data information
                                      # forgotten at each station stop, in [0, 1)
@@ -447,7 +448,7 @@ class ParameterIdentifier:
         # block kept as it was is not the meat of that estimator). The open run's end closes
         # first (D's end row); the old mass prior's own share is ~1e-4 of J_00 and dropped.
         # Run-to-run forgetting of the A's (est.run_forgetting; the issue's "slow forgetting",
-        # seed 001's constant mu0 forgetting applied per run): the data's information on the A's
+        # Gorbachev et al.'s (2015) constant mu0 forgetting per run): the data's information on the A's
         # times lam, the prior's kept, Theta-hat unchanged. The meat takes lam too, not the lam^2
         # of a weighted sum (which would leave the data's covariance as it was): forgetting says
         # the A's may have moved, so their covariance grows by 1 / lam, as in

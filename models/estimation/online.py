@@ -76,9 +76,9 @@ class OnlineEstimator:
       0  PaperLS: the paper's recursive LS on differenced measured speed, eqs. (3)-(12), exactly;
       1  RefitLS: as 0, plus a filter-error refit of each finished run at the next station, the
          A's carried over between runs (models/estimation/output_error.py);
-      2  SlopeLS: the same LS fed with seed 004's speed and acceleration (a first-order fit over
+      2  SlopeLS: the same LS fed with Sidorenko's (1997) speed and acceleration (a first-order fit over
          the last est.slope_window samples, docs/estimation.md): no errors-in-variables bias;
-      3  CoastLS: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], docs/estimation.md) for the A's, over every coasting interval (F = B = 0).
+      3  CoastLS: LS for the mass, Meleshin's (2011) coasting EKF (state [V, A0, A1, A2], docs/estimation.md) for the A's, over every coasting interval (F = B = 0).
 
     Independent of the method: ``est.physical`` 1 reports (and predicts with) Theta-hat projected
     onto A0, A2 >= 0 (identification.project_physical); ``est.sigma2_method`` chooses the noise
@@ -311,7 +311,27 @@ class OnlineEstimator:
         else:
             out.update({"filter.speed": f.speed, "filter.position": f.position,
                         "filter.speed_std": f.speed_std, "filter.position_std": f.position_std})
-        return self.finish_outputs(out)
+        out = self.finish_outputs(out)
+        out.update(self.resistance_covariances())   # after est.status: they never degrade it
+        return out
+
+    A_COVARIANCES = (("est.cov_A0_A1", 1, 2), ("est.cov_A0_A2", 1, 3), ("est.cov_A1_A2", 2, 3))
+    """The off-diagonal outputs of the A's covariance: name, row and column in Theta."""
+
+    def resistance_covariances(self) -> dict[str, float]:
+        """est.cov_A0_A1 [(N/kN)^2/(m/s)], est.cov_A0_A2 [(N/kN)^2/(m/s)^2], est.cov_A1_A2
+        [(N/kN)^2/(m/s)^3]: the off-diagonal of the covariance whose diagonal est.A0_std ..
+        est.A2_std are the roots of (the LS's sandwich, or the method's carried A's), so that
+        w0(V)'s variance phi^T C phi, phi = (1, V, V^2), follows from the outputs alone. As a std
+        is 0 where its variance is not > 0, a covariance is 0 where either variance is not > 0,
+        or where it is not finite itself: never NaN or inf. The C twin is
+        rc_estimator_resistance_covariances (models/core/estimator.c)."""
+        c = self.method.with_resistance_covariance(self.ident.covariance())
+        out = {}
+        for name, i, j in self.A_COVARIANCES:
+            cij = float(c[i, j])
+            out[name] = cij if c[i, i] > 0.0 and c[j, j] > 0.0 and math.isfinite(cij) else 0.0
+        return out
 
     MASS_RANGE = 5.0   # est.mass is reported while within a factor 5 of est.mass_initial
     PRIOR, IDENTIFYING, HOLDING, DEGRADED = 0, 1, 2, 3   # est.status

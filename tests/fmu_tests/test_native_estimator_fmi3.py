@@ -181,6 +181,25 @@ def test_the_comparison_sees_a_difference(pair, railcar_runner):  # noqa: F811
     assert a[0][:152] == b[0][:152] and a[0][-1] != b[0][-1]
 
 
+def test_covariance_outputs_bit_identical_to_fmi2_and_seen_to_the_ulp(pair, railcar_runner):  # noqa: F811
+    """est.cov_* (appended to the table; FMI 3's time moved after them): FMI 3 == FMI 2,
+    identified (not 0) by the end; one ulp off in any is a difference."""
+    params, rows, times, steps = est2._railcar_run(railcar_runner, "crush_load")
+    a = est2._drive(pair["c2"], params, rows[:600], times, steps)
+    b = est2._drive(pair["c3"], params, rows[:600], times, steps)
+    assert a[0] == b[0] and a[1] == b[1] == [OK] * 600
+    reals = [v.name for v in pair["c3"].md.modelVariables
+             if v.causality == "output" and v.type == "Real"]
+    assert reals[-3:] == list(est2.COVARIANCES)
+    for name in est2.COVARIANCES:
+        k = reals.index(name)
+        x = float(np.int64(b[0][-1][k]).view(np.float64))
+        assert x != 0.0 and math.isfinite(x), name
+        off = list(b[0][-1])
+        off[k] = int(est2.bits([math.nextafter(x, math.copysign(math.inf, x))])[0])
+        assert tuple(a[0][-1]) != tuple(off), name
+
+
 @pytest.mark.parametrize("column, value, named", [
     (2, float("nan"), "sensor.speed"),
     (0, -5.0, "traction_force"),

@@ -402,3 +402,26 @@ def test_the_comparison_sees_a_difference(pair, railcar_runner):
     a = _drive(pair["py"], params, rows, times, steps)
     b = _drive(pair["c"], params, other, times, steps)
     assert a[0][:202] == b[0][:202] and a[0][-1] != b[0][-1]
+
+
+COVARIANCES = ("est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2")
+
+
+def test_covariance_outputs_compared_and_seen_to_the_ulp(pair, railcar_runner):
+    """est.cov_* (the A's covariances, appended to the table) are among the outputs _drive
+    compares, identified (not 0) by the end and bit-identical; one ulp off in any is a difference."""
+    params, rows, times, steps = _railcar_run(railcar_runner, "crush_load")
+    a = _drive(pair["py"], params, rows[:600], times, steps)
+    b = _drive(pair["c"], params, rows[:600], times, steps)
+    assert a[0] == b[0] and a[1] == b[1] == [OK] * 600
+    reals = [v.name for v in pair["c"].md.modelVariables
+             if v.causality == "output" and v.type == "Real"]
+    assert reals[-3:] == list(COVARIANCES)           # the table's end: earlier vrs unchanged
+    for name in COVARIANCES:
+        k = reals.index(name)
+        x = float(np.int64(b[0][-1][k]).view(np.float64))
+        assert x != 0.0 and math.isfinite(x), name
+        off = list(b[0][-1])
+        off[k] = int(bits([math.nextafter(x, math.copysign(math.inf, x))])[0])
+        assert tuple(a[0][-1]) != tuple(off), name
+

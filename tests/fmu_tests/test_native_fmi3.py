@@ -6,6 +6,7 @@ is compared with the pythonfmu FMU here too.
 """
 from __future__ import annotations
 
+import math
 import shutil
 import subprocess
 import zipfile
@@ -329,3 +330,29 @@ def test_the_comparison_sees_a_difference(runners):
     times = [0.1 * k for k in range(20)]
     a, b = _drive(c2, {"seed": 1}, inputs, times), _drive(c3, {"seed": 2}, inputs, times)
     assert a[0][-1] != b[0][-1]
+
+
+COVARIANCES = ("est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2")
+
+
+def test_covariance_outputs_bit_identical_to_fmi2_and_seen_to_the_ulp(runners):
+    """est.cov_* (appended to the table; FMI 3's time moved after them) are among the compared
+    Reals, identified (not 0) by the end, FMI 3 == FMI 2; one ulp off in any is a difference."""
+    _, c2, c3 = runners
+
+    def inputs(k):
+        return [30e3 if k < 300 else 0.0, 0.0 if k < 450 else 20e3, 0.0, 0.0]
+
+    times = [0.1 * k for k in range(600)]
+    a, b = _drive(c2, {"seed": 5}, inputs, times), _drive(c3, {"seed": 5}, inputs, times)
+    real = [n for n in c3.outputs if c3.vars[n].type == "Real"]
+    assert real[-3:] == list(COVARIANCES)
+    assert a[1] == b[1] == [OK] * len(times) and a[0] == b[0]
+    for name in COVARIANCES:
+        k = real.index(name)
+        x = float(np.int64(b[0][-1][k]).view(np.float64))
+        assert x != 0.0 and math.isfinite(x), name
+        off = list(b[0][-1])
+        off[k] = int(bits([math.nextafter(x, math.copysign(math.inf, x))])[0])
+        assert a[0][-1] != off, name
+

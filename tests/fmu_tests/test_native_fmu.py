@@ -295,6 +295,31 @@ def test_innovation_gate_warning_as_python_logs_it(pair):
     assert a[2] == b[2]
 
 
+COVARIANCES = ("est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2")
+
+
+def test_covariance_outputs_compared_and_seen_to_the_ulp(pair):
+    """est.cov_* (the A's covariances, appended to the table) are among the outputs _drive
+    compares, identified (not 0) by the end and bit-identical; one ulp off in any is a difference."""
+    def inputs(k):
+        return {"traction_force_demand": 30e3 if k < 300 else 0.0,
+                "brake_force_demand": 0.0 if k < 450 else 20e3}
+
+    a = _drive(pair["py"], {"seed": 5}, 0.0, inputs, 600)
+    b = _drive(pair["c"], {"seed": 5}, 0.0, inputs, 600)
+    reals = [v.name for v in pair["c"].md.modelVariables
+             if v.causality == "output" and v.type == "Real"]
+    assert reals[-3:] == list(COVARIANCES)           # the table's end: earlier vrs unchanged
+    assert a[0] == b[0] and a[1] == b[1] == [OK] * 600
+    for name in COVARIANCES:
+        k = reals.index(name)
+        x = float(np.int64(b[0][-1][k]).view(np.float64))
+        assert x != 0.0 and np.isfinite(x), name
+        off = list(b[0][-1])
+        off[k] = int(bits([np.nextafter(x, np.copysign(np.inf, x))])[0])
+        assert a[0][-1] != off, name
+
+
 def test_the_comparison_sees_a_difference(pair):
     """Another seed on one side: the rows differ (the equality above is not vacuous)."""
     def inputs(k):

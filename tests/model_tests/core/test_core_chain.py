@@ -306,6 +306,64 @@ def test_estimator_chain_bad_input_same_message():
         assert messages[0] == messages[1]
 
 
+# ---------------------------------------------------------------- the A's covariance outputs
+
+COVARIANCES = ("est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2")
+A_STDS = ("est.A0_std", "est.A1_std", "est.A2_std")
+
+
+def one_ulp_off(row: dict, name: str) -> dict:
+    """``row`` with ``name`` one ulp further from zero."""
+    x = row[name]
+    return {**row, name: math.nextafter(x, math.copysign(math.inf, x))}
+
+
+def test_covariance_outputs_bit_identical_from_the_stds_matrix_and_seen_to_the_ulp():
+    """est.cov_* come from the covariance est.A*_std are the roots of (the same doubles), are
+    bit-identical in C, identified by the end (not the prior's zeros), make a positive
+    semidefinite A block with the stds, and one ulp off in any of them is a difference."""
+    sc, py, c = scenario_chains(ROOT / "scenarios" / "library" / "station_day.toml", {})
+    rows_py, rows_c = drive_chain(py, sc, 3000), drive_chain(c, sc, 3000)
+    assert list(rows_c[-1])[-3:] == list(COVARIANCES) == list(compiled.OUTPUT_NAMES[-3:])
+    assert all(r[n] == 0.0 for r in rows_py[:2] for n in COVARIANCES)   # the prior: diagonal
+    last = rows_py[-1]
+    cov = py.estimator.method.with_resistance_covariance(py.estimator.ident.covariance())
+    for name, i, j in py.estimator.A_COVARIANCES:
+        assert same(last[name], float(cov[i, j])) and last[name] != 0.0, name
+    for k, name in enumerate(A_STDS, start=1):
+        assert same(last[name], math.sqrt(cov[k, k])), name
+    block = np.diag([last[n] ** 2 for n in A_STDS])
+    block[0, 1] = block[1, 0] = last["est.cov_A0_A1"]
+    block[0, 2] = block[2, 0] = last["est.cov_A0_A2"]
+    block[1, 2] = block[2, 1] = last["est.cov_A1_A2"]
+    assert np.linalg.eigvalsh(block).min() > -1e-12 * np.abs(block).max()
+    for k, (a, b) in enumerate(zip(rows_py, rows_c)):
+        assert same(a, b), f"row {k}: {[(n, a[n], b[n]) for n in a if not same(a[n], b[n])][:4]}"
+    for name in COVARIANCES:
+        assert not same(rows_py[-1], one_ulp_off(rows_c[-1], name)), name
+
+
+def test_covariance_outputs_finite_and_zero_without_a_variance():
+    """A frozen identifier (covariance 0) reports 0, not NaN; the estimator alone (C and Python)
+    and a Python-only method (carried A's, est.method 1) report finite covariances."""
+    grade = GradeProfile.level()
+    frozen = IdentifierConfig(frozen=True)
+    for chain in (RailCarChain(ChainConfig(identifier=frozen), grade),
+                  CompiledChain(ChainConfig(identifier=frozen), grade)):
+        for k in range(300):
+            chain.do_step(k * 0.1, 0.1, 30e3, 0.0, 0.0)
+            assert all(chain.outputs()[n] == 0.0 for n in COVARIANCES)
+    rows = measurements(600.0, seed=3, stops=2)
+    args = (IdentifierConfig(), FilterConfig(), StationConfig(), grade)
+    out_py, out_c = replay(EstimatorChain(*args), rows), replay(CompiledEstimatorChain(*args), rows)
+    assert list(out_c[-1])[-3:] == list(COVARIANCES) and out_c[-1]["est.cov_A0_A1"] != 0.0
+    assert same(out_py, out_c)
+    assert not same(out_py[-1], one_ulp_off(out_c[-1], "est.cov_A1_A2"))
+    refit = replay(EstimatorChain(IdentifierConfig(method=1), *args[1:]), rows)
+    assert all(math.isfinite(r[n]) for r in refit for n in COVARIANCES)
+    assert refit[-1]["est.cov_A0_A1"] != 0.0
+
+
 # ---------------------------------------------------------------- which engine runs
 
 def test_open_chain_runs_c_where_covered_and_python_elsewhere():
