@@ -103,7 +103,10 @@ CONTRACT_UNITS = {
 # physics of every unit the FMUs may declare (not only the contract's)
 KNOWN_UNITS = {name: (exps, factor) for name, exps, factor in CONTRACT_UNITS.values()}
 KNOWN_UNITS.update({"W": ({"kg": 1, "m": 2, "s": -3}, 1.0), "m2/s3": ({"m": 2, "s": -3}, 1.0),
-                    "1/s": ({"s": -1}, 1.0), "1/s2": ({"s": -2}, 1.0), "1": ({}, 1.0)})
+                    "1/s": ({"s": -1}, 1.0), "1/s2": ({"s": -2}, 1.0), "1": ({}, 1.0),
+                    # the A's covariances: (N/kN)^2 = 1e-6, times (m/s)^-k
+                    "(N/kN)2/(m/s)": ({"m": -1, "s": 1}, 1e-6), "(N/kN)2/(m/s)2": ({"m": -2, "s": 2}, 1e-6),
+                    "(N/kN)2/(m/s)3": ({"m": -3, "s": 3}, 1e-6)})
 
 SI = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
