@@ -71,6 +71,7 @@ from models.ato.motion import PlanCar
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
 from models.ato.stopping import RelayBrake, track_force
 from models.planning.span import CarTraction, Span, check_span_for_car
+from models.plant.dynamics import acceleration_gain
 from models.units import G
 
 LOG = logging.getLogger(__name__)
@@ -298,7 +299,7 @@ class AtoController:
         q[-1] = q_end
         for i in range(c.n - 2, -1, -1):
             b = min(car.brake_force_max, car.brake_total_max(math.sqrt(q[i + 1])))
-            a = b / m - G / 1000.0 / (1.0 + car.gamma) * (-c.g[i])   # deceleration [m/s^2]
+            a = b / m - acceleration_gain(car.gamma) * (-c.g[i])    # deceleration [m/s^2], eq. (2)
             qb = q[i + 1] + 2.0 * max(a, 0.0) * (s[i + 1] - s[i])
             q[i] = min(qb, span.v_lim_at_node(s[i]) ** 2)
         return q
