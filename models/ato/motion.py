@@ -12,7 +12,7 @@ import math
 from bisect import bisect_right
 
 from models.planning.span import CarTraction
-from models.plant.dynamics import acceleration_eq2, acceleration_gain, resistance_eq1, specific_force_eq2
+from models.plant.dynamics import acceleration_gain, specific_force_eq2
 from models.units import G
 
 K_TG, K_COAST, K_BRAKE = 0, 1, 2      # free-step force laws: full traction, coast, service brake
@@ -80,8 +80,8 @@ class PlanCar:
         return self.share * (r if r < lim else lim)
 
     def w0(self, v: float) -> float:
-        """Specific main resistance [N/kN], eq. (1)."""
-        return resistance_eq1(v, self.A0, self.A1, self.A2)
+        """Specific main resistance [N/kN], eq. (1) in Horner form (as ``accel``: bit-identical ATO results)."""
+        return self.A0 + v * (self.A1 + self.A2 * v)
 
     def w_slope(self, v: float) -> float:
         """W'(V) = d(resistance force)/dV [N s/m]."""
@@ -110,12 +110,13 @@ class PlanCar:
 
 def accel(car: PlanCar, v: float, g: float, kind: int) -> float:
     """dV/dt [m/s^2] under a force law: eq. (2) with the re-plan's mass and resistance."""
-    w0 = resistance_eq1(v, car.A0, car.A1, car.A2)
+    # eq. (1)-(2) in this order, not models.plant.dynamics': keeps the ATO's results bit-identical
+    w = car.A0 + v * (car.A1 + car.A2 * v) + g
     if kind == K_TG:
-        return acceleration_eq2(car.f_max(v) * car.inv_pg, w0, g, car.k_acc)
+        return car.k_acc * (car.f_max(v) * car.inv_pg - w)
     if kind == K_BRAKE:
-        return acceleration_eq2(-car.b_service(v) * car.inv_pg_brake, w0, g, car.k_acc)
-    return acceleration_eq2(0.0, w0, g, car.k_acc)
+        return car.k_acc * (-car.b_service(v) * car.inv_pg_brake - w)
+    return -car.k_acc * w
 
 
 def free_step(car: PlanCar, q0: float, h: float, g: float, kind: int):
