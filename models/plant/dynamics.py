@@ -102,10 +102,11 @@ def applied_forces(v: float, traction_demand: float, brake_demand: float,
 
 
 # ------------------------------------------------------- eqs. (1) and (2): the one Python copy
-# The planners (models/planning/engine.py), the ATO re-planner's car (models/ato/motion.py), the
-# output-error fit and the coasting EKF (models/estimation/) call these. The two mirrors that the
-# C core repeats bit for bit keep their own copies: held_input_dynamics below (models/core/plant.c)
-# and models/filtering/kalman.py (models/core/filter.c).
+# The span planners (models/planning/engine.py), the output-error fit and the coasting EKF
+# (models/estimation/) and the ATO (models/ato/) call these. Copies kept on purpose, each saying
+# why: the C core's mirrors, held_input_dynamics below (models/core/plant.c) and
+# models/filtering/kalman.py (models/core/filter.c); and the ATO re-planner's PlanCar.accel, w0 and
+# coast_step (models/ato/motion.py: its own operand order keeps the ATO's results bit-identical).
 
 def acceleration_gain(gamma: float) -> float:
     """g/1000/(1 + gamma) [m/s^2 per N/kN]: eq. (2)'s factor from a specific force to dV/dt,
