@@ -12,6 +12,7 @@ from models.estimation.output_error.fit import OutputErrorFit, fit_segment
 from models.estimation.output_error.priors import Prior, mass_prior_std_theta1, physical_prior
 from models.units import G
 
+
 def fuse_estimates(fits, forgetting: float = 0.0, prior: Prior | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Information-weighted fusion of several segments' (A0, A1, A2): returns (A, cov_A).

@@ -17,6 +17,7 @@ from scipy.optimize import minimize_scalar
 from models.estimation.output_error.simulation import Segment, rk4_stages, step_derivatives
 from models.plant.dynamics import acceleration_polynomial
 
+
 def riccati(seg: Segment, a: np.ndarray, cx: np.ndarray, q: float):
     """Kalman gains and innovation Cholesky factors along the segment (scalar loop, 2 states).
 

@@ -24,6 +24,7 @@ from models.plant.dynamics import resistance_eq1
 from models.plant.track import GradeProfile
 from models.units import G
 
+
 @dataclass
 class OutputErrorFit:
     """Result of ``fit_segment``. Units: Theta as THETA_NAMES, speed [m/s], distance [m]."""

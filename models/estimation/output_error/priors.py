@@ -76,6 +76,7 @@ def mass_prior_std_theta1(mass: float, mass_std: float) -> float:
     """Std of Theta1 = 1/(P g) [1/kN] for a mass prior mass +- mass_std [t] (delta method)."""
     return mass_std / (G * mass * mass)
 
+
 def physical_prior(mass: float | None = None, mass_std: float | None = None) -> Prior:
     """A weak prior that keeps the A's physical: A0 = 1 +- 1 N/kN, A1 = 0.03 +- 0.03
     N/kN/(m/s), A2 = 0.01 +- 0.01 N/kN/(m/s)^2 (1 sigma), independent.

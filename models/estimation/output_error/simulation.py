@@ -18,6 +18,7 @@ import numpy as np
 from models.plant.dynamics import acceleration_gain, acceleration_polynomial
 from models.plant.track import GradeProfile
 
+
 def net_force_per_interval(traction, brake, n_intervals: int) -> np.ndarray:
     """F - B [N] per sample interval: arrays of n_intervals (or n_intervals + 1, last ignored)."""
     f = np.zeros(n_intervals) if traction is None else np.asarray(traction, dtype=float)[:n_intervals]
