@@ -63,142 +63,20 @@ from __future__ import annotations
 import logging
 import math
 import time as _time
-from dataclasses import dataclass, fields
-from enum import IntEnum
 from typing import Mapping
 
+# the host's side (inputs, command, modes, tuning) is models/ato/interface.py; also importable from here
+from models.ato.interface import INPUTS, AtoCommand, AtoMode, AtoTuning
 from models.ato.motion import PlanCar
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
 from models.ato.stopping import RelayBrake, track_force
 from models.planning.span import CarTraction, Span, check_span_for_car
+from models.plant.dynamics import acceleration_gain
 from models.units import G
 
 LOG = logging.getLogger(__name__)
 
-INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "est.A0",
-          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
-"""The outputs the controller reads, by their FMU names."""
-
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
-
-
-class AtoMode(IntEnum):
-    """AtoCommand.mode. 0..6 are seed 003 Table 2's modes (models.planning.engine.Mode)."""
-    TG = 0          # full traction
-    C = 1           # speed holding by traction
-    VB = 2          # coasting
-    SR = 3          # speed holding by the regenerative brake
-    RK = 4          # regenerative braking (along a braking curve)
-    ST = 5          # holding by regenerative + mechanical brake
-    TM = 6          # braking with the mechanical brake (along a braking curve)
-    EP = 7          # relay stages of the electro-pneumatic brake (AtoCommand.ep_stage)
-    HOLD = 8        # holding brake at the stop mark
-    SAFE = 9        # safe brake: an input was missing or not finite (reason logged)
-    OVERSPEED = 10  # the supervisor brakes: the speed is above the supervision curve
-    CREEP = 11      # stopped short of the mark: creeping on
-    SETTLE = 12     # standing short of the mark while the filter's distance settles
-
-
-@dataclass(frozen=True)
-class AtoCommand:
-    """One step's output: demands [N], the mode, the planned speed [m/s], the EP stage."""
-    traction: float
-    brake: float
-    mode: int
-    planned_speed: float
-    ep_stage: int = 0
-
-
-@dataclass(frozen=True)
-class AtoTuning:
-    """The controller's settings (defaults justified in the comments)."""
-    replan: bool = True               # the running-time regulator re-plans the rest of the span
-    use_estimates: bool = True        # re-plan and feed forward with est.* when usable
-    replan_period: float = 2.0        # [s] a few s: the arrival error a step of model error
-    #                                   builds up in 2 s is far below the 2.5 s target
-    grid_step: float = 10.0           # [m] re-planner's grid (0.4 % energy of synthesize's)
-    time_tol: float = 0.05            # [s] re-plan's running-time tolerance (1/50 of 2.5 s)
-    min_samples: int = 100            # est.samples before est.* are used (10 s at 0.1 s)
-    mass_band: float = 1.6            # est.mass used within [car.mass / this, car.mass x this]
-    #                                   (the library's cars: 24 t empty to 44 t crush-loaded)
-    limit_margin: float = 0.5         # [m/s] planned speeds stay this far below V_lim
-    #                                   (1.8 km/h, about seed 003's 2 % speed error at 80 km/h)
-    k_sigma: float = 3.0              # supervisor: filter.speed + k_sigma * filter.speed_std
-    gap_sigma: float = 2.5            # and gap_sigma x filter.speed_std more: under speed noise
-    #                                   filter.speed jumps by up to ~2 sigma in one update (0.4
-    #                                   m/s at sigma 0.2), which woke the supervisor in every run
-    #                                   at 2 % of V as 1 sigma (0.5 / 1.5: still 100 % / 60 %)
-    supervisor_gap: float = 0.1       # [m/s] the controller keeps filter.speed + k_sigma *
-    #                                   filter.speed_std this far below the supervision curve
-    mass_reserve: float = 0.2         # supervisor's curves: this share more mass than planned
-    #                                   (the planned curves use 0.85 x 40 kN, the supervisor
-    #                                   45 kN / 1.2 = 37.5 kN per planned mass: never inside)
-    brake_share: float = 0.85         # planned braking curves use this share of the electric
-    #                                   brake: the rest (and the mechanical brake) is reserve
-    approach_gain: float = 1.0        # [1/s] speed feedback of holding and curve tracking
-    brake_integral_gain: float = 0.5  # [1/s^2] integral feedback on the final braking curve
-    brake_integral_max: float = 0.3   # [m/s^2] its bound (anti-windup: ~25 % of the curve)
-    a_ep: float = 1.0                 # [m/s^2] programmed deceleration of the EP stage (a
-    #                                   metro service rate; 0.7 costs 1 s and 2 % energy)
-    ep_stages: int = 6                # EP brake stages of car.mech_force_max / ep_stages
-    relay_hysteresis: float = 0.03    # [m/s] relay on above +, off below - this speed error
-    relay_stage_speed: float = 0.1    # [m/s] one more stage per this much further error
-    relay_dwell: float = 0.3          # [s] between stage changes (an EP valve's response)
-    stand_speed: float = 0.05         # [m/s] at or below for stand_time: the car stands
-    stand_time: float = 0.5           # [s]
-    creep_speed: float = 0.3          # [m/s] creeping to the mark after a short stop
-    creep_accel: float = 0.2          # [m/s^2]
-    stop_window: float = 0.15         # [m] standing closer than this to the aim: arrived
-    aim_sigma: float = 1.0            # aim this many filter.speed_std x (the EP stage's
-    aim_max: float = 0.5              # duration) short of the mark, at most aim_max [m] (3:
-    #                                   stops 0.06 m short on average, 1: 0.02 m)
-    settle_std: float = 0.13          # [m] filter.position_std above this at the final braking
-    #                                   curve and still at the EP stage: stop short, stand, creep
-    #                                   on (else one stop). +-0.3 m in 95 % needs an error sd of
-    #                                   0.3 / 1.96 = 0.15 m, and under speed noise the filter
-    #                                   claims ~15 % too little (its distance lags): 0.13 m
-    settle_sigma: float = 6.0         # the short stop aims this many filter.position_std short
-    settle_aim_max: float = 1.5       # [m] at most
-    settle_time: float = 5.0          # [s] standing before the creep (the filter's distance
-    #                                   catches up with the car at rest; < track.station_dwell);
-    #                                   0: never a short stop. 3 s: 95 % / 81 % within 0.3 m at
-    #                                   0.222 / 0.444 m/s speed noise, 4.5-6 s: 96-98 % / 86-91 %
-    settle_window: float = 0.05       # [m] the stop_window after the stand: the creep gets
-    #                                   within a few cm, a wider window only adds error
-    creep_aim: float = 0.05           # [m] the creep after the stand aims this far short:
-    #                                   after 5 s the filter's distance still lags ~0.05 m
-    safe_brake: float = 1.0           # share of car.brake_force_max on a bad input
-    hold_brake: float = 0.5           # share of car.brake_force_max held at the stop (at least
-    #                                   the last EP stage)
-
-    def __post_init__(self):
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if f.type in ("bool",):
-                if not isinstance(v, bool):
-                    raise ValueError(f"tuning.{f.name} must be True or False, got {v!r}")
-                continue
-            if f.type == "int":
-                if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                    raise ValueError(f"tuning.{f.name} must be an integer >= 1, got {v!r}")
-                continue
-            try:
-                x = float(v)
-            except (TypeError, ValueError):
-                raise ValueError(f"tuning.{f.name} must be a number, got {v!r}") from None
-            if not math.isfinite(x) or x < 0.0:
-                raise ValueError(f"tuning.{f.name} must be finite and >= 0, got {v!r}")
-            if f.name == "mass_band" and x < 1.0:
-                raise ValueError(f"tuning.mass_band must be >= 1, got {v!r}")
-            positive = ("replan_period", "grid_step", "time_tol", "approach_gain", "a_ep",
-                        "relay_stage_speed", "stand_speed", "creep_speed", "brake_share")
-            if f.name in positive and x == 0.0:
-                raise ValueError(f"tuning.{f.name} must be > 0, got {v!r}")
-            shares = ("brake_share", "safe_brake", "hold_brake")
-            if f.name in shares and x > 1.0:
-                raise ValueError(f"tuning.{f.name} must be in (0, 1], got {v!r}")
-
-
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
 
@@ -298,7 +176,7 @@ class AtoController:
         q[-1] = q_end
         for i in range(c.n - 2, -1, -1):
             b = min(car.brake_force_max, car.brake_total_max(math.sqrt(q[i + 1])))
-            a = b / m - G / 1000.0 / (1.0 + car.gamma) * (-c.g[i])   # deceleration [m/s^2]
+            a = b / m - acceleration_gain(car.gamma) * (-c.g[i])    # deceleration [m/s^2], eq. (2)
             qb = q[i + 1] + 2.0 * max(a, 0.0) * (s[i + 1] - s[i])
             q[i] = min(qb, span.v_lim_at_node(s[i]) ** 2)
         return q

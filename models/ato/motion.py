@@ -12,6 +12,7 @@ import math
 from bisect import bisect_right
 
 from models.planning.span import CarTraction
+from models.plant.dynamics import acceleration_gain, specific_force_eq2
 from models.units import G
 
 K_TG, K_COAST, K_BRAKE = 0, 1, 2      # free-step force laws: full traction, coast, service brake
@@ -39,7 +40,7 @@ class PlanCar:
         self.pg = mass * G                                   # weight [kN]
         self.inv_pg = 1.0 / self.pg
         self.m_in = 1000.0 * mass * (1.0 + car.gamma)        # inertial mass [kg]
-        self.k_acc = G / 1000.0 / (1.0 + car.gamma)          # [m/s^2 per N/kN]
+        self.k_acc = acceleration_gain(car.gamma)            # [m/s^2 per N/kN]
         self.f_force, self.f_power = car.traction_force_max, car.traction_power_max
         self.k_adh = 1000.0 * mass * car.adhesion_mass_fraction * G * car.adhesion_factor
         self.frac = car.adhesion_mass_fraction
@@ -79,7 +80,7 @@ class PlanCar:
         return self.share * (r if r < lim else lim)
 
     def w0(self, v: float) -> float:
-        """Specific main resistance [N/kN], eq. (1)."""
+        """Specific main resistance [N/kN], eq. (1) in Horner form (as ``accel``: bit-identical ATO results)."""
         return self.A0 + v * (self.A1 + self.A2 * v)
 
     def w_slope(self, v: float) -> float:
@@ -109,6 +110,7 @@ class PlanCar:
 
 def accel(car: PlanCar, v: float, g: float, kind: int) -> float:
     """dV/dt [m/s^2] under a force law: eq. (2) with the re-plan's mass and resistance."""
+    # eq. (1)-(2) in this order, not models.plant.dynamics': keeps the ATO's results bit-identical
     w = car.A0 + v * (car.A1 + car.A2 * v) + g
     if kind == K_TG:
         return car.k_acc * (car.f_max(v) * car.inv_pg - w)
@@ -128,8 +130,8 @@ def free_step(car: PlanCar, q0: float, h: float, g: float, kind: int):
 
 def coast_step(car: PlanCar, q0: float, p0: float, h: float, g: float, k_lam: float):
     """A coasting step of (q, p): p by dp/ds = (W'(V) p - k_lam / V^2) / (m V), k_lam =
-    V_c^2 W'(V_c) (the co-state equation on a coast, models/planning/trajectory.py). Returns (q1, p1).
-    _free's arithmetic for the coast, inlined (the re-planner's innermost loop)."""
+    V_c^2 W'(V_c) (the co-state equation on a coast, models/planning/trajectory.py). Returns (q1, p1)."""
+    # eq. (2) inlined, not models.plant.dynamics': the innermost loop, where calling it costs +17 % per re-plan
     a0c, a1, a2, k, m, pg = car.A0 + g, car.A1, car.A2, car.k_acc, car.m_in, car.pg
     v0 = math.sqrt(q0) if q0 > 0.0 else 0.0
     qm = q0 - h * k * (a0c + v0 * (a1 + a2 * v0))
@@ -145,7 +147,7 @@ def hold_forces(car: PlanCar, q0: float, q1: float, h: float, g: float):
     mean speed): traction if the net force is positive, else the regenerative brake up to its
     limit and the mechanical brake for the rest. Also whether traction suffices."""
     vm = 0.5 * ((math.sqrt(q0) if q0 > 0 else 0.0) + (math.sqrt(q1) if q1 > 0 else 0.0))
-    net = car.pg * ((q1 - q0) / (2.0 * h) / car.k_acc + car.w0(vm) + g)
+    net = car.pg * specific_force_eq2((q1 - q0) / (2.0 * h), car.w0(vm), g, car.k_acc)
     if net >= 0.0:
         return net, 0.0, 0.0, net <= car.f_max(vm)
     b = -net

@@ -40,7 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.units import G, resistance_kmh_to_si
+from models.plant.dynamics import acceleration_eq2, acceleration_gain, resistance_eq1
+from models.units import resistance_kmh_to_si
 
 
 def from_kmh(a: float, b: float, c: float) -> tuple[float, float, float]:
@@ -57,9 +58,10 @@ def to_kmh(A0: float, A1: float, A2: float) -> tuple[float, float, float]:
 # ------------------------------------------------------------------------- functional core
 
 def _accel(v: float, alpha: float, a1: float, a2: float, grade: float, k: float) -> float:
-    """dV/dt [m/s^2] while coasting (V >= 0 clamped: a coasting car does not roll back)."""
+    """dV/dt [m/s^2] while coasting: eq. (2) with F = B = 0 and alpha in place of A0
+    (V >= 0 clamped: a coasting car does not roll back); k = ``acceleration_gain(gamma)``."""
     vc = v if v > 0.0 else 0.0
-    return -k * (alpha + a1 * vc + a2 * vc * vc + grade)
+    return acceleration_eq2(0.0, resistance_eq1(vc, alpha, a1, a2), grade, k)
 
 
 def predict(x: np.ndarray, P: np.ndarray, dt: float, grade: float = 0.0,
@@ -72,7 +74,7 @@ def predict(x: np.ndarray, P: np.ndarray, dt: float, grade: float = 0.0,
     [m^2/s^3] white acceleration noise on V; param_psd densities of random walks on
     (alpha, A1, A2) [(unit)^2/s]. Returns (x_pred, P_pred).
     """
-    k = G / 1000.0 / (1.0 + gamma)
+    k = acceleration_gain(gamma)
     v, alpha, a1, a2 = (float(c) for c in x)
     k1 = _accel(v, alpha, a1, a2, grade, k)
     k2 = _accel(v + 0.5 * dt * k1, alpha, a1, a2, grade, k)
@@ -238,9 +240,7 @@ class CoastEKF:
 
     def w0(self, v) -> np.ndarray:
         """Identified w0(V) [N/kN] at speeds v [m/s]."""
-        v = np.asarray(v, dtype=float)
-        a0, a1, a2 = self.A
-        return a0 + a1 * v + a2 * v * v
+        return resistance_eq1(np.asarray(v, dtype=float), *self.A)
 
     def w0_std(self, v) -> np.ndarray:
         """Std of w0(V) [N/kN] at speeds v [m/s]."""

@@ -102,7 +102,7 @@ class PaperLS:
 
 class RefitLS(PaperLS):
     """est.method 1: as 0, plus a filter-error refit of each finished run at the next station,
-    the A's carried over between runs (models/estimation/output_error.py ResistanceCarryOver)."""
+    the A's carried over between runs (models/estimation/output_error/across_runs.py ResistanceCarryOver)."""
 
     MIN_REFIT_SAMPLES = 100   # a run shorter than this (moving samples) is not refitted
 

@@ -18,6 +18,7 @@ from models.units import G
 
 
 # ---------------------------------------------------------------- the car's model, eqs. (2), (13)
+# eq. (2) mirrors models/core/filter.c operation for operation: bit-identity, tests/model_tests/core/test_core_filter.py
 
 def specific_net_force(traction: float, brake: float, speed: float, grade: float, theta) -> float:
     """(F-B)/(Pg) - A0 - A1 V - A2 V^2 - i [N/kN] with Theta = (1/(Pg), A0, A1, A2)."""

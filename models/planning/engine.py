@@ -13,9 +13,8 @@ from enum import IntEnum
 import numpy as np
 from scipy.optimize import brentq
 
-from models.plant.dynamics import acceleration, main_resistance
+from models.plant.dynamics import acceleration, acceleration_gain, main_resistance, specific_force_eq2
 from models.planning.span import CarTraction, Span, check_span_for_car
-from models.units import G
 
 J_PER_KWH = 3.6e6
 
@@ -236,9 +235,8 @@ def _allocate(car: CarTraction, q0, qt, h: float, gm: float):
     mn, mx = (np.minimum, np.maximum) if arr else (min, max)
     vm = 0.5 * (sqrt(mx(q0, 0.0)) + sqrt(mx(qt, 0.0)))
     a_req = (qt - q0) / (2.0 * h)                                  # dV/dt [m/s^2]
-    # eq. (2): a = g/1000/(1+gamma) ((F - B)/(P g) - w0 - i)  =>  F - B = P g (a/k + w0 + i)
-    kacc = G / 1000.0 / (1.0 + car.gamma)
-    net = car.weight_kn * (a_req / kacc + main_resistance(vm, 0.0, car.vehicle) + gm)
+    net = car.weight_kn * specific_force_eq2(a_req, main_resistance(vm, 0.0, car.vehicle), gm,
+                                             acceleration_gain(car.gamma))   # F - B [N], eq. (2)
     F = mx(net, 0.0)
     B = mx(-net, 0.0)
     R = mn(B, car.r_max(vm))

@@ -101,20 +101,62 @@ def applied_forces(v: float, traction_demand: float, brake_demand: float,
     return min(traction_demand, traction_force_limit(v, p)), 0.0
 
 
-def main_resistance(v: float, wind: float, p: VehicleParams) -> float:
-    """Specific main resistance w0 [N/kN], eq. (1), with wind ``wind`` [m/s] (headwind > 0).
+# ------------------------------------------------------- eqs. (1) and (2): the one Python copy
+# The span planners (models/planning/engine.py), the output-error fit and the coasting EKF
+# (models/estimation/) and the ATO (models/ato/) call these. Copies kept on purpose, each saying
+# why: the C core's mirrors, held_input_dynamics below (models/core/plant.c) and
+# models/filtering/kalman.py (models/core/filter.c); and the ATO re-planner's PlanCar.accel, w0 and
+# coast_step (models/ato/motion.py: its own operand order keeps the ATO's results bit-identical).
 
-    The V^2 term is air drag, so the wind acts on it: A2 (V + Vw)|V + Vw|. For V + Vw > 0 this
-    is eq. (1) with A0 + A2 Vw^2, A1 + 2 A2 Vw, A2 (docs/model.md, Forces on the car: wind moves all three).
+def acceleration_gain(gamma: float) -> float:
+    """g/1000/(1 + gamma) [m/s^2 per N/kN]: eq. (2)'s factor from a specific force to dV/dt,
+    with seed 003's rotating-mass factor gamma [-] (the paper's eq. (2): gamma = 0)."""
+    return G / 1000.0 / (1.0 + gamma)
+
+
+def resistance_eq1(v, A0: float, A1: float, A2: float, wind=0.0):
+    """Specific main resistance w0 [N/kN], eq. (1): A0 + A1 V + A2 (V + Vw)|V + Vw| for a speed
+    ``v`` [m/s] (a float or an array) and a wind ``wind`` [m/s] (headwind > 0).
+
+    The V^2 term is air drag, so the wind acts on it. For V + Vw > 0 this is eq. (1) with
+    A0 + A2 Vw^2, A1 + 2 A2 Vw, A2 (docs/model.md, Forces on the car: wind moves all three).
     """
     va = v + wind
-    return p.A0 + p.A1 * v + p.A2 * va * abs(va)
+    return A0 + A1 * v + A2 * va * abs(va)
+
+
+def acceleration_eq2(specific_force, w0, grade, gain: float):
+    """dV/dt [m/s^2] of a moving car, eq. (2) in continuous time: gain (f - w0 - i), with the
+    specific net force f = (F - B)/(P g) [N/kN], the resistance w0 [N/kN] (eq. (1)), the grade
+    i [permille] and gain = ``acceleration_gain(gamma)``. Floats or arrays."""
+    return gain * (specific_force - w0 - grade)
+
+
+def specific_force_eq2(accel, w0, grade, gain: float):
+    """Eq. (2) solved for the specific net force (F - B)/(P g) [N/kN] that gives dV/dt = ``accel``
+    [m/s^2] against the resistance w0 [N/kN] and the grade [permille]."""
+    return accel / gain + w0 + grade
+
+
+def acceleration_polynomial(theta, net_force, grade, gain: float):
+    """Eq. (2) as a quadratic in the speed, dV/dt = c0 - c1 V - c2 V^2 (V >= 0, no wind), for the
+    paper's parameters Theta = (1/(P g), A0, A1, A2) [1/kN, N/kN, N/kN/(m/s), N/kN/(m/s)^2]:
+    returns (c0, c1, c2), c0 = gain (Theta1 (F - B) - A0 - i) for the net force F - B [N] and the
+    grade i [permille] (floats or arrays: one c0 per sample interval), c1 = gain A1, c2 = gain A2."""
+    th1, a0, a1, a2 = (float(x) for x in theta)
+    return gain * (th1 * net_force - a0 - grade), gain * a1, gain * a2
+
+
+def main_resistance(v: float, wind: float, p: VehicleParams) -> float:
+    """Specific main resistance w0 [N/kN] of the car ``p``, eq. (1) (``resistance_eq1``)."""
+    return resistance_eq1(v, p.A0, p.A1, p.A2, wind)
 
 
 def acceleration(v: float, f: float, b: float, grade: float, wind: float, p: VehicleParams) -> float:
-    """dV/dt [m/s^2] of a moving car (v > 0) under applied forces F, B [N] on grade [permille]."""
-    specific = (f - b) / (p.mass * G) - main_resistance(v, wind, p) - grade
-    return G / 1000.0 / (1.0 + p.gamma) * specific
+    """dV/dt [m/s^2] of a moving car (v > 0) under applied forces F, B [N] on grade [permille]:
+    eq. (2) (``acceleration_eq2``) for the car ``p``."""
+    return acceleration_eq2((f - b) / (p.mass * G), main_resistance(v, wind, p), grade,
+                            acceleration_gain(p.gamma))
 
 
 @dataclass
@@ -163,6 +205,8 @@ def _rk4(v: float, x: float, h: float, accel) -> tuple[float, float]:
 def held_input_dynamics(p: VehicleParams, grade_profile: GradeProfile, traction_demand: float,
                         brake_demand: float, wind: float):
     """Fast closures for inputs held over a step: (forces(v) -> (F, B), accel(v, x) -> dV/dt).
+
+    Mirrors models/core/plant.c operation for operation: bit-identity, tests/model_tests/core/test_core_plant.py.
 
     The same physics as ``applied_forces`` and ``acceleration`` (tests check they agree),
     with the parameters bound once instead of looked up at every evaluation.

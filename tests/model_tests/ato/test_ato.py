@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from models.ato.controller import INPUTS, AtoController, AtoMode, AtoTuning
+from models.ato.controller import AtoController
+from models.ato.interface import INPUTS, AtoMode, AtoTuning
 from models.ato.motion import PlanCar
 from models.ato.planner import ReducedCourse, ReducedPlanner
 from models.ato.stopping import RelayBrake

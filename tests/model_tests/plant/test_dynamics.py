@@ -342,3 +342,29 @@ def test_fast_dynamics_closures_agree_with_the_reference_functions():
                 assert forces(v) == pytest.approx((f, b), rel=1e-12)
                 a_ref = acceleration(v, f, b, grade.average(x, p.length), wind, p)
                 assert accel(v, x) == pytest.approx(a_ref, rel=1e-12, abs=1e-15)
+
+
+def test_the_equation_functions_are_eq1_eq2_and_their_inverse():
+    """The one Python copy of eqs. (1)-(2) (issue 26): acceleration is acceleration_eq2 of
+    resistance_eq1 (exactly: the same operations), specific_force_eq2 inverts acceleration_eq2
+    (1e-12 relative), and acceleration_polynomial's c0 - c1 V - c2 V^2 is eq. (2) for V >= 0 in
+    still air with Theta = (1/(P g), A0, A1, A2) (1e-12 relative: its products are regrouped).
+    Values by hand at 60 km/h: w0 = 0.89 + 0.0288 * 16.67 + 0.010498 * 16.67^2 = 4.286 N/kN."""
+    from models.plant.dynamics import (acceleration_eq2, acceleration_gain, acceleration_polynomial,
+                                       resistance_eq1, specific_force_eq2)
+    p = VehicleParams(mass=33.0, A0=0.89, A1=0.0288, A2=0.010498, gamma=0.07)
+    assert resistance_eq1(60.0 / 3.6, p.A0, p.A1, p.A2) == pytest.approx(4.286, abs=1e-3)
+    assert resistance_eq1(10.0, 1.0, 0.0, 0.01, wind=-12.0) == pytest.approx(1.0 - 0.01 * 4.0)  # tailwind pushes
+    k = acceleration_gain(p.gamma)
+    assert k == G / 1000.0 / 1.07
+    theta = (1.0 / (p.mass * G), p.A0, p.A1, p.A2)
+    for v, f, b, grade, wind in ((0.0, 30e3, 0.0, 5.0, 0.0), (12.0, 0.0, 0.0, -8.0, 4.0),
+                                 (22.0, 0.0, 25e3, 12.0, -3.0), (7.5, 18e3, 0.0, 0.0, 0.0)):
+        a = acceleration(v, f, b, grade, wind, p)
+        w0 = resistance_eq1(v, p.A0, p.A1, p.A2, wind)
+        assert a == acceleration_eq2((f - b) / (p.mass * G), w0, grade, k)
+        assert main_resistance(v, wind, p) == w0
+        assert specific_force_eq2(a, w0, grade, k) == pytest.approx((f - b) / (p.mass * G), rel=1e-12, abs=1e-12)
+        if wind == 0.0:
+            c0, c1, c2 = acceleration_polynomial(theta, f - b, grade, k)
+            assert c0 - c1 * v - c2 * v * v == pytest.approx(a, rel=1e-12, abs=1e-15)
