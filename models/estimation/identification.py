@@ -138,7 +138,7 @@ class IdentifierConfig:
     speed_std: float = 0.0           # measurement noise of V [m/s]: scales the prior's weight
     frozen: bool = False             # keep the initial values (an oracle that knows the truth)
     method: int = 0                  # est.method: 0 the paper's LS; 1 LS plus a filter-error
-                                     # refit of each run at the next station (models/estimation/output_error.py);
+                                     # refit of each run at the next station (models/estimation/output_error/);
                                      # 2 LS on Sidorenko's (1997) centred slopes (the rows come from
                                      # models/estimation/methods.py SlopeLS); 3 LS for the mass, Meleshin's (2011)
                                      # coasting EKF for the A's

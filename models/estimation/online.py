@@ -75,7 +75,7 @@ class OnlineEstimator:
     of models/estimation/methods.py held in ``method``:
       0  PaperLS: the paper's recursive LS on differenced measured speed, eqs. (3)-(12), exactly;
       1  RefitLS: as 0, plus a filter-error refit of each finished run at the next station, the
-         A's carried over between runs (models/estimation/output_error.py);
+         A's carried over between runs (models/estimation/output_error/);
       2  SlopeLS: the same LS fed with Sidorenko's (1997) speed and acceleration (a first-order fit over
          the last est.slope_window samples, docs/estimation.md): no errors-in-variables bias;
       3  CoastLS: LS for the mass, Meleshin's (2011) coasting EKF (state [V, A0, A1, A2], docs/estimation.md) for the A's, over every coasting interval (F = B = 0).
