@@ -61,11 +61,12 @@ def test_a_variant_reference_lacking_columns_says_the_variants_command(variant_r
         (tmp_path / f.name).write_bytes(f.read_bytes())
     ref = tmp_path / f"{name}_ref.csv"
     lines = ref.read_text().splitlines()
+    dropped = lines[0].rsplit(",", 1)[1].strip('"').split(" [")[0]   # the last column's output name
     ref.write_text("\n".join(line.rsplit(",", 1)[0] for line in lines) + "\n")   # drop the last column
     monkeypatch.setattr(regress, "VARIANT_REFERENCES", tmp_path)
     c = compare(variant_results[name], tmp_path)
     assert not c.ok
-    assert (f"{name}: reference lacks columns filter.rejected; regenerate with "
+    assert (f"{name}: reference lacks columns {dropped}; regenerate with "
             f"python -m harness regress --variants --update {name}") in c.problems, c.problems
 
 

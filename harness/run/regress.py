@@ -73,7 +73,9 @@ BAND_OUTLIERS_ALLOWED = 0.01
 #   estimates and their standard deviations (est.*, filter.*_std): rtol 1e-5 (a covariance
 #     propagated over thousands of steps accumulates more rounding than the plant), atol about
 #     1e-6 of the quantity's typical size (A1 ~ 0.03, A2 ~ 0.01, a filter std ~ 0.01-0.1 m/s);
-#     est.sigma2 (1e-7 to 1e-4 m2/s2): atol 1e-12 m2/s2, the speed tolerance squared.
+#     est.sigma2 (1e-7 to 1e-4 m2/s2): atol 1e-12 m2/s2, the speed tolerance squared;
+#     the A's covariances (est.cov_*): rtol 1e-5, atol about 1e-6 of their typical size
+#     (A0 std ~ 1, A1 std ~ 0.1, A2 std ~ 0.01: cov_A0_A1 ~ 0.1, cov_A0_A2 ~ 0.01, cov_A1_A2 ~ 1e-3).
 # Integer outputs (car.mode, est.samples, est.station_stops, est.status, filter.rejected) are
 # modes, counters and a status: compared exactly (EXACT), as a changed count is a changed decision.
 FLOAT_TOLERANCES: dict[str, tuple[float, float]] = {
@@ -86,6 +88,7 @@ FLOAT_TOLERANCES: dict[str, tuple[float, float]] = {
     "est.A0": (1e-6, 1e-5), "est.A1": (1e-8, 1e-5), "est.A2": (1e-9, 1e-5),
     "est.A0_std": (1e-6, 1e-5), "est.A1_std": (1e-8, 1e-5), "est.A2_std": (1e-9, 1e-5),
     "est.sigma2": (1e-12, 1e-5),
+    "est.cov_A0_A1": (1e-7, 1e-5), "est.cov_A0_A2": (1e-8, 1e-5), "est.cov_A1_A2": (1e-9, 1e-5),
     "filter.speed": (1e-6, 1e-6), "filter.position": (1e-5, 1e-6),
     "filter.speed_std": (1e-8, 1e-5), "filter.position_std": (1e-7, 1e-5),
 }
