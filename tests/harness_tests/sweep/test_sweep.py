@@ -1,4 +1,4 @@
-"""Parameter sweeps (harness/sweep/main.py and its parts, harness/sweep_*.py): sweep files, Latin
+"""Parameter sweeps (harness/sweep/main.py and its parts in harness/sweep/): sweep files, Latin
 hypercube, instance reuse, and whole sweeps through the CLI on an embedded local cluster and on
 a real dask scheduler with two worker processes (one of them killed mid-sweep), plus an
 interrupted sweep resumed.
@@ -24,6 +24,7 @@ import pytest
 
 from harness.run.scenario import load_scenario
 from harness.sweep.execute import ReusableRunner, execute_run
+from harness.sweep.plots import PLOT_GROUPS
 from harness.sweep.results import ResultsWriter, read_results
 from harness.sweep.spec import SweepError, latin_hypercube, load_sweep
 from harness.sweep.table import CALIBRATION_COLUMNS, calibration, flatten_summary, metric_columns, sweep_columns
@@ -285,9 +286,12 @@ def test_embedded_sweep_writes_rows_summary_and_plots(embedded):
     assert "speed_rmse_filter [m/s]" in header and "mass_errors_at_stops_pct.max_abs [%]" in header
     assert "calibration: truth inside" in stdout and "6 x (runs 0, 1, 2, 3, 4, ...)" in stdout
     assert (out / "summary.md").is_file()
-    plots = sorted(p.name for p in (out / "plots").glob("*.png"))
-    assert plots == ["heatmap_car.mass__driver_0_.until_speed_kmh.png", "histograms.png",
-                     "vs_car.mass.png", "vs_driver_0_.until_speed_kmh.png"]
+    plots = {p.name for p in (out / "plots").glob("*.png")}
+    kinds = ("heatmap_car.mass__driver_0_.until_speed_kmh", "histograms", "vs_car.mass",
+             "vs_driver_0_.until_speed_kmh")
+    groups = {g for g, _, _ in PLOT_GROUPS if f"{g}_histograms.png" in plots}
+    assert {"mass", "filter_accuracy"} <= groups                  # each group: one figure of each kind
+    assert plots == {f"{g}_{k}.png" for g in groups for k in kinds}
 
 
 def test_parquet_holds_the_csv_rows(embedded):
