@@ -62,7 +62,10 @@ BASE = f'scenario = "{LEVEL.as_posix()}"\n'
     ("seeds = 2\n", "scenario: give the base scenario"),
     ('scenario = "nope.toml"\nseeds = 2\n', "scenario: cannot read"),
     (BASE, "nothing to sweep"),
-    (BASE + '[grid]\n"car.mas" = [1.0]\n', 'grid."car.mas": not a RailCar parameter'),
+    (BASE + '[grid]\n"car.mas" = [1.0]\n', 'grid."car.mas": not a RailCar parameter (docs/variables.md lists them)'),
+    (BASE + '[grid]\n"car.mas" = [1.0]\n', "wind[i].speed_mps); did you mean 'car.mass'?"),
+    (BASE + '[fixed]\nduration = 30.0\n[grid]\n"car.mass" = [1.0]\n', "did you mean 'duration_s'?"),
+    (BASE + '[grid]\n"driver[0].until_speed_km" = [40.0]\n', "did you mean 'until_speed_kmh'?"),
     (BASE + '[grid]\n"car.mass" = ["heavy"]\n', 'grid."car.mass": expected a finite number'),
     (BASE + '[grid]\n"seed" = [1.5]\n', 'grid."seed": expected an integer'),
     (BASE + '[grid]\n"car.mass" = []\n', 'grid."car.mass": empty list'),
@@ -88,6 +91,13 @@ def test_invalid_sweep_files_name_file_key_and_reason(tmp_path, text, needle):
     with pytest.raises(SweepError) as e:
         load_sweep(p)
     assert "my_sweep.toml" in str(e.value) and needle in str(e.value), str(e.value)
+
+
+def test_a_name_close_to_none_gets_no_guess(tmp_path):
+    p = write(tmp_path, BASE + '[grid]\n"colour" = [1.0]\n', "my_sweep.toml")
+    with pytest.raises(SweepError) as e:
+        load_sweep(p)
+    assert "not a RailCar parameter" in str(e.value) and "did you mean" not in str(e.value)
 
 
 def test_runs_are_the_product_of_the_blocks_seeds_fastest(tmp_path):
