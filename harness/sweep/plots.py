@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import re
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from harness.sweep.table import CALIBRATION_COLUMNS, Column, Table, finite_value
 PANELS_PER_FIGURE = 6
 TITLE_PT, LABEL_PT, TICK_PT, SUPTITLE_PT = 11, 10, 9, 13      # [pt]; at DPI the PNG is ~1300 px wide
 PANEL_INCHES = (4.4, 3.5)                                       # [in] width, height of one panel
+MIN_FIGURE_WIDTH_IN = 7.0                                       # [in] room for the title of a 1-panel figure
 DPI = 100
 
 # (file prefix, figure title, metric keys in panel order)
@@ -115,11 +117,17 @@ def _panels(plt, n: int):
     """A figure with ``n`` panels (up to 3 a row) and its axes, in reading order."""
     ncol = n if n <= 3 else 2 if n == 4 else 3
     nrow = math.ceil(n / ncol)
-    fig, axs = plt.subplots(nrow, ncol, figsize=(PANEL_INCHES[0] * ncol, PANEL_INCHES[1] * nrow + 0.6),
-                            squeeze=False)
+    width = max(PANEL_INCHES[0] * ncol, MIN_FIGURE_WIDTH_IN)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(width, PANEL_INCHES[1] * nrow + 0.9), squeeze=False)
     for ax in axs.flat[n:]:
         ax.set_visible(False)
     return fig, list(axs.flat[:n])
+
+
+def _suptitle(fig, text: str) -> None:
+    """The figure's title, wrapped to the figure's width (a long title would be cut at the edges)."""
+    chars = int(fig.get_figwidth() * 72 / (SUPTITLE_PT * 0.62))      # a character ~0.6 em wide
+    fig.suptitle(textwrap.fill(text, chars), fontsize=SUPTITLE_PT)
 
 
 def _style(ax, title: str, xlabel: str, ylabel: str) -> None:
@@ -148,7 +156,7 @@ def _vs_figure(plt, sweep: Sweep, ok: list[dict], x: Column, title: str, cols: l
             ax.axhline(HONEST_VALUES[m.key], ls="--", color="0.4", lw=1.2)
         _style(ax, PANEL_TITLES.get(m.key, m.key), _label(x), _label(m))
     how = "dots: runs; line: median of each value" if median_line else "dots: runs"
-    fig.suptitle(f"{sweep.name}: {title} vs {x.key} ({len(ok)} ok runs; {how})", fontsize=SUPTITLE_PT)
+    _suptitle(fig, f"{sweep.name}: {title} vs {x.key} ({len(ok)} ok runs; {how})")
     return fig
 
 
@@ -162,7 +170,7 @@ def _histogram_figure(plt, sweep: Sweep, ok: list[dict], title: str, cols: list[
             ax.axvline(HONEST_VALUES[m.key], ls="--", color="0.4", lw=1.2)
         _style(ax, PANEL_TITLES.get(m.key, m.key), _label(m), "runs")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))      # counts of runs
-    fig.suptitle(f"{sweep.name}: {title}, distribution over {len(ok)} ok runs", fontsize=SUPTITLE_PT)
+    _suptitle(fig, f"{sweep.name}: {title}, distribution over {len(ok)} ok runs")
     return fig
 
 
@@ -186,8 +194,7 @@ def _heatmap_figure(plt, sweep: Sweep, table: Table, a: Column, b: Column, title
         cb = fig.colorbar(im, ax=ax)
         cb.set_label(_label(m), fontsize=LABEL_PT)
         cb.ax.tick_params(labelsize=TICK_PT)
-    fig.suptitle(f"{sweep.name}: {title}, mean over the other axes (blank: every run failed)",
-                 fontsize=SUPTITLE_PT)
+    _suptitle(fig, f"{sweep.name}: {title}, mean over the other axes (blank: every run failed)")
     return fig
 
 

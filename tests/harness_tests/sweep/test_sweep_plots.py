@@ -21,7 +21,7 @@ from harness.sweep.table import CALIBRATION_COLUMNS, TEXT_STATUS_FAILED, TEXT_ST
 ROOT = Path(__file__).resolve().parents[3]
 LEVEL = ROOT / "scenarios" / "library" / "level_run.toml"
 SWEEP = f"""
-name = "t_plots"
+name = "t_plots_of_a_sweep_with_a_long_name"       # a long title to wrap
 scenario = "{LEVEL.as_posix()}"
 seeds = 4
 [grid]
@@ -108,6 +108,9 @@ def test_few_panels_readable_text_and_every_axis_labelled_with_a_unit(figures):
         axs = panels(fig)
         assert 1 <= len(axs) <= PANELS_PER_FIGURE, name
         assert fig._suptitle is not None and fig._suptitle.get_fontsize() > SMALLEST_PT
+        fig.tight_layout()                                    # as saved (harness.reports.plotting)
+        title = fig._suptitle.get_window_extent(fig.canvas.get_renderer())
+        assert 0 <= title.x0 and title.x1 <= fig.bbox.width, (name, fig._suptitle.get_text())   # not cut off
         for ax in axs:
             texts = [ax.title, ax.xaxis.label, ax.yaxis.label] + ax.get_xticklabels() + ax.get_yticklabels()
             assert min(t.get_fontsize() for t in texts) >= SMALLEST_PT, (name, ax.get_title())
