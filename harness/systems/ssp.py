@@ -94,18 +94,20 @@ class LoadedSystem:
 
     def variable(self, full: str, what: str = ""):
         """The model variable of "Component.variable"; SspError naming ``what`` if unknown."""
-        comp, var = split_name(full)
         where = f"{self.path}: {what}" if what else str(self.path)
+        comp, var = split_name(full, where)
         if comp not in self.models:
             raise SspError(f"{where}: no component named '{comp}'")
         return _variable(self.models[comp], comp, var, where)
 
 
-def split_name(full: str) -> tuple[str, str]:
-    """"Component.variable" -> ("Component", "variable") (component names have no dot)."""
+def split_name(full: str, where: str = "") -> tuple[str, str]:
+    """"Component.variable" -> ("Component", "variable") (component names have no dot); an error
+    starts with ``where``."""
     comp, dot, var = full.partition(".")
     if not dot or not comp or not var:
-        raise SspError(f"'{full}': expected Component.variable")
+        raise SspError(f"{where}: '{full}': expected Component.variable" if where else
+                       f"'{full}': expected Component.variable")
     return comp, var
 
 
@@ -261,7 +263,7 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Pa
         what = where.connection(k, conn)
         ends = []
         for full, kind in ((conn.start, "output"), (conn.end, "input")):
-            comp, name = split_name(full)
+            comp, name = split_name(full, what)
             if comp not in models:
                 raise SspError(f"{what}: no component named '{comp}'")
             v = _variable(models[comp], comp, name, what)
