@@ -1,11 +1,22 @@
-"""A sweep's plots (PNG, matplotlib's Agg backend): every varying metric against each swept value
-(``vs_NAME.png``), their distribution over seeds (``histograms.png``) and, for a two-axis grid,
-heat maps (``heatmap_A__B.png``).
+"""A sweep's plots (PNG, through harness.reports.plotting): the metrics that vary over the ok runs,
+a few per figure, grouped by what they say about the run (``PLOT_GROUPS``: the mass estimate, the
+running resistance, the filter's accuracy, the filter's calibration; any other varying metric in
+``other`` figures, so that none is dropped silently):
+
+- ``GROUP_vs_NAME.png``: each metric of the group against a swept value (one dot per run; for a
+  grid or zip axis a line through the median of each value);
+- ``GROUP_histograms.png`` (a sweep over seeds): each metric's distribution, runs per bin;
+- ``GROUP_heatmap_A__B.png`` (a two-axis grid): each metric's mean over the other axes (seeds).
+
+At most ``PANELS_PER_FIGURE`` panels a figure, every axis labelled with its unit, text large
+enough to read at the PNG's size. ``sweep_figures`` makes the figures (tests read them),
+``plot_sweep`` writes them.
 """
 from __future__ import annotations
 
 import math
 import re
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -14,19 +25,68 @@ from harness.reports.plotting import pyplot, save_figure
 from harness.sweep.spec import Sweep
 from harness.sweep.table import CALIBRATION_COLUMNS, Column, Table, finite_values, metric_columns
 
+PANELS_PER_FIGURE = 6
+TITLE_PT, LABEL_PT, TICK_PT, SUPTITLE_PT = 11, 10, 9, 13      # [pt]; at DPI the PNG is ~1300 px wide
+PANEL_INCHES = (4.4, 3.5)                                       # [in] width, height of one panel
+MIN_FIGURE_WIDTH_IN = 7.0                                       # [in] room for the title of a 1-panel figure
+DPI = 100
+
+# (file prefix, figure title, metric keys in panel order)
+PLOT_GROUPS = (
+    ("mass", "mass estimate",
+     ("mass_error_pct", "mass_errors_at_stops_pct.max_abs", "mass_std_t", "mass_z_at_stops.max_abs",
+      "mass_time_within_1pct_s.max_abs", "mass_est_t")),
+    ("resistance", "running resistance",
+     ("A0_est", "A1_est", "A2_est", "w0_rel_rms_error", "coast_time_errors_s.max_abs")),
+    ("filter_accuracy", "filter accuracy",
+     ("speed_rmse_sensor", "speed_rmse_filter", "speed_rmse_oracle",
+      "position_rmse_sensor", "position_rmse_filter", "position_rmse_oracle")),
+    ("filter_calibration", "filter calibration",
+     ("speed_nees", "position_nees", "speed_within_2sigma_pct", "position_within_2sigma_pct")),
+)
+# Not plotted: counts (their percentages are), the truth (set by the sweep, not estimated)
+NOT_PLOTTED = {"moving_samples", "speed_within_2sigma", "position_within_2sigma", "mass_stops_covered",
+               "duration_s", "stops", "mass_true_t", "A0_true", "A1_true", "A2_true"}
+PANEL_TITLES = {
+    "mass_error_pct": "mass error at the end",
+    "mass_errors_at_stops_pct.max_abs": "largest |mass error| at a stop",
+    "mass_std_t": "mass std at the end",
+    "mass_z_at_stops.max_abs": "largest |mass error| / std at a stop",
+    "mass_time_within_1pct_s.max_abs": "longest time to 1 % after a departure",
+    "mass_est_t": "mass estimate at the end",
+    "A0_est": "A0 identified", "A1_est": "A1 identified", "A2_est": "A2 identified",
+    "w0_rel_rms_error": "w0(V) relative RMS error",
+    "coast_time_errors_s.max_abs": "largest coast time error",
+    "speed_rmse_sensor": "speed RMSE, sensor", "speed_rmse_filter": "speed RMSE, filter",
+    "speed_rmse_oracle": "speed RMSE, filter knowing the truth",
+    "position_rmse_sensor": "distance RMSE, sensor", "position_rmse_filter": "distance RMSE, filter",
+    "position_rmse_oracle": "distance RMSE, filter knowing the truth",
+    "speed_nees": "speed NEES (dashed: 1, honest)", "position_nees": "distance NEES (dashed: 1, honest)",
+    "speed_within_2sigma_pct": "speed truth within 2 sigma (dashed: 95.4)",
+    "position_within_2sigma_pct": "distance truth within 2 sigma (dashed: 95.4)",
+}
+# What an honest estimator gives (a dashed line in the panel): NEES 1, 95.4 % of Gaussian errors within 2 sigma
+HONEST_VALUES = {"speed_nees": 1.0, "position_nees": 1.0, "speed_within_2sigma_pct": 95.4,
+                 "position_within_2sigma_pct": 95.4}
+MEDIAN_LINE_MAX_VALUES = 30        # a swept name with more distinct values gets no median line
+
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
 
 
-def _plot_metrics(table: Table) -> list[Column]:
-    """Numeric metric columns that vary over the ok runs."""
+def _label(column: Column) -> str:
+    """Axis label of a column: its key and unit ('-' for a dimensionless number)."""
+    return f"{column.key} [{column.unit or '-'}]"
+
+
+def _varying_metrics(table: Table) -> list[Column]:
+    """Numeric metric columns, other than NOT_PLOTTED, that vary over the ok runs."""
     ok = table.ok_rows()
     keys = {c.key for c in metric_columns()} | {c.key for c in CALIBRATION_COLUMNS}
-    skip = {"moving_samples", "speed_within_2sigma", "position_within_2sigma", "duration_s"}
     out = []
     for c in table.columns:
-        if c.kind == "str" or c.key not in keys or c.key in skip:
+        if c.kind == "str" or c.key not in keys or c.key in NOT_PLOTTED:
             continue
         xs = finite_values(r.get(c.key) for r in ok)
         if xs and max(xs) > min(xs):
@@ -34,73 +94,139 @@ def _plot_metrics(table: Table) -> list[Column]:
     return out
 
 
-def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path) -> list[Path]:
-    """Each metric against each swept value (and heat maps of a two-axis grid) as PNGs."""
-    plt = pyplot()
-    plot_dir.mkdir(parents=True, exist_ok=True)
+def metric_groups(table: Table) -> list[tuple[str, str, list[Column]]]:
+    """(file prefix, title, columns) of each figure's worth of varying metrics: PLOT_GROUPS' metrics
+    that vary (groups with none left out), then the other varying metrics in ``other`` groups of at
+    most PANELS_PER_FIGURE."""
+    varying = {c.key: c for c in _varying_metrics(table)}
+    groups, grouped = [], set()
+    for prefix, title, keys in PLOT_GROUPS:
+        cols = [varying[k] for k in keys if k in varying]
+        grouped.update(keys)
+        for i in range(0, len(cols), PANELS_PER_FIGURE):
+            part = "" if i == 0 else f"_{i // PANELS_PER_FIGURE + 1}"
+            groups.append((prefix + part, title, cols[i:i + PANELS_PER_FIGURE]))
+    rest = [c for k, c in varying.items() if k not in grouped]
+    for i in range(0, len(rest), PANELS_PER_FIGURE):
+        part = "" if i == 0 else f"_{i // PANELS_PER_FIGURE + 1}"
+        groups.append(("other" + part, "other metrics", rest[i:i + PANELS_PER_FIGURE]))
+    return groups
+
+
+def _panels(plt, n: int):
+    """A figure with ``n`` panels (up to 3 a row) and its axes, in reading order."""
+    ncol = n if n <= 3 else 2 if n == 4 else 3
+    nrow = math.ceil(n / ncol)
+    width = max(PANEL_INCHES[0] * ncol, MIN_FIGURE_WIDTH_IN)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(width, PANEL_INCHES[1] * nrow + 0.9), squeeze=False)
+    for ax in axs.flat[n:]:
+        ax.set_visible(False)
+    return fig, list(axs.flat[:n])
+
+
+def _suptitle(fig, text: str) -> None:
+    """The figure's title, wrapped to the figure's width (a long title would be cut at the edges)."""
+    chars = int(fig.get_figwidth() * 72 / (SUPTITLE_PT * 0.62))      # a character ~0.6 em wide
+    fig.suptitle(textwrap.fill(text, chars), fontsize=SUPTITLE_PT)
+
+
+def _style(ax, title: str, xlabel: str, ylabel: str) -> None:
+    ax.set_title(title, fontsize=TITLE_PT)
+    ax.set_xlabel(xlabel, fontsize=LABEL_PT)
+    ax.set_ylabel(ylabel, fontsize=LABEL_PT)
+    ax.tick_params(labelsize=TICK_PT)
+    ax.grid(True, alpha=0.3)
+
+
+def _finite_pairs(rows, x: str, y: str) -> list[tuple[float, float]]:
+    return [(float(r[x]), float(r[y])) for r in rows
+            if r.get(y) is not None and math.isfinite(r[y]) and r.get(x) is not None and math.isfinite(r[x])]
+
+
+def _vs_figure(plt, sweep: Sweep, ok: list[dict], x: Column, title: str, cols: list[Column], median_line: bool):
+    fig, axs = _panels(plt, len(cols))
+    for ax, m in zip(axs, cols):
+        pts = _finite_pairs(ok, x.key, m.key)
+        if pts:
+            ax.plot(*zip(*pts), ".", ms=5, alpha=0.6, color="C0")
+        if median_line and pts:
+            xs = sorted({p[0] for p in pts})
+            ax.plot(xs, [float(np.median([p[1] for p in pts if p[0] == v])) for v in xs], "-", color="C1", lw=1.8)
+        if m.key in HONEST_VALUES:
+            ax.axhline(HONEST_VALUES[m.key], ls="--", color="0.4", lw=1.2)
+        _style(ax, PANEL_TITLES.get(m.key, m.key), _label(x), _label(m))
+    how = "dots: runs; line: median of each value" if median_line else "dots: runs"
+    _suptitle(fig, f"{sweep.name}: {title} vs {x.key} ({len(ok)} ok runs; {how})")
+    return fig
+
+
+def _histogram_figure(plt, sweep: Sweep, ok: list[dict], title: str, cols: list[Column]):
+    from matplotlib.ticker import MaxNLocator
+    fig, axs = _panels(plt, len(cols))
+    bins = min(30, max(5, len(ok) // 5))
+    for ax, m in zip(axs, cols):
+        ax.hist(finite_values(r.get(m.key) for r in ok), bins=bins, color="C0", edgecolor="white")
+        if m.key in HONEST_VALUES:
+            ax.axvline(HONEST_VALUES[m.key], ls="--", color="0.4", lw=1.2)
+        _style(ax, PANEL_TITLES.get(m.key, m.key), _label(m), "runs")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))      # counts of runs
+    _suptitle(fig, f"{sweep.name}: {title}, distribution over {len(ok)} ok runs")
+    return fig
+
+
+def _heatmap_figure(plt, sweep: Sweep, table: Table, a: Column, b: Column, title: str, cols: list[Column]):
     ok = table.ok_rows()
-    metrics = _plot_metrics(table)
-    if not ok or not metrics:
-        return []
-    units = {c.key: c.unit for c in table.columns}
-    kinds = {c.key: c.kind for c in table.columns}
-    files = []
-    ncol = min(5, len(metrics))
-    nrow = math.ceil(len(metrics) / ncol)
+    av = sorted({r[a.key] for r in table.rows})
+    bv = sorted({r[b.key] for r in table.rows})
+    fig, axs = _panels(plt, len(cols))
+    for ax, m in zip(axs, cols):
+        z = np.full((len(bv), len(av)), np.nan)
+        for i, y in enumerate(bv):
+            for j, x in enumerate(av):
+                vals = finite_values(r.get(m.key) for r in ok if r[a.key] == x and r[b.key] == y)
+                if vals:
+                    z[i, j] = float(np.mean(vals))   # the mean over the other axes (seeds)
+        im = ax.imshow(z, origin="lower", aspect="auto", cmap="viridis")
+        ax.set_xticks(range(len(av)), [f"{x:.4g}" for x in av], rotation=45 if len(av) > 6 else 0)
+        ax.set_yticks(range(len(bv)), [f"{y:.4g}" for y in bv])
+        _style(ax, PANEL_TITLES.get(m.key, m.key), _label(a), _label(b))
+        ax.grid(False)
+        cb = fig.colorbar(im, ax=ax)
+        cb.set_label(_label(m), fontsize=LABEL_PT)
+        cb.ax.tick_params(labelsize=TICK_PT)
+    _suptitle(fig, f"{sweep.name}: {title}, mean over the other axes (blank: every run failed)")
+    return fig
 
-    def grid_fig():
-        fig, axs = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.6 * nrow), squeeze=False)
-        for ax in axs.flat[len(metrics):]:
-            ax.set_visible(False)
-        return fig, axs.flat
 
-    def save(fig, name):
-        files.append(save_figure(fig, None, plot_dir / name, dpi=90))
-
-    xs_names = [n for n in sweep.axes if n != "seed" and kinds.get(n) != "str"
-                and len({r.get(n) for r in ok}) > 1]
-    for xn in xs_names:
-        fig, axs = grid_fig()
-        for ax, m in zip(axs, metrics):
-            pts = [(r[xn], r[m.key]) for r in ok if r.get(m.key) is not None and math.isfinite(r[m.key])]
-            if pts:
-                ax.plot(*zip(*pts), ".", ms=4, alpha=0.7)
-            ax.set_xlabel(f"{xn} [{units.get(xn) or '-'}]", fontsize=8)
-            ax.set_title(f"{m.key} [{m.unit}]", fontsize=8)
-            ax.tick_params(labelsize=7)
-        fig.suptitle(f"{sweep.name}: metrics vs {xn} ({len(ok)} ok runs)", fontsize=10)
-        save(fig, f"vs_{_safe(xn)}.png")
-
+def sweep_figures(sweep: Sweep, table: Table):
+    """Yields (file name, matplotlib Figure) for each plot of the sweep (see the module docstring),
+    one at a time: the caller saves and closes each (plot_sweep) before the next is made. None when
+    no run is ok or no metric varies."""
+    plt = pyplot()
+    ok = table.ok_rows()
+    groups = metric_groups(table)
+    if not ok or not groups:
+        return
+    by_key = {c.key: c for c in table.columns}
+    swept = [by_key[n] for n in sweep.axes if n != "seed" and by_key[n].kind != "str"
+             and len({r.get(n) for r in ok}) > 1]
+    discrete = set(sweep.blocks.get("grid", ())) | set(sweep.blocks.get("zip", ()))
+    for x in swept:
+        median_line = x.key in discrete and len({r.get(x.key) for r in ok}) <= MEDIAN_LINE_MAX_VALUES
+        for prefix, title, cols in groups:
+            yield f"{prefix}_vs_{_safe(x.key)}.png", _vs_figure(plt, sweep, ok, x, title, cols, median_line)
     if "seed" in sweep.axes and len(ok) > 1:
-        fig, axs = grid_fig()
-        for ax, m in zip(axs, metrics):
-            ax.hist(finite_values(r.get(m.key) for r in ok), bins=min(30, max(5, len(ok) // 5)))
-            ax.set_title(f"{m.key} [{m.unit}]", fontsize=8)
-            ax.tick_params(labelsize=7)
-        fig.suptitle(f"{sweep.name}: distribution over {len(ok)} ok runs", fontsize=10)
-        save(fig, "histograms.png")
-
-    grid = [n for n in sweep.grid_axes if kinds.get(n) != "str"]
+        for prefix, title, cols in groups:
+            yield f"{prefix}_histograms.png", _histogram_figure(plt, sweep, ok, title, cols)
+    grid = [by_key[n] for n in sweep.grid_axes if by_key[n].kind != "str"]
     if len(sweep.grid_axes) == 2 and len(grid) == 2:
         a, b = grid
-        av = sorted({r[a] for r in table.rows})
-        bv = sorted({r[b] for r in table.rows})
-        fig, axs = grid_fig()
-        for ax, m in zip(axs, metrics):
-            z = np.full((len(bv), len(av)), np.nan)
-            for i, y in enumerate(bv):
-                for j, x in enumerate(av):
-                    vals = finite_values(r.get(m.key) for r in ok if r[a] == x and r[b] == y)
-                    if vals:
-                        z[i, j] = float(np.mean(vals))   # the mean over the other axes (seeds)
-            im = ax.imshow(z, origin="lower", aspect="auto", cmap="viridis")
-            ax.set_xticks(range(len(av)), [f"{x:.4g}" for x in av], fontsize=6, rotation=45)
-            ax.set_yticks(range(len(bv)), [f"{y:.4g}" for y in bv], fontsize=6)
-            ax.set_xlabel(f"{a} [{units.get(a) or '-'}]", fontsize=7)
-            ax.set_ylabel(f"{b} [{units.get(b) or '-'}]", fontsize=7)
-            ax.set_title(f"{m.key} [{m.unit}]", fontsize=8)
-            cb = fig.colorbar(im, ax=ax)
-            cb.ax.tick_params(labelsize=6)
-        fig.suptitle(f"{sweep.name}: heat maps over {a} x {b} (mean over other axes; blank: failed)", fontsize=10)
-        save(fig, f"heatmap_{_safe(a)}__{_safe(b)}.png")
-    return files
+        for prefix, title, cols in groups:
+            yield (f"{prefix}_heatmap_{_safe(a.key)}__{_safe(b.key)}.png",
+                   _heatmap_figure(plt, sweep, table, a, b, title, cols))
+
+
+def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path) -> list[Path]:
+    """Write sweep_figures' figures as PNGs into ``plot_dir``; their paths."""
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    return [save_figure(fig, None, plot_dir / name, dpi=DPI) for name, fig in sweep_figures(sweep, table)]

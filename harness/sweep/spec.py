@@ -28,7 +28,7 @@ A sweep file (TOML) names a base scenario and the values to run it with:
 
 The runs are the product grid x zip x lhs x seeds (each block optional; seeds vary fastest),
 numbered 0, 1, ... in that order: the run id. A name may appear in one block only. Names are
-RailCar parameters (contract names, SI units, checked and typed by
+RailCar parameters (docs/variables.md lists them: contract names, SI units; checked and typed by
 ``harness.run.scenario.parse_parameters``; profile paths relative to the sweep file) or scenario
 fields: ``step_s``, ``duration_s``, ``stop_after_last_phase``, ``driver[i].KEY`` (a key of
 the base scenario's i-th ``[[driver]]`` phase) and ``wind[i].time_s`` / ``wind[i].speed_mps``.
@@ -40,6 +40,7 @@ range, 0..2**31 - 1 (``seed`` is a 32-bit fmi2Integer).
 from __future__ import annotations
 
 import copy
+import difflib
 import hashlib
 import itertools
 import json
@@ -133,6 +134,13 @@ def name_kind(name: str) -> str:
     return "str"
 
 
+def did_you_mean(name: str, known) -> str:
+    """'; did you mean 'x'?' naming the known name closest to a misspelt ``name`` (difflib), or ''
+    when none is close."""
+    close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
 def _finite_number(value, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise SweepError(f"{where}: expected a finite number, got {value!r}")
@@ -156,9 +164,9 @@ def _check_value(name: str, value, path: Path, block: str, base: dict, sweep_dir
         return value
     m = _FIELD_RE.match(name)
     if m is None:
-        raise SweepError(f"{where}: not a RailCar parameter (see fmu_src/variables.py) nor a sweepable "
+        raise SweepError(f"{where}: not a RailCar parameter (docs/variables.md lists them) nor a sweepable "
                          f"scenario field (step_s, duration_s, stop_after_last_phase, driver[i].KEY, "
-                         f"wind[i].time_s, wind[i].speed_mps)")
+                         f"wind[i].time_s, wind[i].speed_mps){did_you_mean(name, [*PARAMETERS, *SCENARIO_FIELDS])}")
     table, index, key = m.group(1), int(m.group(2)), m.group(3)
     entries = base.get(table, [])
     if index >= len(entries):
@@ -166,9 +174,10 @@ def _check_value(name: str, value, path: Path, block: str, base: dict, sweep_dir
     if table == "driver":
         from harness.run.driver import _PHASE_KEYS
         if key not in _PHASE_KEYS:
-            raise SweepError(f"{where}: '{key}' is not a driver phase key (known: {', '.join(sorted(_PHASE_KEYS))})")
+            raise SweepError(f"{where}: '{key}' is not a driver phase key (known: {', '.join(sorted(_PHASE_KEYS))})"
+                             f"{did_you_mean(key, _PHASE_KEYS)}")
     elif key not in WIND_KEYS:
-        raise SweepError(f"{where}: '{key}' is not a wind key (known: {', '.join(WIND_KEYS)})")
+        raise SweepError(f"{where}: '{key}' is not a wind key (known: {', '.join(WIND_KEYS)}){did_you_mean(key, WIND_KEYS)}")
     if name_kind(name) == "float":
         return _finite_number(value, where)
     if not isinstance(value, (str, bool)):

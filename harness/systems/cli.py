@@ -1,4 +1,5 @@
-"""System descriptions (scenarios/systems/*.toml) -> SSP packages, and a small command line.
+"""System descriptions (scenarios/systems/*.toml) -> SSP packages, and the command
+``python -m harness system`` (harness/__main__.py hands its arguments to ``main`` here).
 
 A description names the components' FMUs (relative to the FMU folder, default dist/), their
 start values, and the connections by "Component.variable":
@@ -14,20 +15,24 @@ start values, and the connections by "Component.variable":
 
 Command line (docs/systems.md):
 
-    python -m harness.systems.cli build scenarios/systems/ato_span.toml out/ato_span.ssp
-    python -m harness.systems.cli run out/ato_span.ssp [--master ours|libcosim] [--stop S] [--csv F]
+    python -m harness system build scenarios/systems/ato_span.toml out/ato_span.ssp
+    python -m harness system run out/ato_span.ssp [--master ours|libcosim] [--stop S] [--csv F]
         [--output Component.variable ...]
 
+Every error in a description, also one found against the FMUs while building (an unknown
+variable, a unit mismatch), names the TOML file, the line where it can and the key
+(``ato_span.toml: line 12: [connections] 3 (ato.x -> car.y): ...``), not the .ssp being written.
 Exit codes: 0 done, 1 a failed run (MasterError), 2 invalid input (SspError and other InputError).
 """
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import tomllib
 from pathlib import Path
 
-from harness.systems.ssp import Component, Connection, SspError, SystemSpec, write_ssp
+from harness.systems.ssp import Component, Connection, SspError, SystemSpec, Where, write_ssp
 from harness.textio import read_text
 
 __all__ = ["load_system", "build_system", "main"]
@@ -35,64 +40,157 @@ __all__ = ["load_system", "build_system", "main"]
 ROOT = Path(__file__).resolve().parents[2]
 DIST = ROOT / "dist"
 KEYS = {"name", "description", "step_s", "start_s", "stop_s", "components", "connections"}
+PROG = "python -m harness system"
+_TABLE_HEADER = re.compile(r"""\s*\[{1,2}[\w\s."'-]+\]{1,2}\s*(#.*)?$""")     # [a.b] or [[a]], not ["x", "y"],
+
+
+class TomlWhere(Where):
+    """Where each part of a system is in its TOML description: the file, the line (found in the
+    text: tomllib gives lines for syntax errors only) and the key or table. Without a line (a key
+    written in a way the search does not know) the message names the key alone."""
+
+    def __init__(self, path: Path, text: str):
+        super().__init__(path)
+        self.lines = text.splitlines()
+        self.connections: list[Connection] = []        # set once read: to tell a pair written twice
+
+    def _at(self, line: int | None, what: str) -> str:
+        return f"{self.file}: line {line}: {what}" if line else f"{self.file}: {what}"
+
+    def _find(self, pattern: str, start: int = 0, stop: int | None = None) -> int | None:
+        """The line number (from 1) of the first line in [start, stop) that matches ``pattern``."""
+        rx = re.compile(pattern)
+        for i, line in enumerate(self.lines[start:stop], start):
+            if not line.lstrip().startswith("#") and rx.search(line):
+                return i + 1
+        return None
+
+    def key_line(self, key: str) -> int | None:
+        """The line of a top-level ``key = ...``."""
+        return self._find(rf"^\s*{re.escape(key)}\s*=")
+
+    def key(self, key: str) -> str:
+        return self._at(self.key_line(key), key)
+
+    def system(self, key: str) -> str:
+        name = {"name": "name", "step": "step_s"}.get(key, key)
+        return self.key(name)
+
+    def _component_lines(self, name: str) -> tuple[int | None, int]:
+        """(line of the [components.NAME] header, end of its table as a line index)."""
+        header = self._find(rf'^\s*\[\s*components\s*\.\s*"?{re.escape(name)}"?\s*\]')
+        if header is None:
+            return None, 0
+        end = next((i for i in range(header, len(self.lines)) if _TABLE_HEADER.match(self.lines[i])), len(self.lines))
+        return header, end
+
+    def component(self, name: str) -> str:
+        return self._at(self._component_lines(name)[0], f"[components.{name}]")
+
+    def parameters(self, component: str) -> str:
+        header, end = self._component_lines(component)
+        line = self._find(r"^\s*parameters\s*=", header, end) if header else None
+        return self._at(line or header, f"[components.{component}] parameters")
+
+    def parameter(self, component: str, name: str) -> str:
+        header, end = self._component_lines(component)
+        key = rf'(^|[\s{{,])("{re.escape(name)}"|{re.escape(name)})\s*='
+        line = self._find(key, header, end) if header else None
+        return self._at(line or header, f'[components.{component}] parameters."{name}"')
+
+    def connection(self, number: int, conn: Connection | None = None) -> str:
+        """The ``number``-th pair (from 1) of ``connections``: the line that holds it."""
+        line = self.key_line("connections")
+        if line and conn is not None:
+            pair = rf'\[\s*"{re.escape(conn.start)}"\s*,\s*"{re.escape(conn.end)}"\s*\]'
+            rx, seen = re.compile(pair), 0
+            occurrence = self._occurrence(number, conn)
+            for i in range(line - 1, len(self.lines)):
+                seen += len(rx.findall(self.lines[i]))
+                if seen >= occurrence:
+                    line = i + 1
+                    break
+        what = f"[connections] {number}" + (f" ({conn})" if conn is not None else "")
+        return self._at(line, what)
+
+    def _occurrence(self, number: int, conn: Connection) -> int:
+        """How many times the pair ``conn`` appears among the first ``number`` pairs (a pair
+        written twice: the second is the one meant)."""
+        return sum(c == conn for c in self.connections[:number])
 
 
 def load_system(path: str | Path, dist: str | Path = DIST) -> SystemSpec:
-    """A SystemSpec from a TOML description; FMU paths relative to ``dist``. Errors name the file
-    and the key (SspError)."""
-    path = Path(path)
+    """A SystemSpec from a TOML description; FMU paths relative to ``dist``. Errors name the file,
+    the line and the key (SspError)."""
+    return _load(Path(path), Path(dist))[0]
+
+
+def _load(path: Path, dist: Path) -> tuple[SystemSpec, TomlWhere]:
+    """The system of a description and where its parts are written in it."""
+    text = read_text(path, SspError)
     try:
-        data = tomllib.loads(read_text(path, SspError))
-    except tomllib.TOMLDecodeError as e:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:          # its message ends "(at line L, column C)"
         raise SspError(f"{path}: not valid TOML: {e}") from None
+    where = TomlWhere(path, text)
     unknown = sorted(set(data) - KEYS)
     if unknown:
-        raise SspError(f"{path}: unknown key(s) {', '.join(unknown)} (expected {', '.join(sorted(KEYS))})")
+        raise SspError(f"{where.key(unknown[0])}: unknown key{'s ' + ', '.join(unknown) if len(unknown) > 1 else ''} "
+                       f"(expected {', '.join(sorted(KEYS))})")
     for key in ("name", "step_s", "components"):
         if key not in data:
             raise SspError(f"{path}: '{key}' is missing")
     comps = data["components"]
     if not isinstance(comps, dict) or not comps:
-        raise SspError(f"{path}: [components.NAME] tables expected")
+        raise SspError(f"{where.key('components')}: [components.NAME] tables expected")
     components = []
     for name, table in comps.items():
-        where = f"{path}: [components.{name}]"
         if not isinstance(table, dict) or "fmu" not in table:
-            raise SspError(f"{where}: 'fmu' is missing")
+            raise SspError(f"{where.component(name)}: 'fmu' is missing")
         extra = sorted(set(table) - {"fmu", "parameters"})
         if extra:
-            raise SspError(f"{where}: unknown key(s) {', '.join(extra)} (expected fmu, parameters)")
+            raise SspError(f"{where.component(name)}: unknown key(s) {', '.join(extra)} (expected fmu, parameters)")
         params = table.get("parameters", {})
         if not isinstance(params, dict):
-            raise SspError(f"{where}: 'parameters' must be a table")
+            raise SspError(f"{where.parameters(name)}: must be a table ({{\"name\" = value, ...}})")
+        if not isinstance(table["fmu"], str):
+            raise SspError(f"{where.component(name)}: 'fmu' must be a file name (relative to --dist)")
         fmu = Path(table["fmu"])
-        components.append(Component(name, fmu if fmu.is_absolute() else Path(dist) / fmu, dict(params)))
+        components.append(Component(name, fmu if fmu.is_absolute() else dist / fmu, dict(params)))
+    pairs = data.get("connections", [])
+    if not isinstance(pairs, list):
+        raise SspError(f"{where.key('connections')}: expected a list of [\"Component.output\", \"Component.input\"]")
     connections = []
-    for k, pair in enumerate(data.get("connections", []), 1):
+    for k, pair in enumerate(pairs, 1):
         if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
-            raise SspError(f"{path}: connections[{k}]: expected [\"Component.output\", \"Component.input\"]")
+            raise SspError(f"{where.connection(k)}: expected [\"Component.output\", \"Component.input\"], "
+                           f"got {pair!r}")
         connections.append(Connection(*pair))
+    where.connections = connections
     numbers = {}
     for key in ("step_s", "start_s", "stop_s"):
         value = data.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
-            raise SspError(f"{path}: '{key}' must be a number of seconds")
+            raise SspError(f"{where.key(key)}: must be a number of seconds, got {value!r}")
         numbers[key] = value
-    return SystemSpec(str(data["name"]), components, connections, numbers["step_s"],
+    spec = SystemSpec(str(data["name"]), components, connections, numbers["step_s"],
                       numbers["start_s"] or 0.0, numbers["stop_s"], str(data.get("description", "")))
+    return spec, where
 
 
 def build_system(description: str | Path, out: str | Path, dist: str | Path = DIST) -> Path:
-    """Write the .ssp of a TOML description (checked against its FMUs)."""
-    spec = load_system(description, dist)
+    """Write the .ssp of a TOML description, checked against its FMUs; an error names the
+    description's file, line and key."""
+    spec, where = _load(Path(description), Path(dist))
     for c in spec.components:
         if not Path(c.fmu).is_file():
-            raise SspError(f"{description}: [components.{c.name}]: FMU file not found: {c.fmu} (build the "
+            raise SspError(f"{where.component(c.name)}: FMU file not found: {c.fmu} (build the "
                            f"FMUs with: python build.py; --dist names another folder)")
-    return write_ssp(spec, out)
+    return write_ssp(spec, out, where)
 
 
-def main(argv=None, prog: str = "python -m harness.systems.cli") -> int:
+def main(argv=None, prog: str = PROG) -> int:
+    """``python -m harness system build|run ...``; the exit code."""
     from harness.systems.master import MasterError, report_failure, run_system
     p = argparse.ArgumentParser(prog=prog,
                                 description="Build an SSP system from a description, or run one.")
@@ -135,5 +233,6 @@ def main(argv=None, prog: str = "python -m harness.systems.cli") -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+
+if __name__ == "__main__":           # the one spelling of the command is python -m harness system
+    sys.exit(f"the systems command is: {PROG} build|run ... ({PROG} -h)")

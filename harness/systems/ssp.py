@@ -23,6 +23,7 @@ against the SSP 1.0 schema.
 """
 from __future__ import annotations
 
+import difflib
 import io
 import math
 import re
@@ -34,7 +35,7 @@ from xml.etree import ElementTree as ET
 
 from harness.textio import InputError
 
-__all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec",
+__all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
            "read_ssp", "write_ssp", "ssp_type", "unit_of", "split_name"]
 
 SSD_NAME = "SystemStructure.ssd"
@@ -93,19 +94,53 @@ class LoadedSystem:
 
     def variable(self, full: str, what: str = ""):
         """The model variable of "Component.variable"; SspError naming ``what`` if unknown."""
-        comp, var = split_name(full)
         where = f"{self.path}: {what}" if what else str(self.path)
+        comp, var = split_name(full, where)
         if comp not in self.models:
             raise SspError(f"{where}: no component named '{comp}'")
         return _variable(self.models[comp], comp, var, where)
 
 
-def split_name(full: str) -> tuple[str, str]:
-    """"Component.variable" -> ("Component", "variable") (component names have no dot)."""
+def split_name(full: str, where: str = "") -> tuple[str, str]:
+    """"Component.variable" -> ("Component", "variable") (component names have no dot); an error
+    starts with ``where``."""
     comp, dot, var = full.partition(".")
     if not dot or not comp or not var:
-        raise SspError(f"'{full}': expected Component.variable")
+        raise SspError(f"{where}: '{full}': expected Component.variable" if where else
+                       f"'{full}': expected Component.variable")
     return comp, var
+
+
+class Where:
+    """Where each part of a system was written, for the start of an error message: here the elements
+    of an SSP file (``file``: the .ssp, or its SystemStructure.ssd). harness.systems.cli's
+    TomlWhere names a description's keys, tables and lines instead, so that an error found while
+    building a system from a TOML description names the TOML file, not the .ssp being written."""
+
+    def __init__(self, file: str | Path):
+        self.file = str(file)
+
+    def system(self, key: str) -> str:
+        """The system's ``name`` or ``step``."""
+        return f"{self.file}: system name" if key == "name" else f"{self.file}: {key}"
+
+    def component(self, name: str) -> str:
+        return f"{self.file}: component '{name}'"
+
+    def parameters(self, component: str) -> str:
+        """The parameter set of ``component``."""
+        return f"{self.file}: parameter binding of '{component}'"
+
+    def parameter(self, component: str, name: str) -> str:
+        return f"{self.file}: parameter binding {component}.{name}"
+
+    def connection(self, number: int, conn: Connection) -> str:
+        """The ``number``-th connection (from 1)."""
+        return f"{self.file}: connection {number} ({conn})"
+
+
+def _where(where: str | Path | Where) -> Where:
+    return where if isinstance(where, Where) else Where(where)
 
 
 # ------------------------------------------------------------------------- FMU variables
@@ -131,7 +166,9 @@ def _variable(md, comp: str, name: str, where: str):
     for v in md.modelVariables:
         if v.name == name:
             return v
-    raise SspError(f"{where}: component '{comp}' ({md.modelName}) has no variable '{name}'")
+    close = difflib.get_close_matches(name, [v.name for v in md.modelVariables], n=1, cutoff=0.6)
+    raise SspError(f"{where}: component '{comp}' ({md.modelName}) has no variable '{name}'"
+                   + (f"; did you mean '{close[0]}'?" if close else ""))
 
 
 def _interface(md) -> list:
@@ -186,30 +223,32 @@ def _text(value, typ: str) -> str:
 
 # ------------------------------------------------------------------------------ checking
 
-def check_system(spec: SystemSpec, models: Mapping[str, object], where: str) -> SystemSpec:
+def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Path | Where) -> SystemSpec:
     """Check ``spec`` against the components' model descriptions; returns it with every
-    parameter value converted to its variable's type. SspError names ``where`` and the element."""
+    parameter value converted to its variable's type. SspError names the element where ``where``
+    (a file name: an SSP file's elements; or a Where) says it was written."""
+    where = _where(where)
     if not NAME_RE.match(spec.name or ""):
-        raise SspError(f"{where}: system name {spec.name!r}: letters, digits and _ only")
+        raise SspError(f"{where.system('name')} {spec.name!r}: letters, digits and _ only")
     if not (isinstance(spec.step, (int, float)) and math.isfinite(spec.step) and spec.step > 0):
-        raise SspError(f"{where}: step {spec.step!r}: expected a step > 0 [s]")
+        raise SspError(f"{where.system('step')} {spec.step!r}: expected a step > 0 [s]")
     if round(spec.step * 1e9) < 1:
-        raise SspError(f"{where}: step {spec.step!r} is below 1 ns")
+        raise SspError(f"{where.system('step')} {spec.step!r} is below 1 ns")
     seen: set[str] = set()
     components = []
     for c in spec.components:
         if not NAME_RE.match(c.name or ""):
-            raise SspError(f"{where}: component name {c.name!r}: letters, digits and _ only (no dot)")
+            raise SspError(f"{where.component(c.name)}: a component name has letters, digits and _ only (no dot)")
         if c.name in seen:
-            raise SspError(f"{where}: component '{c.name}' appears twice")
+            raise SspError(f"{where.component(c.name)} appears twice")
         seen.add(c.name)
         md = models[c.name]
         if md.coSimulation is None:
-            raise SspError(f"{where}: component '{c.name}' ({c.fmu}): not a co-simulation FMU")
+            raise SspError(f"{where.component(c.name)} ({c.fmu}): not a co-simulation FMU")
         params = {}
         for name, value in c.parameters.items():
-            v = _variable(md, c.name, name, f"{where}: parameter binding of '{c.name}'")
-            what = f"{where}: parameter binding {c.name}.{name}"
+            v = _variable(md, c.name, name, where.parameters(c.name))
+            what = where.parameter(c.name, name)
             if v.causality not in ("parameter", "input"):
                 raise SspError(f"{what}: '{name}' is an {v.causality}, not a parameter or input")
             if v.variability == "constant":
@@ -221,10 +260,10 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str) -> 
         components.append(Component(c.name, c.fmu, params))
     driven: dict[str, Connection] = {}
     for k, conn in enumerate(spec.connections, 1):
-        what = f"{where}: connection {k} ({conn})"
+        what = where.connection(k, conn)
         ends = []
         for full, kind in ((conn.start, "output"), (conn.end, "input")):
-            comp, name = split_name(full)
+            comp, name = split_name(full, what)
             if comp not in models:
                 raise SspError(f"{what}: no component named '{comp}'")
             v = _variable(models[comp], comp, name, what)
@@ -348,20 +387,23 @@ def _read_md(data_or_path, where: str):
         raise SspError(f"{where}: not a readable FMU ({type(e).__name__}: {e})") from None
 
 
-def write_ssp(spec: SystemSpec, path: str | Path) -> Path:
-    """Check ``spec`` against its FMUs and write it as an .ssp package at ``path``."""
+def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) -> Path:
+    """Check ``spec`` against its FMUs and write it as an .ssp package at ``path``. Errors in the
+    system name the element where ``where`` says it was written (default: in the .ssp)."""
     path = Path(path)
+    where = where or Where(path)
     models, sources, used = {}, {}, {}
     for c in spec.components:
         fmu = Path(c.fmu)
         if not fmu.is_file():
-            raise SspError(f"{path}: component '{c.name}': FMU file not found: {fmu}")
-        models[c.name] = _read_md(fmu, f"{path}: component '{c.name}' ({fmu})")
+            raise SspError(f"{where.component(c.name)}: FMU file not found: {fmu}")
+        models[c.name] = _read_md(fmu, f"{where.component(c.name)} ({fmu})")
         source = f"resources/{fmu.name}"
         if source in used and Path(used[source]).resolve() != fmu.resolve():
-            raise SspError(f"{path}: components '{c.name}' and another use two FMU files named {fmu.name}")
+            raise SspError(f"{where.component(c.name)}: this and another component use two FMU files named "
+                           f"{fmu.name} (an .ssp holds one file of a name)")
         used[source], sources[c.name] = fmu, source
-    spec = check_system(spec, models, str(path))
+    spec = check_system(spec, models, where)
     tmp = path.with_name(path.name + ".part")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

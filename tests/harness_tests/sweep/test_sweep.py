@@ -1,4 +1,4 @@
-"""Parameter sweeps (harness/sweep/main.py and its parts, harness/sweep_*.py): sweep files, Latin
+"""Parameter sweeps (harness/sweep/main.py and its parts in harness/sweep/): sweep files, Latin
 hypercube, instance reuse, and whole sweeps through the CLI on an embedded local cluster and on
 a real dask scheduler with two worker processes (one of them killed mid-sweep), plus an
 interrupted sweep resumed.
@@ -24,6 +24,7 @@ import pytest
 
 from harness.run.scenario import load_scenario
 from harness.sweep.execute import ReusableRunner, execute_run
+from harness.sweep.plots import PLOT_GROUPS
 from harness.sweep.results import ResultsWriter, read_results
 from harness.sweep.spec import SweepError, latin_hypercube, load_sweep
 from harness.sweep.table import CALIBRATION_COLUMNS, calibration, flatten_summary, metric_columns, sweep_columns
@@ -61,7 +62,10 @@ BASE = f'scenario = "{LEVEL.as_posix()}"\n'
     ("seeds = 2\n", "scenario: give the base scenario"),
     ('scenario = "nope.toml"\nseeds = 2\n', "scenario: cannot read"),
     (BASE, "nothing to sweep"),
-    (BASE + '[grid]\n"car.mas" = [1.0]\n', 'grid."car.mas": not a RailCar parameter'),
+    (BASE + '[grid]\n"car.mas" = [1.0]\n', 'grid."car.mas": not a RailCar parameter (docs/variables.md lists them)'),
+    (BASE + '[grid]\n"car.mas" = [1.0]\n', "wind[i].speed_mps); did you mean 'car.mass'?"),
+    (BASE + '[fixed]\nduration = 30.0\n[grid]\n"car.mass" = [1.0]\n', "did you mean 'duration_s'?"),
+    (BASE + '[grid]\n"driver[0].until_speed_km" = [40.0]\n', "did you mean 'until_speed_kmh'?"),
     (BASE + '[grid]\n"car.mass" = ["heavy"]\n', 'grid."car.mass": expected a finite number'),
     (BASE + '[grid]\n"seed" = [1.5]\n', 'grid."seed": expected an integer'),
     (BASE + '[grid]\n"car.mass" = []\n', 'grid."car.mass": empty list'),
@@ -87,6 +91,13 @@ def test_invalid_sweep_files_name_file_key_and_reason(tmp_path, text, needle):
     with pytest.raises(SweepError) as e:
         load_sweep(p)
     assert "my_sweep.toml" in str(e.value) and needle in str(e.value), str(e.value)
+
+
+def test_a_name_close_to_none_gets_no_guess(tmp_path):
+    p = write(tmp_path, BASE + '[grid]\n"colour" = [1.0]\n', "my_sweep.toml")
+    with pytest.raises(SweepError) as e:
+        load_sweep(p)
+    assert "not a RailCar parameter" in str(e.value) and "did you mean" not in str(e.value)
 
 
 def test_runs_are_the_product_of_the_blocks_seeds_fastest(tmp_path):
@@ -285,9 +296,12 @@ def test_embedded_sweep_writes_rows_summary_and_plots(embedded):
     assert "speed_rmse_filter [m/s]" in header and "mass_errors_at_stops_pct.max_abs [%]" in header
     assert "calibration: truth inside" in stdout and "6 x (runs 0, 1, 2, 3, 4, ...)" in stdout
     assert (out / "summary.md").is_file()
-    plots = sorted(p.name for p in (out / "plots").glob("*.png"))
-    assert plots == ["heatmap_car.mass__driver_0_.until_speed_kmh.png", "histograms.png",
-                     "vs_car.mass.png", "vs_driver_0_.until_speed_kmh.png"]
+    plots = {p.name for p in (out / "plots").glob("*.png")}
+    kinds = ("heatmap_car.mass__driver_0_.until_speed_kmh", "histograms", "vs_car.mass",
+             "vs_driver_0_.until_speed_kmh")
+    groups = {g for g, _, _ in PLOT_GROUPS if f"{g}_histograms.png" in plots}
+    assert {"mass", "filter_accuracy"} <= groups                  # each group: one figure of each kind
+    assert plots == {f"{g}_{k}.png" for g in groups for k in kinds}
 
 
 def test_parquet_holds_the_csv_rows(embedded):
