@@ -4,7 +4,7 @@ libcosimpy: the independent check of our own master (harness.systems.master), th
 libcosim loads the .ssp itself (CosimExecution.from_ssp_file): its components, connections and
 parameter sets; we only pass the step in integer nanoseconds (harness.systems.master.to_ns, as libcosim
 reads the file's baseStepSize) and observe the outputs with a time-series observer, whose first
-sample is the values after initialisation. The file is read with harness.systems.ssp.read_ssp first, so a
+sample is the values after initialisation. The file is read with harness.systems.ssp_read.read_ssp first, so a
 bad system is refused with our message before libcosim sees it (libcosim only logs a warning for
 a parameter it cannot set, and aborts the whole process when an FMU fails initialisation:
 check parameters with our master first, or pass ``isolated=True``: the run then happens in a child
@@ -28,7 +28,8 @@ import numpy as np
 
 from harness.systems.master import (MasterError, Result, check_outputs, default_outputs, report_failure, steps_for,
                      time_grid, to_ns)
-from harness.systems.ssp import LoadedSystem, SspError, read_ssp, split_name, ssp_type, unit_of
+from harness.systems.ssp import LoadedSystem, SspError, split_name, ssp_type, unit_of
+from harness.systems.ssp_read import read_ssp
 
 __all__ = ["LibcosimMissing", "run_libcosim"]
 

@@ -37,7 +37,8 @@ from typing import Sequence
 
 import numpy as np
 
-from harness.systems.ssp import LoadedSystem, SspError, TYPES, read_ssp, split_name, ssp_type, unit_of
+from harness.systems.ssp import LoadedSystem, SspError, TYPES, split_name, ssp_type, unit_of
+from harness.systems.ssp_read import read_ssp
 
 __all__ = ["MasterError", "Result", "run_system", "time_grid", "plan_reads", "default_outputs",
            "report_failure"]
@@ -302,7 +303,7 @@ def _needs_python(system: LoadedSystem) -> bool:
 def run_system(system: LoadedSystem | str | Path, stop_time: float | None = None,
                n_steps: int | None = None, outputs: Sequence[str] | None = None,
                unzip_root: str | Path | None = None) -> Result:
-    """Run an SSP system (a path, or what harness.systems.ssp.read_ssp gave) to ``stop_time`` (or for
+    """Run an SSP system (a path, or what harness.systems.ssp_read.read_ssp gave) to ``stop_time`` (or for
     ``n_steps``, or to the file's stopTime) and return ``outputs`` ("Component.variable"; default
     every output) over time."""
     if not isinstance(system, LoadedSystem):

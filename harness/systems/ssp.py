@@ -36,7 +36,7 @@ from xml.etree import ElementTree as ET
 from harness.textio import InputError
 
 __all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
-           "read_ssp", "write_ssp", "ssp_type", "unit_of", "split_name"]
+           "write_ssp", "ssp_type", "unit_of", "split_name"]
 
 SSD_NAME = "SystemStructure.ssd"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -98,7 +98,7 @@ class LoadedSystem:
         comp, var = split_name(full, where)
         if comp not in self.models:
             raise SspError(f"{where}: no component named '{comp}'")
-        return _variable(self.models[comp], comp, var, where)
+        return find_variable(self.models[comp], comp, var, where)
 
 
 def split_name(full: str, where: str = "") -> tuple[str, str]:
@@ -162,7 +162,9 @@ def unit_of(variable) -> str:
                              and getattr(variable.declaredType, "unit", None) else "") or ""
 
 
-def _variable(md, comp: str, name: str, where: str):
+def find_variable(md, comp: str, name: str, where: str):
+    """The variable ``name`` of component ``comp``'s model description; SspError naming ``where`` (and the
+    closest names) if it has none."""
     for v in md.modelVariables:
         if v.name == name:
             return v
@@ -247,7 +249,7 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Pa
             raise SspError(f"{where.component(c.name)} ({c.fmu}): not a co-simulation FMU")
         params = {}
         for name, value in c.parameters.items():
-            v = _variable(md, c.name, name, where.parameters(c.name))
+            v = find_variable(md, c.name, name, where.parameters(c.name))
             what = where.parameter(c.name, name)
             if v.causality not in ("parameter", "input"):
                 raise SspError(f"{what}: '{name}' is an {v.causality}, not a parameter or input")
@@ -266,7 +268,7 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Pa
             comp, name = split_name(full, what)
             if comp not in models:
                 raise SspError(f"{what}: no component named '{comp}'")
-            v = _variable(models[comp], comp, name, what)
+            v = find_variable(models[comp], comp, name, what)
             if v.causality != kind:
                 raise SspError(f"{what}: {full} is an {v.causality}; a connection goes from an "
                                f"output to an input")
@@ -310,7 +312,7 @@ def _ssv(comp: Component, md) -> bytes:
     params = ET.SubElement(root, "ssv:Parameters")
     units = {}
     for name, value in comp.parameters.items():
-        v = _variable(md, comp.name, name, "")
+        v = find_variable(md, comp.name, name, "")
         typ = ssp_type(v)
         p = ET.SubElement(params, "ssv:Parameter", name=name)
         attrs = {"value": _text(value, typ)}
@@ -378,7 +380,8 @@ def _ssd(spec: SystemSpec, models: Mapping[str, object], sources: Mapping[str, s
     return _xml(root)
 
 
-def _read_md(data_or_path, where: str):
+def read_model_description_of(data_or_path, where: str):
+    """fmpy's model description of an FMU (bytes or a path); SspError naming ``where`` if unreadable."""
     from fmpy import read_model_description
     try:
         src = io.BytesIO(data_or_path) if isinstance(data_or_path, bytes) else str(data_or_path)
@@ -397,7 +400,7 @@ def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) ->
         fmu = Path(c.fmu)
         if not fmu.is_file():
             raise SspError(f"{where.component(c.name)}: FMU file not found: {fmu}")
-        models[c.name] = _read_md(fmu, f"{where.component(c.name)} ({fmu})")
+        models[c.name] = read_model_description_of(fmu, f"{where.component(c.name)} ({fmu})")
         source = f"resources/{fmu.name}"
         if source in used and Path(used[source]).resolve() != fmu.resolve():
             raise SspError(f"{where.component(c.name)}: this and another component use two FMU files named "
@@ -420,8 +423,3 @@ def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) ->
         raise SspError(f"{path}: cannot write: {e.strerror or e}") from None
     return path
 
-
-def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
-    """Read and check an .ssp package (harness.systems.ssp_read.read_ssp); ``step`` overrides the file's."""
-    from harness.systems.ssp_read import read_ssp as read
-    return read(path, step)

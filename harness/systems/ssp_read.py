@@ -14,7 +14,7 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from harness.systems.ssp import (NS, OSP_ANNOTATION, SSD_NAME, TYPES, Component, Connection, LoadedSystem, SspError,
-                  SystemSpec, _read_md, _variable, check_system, ssp_type, unit_of)
+                  SystemSpec, check_system, find_variable, read_model_description_of, ssp_type, unit_of)
 
 __all__ = ["read_ssp"]
 
@@ -131,7 +131,7 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                 raise SspError(f"{cwhere}: FMU '{source}' is not in the package")
             if cname in models:
                 raise SspError(f"{ssd_where}: component '{cname}' appears twice")
-            md = models[cname] = _read_md(z.read(source), f"{cwhere} ({source})")
+            md = models[cname] = read_model_description_of(z.read(source), f"{cwhere} ({source})")
             declared[cname] = _check_connectors(el, md, cname, cwhere)
             params = {}
             bindings = el.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS)
@@ -154,7 +154,7 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                                        f"found {len(sets)}")
                     entries = _parameter_set(sets[0], swhere)
                 for pname, typ, text, unit in entries:
-                    v = _variable(md, cname, pname, f"{swhere}: parameter '{pname}'")
+                    v = find_variable(md, cname, pname, f"{swhere}: parameter '{pname}'")
                     if ssp_type(v) != typ:
                         raise SspError(f"{swhere}: parameter '{pname}': type mismatch: ssv:{typ} for "
                                        f"{cname}.{pname}, which is {v.type}")
@@ -199,7 +199,7 @@ def _check_connectors(el, md, cname: str, where: str) -> set[str]:
         name = _attr(k, "name", where)
         kw = f"{where}: connector '{name}'"
         kind = _attr(k, "kind", kw)
-        v = _variable(md, cname, name, kw)
+        v = find_variable(md, cname, name, kw)
         if kind != v.causality:
             raise SspError(f"{kw}: kind '{kind}', but the FMU's variable is an {v.causality}")
         typ, unit = _connector_type(k, kw)

@@ -24,7 +24,8 @@ import numpy as np
 import pytest
 
 from harness.systems.master import MasterError, Result, run_system, time_grid
-from harness.systems.ssp import Component, Connection, SspError, SystemSpec, read_ssp, write_ssp
+from harness.systems.ssp import Component, Connection, SspError, SystemSpec, write_ssp
+from harness.systems.ssp_read import read_ssp
 
 pytest.importorskip("libcosimpy")
 from harness.systems.libcosim import run_libcosim  # noqa: E402

@@ -9,7 +9,8 @@ from __future__ import annotations
 import pytest
 
 from conftest import ROOT
-from harness.systems.ssp import SspError, read_ssp
+from harness.systems.ssp import SspError
+from harness.systems.ssp_read import read_ssp
 from harness.systems.cli import build_system, load_system, main
 from test_ssp_master import ato_system, plant_estimator
 
