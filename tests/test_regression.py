@@ -97,8 +97,8 @@ def test_the_library_has_the_ato_scenarios():
 @pytest.mark.parametrize("name", ATO_NAMES)
 def test_the_ato_scenario_meets_the_atos_targets(library_results, name):
     """Every span, on the FMU: arrived, |arrival error| <= 2.5 s, |stop error| <= 0.3 m, never
-    over V_lim, no safety intervention (library_report's bounds, seeds 003 and 004). The
-    message gives the measured figures."""
+    over V_lim, no safety intervention (library_report's bounds, Meleshin 2011 and Sidorenko
+    1997). The message gives the measured figures."""
     from harness.metrics.ato import format_ato
     (row,) = library_rows([(load_scenario(LIBRARY_PATHS[name]), library_results[name])])
     assert row.ato, name

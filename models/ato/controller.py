@@ -1,6 +1,6 @@
 """The automatic train operation (ATO) for one span, closed around the estimator's outputs:
-a running-time regulator that re-plans seed 003's energy-efficient run, targeted stopping with
-seed 004's relay-controlled electro-pneumatic brake, and a speed supervisor.
+a running-time regulator that re-plans Meleshin's (2011) energy-efficient run, targeted stopping
+with Sidorenko's (1997) relay-controlled electro-pneumatic brake, and a speed supervisor.
 
 ``AtoController(span, car, tuning)`` is built once per span; each communication step
 ``demands(t, outputs)`` takes the time [s] and the RailCar (or RailCarEstimator) FMU's outputs
@@ -11,11 +11,11 @@ What it reads (and nothing else: not the truth car.*, whose grade it knows from 
 filter.speed, filter.position, filter.speed_std, filter.position_std (the motion filter),
 est.mass, est.A0..A2, est.status, est.samples (the identification).
 
-**Running-time regulator** (seed 003 ch. 4 uses a fuzzy regulator with predictive traction
+**Running-time regulator** (Meleshin 2011, ch. 4, uses a fuzzy regulator with predictive traction
 calculation; ours is its model-predictive form). Every ``replan_period`` seconds the rest of
 the span is re-planned from the filter's speed and position, with the identified mass and
 resistance when est.status says they are usable (else the configured ones), by
-models/ato/planner.py: seed 003's maximum-principle structure solved for the holding speed V_c
+models/ato/planner.py: Meleshin's maximum-principle structure solved for the holding speed V_c
 that arrives on schedule (milliseconds; the full synthesis takes seconds). Between re-plans the
 controller executes the plan's *policy*, not its timetable: full traction below V_c, holding
 V_c by traction, coasting on a descent up to V_r and holding V_r by the regenerative brake,
@@ -166,7 +166,8 @@ class AtoController:
     def _supervision(self, mass: float) -> list:
         """The supervision curve's V^2 on the course nodes: V_lim (no margin) and the full-brake
         curves (brake_force_max, no resistance, (1 + mass_reserve) x mass) to every lower limit
-        ahead and to 1 m past the stop mark (seed 004's 'never past +1 m' as a hard line)."""
+        ahead and to 1 m past the stop mark (Sidorenko's (1997) 'never past +1 m' as a hard
+        line)."""
         c, car, span = self.course, self.car, self.span
         self._sup_mass = mass
         m = 1000.0 * mass * (1.0 + self.tuning.mass_reserve) * (1.0 + car.gamma)
@@ -457,7 +458,7 @@ class AtoController:
         return u, a_u
 
     def _stop_ep(self, t, s, v, sd, d, car, g) -> AtoCommand:  # d: to the aim point
-        """Below v_relay: seed 004's relay stages; the holding brake once the car stands."""
+        """Below v_relay: Sidorenko's (1997) relay stages; the holding brake once the car stands."""
         tn = self.tuning
         settle = self._settle and not self.settled
         # after the stand, one creep: once it has crept and the relay braked, the car stands

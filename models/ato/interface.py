@@ -17,7 +17,8 @@ INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "es
 
 
 class AtoMode(IntEnum):
-    """AtoCommand.mode. 0..6 are seed 003 Table 2's modes (models.planning.engine.Mode)."""
+    """AtoCommand.mode. 0..6 are the modes of Meleshin's (2011) Table 2
+    (models.planning.engine.Mode)."""
     TG = 0          # full traction
     C = 1           # speed holding by traction
     VB = 2          # coasting
@@ -56,7 +57,8 @@ class AtoTuning:
     mass_band: float = 1.6            # est.mass used within [car.mass / this, car.mass x this]
     #                                   (the library's cars: 24 t empty to 44 t crush-loaded)
     limit_margin: float = 0.5         # [m/s] planned speeds stay this far below V_lim
-    #                                   (1.8 km/h, about seed 003's 2 % speed error at 80 km/h)
+    #                                   (1.8 km/h, about Meleshin's (2011) 2 % speed error at
+    #                                   80 km/h)
     k_sigma: float = 3.0              # supervisor: filter.speed + k_sigma * filter.speed_std
     gap_sigma: float = 2.5            # and gap_sigma x filter.speed_std more: under speed noise
     #                                   filter.speed jumps by up to ~2 sigma in one update (0.4

@@ -1,5 +1,5 @@
-"""The ATO's fast re-planner: seed 003's energy-efficient structure for the rest of a span, solved
-for the holding speed V_c in milliseconds, from any state (s, V, t) and for any mass and
+"""The ATO's fast re-planner: Meleshin's (2011) energy-efficient structure for the rest of a span,
+solved for the holding speed V_c in milliseconds, from any state (s, V, t) and for any mass and
 resistance (models/ato/controller.py calls it every few seconds with the estimator's values).
 
 It is the maximum-principle synthesis of models/planning/max_principle.py reduced to what a running-time
@@ -16,9 +16,9 @@ regulator needs, in plain scalar Python:
   zone instead of a coast into it (synthesize tries every such choice), the jump of p at state
   constraints (synthesize leaves it out too);
 - its own final braking curve: the service brake (``brake_share`` of the regenerative brake, so
-  that the tracking controller keeps a reserve) down to ``v_relay`` (7 km/h: where seed 003's
+  that the tracking controller keeps a reserve) down to ``v_relay`` (7 km/h: where Meleshin's
   electric brake fades), then the constant deceleration ``a_ep`` of the electro-pneumatic
-  stage to the stop mark (the curve models/ato/stopping.py tracks with seed 004's relay).
+  stage to the stop mark (the curve models/ato/stopping.py tracks with Sidorenko's (1997) relay).
 
 The envelope U(s) (limits less ``limit_margin``, braking curves to every lower limit ahead and
 to the stop mark) is recomputed for each re-plan's mass and resistance: a heavier car brakes

@@ -1,10 +1,10 @@
-"""Targeted stopping for the ATO (models/ato/controller.py): the braking curve to the stop mark and seed 004's
-multi-stage relay control of the electro-pneumatic brake at the end of it.
+"""Targeted stopping for the ATO (models/ato/controller.py): the braking curve to the stop mark and
+Sidorenko's (1997) multi-stage relay control of the electro-pneumatic brake at the end of it.
 
-Seed 004 (Sidorenko 1997, ch. 4): braking follows a programmed speed-vs-distance curve to the
+Sidorenko (1997, ch. 4): braking follows a programmed speed-vs-distance curve to the
 stop mark; the electro-pneumatic stage at the end used to run open-loop; switching that brake on
 and off in several stages by comparing the actual and the programmed speed reaches a stop within
-0.3 m without longer braking. Seed 003 (Meleshin 2011, ch. 2): the electric brake works above
+0.3 m without longer braking. Meleshin (2011, ch. 2): the electric brake works above
 ~7 km/h, the electro-pneumatic brake from 0 to 7 km/h.
 
 Our reading, in three parts:
@@ -19,14 +19,14 @@ Our reading, in three parts:
    (identified mass, resistance, grade) and switches one more stage on whenever the actual
    speed is more than ``hysteresis`` above V_p, one off whenever it is as much below (one
    more per further ``stage_speed`` of error), at most once per ``dwell`` (an EP valve's
-   response): seed 004's "on and off by comparing actual and programmed speed", multi-stage.
+   response): Sidorenko's "on and off by comparing actual and programmed speed", multi-stage.
    Each stage switched for a lasting error acts as an integrator, so a mass the feed-forward
-   gets wrong is taken out without a speed offset. Seed 004 gives neither the number of stages
+   gets wrong is taken out without a speed offset. Sidorenko gives neither the number of stages
    nor the thresholds: ours are tuning values (models/ato/controller.py AtoTuning);
 3. at rest within ``stop_window`` of the aim point (the mark, or short of it by
    models/ato/controller.py's aim offset where the filter is uncertain): the holding brake. A car that
    stops short of that window creeps on (a small traction at most ``creep_speed``), which
-   seed 004 does not describe: without it a car stopped 0.5 m short would stay there.
+   Sidorenko does not describe: without it a car stopped 0.5 m short would stay there.
 
 Units: s [m], V [m/s], force [N], mass [t].
 """
@@ -49,8 +49,8 @@ def track_force(car: PlanCar, v: float, v_ref: float, a_ref: float, grade: float
 
 
 class RelayBrake:
-    """Seed 004's multi-stage relay control of the electro-pneumatic brake (module docstring,
-    part 2 and 3) for one stop mark ``stop`` [m].
+    """Sidorenko's (1997) multi-stage relay control of the electro-pneumatic brake (module
+    docstring, part 2 and 3) for one stop mark ``stop`` [m].
 
     ``command(t, s, v, car, grade)`` -> (traction [N], brake [N], stage, programmed speed
     [m/s]); stage -1 means creeping (traction)."""

@@ -1,8 +1,8 @@
-/* singer.h -- models/filtering/singer.py: seed 002's Singer model on z = [w, v, r] (acceleration [m/s^2],
- * speed [m/s], distance [m]) and its Kalman filter, the scalar path SingerFilter runs
- * (_predict, _update, _project), bit for bit: the exact discretisation (Phi, Q, u with the
- * Taylor series below SERIES_SWITCH and the closed forms above), the prediction, the update
- * with one or two measurements (Joseph form), the clip of a negative speed, and
+/* singer.h -- models/filtering/singer.py: Boynik et al.'s Singer model on z = [w, v, r]
+ * (acceleration [m/s^2], speed [m/s], distance [m]) and its Kalman filter, the scalar path
+ * SingerFilter runs (_predict, _update, _project), bit for bit: the exact discretisation (Phi, Q, u
+ * with the Taylor series below SERIES_SWITCH and the closed forms above), the prediction, the
+ * update with one or two measurements (Joseph form), the clip of a negative speed, and
  * singer_mixture_moments / SingerParams' checks for the filter.singer_* settings.
  *
  * Matrices are flat row-major: 3x3 as 9 doubles, H as m rows of 3, R as m x m (m = 1 or 2).

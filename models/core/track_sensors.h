@@ -1,5 +1,6 @@
-/* track_sensors.h -- point track sensors (seed 002) as models/chain.py and models/plant/track_sensors.py
- * compute them: a pair of sensors a base b apart, speed = b / (t2' - t1') from a timer's stamps.
+/* track_sensors.h -- point track sensors (Boynik et al.) as models/chain.py and
+ * models/plant/track_sensors.py compute them: a pair of sensors a base b apart,
+ * speed = b / (t2' - t1') from a timer's stamps.
  * Pure functions of their arguments (the noise draws are the caller's); nothing allocates. */
 #ifndef RAILCAR_TRACK_SENSORS_H
 #define RAILCAR_TRACK_SENSORS_H

@@ -77,7 +77,7 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
         return refuse(err, "est.batch_size must be >= 4 (4 parameters), got %ld", c->batch_size);
     if (!(method >= 0 && method <= 3))                 /* identification.METHODS */
         return refuse(err, "est.method must be 0 (paper LS), 1 (LS + filter-error refit), "
-                           "2 (LS on seed 004 slopes), 3 (LS mass + seed 003 coasting EKF), "
+                           "2 (LS on Sidorenko's slopes), 3 (LS mass + Meleshin's coasting EKF), "
                            "got %d", method);
     if (native_fmu && method != 0)
         return refuse(err, fmt, "est.method", method, native_fmu, "the paper's LS", native_fmu);

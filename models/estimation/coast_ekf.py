@@ -1,6 +1,6 @@
-"""Main-resistance identification during coasting with an extended Kalman filter (seed 003).
+"""Main-resistance identification during coasting with an extended Kalman filter (Meleshin 2011).
 
-Seed 003 (Meleshin 2011, docs/estimation.md) identifies the main resistance of the Rusich
+Meleshin (2011; docs/estimation.md) identifies the main resistance of the Rusich
 train on coasting runs with an EKF whose state is [v, a + w_grade, b, c], w0 = a + b v + c v^2,
 only the speed measured. The source works with v in km/h and forces in kgf/t; here everything
 is SI as in the rest of ``models`` (docs/model.md, Units):
@@ -10,12 +10,12 @@ is SI as in the rest of ``models`` (docs/model.md, Units):
     dalpha/dt = dA1/dt = dA2/dt = 0 (+ optional random walks)
     z      = V_meas = V + nu,   nu ~ N(0, speed_std^2)
 
-Coefficients in seed 003's units (a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]) are converted
+Coefficients in Meleshin's units (a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]) are converted
 at the edge with ``models.units.resistance_kmh_to_si`` (1 kgf/t = 1 N/kN, docs/model.md, Units);
 ``to_kmh`` converts back.
 
-The grade: seed 003 lumps the grade into the state's second component, alpha = a + w_grade,
-because on its line the grade was not given to the filter (it then drifts with the grade and
+The grade: Meleshin lumps the grade into the state's second component, alpha = a + w_grade,
+because the grade of the line studied was not given to the filter (it then drifts with the grade and
 needs a random walk, ``grade_known=False``). When the grade is known (our coasting logs: the
 track profile is given), its specific resistance i [permille = N/kN] enters the prediction as
 a known input and the state's second component is a itself: estimating a directly by
@@ -45,13 +45,13 @@ from models.units import resistance_kmh_to_si
 
 
 def from_kmh(a: float, b: float, c: float) -> tuple[float, float, float]:
-    """Seed 003's (a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]) -> (A0 [N/kN],
+    """(a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]) in Meleshin's (2011) units -> (A0 [N/kN],
     A1 [N/kN/(m/s)], A2 [N/kN/(m/s)^2]) (``models.units.resistance_kmh_to_si``)."""
     return resistance_kmh_to_si(a, b, c)
 
 
 def to_kmh(A0: float, A1: float, A2: float) -> tuple[float, float, float]:
-    """SI coefficients -> seed 003's units (inverse of ``from_kmh``)."""
+    """SI coefficients -> Meleshin's (2011) units (inverse of ``from_kmh``)."""
     return A0, A1 / 3.6, A2 / (3.6 * 3.6)
 
 
@@ -125,7 +125,7 @@ class CoastEKFConfig:
     A0_std: float = 1.0                # [N/kN]
     A1_std: float = 0.03               # [N/kN/(m/s)]
     A2_std: float = 0.01               # [N/kN/(m/s)^2]
-    speed_std: float = 0.1 / 3.6       # speed measurement noise [m/s] (seed 003: 0.1 km/h)
+    speed_std: float = 0.1 / 3.6       # speed measurement noise [m/s] (Meleshin 2011: 0.1 km/h)
     process_noise_psd: float = 1e-4    # white acceleration noise on V [m^2/s^3]
     param_psd: tuple = (0.0, 0.0, 0.0)  # random walks of (alpha, A1, A2) [(unit)^2/s]
     grade_known: bool = True           # known grade as input (alpha = a) or inside alpha
@@ -153,14 +153,14 @@ class CoastEKFConfig:
     @classmethod
     def from_seed003(cls, a: float, b: float, c: float, a_std: float, b_std: float,
                      c_std: float, **kwargs) -> "CoastEKFConfig":
-        """Prior in seed 003's units (kgf/t, V in km/h), converted to SI at the edge."""
+        """Prior in Meleshin's (2011) units (kgf/t, V in km/h), converted to SI at the edge."""
         A = resistance_kmh_to_si(a, b, c)
         S = resistance_kmh_to_si(a_std, b_std, c_std)
         return cls(A0=A[0], A1=A[1], A2=A[2], A0_std=S[0], A1_std=S[1], A2_std=S[2], **kwargs)
 
 
 class CoastEKF:
-    """Seed 003's coasting EKF, sample by sample (thin wrapper of ``predict`` / ``update``).
+    """Meleshin's (2011) coasting EKF, sample by sample (thin wrapper of ``predict`` / ``update``).
 
     ``start(V_meas)`` at the first coasting sample, then ``step(dt, V_meas, grade)`` per sample:
     prediction over dt [s] with the grade [permille] under the car during the interval (ignored
@@ -235,7 +235,7 @@ class CoastEKF:
         return self.P[1:, 1:].copy()
 
     def A_kmh(self) -> tuple[float, float, float]:
-        """(a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]), seed 003's units."""
+        """(a [kgf/t], b [kgf/t/(km/h)], c [kgf/t/(km/h)^2]), Meleshin's (2011) units."""
         return to_kmh(*self.A)
 
     def w0(self, v) -> np.ndarray:

@@ -1,19 +1,19 @@
 """Speed and acceleration from sensor samples by least-squares polynomial differentiation
-(seed 004, Sidorenko 1997, chapter 3; docs/estimation.md).
+(Sidorenko 1997, chapter 3; docs/estimation.md).
 
-Seed 004 fits a polynomial X(t) = a0 + a1 t + ... + al t^l (its eq. (1)) by least squares
+Sidorenko fits a polynomial X(t) = a0 + a1 t + ... + al t^l (eq. (1) there) by least squares
 ("Chebyshev polynomials") to the last M+1 samples X[n], ..., X[n-M] of a measured quantity and
 takes the derivatives of the polynomial at the newest sample (t = 0) as the measured
 derivatives: X'[n] = a1, X''[n] = 2 a2. Applied to
 
 - distance samples [m] with order 2: speed [m/s] = first derivative, acceleration [m/s^2] = second;
-- speed samples [m/s] with order 1 (the seed's recommendation, M = 5, i.e. 6 samples): the
+- speed samples [m/s] with order 1 (Sidorenko's recommendation, M = 5, i.e. 6 samples): the
   fitted value is the smoothed speed [m/s] and its slope the acceleration [m/s^2].
 
 Samples may be at unequal times, e.g. several axle sensors read at different, unsynchronised
 instants. Such streams are time-aligned (each sample kept at its own read time, corrected for a
 known read delay) and merged before the fit; the fit is then evaluated at a common instant (the
-control tick): ``fuse_sensors``. ``zero_order_hold`` is the baseline the seed compares with
+control tick): ``fuse_sensors``. ``zero_order_hold`` is the baseline Sidorenko compares with
 (latest sample held; acceleration as the difference of consecutive held speeds).
 
 Numerics: times are centred at the evaluation instant and scaled by the window's extent before
@@ -30,7 +30,7 @@ from typing import Sequence
 import numpy as np
 
 WINDOW = 6
-"""Seed 004's window: M + 1 = 6 samples (M = 5)."""
+"""Sidorenko's (1997) window: M + 1 = 6 samples (M = 5)."""
 
 
 def _scaled_vandermonde(t: np.ndarray, t_eval, order: int):
@@ -50,7 +50,7 @@ def _derivative_scale(s, order: int):
 
 
 def ls_weights(t, order: int = 1, t_eval: float | None = None) -> np.ndarray:
-    """Linear weights W, shape (order+1, n): derivatives at t_eval = W @ x (seed 004 eq. (1)).
+    """Linear weights W, shape (order+1, n): derivatives at t_eval = W @ x (Sidorenko, eq. (1)).
 
     Row k gives the k-th derivative [u/s^k] at ``t_eval`` [s] (default: the newest time,
     max(t)) of the least-squares polynomial of degree ``order`` through the samples at times
@@ -72,7 +72,7 @@ def ls_weights(t, order: int = 1, t_eval: float | None = None) -> np.ndarray:
 
 def ls_derivatives(t, x, order: int = 1, t_eval: float | None = None) -> np.ndarray:
     """[x^(0), x^(1), ..., x^(order)] at ``t_eval`` [s] (default: newest sample time) of the
-    least-squares polynomial of degree ``order`` through (t [s], x [u]) (seed 004 eq. (1)):
+    least-squares polynomial of degree ``order`` through (t [s], x [u]) (Sidorenko, eq. (1)):
     value [u], first derivative [u/s], second [u/s^2] ... Exact for polynomials of degree
     <= order (noise-free), up to rounding.
     """
@@ -91,8 +91,8 @@ def ls_noise_std(t, order: int, noise_std: float, t_eval: float | None = None) -
 
 
 def centred_slope_weights(dts: Sequence[float]) -> tuple[list[float], list[float]]:
-    """Seed 004's first-order fit over the samples that close the intervals ``dts`` [s], at the
-    window's mean time: (w, c) with slope = sum_k w[k] x[k] [u/s] over the len(dts) + 1 samples,
+    """Sidorenko's (1997) first-order fit over the samples that close the intervals ``dts`` [s], at
+    the window's mean time: (w, c) with slope = sum_k w[k] x[k] [u/s] over the len(dts) + 1 samples,
     and c[j] = dt_j sum_{i>j} w[i] (sum c = 1) the weight the slope gives interval j's mean
     derivative: slope = sum_j c[j] (x[j+1] - x[j]) / dt_j exactly.
 
@@ -203,7 +203,7 @@ class FusedEstimate:
 def fuse_sensors(times: Sequence, values: Sequence, t_out, window: int = WINDOW,
                  order: int = 1, delays: Sequence[float] | None = None,
                  extrapolate: bool = True) -> FusedEstimate:
-    """Seed 004's recommended speed channel: merge the (time-aligned) streams of several
+    """Sidorenko's (1997) recommended speed channel: merge the (time-aligned) streams of several
     sensors, fit a polynomial of ``order`` (1) to the last ``window`` (6) merged samples read
     at or before each common instant t_out [s], and evaluate it there: value [u] and first
     derivative [u/s] (for axle speed sensors: speed [m/s] and acceleration [m/s^2]).
@@ -241,7 +241,7 @@ def fuse_sensors(times: Sequence, values: Sequence, t_out, window: int = WINDOW,
 
 def zero_order_hold(times: Sequence, values: Sequence, t_out,
                     delays: Sequence[float] | None = None) -> FusedEstimate:
-    """The baseline of seed 004: the latest merged sample at or before each t_out [s] (value
+    """Sidorenko's (1997) baseline: the latest merged sample at or before each t_out [s] (value
     [u]) and, as rate [u/s], the difference of consecutive held values over the tick
     (x_hold[j] - x_hold[j-1]) / (t_out[j] - t_out[j-1]); NaN before the first sample / tick."""
     t, x, _ = merge_streams(times, values, delays)

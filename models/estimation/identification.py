@@ -98,8 +98,8 @@ def project_physical(theta, cov, components=PHYSICAL) -> np.ndarray:
 
 # ---------------------------------------------------------------- stateful wrapper
 
-METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on seed 004 slopes",
-           3: "LS mass + seed 003 coasting EKF"}
+METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on Sidorenko's slopes",
+           3: "LS mass + Meleshin's coasting EKF"}
 """est.method values and their short names (models/estimation/methods.py has a class for each)."""
 
 

@@ -168,14 +168,14 @@ class RefitLS(PaperLS):
 
 
 class SlopeLS(PaperLS):
-    """est.method 2: the LS fed with seed 004's speed and acceleration: a first-order
+    """est.method 2: the LS fed with Sidorenko's (1997) speed and acceleration: a first-order
     least-squares fit over the last est.slope_window contiguous samples (docs/estimation.md),
     at the window's mean time, with the forces and grade weighted as the slope weights the
     intervals (differentiation.centred_slope_weights). The value and the slope of that fit are
-    uncorrelated, so the errors-in-variables bias of V in phi and in y goes away. The seed's
-    M + 1 = 6 is at a sampling period it does not state; 10 by default: at 0.1 s, w0 after ten
-    runs 2.13 % -> 1.90 % RMS over 100 days, measured with the A's prior white-weighted, before
-    it took the process-noise weight (README)."""
+    uncorrelated, so the errors-in-variables bias of V in phi and in y goes away. Sidorenko's
+    M + 1 = 6 is at a sampling period the source does not state; 10 by default: at 0.1 s, w0
+    after ten runs 2.13 % -> 1.90 % RMS over 100 days, measured with the A's prior
+    white-weighted, before it took the process-noise weight (README)."""
 
     def __init__(self, window: int):
         self.size = int(window)
@@ -218,7 +218,7 @@ class SlopeLS(PaperLS):
 
 
 class CoastLS(PaperLS):
-    """est.method 3: LS for the mass, seed 003's coasting EKF (state [V, A0, A1, A2], docs/estimation.md; models/estimation/coast_ekf.py) for the A's: it runs over every coasting interval
+    """est.method 3: LS for the mass, Meleshin's (2011) coasting EKF (state [V, A0, A1, A2], docs/estimation.md; models/estimation/coast_ekf.py) for the A's: it runs over every coasting interval
     (F = B = 0) and carries its A's and their covariance from coast to coast and run to run."""
 
     MIN_COAST_SAMPLES = 50   # coasting samples before the EKF's A's are reported

@@ -30,8 +30,8 @@ LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
 LINEARISED = linearised around V_zad, eq. (13), with the trapezoid distance update and
 white-acceleration process noise; EKF = eq. (2) relinearised at the estimate, same distance
 update; PAPER = eqs. (13)-(19) verbatim (Euler distance, Q = diag(sigma^2, 0)), the baseline;
-SINGER = seed 002's model-free filter on [acceleration, speed, distance] (models/filtering/singer.py),
-which uses neither the forces nor the identified parameters."""
+SINGER = Boynik et al.'s model-free filter on [acceleration, speed, distance]
+(models/filtering/singer.py), which uses neither the forces nor the identified parameters."""
 
 
 class EKFKind:
@@ -167,9 +167,9 @@ class PaperKind(LinearisedKind):
 
 
 class SingerKind:
-    """filter.kind 4: seed 002's model-free filter on [w, v, r] (models/filtering/singer.py SingerFilter,
-    held in ``singer``); after each step its (v, r) block is published as f's posterior (or
-    prediction), so the gate and the outputs read it as any other kind's."""
+    """filter.kind 4: Boynik et al.'s model-free filter on [w, v, r] (models/filtering/singer.py
+    SingerFilter, held in ``singer``); after each step its (v, r) block is published as f's
+    posterior (or prediction), so the gate and the outputs read it as any other kind's."""
     kind = SINGER
 
     def __init__(self, cfg, grade_profile=None, speed_profile=None):

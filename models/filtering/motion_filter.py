@@ -26,7 +26,7 @@ class FilterConfig:
     speed_std: float = 0.05     # measurement noise of V [m/s]
     position_std: float = 1.0   # measurement noise of X [m]
     position_std_rel: float = 0.0  # plus this share of the distance [-] (odometry drift, ETCS)
-    # Singer filter (seed 002): acceleration correlation time and its mixed distribution
+    # Singer filter (Boynik et al.): acceleration correlation time and its mixed distribution
     singer_tau: float = 10.0          # [s]
     singer_p0: float = 0.3            # probability of zero acceleration [-]
     singer_p_plus: float = 0.1        # probability of the maximum acceleration [-]
@@ -36,7 +36,7 @@ class FilterConfig:
     gamma: float = 0.0          # rotating-mass factor assumed by the model [-]
     kind: int = 0               # 0 auto, 1 linearised (needs V_zad), 2 EKF, 3 paper, 4 Singer
     length: float = 0.0         # car length for grade averaging [m]
-    speed_std_rel: float = 0.0  # plus this share of the speed [-] (seed 003: "within 2 %")
+    speed_std_rel: float = 0.0  # plus this share of the speed [-] (Meleshin 2011: "within 2 %")
 
     def singer_params(self):
         """SingerParams from the filter.singer_* settings (ValueError names the bad one)."""
@@ -205,7 +205,7 @@ class MotionFilter:
 
     def update_speed(self, speed_meas: float, variance: float) -> None:
         """An extra speed-only measurement [m/s] of the current instant (e.g. two track
-        sensors, seed 002), noise variance [(m/s)^2]: H = [1 0]."""
+        sensors, Boynik et al.), noise variance [(m/s)^2]: H = [1 0]."""
         self.algorithm.update_speed(self, speed_meas, variance)
 
     @property

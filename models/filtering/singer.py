@@ -1,14 +1,14 @@
-"""Singer-type motion model and its Kalman filter (seed 002, docs/filters.md).
+"""Singer-type motion model and its Kalman filter (Boynik et al., n.d.; docs/filters.md).
 
-State z = [w, v, r]: acceleration w [m/s^2], speed v [m/s], distance r [m]. Seed 002 models
-the acceleration as a Gauss-Markov process with mean m_w [m/s^2], std sigma_w [m/s^2] and
-correlation function K(t) = sigma_w^2 exp(-|t|/tau) (seed 002 eq. (7)), tau [s] the mean
+State z = [w, v, r]: acceleration w [m/s^2], speed v [m/s], distance r [m]. Boynik et al.
+model the acceleration as a Gauss-Markov process with mean m_w [m/s^2], std sigma_w [m/s^2] and
+correlation function K(t) = sigma_w^2 exp(-|t|/tau) (their eq. (7)), tau [s] the mean
 duration of a constant-acceleration phase. In continuous time, alpha = 1/tau [1/s]:
 
     dw/dt = -alpha (w - m_w) + n(t),   dv/dt = w,   dr/dt = v,
 
 n white with spectral density 2 alpha sigma_w^2 [(m/s^2)^2/Hz] (so that var(w) = sigma_w^2 in
-the stationary state; Singer 1970, seed 002 ref. [3]).
+the stationary state; Singer 1970, ref. [3] of Boynik et al.).
 
 Discretisation over a step dt [s], x = alpha dt [-], rho = exp(-x):
 
@@ -18,13 +18,13 @@ Discretisation over a step dt [s], x = alpha dt [-], rho = exp(-x):
 - ``singer_process_noise`` is the exact Q = int_0^dt Phi(s) b b^T Phi(s)^T ds with
   b b^T = diag(2 alpha sigma_w^2, 0, 0).  Q[w, w] = sigma_w^2 (1 - rho^2).
 
-Relation to the seed's recursion (seed 002 eqs. (8)-(14), docs/filters.md):
+Relation to the recursion of Boynik et al. (their eqs. (8)-(14), docs/filters.md):
 w[n] = rho w[n-1] + q xi[n-1], rho = exp(-dt/tau) (9), q = sqrt(1 - rho^2) (10; the OCR shows
 1 - rho^2, the square root keeps var(w) = sigma_w^2), xi of variance sigma_w^2. The exact model
-has the same w row: Phi[w, w] = rho and Q[w, w] = sigma_w^2 q^2. The seed's speed and distance
-rows (11)-(13) are Euler steps (v gets w dt, r gets v dt) without their own noise; the exact
-Phi and Q differ from them by O(dt^2) (``seed002_transition`` keeps them verbatim as a
-baseline). The exact form is used by the filter: it is right for any step, also for the
+has the same w row: Phi[w, w] = rho and Q[w, w] = sigma_w^2 q^2. Boynik et al.'s speed and
+distance rows (11)-(13) are Euler steps (v gets w dt, r gets v dt) without their own noise;
+the exact Phi and Q differ from them by O(dt^2) (``seed002_transition`` keeps them verbatim as
+a baseline). The exact form is used by the filter: it is right for any step, also for the
 unequal steps between track-sensor passages.
 
 Numerics: the textbook closed form of Q (Singer 1970) subtracts O(1) terms to get results of
@@ -44,10 +44,10 @@ Filter: ``singer_predict`` / ``singer_update`` are pure (filterpy style, they re
 on a scalar path (``_predict``, ``_update``, ``_project``: plain floats, every sum in a fixed
 order, no BLAS/LAPACK), which models/core/singer.c mirrors bit for bit; numpy serves (N, 3)
 batches only. Measurements: speed only (``H_SPEED``) or speed
-and distance (``H_SPEED_DISTANCE``), e.g. from two point track sensors (seed 002 eqs. (15),
-(16): y = [0 1 0] z + eta) and an odometer. A non-zero mean m_w is handled in the prediction:
-the centred part w - m_w decays with rho and the mean m_w acts as a known input. The speed is
-never negative: a negative speed estimate is projected onto v = 0 (see ``project_speed``).
+and distance (``H_SPEED_DISTANCE``), e.g. from two point track sensors (eqs. (15), (16)
+of Boynik et al.: y = [0 1 0] z + eta) and an odometer. A non-zero mean m_w is handled in the
+prediction: the centred part w - m_w decays with rho and the mean m_w acts as a known input. The
+speed is never negative: a negative speed estimate is projected onto v = 0 (see ``project_speed``).
 """
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ I_W, I_V, I_R = 0, 1, 2
 """Indices of acceleration [m/s^2], speed [m/s], distance [m] in the state."""
 
 H_SPEED = np.array([[0.0, 1.0, 0.0]])
-"""Observation of speed only (seed 002 eq. (16), C = [0 1 0])."""
+"""Observation of speed only (eq. (16) of Boynik et al., C = [0 1 0])."""
 
 H_SPEED_DISTANCE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 """Observation of speed and distance."""
@@ -78,19 +78,19 @@ _SERIES_TERMS = 40   # x < 1.5: the omitted terms are below 3^40/40! ~ 1e-29 of 
 
 def singer_mixture_moments(p0: float, p_plus: float, p_minus: float, w_max_plus: float,
                            w_max_minus: float) -> tuple[float, float]:
-    """Mean m_w [m/s^2] and std sigma_w [m/s^2] of seed 002's acceleration distribution.
+    """Mean m_w [m/s^2] and std sigma_w [m/s^2] of Boynik et al.'s acceleration distribution.
 
     The acceleration is 0 with probability ``p0`` (uniform motion), ``w_max_plus`` [m/s^2] (> 0,
     maximum traction) with probability ``p_plus``, ``w_max_minus`` [m/s^2] (< 0, maximum
     braking: give it negative) with probability ``p_minus``, and uniform on
     [w_max_minus, w_max_plus] with density h = (1 - P0 - P+ - P-)/(w_max+ - w_max-) [s^2/m]
-    (seed 002 eq. (3), Fig. 1). Then (eqs. (4)-(6), rewritten for a signed w_max-):
+    (Boynik et al., eq. (3), Fig. 1). Then (eqs. (4)-(6), rewritten for a signed w_max-):
 
         m_w       = P+ w+ + P- w- + h (w+^2 - w-^2) / 2
         sigma_w^2 = P0 m_w^2 + P+ (w+ - m_w)^2 + P- (w- - m_w)^2
                     + h ((w+ - m_w)^3 - (w- - m_w)^3) / 3
 
-    The seed then replaces this distribution by the normal one with the same m_w and sigma_w.
+    Boynik et al. then replace this distribution by the normal one with the same m_w and sigma_w.
     """
     a, b = float(w_max_plus), float(w_max_minus)
     probs = (float(p0), float(p_plus), float(p_minus))
@@ -112,7 +112,7 @@ def singer_mixture_moments(p0: float, p_plus: float, p_minus: float, w_max_plus:
 
 @dataclass(frozen=True)
 class SingerParams:
-    """Parameters of the acceleration process (seed 002 eqs. (7)-(10)).
+    """Parameters of the acceleration process (Boynik et al., eqs. (7)-(10)).
 
     tau [s]: correlation time (mean duration of a constant-acceleration phase), alpha = 1/tau;
     sigma_w [m/s^2]: stationary std of the acceleration; m_w [m/s^2]: its mean.
@@ -263,8 +263,9 @@ def singer_transition(alpha: float, dt: float) -> np.ndarray:
     """Exact 3x3 transition Phi = expm(A dt) of z = [w, v, r] ([m/s^2], [m/s], [m]).
 
     A = [[-alpha, 0, 0], [1, 0, 0], [0, 1, 0]], alpha = 1/tau [1/s], dt [s]. With x = alpha dt:
-    Phi = [[rho, 0, 0], [dt phi1(-x), 1, 0], [dt^2 phi2(-x), dt, 1]], rho = exp(-x) (seed 002
-    eq. (9)); for x -> 0 it tends to the constant-acceleration [[1,0,0],[dt,1,0],[dt^2/2,dt,1]].
+    Phi = [[rho, 0, 0], [dt phi1(-x), 1, 0], [dt^2 phi2(-x), dt, 1]], rho = exp(-x) (Boynik
+    et al., eq. (9)); for x -> 0 it tends to the constant-acceleration
+    [[1,0,0],[dt,1,0],[dt^2/2,dt,1]].
     """
     return np.array(_transition(alpha, dt)).reshape(3, 3)
 
@@ -275,14 +276,14 @@ def singer_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray:
     Q = int_0^dt Phi(s) diag(2 alpha sigma_w^2, 0, 0) Phi(s)^T ds for a stationary acceleration
     std ``sigma_w`` [m/s^2], alpha = 1/tau [1/s]. Units: Q[w,w] [(m/s^2)^2], Q[v,v] [(m/s)^2],
     Q[r,r] [m^2], off-diagonals the products. Q[w,w] = sigma_w^2 (1 - rho^2) = (sigma_w q)^2 with
-    the seed's q = sqrt(1 - rho^2) (seed 002 eq. (10)). Accurate to ~1e-15 relative per element
+    Boynik et al.'s q = sqrt(1 - rho^2) (their eq. (10)). Accurate to ~1e-15 relative per element
     for every alpha dt >= 0 (series below ``SERIES_SWITCH``, see the module docstring).
     """
     return np.array(_process_noise(alpha, dt, sigma_w)).reshape(3, 3)
 
 
 def seed002_transition(alpha: float, dt: float) -> np.ndarray:
-    """Seed 002 eq. (13) verbatim: Phi = [[rho, 0, 0], [dt, 1, 0], [0, dt, 1]] (Euler rows).
+    """Eq. (13) of Boynik et al. verbatim: Phi = [[rho, 0, 0], [dt, 1, 0], [0, dt, 1]] (Euler rows).
 
     A baseline only. Note the OCR'd (13) has r[n] = r[n-1] + v[n-1] dt, while eq. (12) writes
     v[n] dt; both are first-order in dt. alpha [1/s], dt [s].
@@ -292,7 +293,8 @@ def seed002_transition(alpha: float, dt: float) -> np.ndarray:
 
 
 def seed002_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray:
-    """Seed 002 eqs. (8), (10), (14): Q = G G^T sigma_w^2, G = [q, 0, 0]^T, q = sqrt(1 - rho^2).
+    """Boynik et al., eqs. (8), (10), (14): Q = G G^T sigma_w^2, G = [q, 0, 0]^T,
+    q = sqrt(1 - rho^2).
 
     Only w is excited [(m/s^2)^2]; alpha [1/s], dt [s], sigma_w [m/s^2].
     """
@@ -305,7 +307,7 @@ def seed002_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray
 def singer_mean_input(alpha: float, dt: float, m_w: float) -> np.ndarray:
     """Contribution u of the mean acceleration m_w [m/s^2] over dt [s] to the prediction.
 
-    With w = m_w + w~ (seed 002: w normal with mean m_w, eq. (7)), the centred part w~ decays
+    With w = m_w + w~ (Boynik et al.: w normal with mean m_w, eq. (7)), the centred part w~ decays
     with rho while m_w acts as a constant known input:
     z_pred = Phi (z - m_w e_w) + m_w [1, dt, dt^2/2] = Phi z + u,
     u = m_w [1 - rho, dt x phi2(-x), dt^2 x phi3(-x)] ([m/s^2], [m/s], [m]), x = alpha dt,
@@ -453,8 +455,8 @@ def singer_predict(x: np.ndarray, P: np.ndarray, dt: float, params: SingerParams
     """Predict z = [w, v, r] ([m/s^2], [m/s], [m]) and its covariance over dt [s].
 
     x_pred = Phi (x - m_w e_w) + m_w [1, dt, dt^2/2], P_pred = Phi P Phi^T + Q (exact Phi, Q of
-    this module; seed 002 eqs. (8)-(14) in exact form), computed by ``_predict``. With ``clip``
-    a negative predicted speed is projected onto 0 (``project_speed``).
+    this module; eqs. (8)-(14) of Boynik et al. in exact form), computed by ``_predict``. With
+    ``clip`` a negative predicted speed is projected onto 0 (``project_speed``).
     """
     Phi, Q, u = _discretisation_flat(params.alpha, float(dt) + 0.0, params.sigma_w, params.m_w)
     xs, Ps = _predict(*_flat_state(x, P), Phi, Q, u, clip)

@@ -1,20 +1,21 @@
-"""Dynamic programming over a span: seed 004's limited-switching DP and a brute-force optimum.
+"""Dynamic programming over a span: Sidorenko's (1997) limited-switching DP and a brute-force
+optimum.
 
 Units as in models.planning.trajectory: s [m], V [m/s], t [s], forces [N], energy [J] inside, [kWh] out.
 
-Seed 004, ch. 2: the span is cut into M steps where the mode may change; the criterion is the
-sum over the steps of the energy A_i plus lambda times the running time T_i; Bellman's
+Sidorenko (1997, ch. 2): the span is cut into M steps where the mode may change; the criterion is
+the sum over the steps of the energy A_i plus lambda times the running time T_i; Bellman's
 functional equation runs over the state (V_i, N_i) (speed, mode) with at most K traction
 applications and a minimum time tau_min between mode switches, the speed limit entering as a
 penalty. Ours:
 
 - state: (speed on a grid, mode N in {TG, VB, RK}, traction applications used k <= K, stages
-  spent in the current mode d, capped at D); a switch is allowed only after D stages (seed 004's
+  spent in the current mode d, capped at D); a switch is allowed only after D stages (Sidorenko's
   tau_min, as a distance: D stages of ``stage`` metres);
 - speed grid per stage: n_speeds points from 0 to the envelope U(s_j) (models.planning.trajectory), so
   the braking curve (and a speed limit) is a grid point, the cost-to-go interpolated linearly
   in V; the speed limit is a hard ceiling (every step is capped by U, see models.planning.trajectory)
-  instead of seed 004's penalty;
+  instead of Sidorenko's penalty;
 - each stage integrated with the same step as the maximum-principle plans (models.planning.trajectory
   .step, numpy over the speed grid; the transition tables do not depend on lambda and are built
   once);
@@ -22,7 +23,7 @@ penalty. Ours:
   the policy rolled out from rest with the exact (scalar) step, then its last switching point
   moved (brentq, the simulator) so the running time meets the schedule within ``tol``.
 
-Seed 004 prunes the DP with necessary conditions of optimality (10x faster, same optimum);
+Sidorenko prunes the DP with necessary conditions of optimality (10x faster, same optimum);
 on a grid of this size plain DP is fast enough, so we do not prune.
 
 The brute-force optimum (issue 20's "brute-force optimum over a discretised control") is the
@@ -119,7 +120,7 @@ def _interp(v, grid, values):
 
 
 class _SwitchDP:
-    """Seed 004's DP: state (V, mode, k, d)."""
+    """Sidorenko's (1997) DP: state (V, mode, k, d)."""
 
     def __init__(self, tables: _Tables, max_tractions: int, min_stages: int):
         self.tb = tables
@@ -348,9 +349,9 @@ def _finish(course, span, lo, hi, tol, method):
 def dp_plan(span: Span, car: CarTraction, *, stage: float = 25.0, n_speeds: int = 121,
             max_tractions: int = 2, min_stages: int = 2, step: float = 5.0, tol: float = 0.01,
             course: Course | None = None) -> Plan:
-    """Seed 004's DP: modes TG/VB/RK switched at stage boundaries ``stage`` [m] apart, at most
-    ``max_tractions`` traction applications (seed 004's K), a mode held for at least
-    ``min_stages`` stages (its tau_min as a distance), the speed on ``n_speeds`` points per
+    """Sidorenko's (1997) DP: modes TG/VB/RK switched at stage boundaries ``stage`` [m] apart, at
+    most ``max_tractions`` traction applications (Sidorenko's K), a mode held for at least
+    ``min_stages`` stages (Sidorenko's tau_min as a distance), the speed on ``n_speeds`` points per
     stage. Returns the plan meeting span.schedule within ``tol`` [s]."""
     course = course or Course(span, car, step)
     _check_schedule(span, run(course, 0.0, 0.0, 0.0, _flat_out).t[-1], tol)

@@ -20,7 +20,7 @@ J_PER_KWH = 3.6e6
 
 
 class Mode(IntEnum):
-    """Seed 003 Table 2's modes, in decreasing p."""
+    """The modes of Meleshin's (2011) Table 2, in decreasing p."""
     TG = 0   # full traction, u_f = 1                         p > 1
     C = 1    # speed holding by traction, 0 < u_f < 1        p = 1
     VB = 2   # coasting                                       eta eta_f < p < 1

@@ -1,5 +1,5 @@
-"""Seed 003's maximum-principle synthesis of the energy-efficient run (ch. 3): the modes of its
-Table 2 selected by the auxiliary function p(s), the iteration on the holding speed V_c.
+"""Meleshin's (2011) maximum-principle synthesis of the energy-efficient run (ch. 3): the modes of
+Meleshin's Table 2 selected by the auxiliary function p(s), the iteration on the holding speed V_c.
 
 Units and the derivation (co-state equation, lambda(V_c), V_r) in models/planning/trajectory.py.
 """
@@ -23,7 +23,7 @@ def lagrange_of_hold(car: CarTraction, v_c: float) -> float:
 
 
 class _MaxPrinciple:
-    """Seed 003's synthesis for one holding speed V_c (ch. 3, the algorithm's second part):
+    """Meleshin's (2011) synthesis for one holding speed V_c (ch. 3, the algorithm's second part):
 
     1. cruise: TG up to V_c, C at V_c; where holding needs no traction (a descent) VB lets the
        speed rise to V_r, held there by SR; everything capped by U (limits by C/SR/ST, braking
@@ -34,7 +34,7 @@ class _MaxPrinciple:
        the co-state equation of the module docstring; if even the longest coast keeps
        p > eta eta_f at a limit drop, the coast that just reaches the lower limit.
 
-    Seed 003 builds the trajectory "by sections whose borders are the speed-limit changes and
+    Meleshin builds the trajectory "by sections whose borders are the speed-limit changes and
     hard grade elements", integrating the motion and p(s) with known boundary values of V and
     p (autoreferat ch. 3, Fig. 2); our sections are the braking curves of U. What we leave
     out: the jump of p where a state constraint (V = V_lim) starts or ends, and coasting or
@@ -236,8 +236,8 @@ class _MaxPrinciple:
 
 def synthesize(span: Span, car: CarTraction, *, step: float = 5.0, tol: float = 0.01,
                course: Course | None = None) -> Plan:
-    """Seed 003's energy-efficient plan for span.schedule: the holding speed V_c is iterated
-    (brentq on the running time; seed 003 ch. 3: "the iteration ends when the residual of the
+    """Meleshin's (2011) energy-efficient plan for span.schedule: the holding speed V_c is iterated
+    (brentq on the running time; Meleshin, ch. 3: "the iteration ends when the residual of the
     running time is below a given value") until |T - schedule| <= ``tol`` [s].
 
     Where the speed limit drops, one long coast through the lower-limit zone can beat a coast
@@ -245,9 +245,9 @@ def synthesize(span: Span, car: CarTraction, *, step: float = 5.0, tol: float = 
     for every choice of drops without a coast of their own (at most 3 drops are combined) and
     the plan with the least energy is returned.
 
-    tol = 0.01 s is 1/250 of the +-2.5 s running-time accuracy of seeds 003 and 004. Raises
-    ValueError naming both times if the schedule is shorter than the minimum-time run, or
-    naming the schedule if it is too long to be met (a holding speed below 0.05 m/s).
+    tol = 0.01 s is 1/250 of the +-2.5 s running-time accuracy of Meleshin (2011) and Sidorenko
+    (1997). Raises ValueError naming both times if the schedule is shorter than the minimum-time
+    run, or naming the schedule if it is too long to be met (a holding speed below 0.05 m/s).
     """
     course = course or Course(span, car, step)
     t_min = run(course, 0.0, 0.0, 0.0, _flat_out).t[-1]

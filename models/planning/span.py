@@ -6,16 +6,16 @@ comments.
 
 The forces the planner uses are those of the plant (models.plant.dynamics), imported, not copied:
 main resistance ``main_resistance`` (eq. (1)), the equation of motion ``acceleration`` (eq. (2)
-with seed 003's rotating-mass factor), adhesion ``adhesion_force_limit`` and the total brake
-limit ``brake_force_limit``; the grade is ``GradeProfile.average`` (point mass or seed 003's
+with Meleshin's (2011) rotating-mass factor), adhesion ``adhesion_force_limit`` and the total brake
+limit ``brake_force_limit``; the grade is ``GradeProfile.average`` (point mass or Meleshin's
 "inextensible string" over ``CarTraction.length``). What the plant does not have is added here:
 
 - regenerative brake r_max(V): the drive's two-zone characteristic (constant force, then
-  constant power), fading below ~7 km/h where the electro-pneumatic brake takes over (seed 003,
-  ch. 2: "electric brake above 7 km/h, electro-pneumatic from 0 to 7 km/h");
+  constant power), fading below ~7 km/h where the electro-pneumatic brake takes over (Meleshin
+  2011, ch. 2: "electric brake above 7 km/h, electro-pneumatic from 0 to 7 km/h");
 - the mechanical (electro-pneumatic) brake b_max, a constant;
-- traction efficiency eta_f (taken constant: seed 003, ch. 3, found the error of that assumption
-  small) and the share eta of regenerated energy the network takes back (seed 003, ch. 3).
+- traction efficiency eta_f (taken constant: Meleshin, ch. 3, found the error of that assumption
+  small) and the share eta of regenerated energy the network takes back (Meleshin, ch. 3).
 """
 from __future__ import annotations
 
@@ -46,15 +46,15 @@ def _finite(name: str, value) -> float:
 class CarTraction:
     """The car as the planner sees it: mass, resistance, traction and brake characteristics.
 
-    Defaults are the RailCar FMU's (fmu_src/variables.py: car.mass, car.A0..A2 = seed 003 Table 1
-    row 1 in m/s units, 40 kN / 400 kW two-zone drive, 45 kN brake limit). Seed 003 gives the
-    *shape* of the Rusich characteristics (two-zone traction; electric brake above 7 km/h,
+    Defaults are the RailCar FMU's (fmu_src/variables.py: car.mass, car.A0..A2 = Meleshin's (2011)
+    Table 1 row 1 in m/s units, 40 kN / 400 kW two-zone drive, 45 kN brake limit). Meleshin gives
+    the *shape* of the Rusich characteristics (two-zone traction; electric brake above 7 km/h,
     electro-pneumatic below) but no numbers in the summary we have, so the others are ours:
     the regenerative brake uses the same drive limits as traction (40 kN, 400 kW: the
     asynchronous drive runs as a generator within the same inverter ratings) and fades linearly
-    from ``regen_fade_speed`` (7 km/h, seed 003) to zero at ``regen_off_speed`` (5 km/h: a ramp,
+    from ``regen_fade_speed`` (7 km/h, Meleshin) to zero at ``regen_off_speed`` (5 km/h: a ramp,
     not a step, keeps the force continuous for the integrator); eta_f = 0.9 (an asynchronous
-    drive's inverter-motor-gear chain); eta = 0.6 (the value in seed 003's Fig. 3 legend).
+    drive's inverter-motor-gear chain); eta = 0.6 (the value in Meleshin's Fig. 3 legend).
 
     The effective mass is mass (1 + gamma) (MODEL.md section 2); forces are total car forces.
     """
@@ -137,8 +137,8 @@ class CarTraction:
 
     def r_max(self, v):
         """Regenerative brake characteristic r_max(V) [N]: two-zone, adhesion-limited, zero at and
-        below regen_off_speed, rising linearly to full at regen_fade_speed (seed 003: electric
-        brake above ~7 km/h)."""
+        below regen_off_speed, rising linearly to full at regen_fade_speed (Meleshin 2011:
+        electric brake above ~7 km/h)."""
         arr = isinstance(v, np.ndarray)
         mn, mx = (np.minimum, np.maximum) if arr else (min, max)
         vp = mx(v, _TINY_SPEED)
@@ -162,8 +162,8 @@ class CarTraction:
     def service_brake(self, v):
         """The braking curve's force [N]: full regen, the electro-pneumatic brake filling in what
         the fading regen loses below regen_fade_speed so the brake force stays at the regen's
-        level at that speed (seed 003: electric brake above 7 km/h, electro-pneumatic below), never
-        above the total limit. Returns (regen [N], mechanical [N])."""
+        level at that speed (Meleshin 2011: electric brake above 7 km/h, electro-pneumatic below),
+        never above the total limit. Returns (regen [N], mechanical [N])."""
         arr = isinstance(v, np.ndarray)
         mn, mx = (np.minimum, np.maximum) if arr else (min, max)
         r = mn(self.r_max(v), self.brake_total_max(v))

@@ -1,23 +1,23 @@
 """Energy-efficient running over a span (issue 20, the pure part): the motion per distance,
-seed 003's maximum-principle synthesis, the minimum-time run and the manual driver's reference,
-seed 004's DP and a brute-force optimum. The public API is here: simulate, min_time_run,
-manual_driver, synthesize (models/planning/max_principle.py), dp_plan and brute_force
+Meleshin's (2011) maximum-principle synthesis, the minimum-time run and the manual driver's
+reference, Sidorenko's (1997) DP and a brute-force optimum. The public API is here: simulate,
+min_time_run, manual_driver, synthesize (models/planning/max_principle.py), dp_plan and brute_force
 (models/planning/dp.py); all return a Plan. The shared stepping is models/planning/engine.py.
 
 Units: distance s [m], speed V [m/s], time t [s], force [N], energy [J] inside, [kWh] in Plan.
 
-Motion per distance (seed 004, ch. 2: dV/ds = zeta (u_f f(V) - w0(V) - w_i(s) - u_b b(V)) / V).
+Motion per distance (Sidorenko, ch. 2: dV/ds = zeta (u_f f(V) - w0(V) - w_i(s) - u_b b(V)) / V).
 We integrate q = V^2 instead of V: dq/ds = 2 dV/dt = 2 a(V, s), with a from
 models.plant.dynamics.acceleration (eq. (2) with the rotating-mass factor), which is regular at V = 0
 (a start from rest needs no special case). RK4 in s on a grid that contains every grade and
 limit change; the time over a step is dt = 2 h / (V0 + V1), exact for constant acceleration
-(and finite from rest). Energy (MODEL.md section 9, seed 003 eq. (8)):
+(and finite from rest). Energy (MODEL.md section 9, Meleshin's eq. (8)):
 
     A_e = (integral of F ds) / eta_f - eta (integral of R_regen ds)     [J -> kWh / 3.6e6]
 
 the integrals by Simpson's rule on the RK4 stages (exact for a constant force).
 
-Controls and mode codes (seed 003, ch. 3, Table 2; p the auxiliary function of its eq. (10)):
+Controls and mode codes (Meleshin, ch. 3, Table 2; p the auxiliary function of eq. (10) there):
 TG full traction, C speed holding by traction, VB coasting, SR holding by regenerative brake,
 RK full regenerative braking, ST holding by regen + mechanical brake, TM full braking. Two
 readings of ours: (1) below regen_fade_speed the braking curve's electro-pneumatic share makes
@@ -32,7 +32,7 @@ RK 0 < p < eta eta_f, ST p = 0, TM p < 0. The co-state equation in p is
 
 (W = resistance force, ' = d/dV, lambda the multiplier of the running time [W]). On a traction
 holding arc p = 1, dp/ds = 0 gives lambda = V_c^2 W'(V_c) / eta_f: V_c and lambda are one to one
-(seed 003: "V_c or the lambda uniquely tied to it"), and regen holding (p = eta eta_f) is at
+(Meleshin: "V_c or the lambda uniquely tied to it"), and regen holding (p = eta eta_f) is at
 V_r with V_r^2 W'(V_r) = eta_f lambda / (eta eta_f) (CarTraction.hold_speed_regen).
 
 Speed limits: every run is capped by the envelope U(s), the lower of V_lim(s) and the braking

@@ -1,8 +1,9 @@
-"""Car dynamics: forces, eq. (1)-(2) of seed 001, and a fixed-step plant with process noise.
+"""Car dynamics: forces, eq. (1)-(2) of Gorbachev et al. (2015), and a fixed-step plant with
+process noise.
 
 Units: speed [m/s], distance [m], force [N], mass [t], specific force [N/kN], grade [permille].
-The equation of motion (seed 001 eq. (2) in continuous time, with seed 003's rotating-mass
-factor gamma):
+The equation of motion (Gorbachev et al.'s eq. (2) in continuous time, with Meleshin's (2011)
+rotating-mass factor gamma):
 
     dV/dt = g/1000 / (1 + gamma) * ( (F - B)/(P g) - w0(V) - i(X) )      [m/s^2]
     dX/dt = V                                                             [m/s]
@@ -26,15 +27,16 @@ STANDSTILL, TRACTION, COASTING, BRAKING = 0, 1, 2, 3
 class VehicleParams:
     """True vehicle parameters.
 
-    Defaults: resistance from seed 003 Table 1 row 1 (Rusich, a*=0.89 kgf/t, b*=0.008 kgf/t/(km/h),
-    c*=0.00081 kgf/t/(km/h)^2) converted to V in m/s; mass, drive and brake are those of a
-    30 t car with a 40 kN / 400 kW two-zone drive (seed 003's constant force, then constant power).
+    Defaults: resistance from Meleshin's (2011) Table 1 row 1 (Rusich, a*=0.89 kgf/t,
+    b*=0.008 kgf/t/(km/h), c*=0.00081 kgf/t/(km/h)^2) converted to V in m/s; mass, drive and
+    brake are those of a 30 t car with a 40 kN / 400 kW two-zone drive (Meleshin's constant
+    force, then constant power).
     """
     mass: float = 30.0                 # P, car mass with passengers [t]
     A0: float = 0.89                   # [N/kN]
     A1: float = 0.0288                 # [N/kN/(m/s)]
     A2: float = 0.010498               # [N/kN/(m/s)^2]
-    gamma: float = 0.0                 # rotating-mass factor [-] (seed 003 divides by 1 + gamma)
+    gamma: float = 0.0                 # rotating-mass factor [-] (Meleshin divides by 1 + gamma)
     length: float = 0.0                # car/train length for grade averaging [m]; 0 = point mass
     traction_force_max: float = 40e3   # constant-force zone [N]
     traction_power_max: float = 400e3  # constant-power zone: F <= P_max / V [W]
@@ -110,7 +112,7 @@ def applied_forces(v: float, traction_demand: float, brake_demand: float,
 
 def acceleration_gain(gamma: float) -> float:
     """g/1000/(1 + gamma) [m/s^2 per N/kN]: eq. (2)'s factor from a specific force to dV/dt,
-    with seed 003's rotating-mass factor gamma [-] (the paper's eq. (2): gamma = 0)."""
+    with Meleshin's (2011) rotating-mass factor gamma [-] (the paper's eq. (2): gamma = 0)."""
     return G / 1000.0 / (1.0 + gamma)
 
 

@@ -80,8 +80,8 @@ class GradeProfile:
     """Grade i(X) [permille, +uphill], piecewise constant from each distance [m] on.
 
     Before the first distance the first grade applies. ``average(x, length)`` is the grade
-    averaged over a car/train of ``length`` [m] whose front is at ``x`` (the "inextensible
-    string" model of seed 003); ``length = 0`` gives the point-mass grade.
+    averaged over a car/train of ``length`` [m] whose front is at ``x`` (Meleshin's (2011)
+    "inextensible string" model); ``length = 0`` gives the point-mass grade.
     """
     distances: tuple[float, ...] = (0.0,)
     grades: tuple[float, ...] = (0.0,)

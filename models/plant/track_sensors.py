@@ -1,9 +1,10 @@
-"""Speed from two point track sensors a base b apart (seed 002 eq. (15), docs/filters.md).
+"""Speed from two point track sensors a base b apart (eq. (15) of Boynik et al.,
+docs/filters.md).
 
 The car passes sensor 1 at t1 and sensor 2 at t2 = t1 + b / v (constant speed over the base);
 a timer of resolution delta [s] time-stamps both passages and the speed is v_meas = b / (t2' - t1')
-(seed 002 eq. (15), its refs. [1], [5]). The measurement is used as y = [0 1 0] z + eta (eq. (16))
-by ``models.filtering.singer``.
+(Boynik et al., eq. (15), their refs. [1], [5]). The measurement is used as y = [0 1 0] z + eta
+(their eq. (16)) by ``models.filtering.singer``.
 
 Error model (first order in the timing error e of the interval t2' - t1' [s]):
 
@@ -25,7 +26,7 @@ Error model (first order in the timing error e of the interval t2' - t1' [s]):
   worst case of quantisation alone is b/(T - delta) - b/T = v^2 delta / (b - v delta)
   (``track_sensor_speed_error_bound``). To second order the measurement is biased high by
   v sigma_e^2/T^2 (E[1/(T+e)] > 1/T, ``track_sensor_speed_bias``) — relevant to the "never
-  above the truth" requirement of seed 003 (docs/estimation.md).
+  above the truth" requirement (Meleshin 2011; docs/estimation.md).
 - With constant acceleration over the base, b/(t2 - t1) is exactly the speed at the midpoint
   time (t1 + t2)/2 (``passage_times`` with ``accel``): time-stamp the measurement there.
 
@@ -80,8 +81,8 @@ def quantise_time(t, resolution: float, phase=0.0):
 
 def speed_from_times(t1, t2, base: float, resolution: float = 0.0, phase=0.0,
                      jitter1=0.0, jitter2=0.0):
-    """Measured speed [m/s] b / (t2' - t1') from the true passage times t1, t2 [s] (seed 002
-    eq. (15)): each time gets its detection jitter [s] (a drawn value, not a std), then is
+    """Measured speed [m/s] b / (t2' - t1') from the true passage times t1, t2 [s] (Boynik
+    et al., eq. (15)): each time gets its detection jitter [s] (a drawn value, not a std), then is
     quantised by the timer (``quantise_time``, resolution and phase [s]).
 
     Returns +inf when both stamps fall on the same tick (interval 0: the timer is too coarse

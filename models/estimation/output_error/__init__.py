@@ -1,18 +1,19 @@
 """Output-error (trajectory) identification of the resistance and the mass from one segment.
 
-The paper's least squares (seed 001, eqs. (3)-(12), ``models.estimation.identification``) regresses the
-*differenced measured* speed: its target y(n) carries ~sqrt(2) sigma_V 1000/(g dt) of noise
-and the regressors V, V^2 are noisy too (docs/model.md, Identification), so the A's are lost. Output-error
-fitting instead simulates eq. (2) deterministically from a fitted initial state and fits the
-*simulated* trajectory to the measured one: measurement noise enters only the residuals, never
-the regressors, and the estimator is consistent.
+The paper's least squares (Gorbachev et al. 2015, eqs. (3)-(12),
+``models.estimation.identification``) regresses the *differenced measured* speed: its target y(n)
+carries ~sqrt(2) sigma_V 1000/(g dt) of noise and the regressors V, V^2 are noisy too
+(docs/model.md, Identification), so the A's are lost. Output-error fitting instead simulates eq. (2)
+deterministically from a fitted initial state and fits the *simulated* trajectory to the measured
+one: measurement noise enters only the residuals, never the regressors, and the estimator is
+consistent.
 
 Method (cited): the output-error method, Maine & Iliff (1986), "Application of parameter
 estimation to aircraft stability and control: the output-error approach", NASA RP-1168;
 Jategaonkar (2015), "Flight Vehicle System Identification", 2nd ed., AIAA, chapter "Output error
 method" (Gauss-Newton / Levenberg-Marquardt on simulated-minus-measured outputs, sensitivities
-of the simulated states, Cramer-Rao covariance (J^T J)^-1 s^2). The model is eq. (2) of seed 001
-in continuous time with seed 003's rotating-mass factor gamma (as ``models.plant.dynamics``):
+of the simulated states, Cramer-Rao covariance (J^T J)^-1 s^2). The model is eq. (2) of the paper
+in continuous time with Meleshin's (2011) rotating-mass factor gamma (as ``models.plant.dynamics``):
 
     dV/dt = g/1000 / (1 + gamma) * ( Theta1 (F - B) - A0 - A1 V - A2 V^2 - i )     [m/s^2]
     dX/dt = V                                                                    [m/s]
@@ -58,7 +59,7 @@ small in std on a station-to-station run (measured). Two honest options, both gi
 q itself is estimated by restricted maximum likelihood over several fits
 (``estimate_process_noise_psd``), given the sensors' configured noise stds.
 
-Across station stops (seed 001: "P is constant between two stations; A0..A2 drift slowly"):
+Across station stops (Gorbachev et al.: "P is constant between two stations; A0..A2 drift slowly"):
 each fit exports its data information on the A's with the mass and initial state integrated out
 (``OutputErrorFit.A_data_information``); ``fuse_estimates`` adds them up information-weighted
 with optional forgetting between runs, ``ResistanceCarryOver`` does it run by run: the A's carry

@@ -1,6 +1,7 @@
 """Across station stops (models/estimation/output_error/): the A's of several fits fused by their
 data information (``fuse_estimates``), and run by run with the mass restarting at each stop
-(``ResistanceCarryOver``; seed 001: "P is constant between two stations; A0..A2 drift slowly").
+(``ResistanceCarryOver``; Gorbachev et al. 2015: "P is constant between two stations; A0..A2
+drift slowly").
 
 Units: A0 [N/kN], A1 [N/kN/(m/s)], A2 [N/kN/(m/s)^2], mass [t].
 """
@@ -20,8 +21,8 @@ def fuse_estimates(fits, forgetting: float = 0.0, prior: Prior | None = None
     ``fits``: OutputErrorFit objects (their own priors are removed first, so a prior common
     to all fits is not counted n times: ``A_data_information``) or (A, cov_A) pairs (taken as
     pure data). Runs are taken in order; before each run the information so far is multiplied
-    by (1 - forgetting) (exponential forgetting, the constant-mu0 forgetting of seed 001 eq.
-    (8)-(11) applied per run instead of per sample), so slowly drifting A's are followed.
+    by (1 - forgetting) (exponential forgetting, the constant-mu0 forgetting of Gorbachev et
+    al.'s eq. (8)-(11) applied per run instead of per sample), so slowly drifting A's are followed.
     ``prior``: added once at the start (its A-block, mass integrated out).
     """
     J = np.zeros((3, 3))
@@ -46,7 +47,7 @@ def fuse_estimates(fits, forgetting: float = 0.0, prior: Prior | None = None
 class ResistanceCarryOver:
     """Sequential identification across station stops (thin stateful wrapper).
 
-    The A's carry over from run to run while the mass restarts at each stop (seed 001: "P is
+    The A's carry over from run to run while the mass restarts at each stop (Gorbachev et al.: "P is
     constant between two stations; A0..A2 drift slowly"). Each run is fitted on its own, with
     only the weak ``base_prior`` (physical A's, a fresh mass prior), and its *data*
     information on the A's (``OutputErrorFit.A_data_information``: the mass and the initial

@@ -319,7 +319,7 @@ def fit_initial_state(theta, time, speed, traction=None, brake=None, *, distance
                       gamma: float = 0.0, speed_std: float | None = None,
                       distance_std: float | None = None) -> tuple[float, float]:
     """(V0 [m/s], X0 [m]) that best fit the segment with Theta held: the initial state of the
-    recomputed run of a given model (seed 003 re-runs each coast with the identified
+    recomputed run of a given model (Meleshin (2011) re-runs each coast with the identified
     coefficients; this is the start that run needs). Arguments as ``fit_segment``; X0 is nan
     without distances."""
     t = np.asarray(time, dtype=float)

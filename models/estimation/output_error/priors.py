@@ -3,7 +3,7 @@ information form (``Prior``), the weak prior that keeps the A's physical (``phys
 mass prior's std in Theta units.
 
 Theta = (1/(P g), A0, A1, A2) [1/kN, N/kN, N/kN/(m/s), N/kN/(m/s)^2], the paper's parameters
-(seed 001, eq. (2)); mass [t].
+(Gorbachev et al. 2015, eq. (2)); mass [t].
 """
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ def physical_prior(mass: float | None = None, mass_std: float | None = None) -> 
     N/kN/(m/s), A2 = 0.01 +- 0.01 N/kN/(m/s)^2 (1 sigma), independent.
 
     Centred on the estimator's default est.A*_initial; one sigma spans the resistance of metro
-    and suburban cars in m/s units (seed 003 Table 1: A0 0.11-0.89, A1 0.004-0.029, A2
+    and suburban cars in m/s units (Meleshin's (2011) Table 1: A0 0.11-0.89, A1 0.004-0.029, A2
     0.004-0.012), so the truth lies within 1-2 sigma for all four rows. Plus an optional mass
     prior mass [t] +- mass_std [t].
     """

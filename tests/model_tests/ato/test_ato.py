@@ -4,8 +4,9 @@ loop with the RailCar chain (plant, sensors, estimator: models.compiled.open_cha
 as the RailCar FMU with its default parameters) on a library-like span.
 
 Units: s [m], V [m/s], t [s], force [N], mass [t]. Every run is seeded (the chain's noise seed;
-the controller has no randomness). Targets from the sources: arrival within +-2.5 s (seeds 003
-and 004), stop within +-0.3 m (seed 004), never past +1 m, the true speed never above V_lim.
+the controller has no randomness). Targets from the sources: arrival within +-2.5 s (Meleshin
+2011, Sidorenko 1997), stop within +-0.3 m (Sidorenko), never past +1 m, the true speed never
+above V_lim.
 """
 from __future__ import annotations
 
@@ -37,8 +38,8 @@ CAR = CarTraction()                   # the configured car: the RailCar FMU's de
 STEP = 0.1                            # [s] communication step
 REGULATED = AtoTuning()
 FIXED = AtoTuning(replan=False, use_estimates=False)
-ARRIVAL_TOL = 2.5                     # [s] seeds 003 and 004
-STOP_TOL = 0.3                        # [m] seed 004
+ARRIVAL_TOL = 2.5                     # [s] Meleshin (2011), Sidorenko (1997)
+STOP_TOL = 0.3                        # [m] Sidorenko (1997)
 
 
 # ======================================================================= the closed loop
@@ -118,7 +119,7 @@ def test_plan_car_has_the_cars_characteristics():
 
 @pytest.fixture(scope="module")
 def synthesis():
-    """seed 003's maximum-principle plan for SPAN (models.planning.trajectory.synthesize, ~3 s)."""
+    """Meleshin's maximum-principle plan for SPAN (models.planning.trajectory.synthesize, ~3 s)."""
     return synthesize(SPAN, CAR)
 
 
@@ -348,7 +349,7 @@ def test_after_the_stand_the_car_creeps_once():
 
 
 def test_relay_brake_switches_stages_on_the_speed_error():
-    """Seed 004's relay (models/ato/stopping.py), stages of 7.5 kN: it starts with the stages
+    """Sidorenko's relay (models/ato/stopping.py), stages of 7.5 kN: it starts with the stages
     the feed-forward needs (30 t x 1.0 m/s^2 less the resistance: 29.7 kN -> 4, rounded);
     more than the 0.03 m/s hysteresis above the programmed speed switches one more stage on
     (one more per further 0.1 m/s), as much below one off, within it nothing changes, and no
@@ -406,7 +407,7 @@ DISTURBANCES = {   # RailCar overrides (the truth), wind [m/s]; the controller k
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(DISTURBANCES))
 def test_the_regulator_absorbs_what_the_fixed_plan_does_not(case):
-    """Mass +-20 % and a 5 m/s headwind (seed 003's disturbances; the controller is configured
+    """Mass +-20 % and a 5 m/s headwind (Meleshin's disturbances; the controller is configured
     with the 30 t car and still air): the fixed plan (configured coefficients, no re-planning)
     is off by at least 2 s (100-seed means: +6.0 s and -3.7 s for the mass, +2.3 s for the
     wind), the regulator (identified values, re-planning) arrives within +-2.5 s and removes at
@@ -511,7 +512,7 @@ def test_estimates_wait_for_min_samples_since_departure():
 @pytest.mark.slow
 @pytest.mark.parametrize("rel", [0.01, 0.02])
 def test_relative_speed_noise_stops_once_on_time_and_on_the_mark(rel):
-    """Seed 003's 2 % read as it is written, relative to the speed (sensor.speed_std_rel, 2 % as
+    """Meleshin's 2 % read as it is written, relative to the speed (sensor.speed_std_rel, 2 % as
     2 sigma and as 1 sigma, over a 0.01 m/s floor): at the EP stage the filter's distance is
     certain again (filter.position_std ~0.09 / 0.12 m, below settle_std = 0.13 m), so the
     controller cancels the short stop it chose at speed and stops once, aiming from the low

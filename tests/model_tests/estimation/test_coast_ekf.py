@@ -1,4 +1,4 @@
-"""Tests of models.estimation.coast_ekf: seed 003's coasting EKF, in SI units.
+"""Tests of models.estimation.coast_ekf: Meleshin's (2011) coasting EKF, in SI units.
 
 State (V [m/s], alpha [N/kN], A1 [N/kN/(m/s)], A2 [N/kN/(m/s)^2]); grade [permille]; time [s];
 process-noise density [m^2/s^3]. Every random draw is seeded; every tolerance says where it
@@ -16,7 +16,7 @@ from models.plant.dynamics import VehicleParams, rk4_step
 from models.filtering.motion_filter import FilterConfig
 from models.plant.track import GradeProfile
 
-A_ROW1 = from_kmh(0.89, 0.008, 0.00081)       # seed 003 Table 1 row 1, converted to SI
+A_ROW1 = from_kmh(0.89, 0.008, 0.00081)       # Meleshin's (2011) Table 1 row 1, converted to SI
 
 
 def _coast(v0: float, n: int, dt: float, grade: float, A=A_ROW1, q: float = 0.0, rng=None,
@@ -68,7 +68,7 @@ def test_predict_is_the_plants_rk4_and_update_is_a_kalman_step():
 
 def test_noise_free_coast_converges_to_the_true_coefficients():
     """Noise-free coast 90 -> 55 km/h on -2 permille, the prior = other 'standard' coefficients
-    (seed 003 units 1.2, 0.01, 0.0005, +-100 %). With speed_std = 1e-4 m/s the data outweighs
+    (Meleshin's units 1.2, 0.01, 0.0005, +-100 %). With speed_std = 1e-4 m/s the data outweighs
     the prior ~1e6 times and the model mismatch (one RK4 step of 0.2 s vs the plant's four
     substeps) is ~1e-9 m/s: measured errors <= 3e-6 relative; tolerance 1e-4 relative. Also the
     posterior std shrinks from the prior's by > 100x."""
@@ -82,7 +82,7 @@ def test_noise_free_coast_converges_to_the_true_coefficients():
 
 
 def test_unknown_grade_is_absorbed_into_alpha():
-    """grade_known=False on a constant 4 permille grade: seed 003's second state converges to
+    """grade_known=False on a constant 4 permille grade: Meleshin's second state converges to
     a + w_grade (noise-free, as above: 1e-4 relative; measured 1e-6), A1 and A2 are unaffected."""
     t, v, _ = _coast(25.0, 1500, 0.2, 4.0)
     cfg = CoastEKFConfig(speed_std=1e-4, process_noise_psd=0.0, grade_known=False, A0_std=5.0)
@@ -94,7 +94,7 @@ GRADE_ROW1 = GradeProfile((0.0,), (-1.117,))
 
 
 def _row1_log(seed: int):
-    """A coasting log shaped like seed 003 Table 1 row 1 (scenarios/library/coasting_rusich_row1
+    """A coasting log shaped like Meleshin's Table 1 row 1 (scenarios/library/coasting_rusich_row1
     .toml): 165 t, 68.1 km/h, 1991 m on -1.117 permille, speed noise 0.1 km/h at 0.2 s, plant
     process noise 1e-4 m^2/s^3; run on models.chain."""
     veh = VehicleParams(mass=165.0, A0=A_ROW1[0], A1=A_ROW1[1], A2=A_ROW1[2])
@@ -114,7 +114,7 @@ def _row1_log(seed: int):
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_row1_coast_time_within_the_published_bound(seed):
-    """Seed 003 Table 1 row 1: the coast re-run with the EKF's coefficients (harness.metrics.estimation
+    """Meleshin's Table 1 row 1: the coast re-run with the EKF's coefficients (harness.metrics.estimation
     .coast_time from the true initial speed) takes the actual time within 0.25 s. The EKF
     starts from the estimator's default coefficients (1, 0.03, 0.01 +- 100 %) and knows the
     sensor noise and the plant's process-noise density. Measured over seeds 1-20: |dT| mean

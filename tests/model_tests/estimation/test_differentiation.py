@@ -1,4 +1,5 @@
-"""Tests of models.estimation.differentiation (seed 004, MODEL.md section 8) and of the seed's claims.
+"""Tests of models.estimation.differentiation (Sidorenko 1997, MODEL.md section 8) and of
+Sidorenko's claims.
 
 Times [s]; speed samples [m/s] (derivative: acceleration [m/s^2]) or distance samples [m]
 (derivatives: speed [m/s], acceleration [m/s^2]). All randomness is seeded.
@@ -182,13 +183,13 @@ def test_zero_order_hold_baseline():
     assert z.rate[3] == pytest.approx((2.0 - 10.0) / 0.05)
 
 
-# ---------------------------------------------------------------- the seed's claims
+# ---------------------------------------------------------------- Sidorenko's claims
 
 BENCH = load_benchmark()
 
 
 def test_ls_beats_zero_order_hold_on_the_metro_run():
-    """Seed 004's claim on our data (benchmarks/sensor_claims.py, BASE: 3 sensors at 10 Hz with
+    """Sidorenko's claim on our data (benchmarks/sensor_claims.py, BASE: 3 sensors at 10 Hz with
     phase offsets, noise 0.05 m/s, tick 0.1 s, metro run; 50 seeded runs, median ratios).
     Direction: LS beats ZOH in all four statistics. Values: we measure speed max 1.26x, RMS
     1.26x, acceleration max 1.99x, RMS 1.97x against the claimed 1.5x, 2x, 3x, 7x. Tolerances

@@ -1,5 +1,5 @@
-"""est.method 2 (LS on seed 004's centred slopes) and 3 (seed 003's coasting EKF for the A's),
-pinned to analytic cases and to the functional cores they are built from. Seeded."""
+"""est.method 2 (LS on Sidorenko's (1997) centred slopes) and 3 (Meleshin's (2011) coasting EKF
+for the A's), pinned to analytic cases and to the functional cores they are built from. Seeded."""
 import math
 
 import numpy as np
@@ -21,7 +21,7 @@ DT = 0.1
 
 
 def test_centred_slope_weights_are_seed_004s_line_at_the_mean_time():
-    """The slope row equals seed 004's least-squares line (differentiation.ls_weights) evaluated at
+    """The slope row equals Sidorenko's least-squares line (differentiation.ls_weights) evaluated at
     the window's mean time; the interval weights c sum to 1 and give the same slope from the
     differences; six equal steps telescope to 2 sum c^2 = 74/175 of a, by hand:
     c = (2.5, 4, 4.5, 4, 2.5) / 17.5."""
@@ -88,7 +88,7 @@ def test_slope_rows_recover_the_parameters_from_noise_free_data():
 def test_slopes_take_out_the_errors_in_variables_bias_over_a_station_day():
     """station_day's script, seed 17, 0.05 m/s speed noise: the paper's LS regresses the
     differenced measured speed on the measured speed (noise on both sides, correlated), and its
-    w0 is off by 25 %; seed 004's centred value and slope are uncorrelated, and w0 comes within
+    w0 is off by 25 %; Sidorenko's centred value and slope are uncorrelated, and w0 comes within
     6 % (measured 4.5 % after these four runs). The mass is still within 1 % at the end (measured -0.14 %). Both run
     on the Python chain (models/chain.py, the reference)."""
     chain0, v = run_day(0)

@@ -20,7 +20,7 @@ from models.plant.track import GradeProfile
 from models.units import G, resistance_kmh_to_si
 
 MASS = 32.0                                   # [t]
-A_TRUE = (0.89, 0.0288, 0.010498)             # seed 003 Table 1 row 1 in m/s units
+A_TRUE = (0.89, 0.0288, 0.010498)             # Meleshin's (2011) Table 1 row 1 in m/s units
 THETA = np.array([1.0 / (G * MASS), *A_TRUE])
 DT = 0.1
 
@@ -159,7 +159,7 @@ GRADE_ROW1 = GradeProfile((0.0,), (-1.117,))
 
 
 def _row1_log(seed: int):
-    """A coasting log shaped like seed 003 Table 1 row 1 (scenarios/library/coasting_rusich_row1
+    """A coasting log shaped like Meleshin's Table 1 row 1 (scenarios/library/coasting_rusich_row1
     .toml): 5 cars / 165 t, 68.1 km/h, 1991 m on -1.117 permille, speed noise 0.1 km/h and
     distance noise 1 m at 0.2 s, plant process noise 1e-4 m^2/s^3; run on models.chain."""
     veh = VehicleParams(mass=165.0, A0=A_ROW1[0], A1=A_ROW1[1], A2=A_ROW1[2])
@@ -180,7 +180,7 @@ def _row1_log(seed: int):
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_row1_coast_time_within_the_published_bound(seed):
-    """Seed 003 Table 1 row 1: run time predicted with the identified coefficients within 0.25 s
+    """Meleshin's Table 1 row 1: run time predicted with the identified coefficients within 0.25 s
     (harness.metrics.estimation.coast_time from the true initial speed, as harness.metrics.estimation.summarise).
 
     Filter error with the plant's process-noise density (a configured constant, the study

@@ -1,6 +1,6 @@
-"""sensor.speed_std_rel: a speed sensor whose noise is relative to the speed (seed 003's "within
-2 %"): std = sensor.speed_std + sensor.speed_std_rel x |V|, in the plant's sensor and in every
-place the estimator takes the speed's noise (docs/model.md, "Relative speed noise").
+"""sensor.speed_std_rel: a speed sensor whose noise is relative to the speed (Meleshin's (2011)
+"within 2 %"): std = sensor.speed_std + sensor.speed_std_rel x |V|, in the plant's sensor and in
+every place the estimator takes the speed's noise (docs/model.md, "Relative speed noise").
 
 The C core's bit-identity with it set is in tests/model_tests/core/test_core_filter.py, test_core_singer.py and
 test_core_chain.py (variants); the native FMUs' in test_native_fmu.py, test_native_fmi3.py and

@@ -1,4 +1,5 @@
-"""Tests of models.filtering.singer: seed 002's Singer-type model (MODEL.md section 6) and its filter.
+"""Tests of models.filtering.singer: Boynik et al.'s Singer-type model (MODEL.md section 6) and
+its filter.
 
 State z = [w, v, r]: acceleration [m/s^2], speed [m/s], distance [m]; tau, dt [s];
 alpha = 1/tau [1/s]; sigma_w, m_w [m/s^2].
@@ -123,7 +124,7 @@ def rel_err(M, M_ref):
     (0.6, 0.1, 0.1, 1.0, 0.0),       # w_max- = 0 (no braking phase)
 ])
 def test_mixture_moments_match_numerical_integration(p0, pp, pm, wp, wm):
-    """Seed 002 eqs. (3)-(6): mean and variance of P0 delta(0) + P+ delta(w+) + P- delta(w-) + h
+    """Boynik et al., eqs. (3)-(6): mean and variance of P0 delta(0) + P+ delta(w+) + P- delta(w-) + h
     on [w-, w+], integrated numerically with scipy.quad (a polynomial integrand: exact to
     rounding, so 1e-12)."""
     m, s = singer_mixture_moments(p0, pp, pm, wp, wm)
@@ -239,8 +240,8 @@ def test_semigroup_and_covariance_composition():
 
 
 def test_relation_to_the_seed_recursion():
-    """Seed 002 eqs. (9), (10): Phi[w, w] = rho = exp(-dt/tau), Q[w, w] = sigma_w^2 q^2,
-    q = sqrt(1 - rho^2) — the same as the exact model. The seed's speed/distance rows (13) are
+    """Boynik et al., eqs. (9), (10): Phi[w, w] = rho = exp(-dt/tau), Q[w, w] = sigma_w^2 q^2,
+    q = sqrt(1 - rho^2) — the same as the exact model. Their speed/distance rows (13) are
     Euler steps: their error against the exact Phi is O(dt^2) (ratio 4 when dt halves)."""
     tau = 6.0
     for dt in (0.05, 0.5, 5.0):

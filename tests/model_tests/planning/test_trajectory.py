@@ -27,7 +27,8 @@ FLAT = Span(1500.0, 95.0, limit_speeds=(V80,))
 HUMP = Span(1800.0, 110.0, limit_speeds=(V80,),
             grade=GradeProfile((0.0, 400.0, 900.0, 1400.0), (0.0, 30.0, -30.0, 0.0)))
 ZONE = Span(2000.0, 121.0, limit_distances=(0.0, 800.0, 1100.0), limit_speeds=(V80, V60, V80))
-TOL = 0.01        # [s] the planners' running-time tolerance (1/250 of seeds 003/004's +-2.5 s)
+TOL = 0.01        # [s] the planners' running-time tolerance (1/250 of the +-2.5 s of Meleshin
+                  # 2011 and Sidorenko 1997)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +71,7 @@ def test_f_max_and_brake_limit_are_the_plants_bit_for_bit():
 
 
 def test_regenerative_brake_fades_below_7_kmh_and_the_ep_brake_fills_in():
-    """Seed 003: electric brake above 7 km/h, electro-pneumatic below. r_max is the full
+    """Meleshin (2011): electric brake above 7 km/h, electro-pneumatic below. r_max is the full
     two-zone value at and above 7 km/h, zero at and below 5 km/h, linear between; the braking
     curve's force stays at the regen's 7 km/h level (40 kN) with the mechanical brake making up
     the difference, and carries no mechanical share above 7 km/h."""
@@ -213,7 +214,7 @@ def test_plans_meet_the_schedule_and_stop_at_the_mark(plans, key, span):
 
 
 def test_maximum_principle_modes_and_holding_speeds(plans):
-    """The flat plan is seed 003's structure for a short span: TG, VB, then RK and the final
+    """The flat plan is Meleshin's (2011) structure for a short span: TG, VB, then RK and the final
     TM below 7 km/h (the p-condition has no C arc here). lambda and V_r follow from V_c as in
     the module docstring: lambda = V_c^2 W'(V_c)/eta_f, V_r^2 w0'(V_r) = V_c^2 w0'(V_c)/(eta eta_f)."""
     p = plans["flat_mp"]
@@ -248,7 +249,7 @@ def test_longer_schedule_costs_less_energy(plans):
 
 
 def test_saving_against_the_manual_driver_on_a_two_traction_span(plans):
-    """Seed 003: 3-15 % saving against manual driving at the scheduled time on spans with two
+    """Meleshin (2011): 3-15 % saving against manual driving at the scheduled time on spans with two
     or more traction applications. On the 60 km/h-zone span (schedule = minimum time + 5 %)
     both runs apply traction twice and the maximum-principle plan saves 8.8 % (measured): it
     coasts into the zone and after it instead of braking for it. On the flat span, where the
@@ -263,7 +264,7 @@ def test_saving_against_the_manual_driver_on_a_two_traction_span(plans):
 
 
 def test_dp_agrees_with_the_maximum_principle(plans):
-    """Seed 004's DP (K = 2, 25 m stages, 121 speeds), retimed to the schedule, is within
+    """Sidorenko's (1997) DP (K = 2, 25 m stages, 121 speeds), retimed to the schedule, is within
     0.5 % of the maximum-principle plan on the zone span (measured 0.01 %: the 25 m stages
     are the DP's only coarseness once a switch is moved continuously) and has the same two
     traction applications."""

@@ -1,4 +1,5 @@
-"""Track-sensor speed (seed 002) in the chain and the estimator; the Singer filter in the chain."""
+"""Track-sensor speed (Boynik et al.) in the chain and the estimator; the Singer filter in the
+chain."""
 import math
 
 import numpy as np
@@ -65,7 +66,7 @@ def test_track_settings_are_validated_naming_the_parameter():
 
 
 def test_singer_kind_runs_in_the_chain_and_beats_the_sensor():
-    """Seed 002's model-free filter as filter.kind = 4: better than the raw speed (RMSE)."""
+    """Boynik et al.'s model-free filter as filter.kind = 4: better than the raw speed (RMSE)."""
     chain = RailCarChain(ChainConfig(seed=5, filter=FilterConfig(kind=SINGER)), GradeProfile.level())
     err_f, err_s = [], []
     for k in range(600):

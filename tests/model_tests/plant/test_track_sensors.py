@@ -1,4 +1,5 @@
-"""Tests of models.plant.track_sensors: speed from two point track sensors (seed 002 eq. (15)).
+"""Tests of models.plant.track_sensors: speed from two point track sensors (eq. (15) of
+Boynik et al.).
 
 Speeds [m/s], base [m], times, resolution and jitter [s]. Monte Carlo tests are seeded; their
 tolerances are from the standard error of the statistic (stated in each test).
