@@ -97,7 +97,7 @@ EXACT = (0.0, 0.0)
 # Estimator options beyond the FMU's defaults, pinned by tests/regression/variants/: (library
 # scenario, parameters by FMU name), run on the models chain (the C core covers only the defaults).
 VARIANTS: dict[str, tuple[str, dict]] = {
-    # LS on seed 004's slopes, A0 and A2 kept physical, sigma^2 by likelihood, slow forgetting
+    # LS on Sidorenko's (1997) slopes, A0 and A2 kept physical, sigma^2 by likelihood, slow forgetting
     "station_day_all_options": ("station_day", {"est.method": 2, "est.physical": 1,
                                                 "est.sigma2_method": 1, "est.run_forgetting": 0.1}),
     # the coasting EKF for the A's with the same options
