@@ -31,6 +31,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
+from fmu_src.build.toolchain import find_compiler, fmi_headers
 
 DRIVER = Path(__file__).resolve().parents[1] / "fmu_cases" / "driver.py"
 sys.path.insert(0, str(DRIVER.parent))
@@ -646,7 +647,6 @@ def test_plain_C_host_with_libpython_preloaded(fmus, tmp_path):
     reset, a good run, two frees; then the host finalises Python: fmi2Fatal, and free is safe."""
     import sysconfig
     import numpy
-    from fmu_src.build.toolchain import find_compiler, fmi_headers
     cc = find_compiler()
     libpython = Path(sysconfig.get_config_var("LIBDIR") or "", sysconfig.get_config_var("INSTSONAME") or "")
     if cc is None or not sysconfig.get_config_var("Py_ENABLE_SHARED") or not libpython.is_file():
