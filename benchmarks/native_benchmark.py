@@ -19,7 +19,7 @@ Targets: (a) >= 500,000 steps/s; (b) <= 1.5x the time per step of (c); native >=
 The last one cannot be met through fmpy: fmpy's own ~30 us per step, which the no-op (c) pays
 too, caps any model at ~2.1x over pythonfmu's ~62 us, so (b)/(d) is printed for the record and
 the target is judged on the two FMUs in one host without fmpy's floor, (a)/(e).
-The native FMU and the no-op are compiled here from the current sources (fmu_src/native.py's
+The native FMU and the no-op are compiled here from the current sources (fmu_src/build/native.py's
 flags), so the figures are those of the checked-out code.
 """
 from __future__ import annotations
@@ -47,16 +47,15 @@ PYTHONFMU_RATIO_TARGET = 5.0
 
 def build_noop(dest: Path, native_fmu: Path) -> Path:
     """dest/RailCarNoop.fmu: the no-op backend behind the native FMU's description."""
-    from fmu_src import native
-    build = native._build_py()
-    cc = build.find_compiler()
+    from fmu_src.build import native, toolchain
+    cc = toolchain.find_compiler()
     if cc is None:
         raise SystemExit("no C compiler found (set CC or install gcc)")
     so = dest / "noop.so"
     sources = ([native.C_DIR / s for s in native.COMMON_SOURCES] + [HERE / "native_noop_backend.c"]
                + sorted(native.CORE_DIR.glob("*.c")))
     cmd = [*cc, *native.C_FLAGS, "-I", str(native.C_DIR), "-I", str(native.CORE_DIR),
-           "-I", str(build.fmi2_headers()), *map(str, sources), "-o", str(so), "-lm"]
+           "-I", str(toolchain.fmi_headers()), *map(str, sources), "-o", str(so), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode:
         raise SystemExit(f"compiling the no-op FMU failed:\n{proc.stdout}{proc.stderr}")
@@ -71,12 +70,11 @@ def build_noop(dest: Path, native_fmu: Path) -> Path:
 
 
 def build_host(dest: Path) -> Path:
-    from fmu_src import native
-    build = native._build_py()
-    cc = build.find_compiler() or ["gcc"]
+    from fmu_src.build import native, toolchain
+    cc = toolchain.find_compiler() or ["gcc"]
     exe = dest / "native_host_bench"
     cmd = [*cc, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic",
-           "-I", str(build.fmi2_headers()), str(HERE / "native_host_bench.c"), "-o", str(exe), "-ldl"]
+           "-I", str(toolchain.fmi_headers()), str(HERE / "native_host_bench.c"), "-o", str(exe), "-ldl"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode:
         raise SystemExit(f"compiling the C host failed:\n{proc.stdout}{proc.stderr}")
@@ -125,7 +123,7 @@ def main() -> None:
     ap.add_argument("--py-steps", type=int, default=3000, help="steps of the pythonfmu FMU via fmpy")
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
-    from fmu_src.native import build_native_fmu
+    from fmu_src.build.native import build_native_fmu
     from harness.run.fmus import ensure_built
     fmus = ensure_built(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:

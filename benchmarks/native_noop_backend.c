@@ -3,7 +3,7 @@
  * model_* lifecycle (storage, get and set as the native FMUs), and a fmi2DoStep that does
  * nothing. Through a host it costs what the FMI path costs: the glue's
  * checks, the value-reference lookups and the copies, but no model. Outputs keep their start
- * values. Built with the FMU's glue and native_common.c, the same flags as fmu_src/native.py. */
+ * values. Built with the FMU's glue and native_common.c, the same flags as fmu_src/build/native.py. */
 #include "fmi2_glue.h"
 #include "native_common.h"
 #include "native_railcar_table.h"

@@ -1,1 +1,3 @@
-"""FMI 2.0 co-simulation adapters (pythonfmu) around ``models``: one variable table, two slaves."""
+"""The FMUs around ``models``: the variable table (``variables``), the pythonfmu slaves (``railcar``,
+``railcar_estimator``, ``ato_controller`` on ``adapter``), the FMI glue in C (``c/``) and the
+packaging of every FMU (``build/``, run by build.py)."""

@@ -10,84 +10,23 @@ choice is always printed (``FmuChoice.line``) and recorded in what the command w
 """
 from __future__ import annotations
 
-import importlib.util
-import platform
-import subprocess
-import sys
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from xml.etree import ElementTree as ET
 
+from fmu_src.build.dist import (DIST, NAMES, NATIVE_NAMES, BuildError, fmu_guid,  # noqa: F401
+                                is_stale, native_buildable, native_is_stale, native_path, run_build)
 from harness.textio import InputError
 
-ROOT = Path(__file__).resolve().parents[2]
-DIST = ROOT / "dist"
-NAMES = ("RailCar", "RailCarEstimator")
-NATIVE_NAMES = {"RailCar": "RailCarNative", "RailCarEstimator": "RailCarEstimatorNative"}  # build.py's
 KINDS = ("auto", "native", "python")
 DEFAULT_KIND = "auto"
 
 
-class BuildError(RuntimeError):
-    """build.py failed: the FMUs could not be built (exit code 1, with build.py's output)."""
-
-
-def _build_module():
-    spec = importlib.util.spec_from_file_location("_railcar_build", ROOT / "build.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def _description(path: Path) -> bytes | None:
-    try:
-        with zipfile.ZipFile(path) as z:
-            return z.read("modelDescription.xml")
-    except (OSError, KeyError, zipfile.BadZipFile):
-        return None
-
-
-def fmu_guid(path: Path) -> str | None:
-    xml = _description(path)
-    try:
-        return None if xml is None else ET.fromstring(xml).get("guid")
-    except ET.ParseError:
-        return None
-
-
-def native_path(name: str, dist: Path = DIST) -> Path:
-    """DIST/native/<name>Native.fmu: the native FMI 2 twin of DIST/<name>.fmu."""
-    return Path(dist) / "native" / f"{NATIVE_NAMES[name]}.fmu"
-
-
-def is_stale(name: str, dist: Path = DIST) -> bool:
-    """True if dist/<name>.fmu is missing or was built from other sources."""
-    return fmu_guid(Path(dist) / f"{name}.fmu") != _build_module().source_guid(name)
-
-
-def native_is_stale(name: str, dist: Path = DIST) -> bool:
-    """True if DIST/native/<name>Native.fmu is missing or was not built from DIST/<name>.fmu and
-    the current C sources (its GUID is fmu_src.native.native_guid of both)."""
-    xml = _description(Path(dist) / f"{name}.fmu")
-    if xml is None:
-        return True
-    from fmu_src import native
-    spec = {s.fmu: s for s in native.SPECS}[name]
-    return fmu_guid(native_path(name, dist)) != native.native_guid(xml, spec)
-
-
-def native_buildable() -> bool:
-    """build.py builds the native FMUs only on linux x86-64 with a C compiler."""
-    return (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")
-            and _build_module().find_compiler() is not None)
-
-
 def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False,
                  native: bool = True) -> dict[str, Path]:
-    """Build every FMU (build.py, in a subprocess) unless they are present and current; returns
-    the pythonfmu FMUs' paths by name (``native_path`` gives their native twins). A missing or
-    stale native FMI 2 FMU counts too when ``native`` (and build.py can build it here)."""
+    """Build every FMU (build.py, in a subprocess: fmu_src.build.dist.run_build) unless they are
+    present and current; returns the pythonfmu FMUs' paths by name (``native_path`` gives their
+    native twins). A missing or stale native FMI 2 FMU counts too when ``native`` (and build.py
+    can build it here)."""
     dist = Path(dist)
     if dist.exists() and not dist.is_dir():
         raise InputError(f"--dist {dist}: exists and is not a folder")
@@ -97,12 +36,9 @@ def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False,
     if stale:
         if not quiet:
             print(f"building FMUs into {dist} ...", flush=True)
-        proc = subprocess.run([sys.executable, str(ROOT / "build.py"), "--dest", str(dist)],
-                              capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise BuildError(f"build.py failed:\n{proc.stdout}\n{proc.stderr}")
+        out = run_build(dist)
         if not quiet:
-            print(proc.stdout.strip(), flush=True)
+            print(out.strip(), flush=True)
     return {n: dist / f"{n}.fmu" for n in NAMES}
 
 
@@ -182,6 +118,6 @@ def select(asked: str, model: str, dist, rebuild: bool, parameter_sets) -> FmuCh
 
 
 def is_native(model_description) -> bool:
-    """An FMU that needs no execution tool is a native one (fmu_src/native.py sets it false;
-    pythonfmu sets it true)."""
+    """An FMU that needs no execution tool is a native one (fmu_src/build/native.py sets it
+    false; the pythonfmu FMUs have it true)."""
     return not model_description.coSimulation.needsExecutionTool

@@ -10,8 +10,10 @@ import os
 import shutil
 import subprocess
 import sys
+import re
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree as ET
 
 import fmpy
 import pytest
@@ -19,6 +21,11 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from conftest import FMU_NAMES, ROOT, build_fmus
+
+# At collection, before any FMU runs in this process: an FMU loaded first would put its own
+# bundled copy of fmu_src (resources/fmu_src, ROOT = the unzipped FMU) in sys.modules.
+from fmu_src.build import dist, model_description, native, native_fmi3, pythonfmu_fmus  # noqa: E402
+from fmu_src.variables import UNITS, variables_for  # noqa: E402
 
 # ----------------------------------------------------------------------------- the contract
 # Hard-coded from shared/spec/FMU_INTERFACE.md (the contract: names and units never change).
@@ -296,3 +303,208 @@ def test_fmu_runs_its_bundled_code_in_a_fresh_process(fmus, name, tmp_path):
                              output_interval=0.1, start_values=start_values, output=outputs)
     for n in outputs:
         assert fresh["values"][n] == here[n].tolist(), f"{name}: {n} differs from the bundle's"
+
+
+# ------------------------------------------------------- packaging: fmu_src/build, one writer
+
+NATIVE_FMUS = {"RailCarNative": ("RailCar", 2), "RailCarEstimatorNative": ("RailCarEstimator", 2),
+               "RailCarNative3": ("RailCar", 3), "RailCarEstimatorNative3": ("RailCarEstimator", 3)}
+
+
+def _xml(fmu: Path) -> bytes:
+    with zipfile.ZipFile(fmu) as z:
+        return z.read("modelDescription.xml")
+
+
+@pytest.mark.parametrize("name", FMU_NAMES)
+def test_pythonfmu_fmu_carries_the_writers_description(built_fmus, name):
+    """Byte for byte what fmu_src.build.model_description.fmi2 writes from the table, with the
+    GUID of today's sources (the time stamp is the build's)."""
+    shipped = _xml(built_fmus[name])
+    stamp = ET.fromstring(shipped).get("generationDateAndTime")
+    expected = model_description.fmi2(name, pythonfmu_fmus.source_guid(name),
+                                      pythonfmu_fmus.generation_tool(), generated_at=stamp)
+    assert shipped == expected
+
+
+@pytest.mark.parametrize("native_name", NATIVE_FMUS)
+def test_native_fmu_carries_the_writers_description(built_fmus, native_name):
+    name, fmi = NATIVE_FMUS[native_name]
+    spec = {s.fmu: s for s in native.SPECS}[name]
+    shipped = _xml(built_fmus[name].parent / "native" / f"{native_name}.fmu")
+    if fmi == 2:
+        stamp = ET.fromstring(shipped).get("generationDateAndTime")
+        guid = native.native_guid(_xml(built_fmus[name]), spec)
+        expected = model_description.fmi2(
+            name, guid, native.GENERATION_TOOL, needs_execution_tool=False,
+            source_files=tuple(p.name for p in native.c_sources(spec)), generated_at=stamp)
+    else:
+        expected = model_description.fmi3(name, native_fmi3.instantiation_token(spec),
+                                          native_fmi3.GENERATION_TOOL)
+    assert shipped == expected
+
+
+@pytest.mark.parametrize("name", ("RailCar", "RailCarEstimator"))
+def test_native_fmi2_description_is_the_pythonfmu_one_but_for_what_says_native(built_fmus, name):
+    """A host swaps the file and nothing else: canonically the same XML once the GUID, time
+    stamp, generationTool, needsExecutionTool and SourceFiles are set aside."""
+    native_name = {"RailCar": "RailCarNative", "RailCarEstimator": "RailCarEstimatorNative"}[name]
+
+    def canonical(xml: bytes) -> tuple[str, dict]:
+        root = ET.fromstring(xml)
+        own = {k: root.attrib.pop(k) for k in ("guid", "generationDateAndTime", "generationTool")}
+        cosim = root.find("CoSimulation")
+        own["needsExecutionTool"] = cosim.attrib.pop("needsExecutionTool")
+        own["SourceFiles"] = [f.get("name") for f in cosim.iter("File")]
+        for files in cosim.findall("SourceFiles"):
+            cosim.remove(files)
+        cosim.text = None
+        return ET.canonicalize(ET.tostring(root, encoding="unicode"), strip_text=True), own
+
+    python_xml, python_own = canonical(_xml(built_fmus[name]))
+    native_xml, native_own = canonical(_xml(built_fmus[name].parent / "native" / f"{native_name}.fmu"))
+    assert native_xml == python_xml
+    assert (python_own["needsExecutionTool"], native_own["needsExecutionTool"]) == ("true", "false")
+    assert python_own["SourceFiles"] == [] and "native_common.c" in native_own["SourceFiles"]
+    assert native_own["guid"] != python_own["guid"]
+
+
+@pytest.mark.parametrize("fmu", FMU_NAMES)
+def test_the_fmi2_writer_follows_the_variable_table(fmu):
+    """Every row of fmu_src/variables.py at its value reference: causality, variability,
+    initial, type, exact start (repr round-trips the double), unit and bounds; calculated
+    outputs are initial unknowns; AtoController's outputs have no direct feedthrough."""
+    table = variables_for(fmu)
+    root = ET.fromstring(model_description.fmi2(fmu, "{guid}", "test", generated_at="2000-01-01T00:00:00+00:00"))
+    assert (root.get("guid"), root.get("generationDateAndTime")) == ("{guid}", "2000-01-01T00:00:00+00:00")
+    svs = list(root.find("ModelVariables"))
+    assert [sv.get("name") for sv in svs] == [v.name for v in table]
+    for vr, (sv, v) in enumerate(zip(svs, table)):
+        assert sv.get("valueReference") == str(vr)
+        assert (sv.get("causality"), sv.get("variability")) == (v.causality, v.variability), v.name
+        assert sv.get("initial") == (v.initial if v.causality == "output" else None), v.name
+        (typed,) = list(sv)
+        assert typed.tag == v.type, v.name
+        if v.causality == "output" and v.initial == "calculated":
+            assert typed.get("start") is None, v.name
+        elif v.type == "Real":
+            assert float(typed.get("start")) == v.start, v.name
+        elif v.type == "Boolean":
+            assert typed.get("start") == ("true" if v.start else "false"), v.name
+        else:
+            assert typed.get("start") == str(v.start), v.name
+        if v.type == "Real":
+            assert typed.get("unit") == v.unit, v.name
+            for bound in ("min", "max"):
+                want = getattr(v, bound)
+                assert (None if typed.get(bound) is None else float(typed.get(bound))) == want, v.name
+    units = {u.get("name"): u.find("BaseUnit").attrib for u in root.find("UnitDefinitions")}
+    assert set(units) == {v.unit for v in table if v.type == "Real" and v.unit}
+    for unit, base in units.items():
+        exponents, factor = UNITS[unit]
+        assert {k: int(e) for k, e in base.items() if k != "factor"} == exponents, unit
+        assert float(base.get("factor", "1.0")) == factor, unit
+    structure = root.find("ModelStructure")
+    outputs = [vr + 1 for vr, v in enumerate(table) if v.causality == "output"]
+    unknowns = list(structure.find("Outputs"))
+    assert [int(u.get("index")) for u in unknowns] == outputs
+    assert all((u.get("dependencies") == "") == (fmu == "AtoController") for u in unknowns)
+    calculated = [vr + 1 for vr, v in enumerate(table) if v.causality == "output" and v.initial == "calculated"]
+    initial = structure.find("InitialUnknowns")
+    assert [int(u.get("index")) for u in ([] if initial is None else initial)] == calculated
+
+
+@pytest.mark.parametrize("fmu", ("RailCar", "RailCarEstimator"))
+def test_the_fmi3_writer_follows_the_variable_table(fmu):
+    """The FMI 2 value references, FMI 3 types, start values on parameters and inputs only,
+    "time" after the table, every output an Output and an InitialUnknown."""
+    table = variables_for(fmu)
+    root = ET.fromstring(model_description.fmi3(fmu, "{token}", "test"))
+    assert root.get("instantiationToken") == "{token}"
+    variables = list(root.find("ModelVariables"))
+    assert [v.get("name") for v in variables] == [v.name for v in table] + ["time"]
+    assert [int(v.get("valueReference")) for v in variables] == list(range(len(table) + 1))
+    assert variables[-1].get("causality") == "independent"
+    fmi3_type = {"Real": "Float64", "Integer": "Int32", "String": "String"}
+    for el, v in zip(variables, table):
+        assert el.tag == fmi3_type[v.type], v.name
+        if v.causality == "output":
+            assert (el.get("initial"), el.get("start")) == ("calculated", None), v.name
+        elif v.type == "String":
+            assert el.find("Start").get("value") == v.start, v.name
+        else:
+            assert float(el.get("start")) == v.start, v.name
+    outputs = [str(vr) for vr, v in enumerate(table) if v.causality == "output"]
+    structure = root.find("ModelStructure")
+    assert [o.get("valueReference") for o in structure.findall("Output")] == outputs
+    assert [o.get("valueReference") for o in structure.findall("InitialUnknown")] == outputs
+
+
+def test_a_slave_that_registers_other_variables_than_the_table_is_refused():
+    """The binary runs what the slave registered, the description says what the table says:
+    check_pythonfmu_description names the first difference."""
+    good = model_description.fmi2("RailCar", "{g}", "test")
+    model_description.check_pythonfmu_description(good, "RailCar", "RailCar.fmu")   # no error
+    root = ET.fromstring(good)
+    mv = root.find("ModelVariables")
+    mv[3].set("name", "car.renamed")
+    with pytest.raises(RuntimeError, match=r"RailCar.fmu: the slave registers \('car.renamed'.* at value "
+                                           r"reference 3, fmu_src/variables.py has \('car.payload'"):
+        model_description.check_pythonfmu_description(ET.tostring(root), "RailCar", "RailCar.fmu")
+    mv[3].set("name", "car.payload")
+    last = len(mv) - 1
+    mv.remove(mv[last])                                    # one variable fewer than the table
+    with pytest.raises(RuntimeError, match=f"registers nothing at value reference {last}, "
+                                           rf"fmu_src/variables.py has \('{variables_for('RailCar')[-1].name}'"):
+        model_description.check_pythonfmu_description(ET.tostring(root), "RailCar", "RailCar.fmu")
+    with pytest.raises(RuntimeError, match="modelIdentifier is not RailCarEstimator"):
+        model_description.check_pythonfmu_description(good, "RailCarEstimator", "RailCar.fmu")
+
+
+def test_a_native_build_alone_builds_its_pythonfmu_twin_only_when_stale(built_fmus, tmp_path, monkeypatch):
+    """``python -m fmu_src.build.native --build D`` takes dist/'s pythonfmu FMU: current (the
+    session build) it is used as it is; missing, build.py builds the pythonfmu FMUs alone."""
+    runs = []
+    monkeypatch.setattr(dist, "run_build", lambda folder, native=True: runs.append((folder, native)))
+    current = built_fmus["RailCar"].parent
+    assert dist.current_pythonfmu("RailCar", current) == current / "RailCar.fmu" and runs == []
+    assert dist.current_pythonfmu("RailCar", tmp_path) == tmp_path / "RailCar.fmu"
+    assert runs == [(tmp_path, False)]
+
+
+PACKAGING_MODULES = ("fmu_src.build.cli", "fmu_src.build.dist", "fmu_src.build.model_description",
+                     "fmu_src.build.native", "fmu_src.build.native_fmi3",
+                     "fmu_src.build.pythonfmu_fmus", "fmu_src.build.toolchain")
+
+
+def test_packaging_imports_no_harness():
+    """Layers: models <- fmu_src <- harness. A fresh interpreter imports every packaging module
+    (and runs native's header generation, which reaches models.compiled) without the harness."""
+    code = ("import importlib, sys\n"
+            f"for m in {PACKAGING_MODULES!r}: importlib.import_module(m)\n"
+            "from fmu_src.build import native\n"
+            "native.generate_header(native.RAILCAR_SPEC)\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'harness'))\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"
+
+
+def test_build_py_is_imported_by_no_one():
+    """build.py is a command line; code reaches packaging as the module fmu_src.build, never by
+    loading build.py from its path (two module names for one file) or importing it."""
+    by_path = re.compile(r'spec_from_file_location\([^\n]*"build\.py"')
+    by_name = re.compile(r"^\s*(import build|from build import)\b", re.M)
+    offenders = [str(path.relative_to(ROOT))
+                 for folder in ("fmu_src", "harness", "tests", "benchmarks", "studies")
+                 for path in (ROOT / folder).rglob("*.py")
+                 if by_path.search(text := path.read_text(encoding="utf-8")) or by_name.search(text)]
+    assert offenders == []
+    assert not (ROOT / "fmu_src" / "native.py").exists() and not (ROOT / "fmu_src" / "native_fmi3.py").exists()
+
+
+def test_gitignore_ignores_only_the_top_level_build_folder():
+    """An unanchored "build/" would ignore fmu_src/build/, the packaging package itself."""
+    lines = [line.strip() for line in (ROOT / ".gitignore").read_text().splitlines()]
+    assert "/build/" in lines and "build/" not in lines and "build" not in lines

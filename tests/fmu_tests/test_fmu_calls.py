@@ -31,6 +31,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
+from fmu_src.build.toolchain import find_compiler, fmi_headers
 
 DRIVER = Path(__file__).resolve().parents[1] / "fmu_cases" / "driver.py"
 sys.path.insert(0, str(DRIVER.parent))
@@ -644,19 +645,14 @@ def test_instances_and_failed_initialisations_do_not_grow_memory(built_fmus):
 def test_plain_C_host_with_libpython_preloaded(fmus, tmp_path):
     """tests/fmu_cases/c_host.c: the FMU starts the interpreter itself; a failed initialisation,
     reset, a good run, two frees; then the host finalises Python: fmi2Fatal, and free is safe."""
-    import importlib.util
     import sysconfig
     import numpy
-    spec = importlib.util.spec_from_file_location("railcar_build", ROOT / "build.py")
-    build = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(build)
-    find_compiler, fmi2_headers = build.find_compiler, build.fmi2_headers
     cc = find_compiler()
     libpython = Path(sysconfig.get_config_var("LIBDIR") or "", sysconfig.get_config_var("INSTSONAME") or "")
     if cc is None or not sysconfig.get_config_var("Py_ENABLE_SHARED") or not libpython.is_file():
         pytest.skip("needs a C compiler and a shared libpython")
     host = tmp_path / "c_host"
-    subprocess.run([*cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(fmi2_headers()),
+    subprocess.run([*cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(fmi_headers()),
                     str(DRIVER.parent / "c_host.c"), "-o", str(host), "-ldl"], check=True)
     f = fmus[RC]
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}

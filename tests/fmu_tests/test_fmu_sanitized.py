@@ -11,12 +11,10 @@ import subprocess
 import sys
 import sysconfig
 import zipfile
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
+from fmu_src.build import pythonfmu_fmus, toolchain
 
-import build  # noqa: E402  (the FMU build: its sources and the FMI headers)
+ROOT = toolchain.ROOT
 
 
 def test_the_fmi_binary_runs_a_hostile_session_clean_under_sanitizers(built_fmus, tmp_path):
@@ -26,10 +24,10 @@ def test_the_fmi_binary_runs_a_hostile_session_clean_under_sanitizers(built_fmus
     with zipfile.ZipFile(built_fmus["RailCar"]) as z:
         z.extractall(unzipdir)
     binary = unzipdir / "binaries" / "linux64" / "RailCar.so"
-    flags = [f for f in build.C_FLAGS if f != "-O2"]
+    flags = [f for f in pythonfmu_fmus.C_FLAGS if f != "-O2"]
     subprocess.run([gcc, *flags, "-O1", "-g", "-fsanitize=address,undefined",
                     "-fno-sanitize-recover=undefined", "-I", sysconfig.get_paths()["include"],
-                    "-I", str(build.fmi2_headers()), *[str(ROOT / s) for s in build.C_SOURCES],
+                    "-I", str(toolchain.fmi_headers()), *[str(ROOT / s) for s in pythonfmu_fmus.C_SOURCES],
                     "-o", str(binary)], check=True, capture_output=True, text=True)
     assert b"__asan_" in binary.read_bytes()          # the FMU now carries the instrumented build
     runtimes = [subprocess.run([gcc, f"-print-file-name={lib}"], capture_output=True, text=True,

@@ -1,7 +1,7 @@
 """The native FMI 3.0 glue (fmu_src/c/fmi3_glue.c) on BOTH backends (native_railcar.c,
 native_estimator.c) under ASan/UBSan/LSan, with no Python in the process: a plain C host
 (tests/fmu_cases/native3_cycles.c) linked with the glue, the backend and models/core/*.c (the
-sources fmu_src.native_fmi3.c_sources lists), all built with -fsanitize=address,undefined
+sources fmu_src.build.native_fmi3.c_sources lists), all built with -fsanitize=address,undefined
 -fno-sanitize-recover=all and run with LeakSanitizer on. The FMI 2 twin of this file is
 tests/fmu_tests/test_native_sanitized.py.
 
@@ -76,7 +76,7 @@ import pytest
 from conftest import ROOT
 from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMIT_KB, clean,
                             no_sanitizer_report, run_host)
-from fmu_src import native, native_fmi3
+from fmu_src.build import native_fmi3, toolchain
 
 # conftest.layer_of marks modules named test_native_* as "core"; this one (test_native3_*) is
 # not matched there, so it says so itself (slow: it compiles C).
@@ -91,8 +91,7 @@ CYCLES = 900                       # cycles between the two measurements (100 ->
 def _compile_all(out: Path) -> dict[str, Path]:
     """Every source to an object once (in parallel), then one executable per backend and the
     two leaking controls (RailCar)."""
-    build = native._build_py()
-    cc = build.find_compiler()
+    cc = toolchain.find_compiler()
     assert cc, "no C compiler"
     flags = ["-std=c99", "-O1", "-g", "-ffp-contract=off", "-Wall", "-Wextra", "-pedantic",
              "-Werror", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-pthread",

@@ -33,7 +33,7 @@ import pytest
 from conftest import DISCARD, OK, ROOT, Slave
 from csv_host_cases import (NativeFmu, assert_same, bits, compile_host, run_host, write_inputs,
                             write_params)
-from fmu_src import native, native_fmi3
+from fmu_src.build import native, native_fmi3, toolchain
 from fmu_src.variables import ESTIMATOR, variables_for
 from harness.run.runner import INPUTS as RAILCAR_INPUTS
 from harness.run.runner import FmuRunner
@@ -53,8 +53,7 @@ GATE = {"car.process_noise_psd": 1.0, "est.sigma2_initial": 1e-12, "sensor.speed
 
 @pytest.fixture(scope="module")
 def host(tmp_path_factory) -> Path:
-    build = native._build_py()
-    compiler = build.find_compiler()
+    compiler = toolchain.find_compiler()
     assert compiler, "no C compiler"
     return compile_host(compiler, native_fmi3.fmi_headers(),
                         tmp_path_factory.mktemp("csv_host") / "csv_host")

@@ -1,4 +1,4 @@
-"""The native RailCarEstimator FMU for FMI 3.0 (fmu_src/native_fmi3.py, ESTIMATOR_SPEC): the
+"""The native RailCarEstimator FMU for FMI 3.0 (fmu_src/build/native_fmi3.py, ESTIMATOR_SPEC): the
 backend of the native FMI 2 RailCarEstimator (fmu_src/c/native_estimator.c) behind the FMI 3
 glue, run through fmpy's FMU3Slave and compared bit for bit with the native FMI 2 FMU (itself
 compared with the pythonfmu RailCarEstimator.fmu in tests/fmu_tests/test_native_estimator_fmu.py).
@@ -22,7 +22,7 @@ from fmpy.validation import validate_fmu
 
 import test_native_estimator_fmu as est2
 from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, LogMessage, Slave
-from fmu_src import native_fmi3
+from fmu_src.build import native_fmi3
 from fmu_src.variables import ESTIMATOR, variables_for
 from test_native_estimator_fmu import native_fmu, railcar_runner  # noqa: F401  (fixtures)
 from test_native_fmi3 import Fmi3AsFmi2, _Fmi2Typed

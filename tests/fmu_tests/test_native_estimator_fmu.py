@@ -1,4 +1,4 @@
-"""The native RailCarEstimator FMU (issue 18, fmu_src/native.py + fmu_src/c/native_estimator.c):
+"""The native RailCarEstimator FMU (issue 18, fmu_src/build/native.py + fmu_src/c/native_estimator.c):
 the C core's rc_estchain behind our FMI 2.0 glue, no Python. Built once per module from the
 current sources, next to a fresh pythonfmu RailCarEstimator.fmu (conftest's session build), and
 compared with it bit for bit: both are fed a RailCar run's sensor outputs (library scenarios,
@@ -20,7 +20,7 @@ from fmpy import extract, read_model_description
 from fmpy.validation import validate_fmu
 
 from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
-from fmu_src import native
+from fmu_src.build import native, toolchain
 from fmu_src.variables import ESTIMATOR, variables_for
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
@@ -60,7 +60,7 @@ def bits(a) -> np.ndarray:
 # ------------------------------------------------------------------------------- the header
 
 def test_both_table_headers_are_current():
-    proc = subprocess.run([sys.executable, "-m", "fmu_src.native", "--check"], cwd=ROOT,
+    proc = subprocess.run([sys.executable, "-m", "fmu_src.build.native", "--check"], cwd=ROOT,
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "native_estimator_table.h is up to date" in proc.stdout
@@ -151,12 +151,11 @@ def test_validates_and_describes_the_same_variables(native_fmu, built_fmus, tmp_
     listed = md_c.buildConfigurations[0].sourceFileSets[0].sourceFiles
     assert {s.name for s in native.c_sources(native.ESTIMATOR_SPEC)} == set(listed)
     # sources/ builds flat
-    build = native._build_py()
     with zipfile.ZipFile(native_fmu) as z:
         z.extractall(tmp_path)
     src = tmp_path / "sources"
-    cmd = [*build.find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC", "-shared",
-           "-pthread", "-Wl,--no-undefined", "-I", str(src), "-I", str(build.fmi2_headers()),
+    cmd = [*toolchain.find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC", "-shared",
+           "-pthread", "-Wl,--no-undefined", "-I", str(src), "-I", str(toolchain.fmi_headers()),
            *[str(src / f) for f in listed], "-o", str(tmp_path / "flat.so"), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr

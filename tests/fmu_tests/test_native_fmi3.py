@@ -1,4 +1,4 @@
-"""The native RailCar FMU for FMI 3.0 (fmu_src/native_fmi3.py + fmu_src/c/fmi3_glue.c): the same
+"""The native RailCar FMU for FMI 3.0 (fmu_src/build/native_fmi3.py + fmu_src/c/fmi3_glue.c): the same
 backend (fmu_src/c/native_railcar.c) and C core as the FMI 2 native FMU behind the FMI 3 glue,
 run through fmpy's FMU3Slave and compared bit for bit with the native FMI 2 FMU (itself compared
 with the pythonfmu RailCar.fmu in tests/fmu_tests/test_native_fmu.py) on every library scenario; level_run
@@ -21,7 +21,7 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
 from conftest import DISCARD, ERROR, OK, ROOT
-from fmu_src import native, native_fmi3
+from fmu_src.build import native, native_fmi3, toolchain
 from fmu_src.variables import RAILCAR, variables_for
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
@@ -197,7 +197,7 @@ def test_binary_and_sources(fmu3, tmp_path):
     for h in ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"):
         shutil.copy(native_fmi3.fmi_headers() / h, fmi3)
     src = tmp_path / "fmu" / "sources"
-    cmd = [*native._build_py().find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC",
+    cmd = [*toolchain.find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC",
            "-shared", "-pthread", "-Wl,--no-undefined", "-I", str(src), "-I", str(fmi3),
            *[str(src / f) for f in listed], "-o", str(tmp_path / "flat.so"), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -1,4 +1,4 @@
-"""The native RailCar FMU (issue 18, fmu_src/native.py + fmu_src/c/native_railcar.c): the C core
+"""The native RailCar FMU (issue 18, fmu_src/build/native.py + fmu_src/c/native_railcar.c): the C core
 behind our FMI 2.0 glue, no Python. Built once per module from the current sources, next to a
 fresh pythonfmu RailCar.fmu (conftest's session build), and compared with it bit for bit.
 """
@@ -15,7 +15,7 @@ from fmpy import extract, read_model_description
 from fmpy.validation import validate_fmu
 
 from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
-from fmu_src import native
+from fmu_src.build import native, toolchain
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
 
@@ -53,7 +53,7 @@ def bits(a) -> np.ndarray:
 # ------------------------------------------------------------------------------- the header
 
 def test_table_header_is_current():
-    proc = subprocess.run([sys.executable, "-m", "fmu_src.native", "--check"], cwd=ROOT,
+    proc = subprocess.run([sys.executable, "-m", "fmu_src.build.native", "--check"], cwd=ROOT,
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
@@ -131,14 +131,13 @@ def test_validates_and_describes_the_same_variables(native_fmu, built_fmus):
 
 def test_sources_compile_flat(native_fmu, tmp_path):
     """sources/ is a working source FMU: its .c files build from that one folder."""
-    build = native._build_py()
     with zipfile.ZipFile(native_fmu) as z:
         z.extractall(tmp_path)
         md = read_model_description(str(native_fmu))
     src = tmp_path / "sources"
     out = tmp_path / "flat.so"
-    cmd = [*build.find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC", "-shared",
-           "-pthread", "-Wl,--no-undefined", "-I", str(src), "-I", str(build.fmi2_headers()),
+    cmd = [*toolchain.find_compiler(), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC", "-shared",
+           "-pthread", "-Wl,--no-undefined", "-I", str(src), "-I", str(toolchain.fmi_headers()),
            *[str(src / f) for f in md.buildConfigurations[0].sourceFileSets[0].sourceFiles], "-o", str(out), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -333,11 +332,10 @@ def test_the_comparison_sees_a_difference(pair):
 def test_clean_under_address_and_undefined_sanitizers(pair, tmp_path):
     """The backend, glue and core linked into a C host under ASan/UBSan (fmu_cases/native_host.c):
     steps, a discarded step and its retry, failed initialisations, reset, strings, free."""
-    build = native._build_py()
     exe = tmp_path / "native_host"
-    cmd = [*build.find_compiler(), "-std=c99", "-O1", "-g", "-ffp-contract=off",
+    cmd = [*toolchain.find_compiler(), "-std=c99", "-O1", "-g", "-ffp-contract=off",
            "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-pthread",
-           "-I", str(native.C_DIR), "-I", str(native.CORE_DIR), "-I", str(build.fmi2_headers()),
+           "-I", str(native.C_DIR), "-I", str(native.CORE_DIR), "-I", str(toolchain.fmi_headers()),
            str(ROOT / "tests" / "fmu_cases" / "native_host.c"),
            *[str(s) for s in native.c_sources()], "-o", str(exe), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -48,7 +48,7 @@ import pytest
 from conftest import ROOT
 from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMIT_KB, clean,
                             run_host)
-from fmu_src import native
+from fmu_src.build import native, toolchain
 
 HOST = ROOT / "tests" / "fmu_cases" / "native_cycles.c"
 GUID = "{native-cycles-test}"
@@ -58,12 +58,11 @@ BACKENDS = {"railcar": native.RAILCAR_SPEC, "estimator": native.ESTIMATOR_SPEC}
 def _compile_all(out: Path) -> dict[str, Path]:
     """Every source to an object once (in parallel), then one executable per backend and the
     leaking control (RailCar)."""
-    build = native._build_py()
-    cc = build.find_compiler()
+    cc = toolchain.find_compiler()
     assert cc, "no C compiler"
     flags = ["-std=c99", "-O1", "-g", "-ffp-contract=off", "-Wall", "-Wextra", "-pedantic",
              "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-pthread",
-             "-I", str(native.C_DIR), "-I", str(native.CORE_DIR), "-I", str(build.fmi2_headers())]
+             "-I", str(native.C_DIR), "-I", str(native.CORE_DIR), "-I", str(toolchain.fmi_headers())]
     shared = sorted({s for spec in BACKENDS.values() for s in native.c_sources(spec)
                      if s.name not in {spec.backend for spec in BACKENDS.values()}})
     jobs = {s.stem: ([str(s)], []) for s in shared}

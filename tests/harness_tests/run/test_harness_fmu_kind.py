@@ -327,7 +327,7 @@ def test_without_a_native_fmu_auto_falls_back_and_native_says_why(dist, tmp_path
     for name in ("RailCar", "RailCarEstimator"):
         shutil.copy(dist / f"{name}.fmu", copy)
     monkeypatch.setattr(fmus, "native_buildable", lambda: False)     # as without a C compiler
-    monkeypatch.setattr(fmus.subprocess, "run", lambda *a, **k: pytest.fail("no build expected"))
+    monkeypatch.setattr(fmus, "run_build", lambda *a, **k: pytest.fail("no build expected"))
     fmus.ensure_built(copy)
     c = fmus.choose("auto", "RailCar", copy, [("s.toml", {})])
     assert (c.kind, c.path) == ("python", copy / "RailCar.fmu")

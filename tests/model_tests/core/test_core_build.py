@@ -78,12 +78,12 @@ def test_every_source_turns_contraction_off_itself(tmp_path):
     defaults no source of the core or the native glue (which computes nothing a fused
     multiply-add could change) compiles to a fused multiply-add: bit-identity with Python does
     not depend on the -ffp-contract=off a source-FMU user may not pass."""
-    from fmu_src.native import C_DIR
+    from fmu_src.build.toolchain import C_DIR, fmi_headers
     sources = CORE_SOURCES + [s for s in GLUE_SOURCES if s.name != "pyslave.c"]
     missing = [s.name for s in CORE_SOURCES if '#include "rc_fp_contract.h"' not in s.read_text()]
     assert not missing, f"without rc_fp_contract.h: {missing}"
     fused = {s.name: n for s in sources
-             if (n := fused_instructions(s, tmp_path, ["-I", str(C_DIR), "-I", str(_fmi_headers())]))}
+             if (n := fused_instructions(s, tmp_path, ["-I", str(C_DIR), "-I", str(fmi_headers())]))}
     assert not fused, f"fused multiply-adds: {fused}"
 
 
@@ -92,11 +92,3 @@ def test_the_fma_check_sees_a_source_without_the_guard(tmp_path):
     copy = tmp_path / "ident_unguarded.c"
     copy.write_text((ROOT / "models" / "core" / "ident.c").read_text().replace('#include "rc_fp_contract.h"', ""))
     assert fused_instructions(copy, tmp_path) > 50
-
-
-def _fmi_headers() -> Path:
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("railcar_build", ROOT / "build.py")
-    build = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(build)
-    return build.fmi2_headers()

@@ -1,0 +1,151 @@
+"""The native RailCar and RailCarEstimator FMUs for FMI 3.0 co-simulation (issue 18): the C
+core, no Python.
+
+    python -m fmu_src.build.native_fmi3 DEST     build DEST/RailCarNative3.fmu and
+                                                 DEST/RailCarEstimatorNative3.fmu
+
+Each is one ``native.NativeSpec`` (RAILCAR_SPEC, ESTIMATOR_SPEC; default RailCar). The binary
+is the FMI 2 native FMU's backend (``fmu_src/c/native_railcar.c`` or ``native_estimator.c`` and
+what it needs, as ``native.c_sources(spec)`` lists them) and ``models/core/*.c`` behind the FMI
+3.0 glue ``fmu_src/c/fmi3_glue.c`` instead of ``fmi2_glue.c``: the backend links unchanged.
+
+``modelDescription.xml`` is ``model_description.fmi3``: the variables of ``RailCar.fmu`` /
+``RailCarEstimator.fmu`` with the same names and value references, and the independent "time"
+after them. Outputs are ``initial="calculated"``: set in fmi3ExitInitializationMode (RailCar's
+chain computes them, RailCarEstimator's hold the table's start values until the first step, as
+the FMI 2 FMUs do). The binary is ``binaries/x86_64-linux/<modelIdentifier>.so``; ``sources/``
+holds the C sources with an FMI 3 ``sources/buildDescription.xml`` (and the FMI 2 headers the
+backend's types come from, so that an FMI 3 importer needs only its own FMI 3 headers).
+"""
+from __future__ import annotations
+
+import hashlib
+import sys
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+from fmu_src.variables import variables_for
+
+from . import model_description, native
+from .native import ESTIMATOR_SPEC, RAILCAR_SPEC, NativeSpec
+from .toolchain import C_DIR, CORE_DIR, compile_c, find_compiler, fmi_headers
+
+GENERATION_TOOL = "fmu_src/build/native_fmi3.py (C core, no Python)"
+SPECS = (RAILCAR_SPEC, ESTIMATOR_SPEC)
+PLATFORM = "x86_64-linux"
+GLUE3_SOURCE, GLUE3_HEADER = "fmi3_glue.c", "fmi3_glue.h"
+FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+
+
+def native3_name(spec: NativeSpec = RAILCAR_SPEC) -> str:
+    """RailCarNative3, RailCarEstimatorNative3: the FMI 2 native FMU's name + 3."""
+    return f"{spec.native_name}3"
+
+
+def c_sources(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
+    """The FMI 3 glue, then the native backend's sources without the FMI 2 glue, then the core."""
+    backend = [p for p in native.c_sources(spec) if p.name != "fmi2_glue.c"]
+    return [C_DIR / GLUE3_SOURCE, *backend]
+
+
+def c_headers(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
+    """Our headers (fmi2_glue.h stays: it is the backend interface) and the FMI 2 headers."""
+    ours = [C_DIR / GLUE3_HEADER, *native.c_headers(spec)]
+    return ours + [fmi_headers() / h for h in FMI2_HEADERS]
+
+
+def compile_binary(out: Path, spec: NativeSpec = RAILCAR_SPEC) -> Path:
+    """binaries/x86_64-linux/<modelIdentifier>.so; RuntimeError with the compiler's output."""
+    cc = find_compiler()
+    if cc is None:
+        raise RuntimeError("no C compiler found (set CC or install gcc)")
+    compile_c([*cc, *native.C_FLAGS, "-I", str(C_DIR), "-I", str(CORE_DIR), "-I", str(fmi_headers()),
+               *[str(s) for s in c_sources(spec)], "-o", str(out), "-lm"], "the FMI 3 native FMU")
+    return out
+
+
+def instantiation_token(spec: NativeSpec = RAILCAR_SPEC) -> str:
+    """Derived from the variable table and every source (same sources => same token)."""
+    h = hashlib.sha256(f"{native3_name(spec)}|fmi3|".encode())
+    for v in variables_for(spec.fmu):
+        h.update(repr((v.name, v.causality, v.type, v.unit, v.start, v.min, v.max)).encode())
+    for p in [*c_sources(spec), *c_headers(spec)]:
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return "{" + str(uuid.UUID(bytes=h.digest()[:16], version=5)) + "}"
+
+
+def model_description_xml(token: str, spec: NativeSpec = RAILCAR_SPEC) -> bytes:
+    """The FMI 3.0 modelDescription.xml of RailCarNative3.fmu (or ``spec``'s FMU)."""
+    return model_description.fmi3(spec.fmu, token, GENERATION_TOOL)
+
+
+def build_description(spec: NativeSpec = RAILCAR_SPEC) -> bytes:
+    """sources/buildDescription.xml (FMI 3.0): one configuration, every .c file, flat folder."""
+    root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
+    conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=spec.fmu,
+                         description="C99; link with -lm -pthread")
+    # compilerOptions: an attribute of SourceFileSet in the FMI 3.0 standard's
+    # fmi3BuildDescription.xsd (fmpy/schema/fmi3/). -ffp-contract=off keeps a*b+c unfused, as
+    # bit-identity with the Python reference needs; the core's .c files also turn contraction
+    # off themselves (rc_fp_contract.h), for importers that drop the option.
+    files = ET.SubElement(conf, "SourceFileSet", language="C99",
+                          compilerOptions="-ffp-contract=off")
+    for src in c_sources(spec):
+        ET.SubElement(files, "SourceFile", name=src.name)
+    ET.SubElement(conf, "Library", name="m")
+    ET.SubElement(conf, "Library", name="pthread")
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
+    """Compile and zip ``dest_dir/<spec.native_name>3.fmu``. ``python_fmu`` (the pythonfmu FMU
+    of ``spec.fmu``, default dist/'s via fmu_src.build.dist.current_pythonfmu) only supplies the
+    profiles under resources/. Refuses to build when the backend's table header is out of date."""
+    native.check_header(spec)
+    if python_fmu is None:
+        from .dist import current_pythonfmu
+        python_fmu = current_pythonfmu(spec.fmu)
+    dest = Path(dest_dir)
+    dest.mkdir(parents=True, exist_ok=True)
+    target = dest / f"{native3_name(spec)}.fmu"
+    files = [*c_sources(spec), *c_headers(spec)]
+    names = [p.name for p in files]
+    assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
+    with tempfile.TemporaryDirectory() as tmp:
+        binary = compile_binary(Path(tmp) / f"{spec.fmu}.so", spec)
+        _, profiles = native.read_pythonfmu(python_fmu, spec)
+        tmp_fmu = Path(tmp) / target.name
+        with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("modelDescription.xml", model_description_xml(instantiation_token(spec), spec))
+            z.writestr(f"binaries/{PLATFORM}/{spec.fmu}.so", binary.read_bytes())
+            z.writestr("sources/buildDescription.xml", build_description(spec))
+            for p in files:
+                z.writestr(f"sources/{p.name}", p.read_bytes())
+            for name, data in profiles:          # relative profile paths resolve here first
+                z.writestr(name, data)
+        target.write_bytes(tmp_fmu.read_bytes())
+    return target
+
+
+def build_native3_fmu(dest_dir, railcar_fmu=None) -> Path:
+    """``dest_dir/RailCarNative3.fmu``; ``railcar_fmu``: the pythonfmu RailCar.fmu (profiles)."""
+    return build_native3(RAILCAR_SPEC, dest_dir, railcar_fmu)
+
+
+def build_native3_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
+    """``dest_dir/RailCarEstimatorNative3.fmu``; ``estimator_fmu``: the pythonfmu
+    RailCarEstimator.fmu (profiles)."""
+    return build_native3(ESTIMATOR_SPEC, dest_dir, estimator_fmu)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
+        print("\n".join(__doc__.splitlines()[3:5]), file=sys.stderr)
+        sys.exit(2)
+    for _spec in SPECS:
+        print(f"built {build_native3(_spec, sys.argv[1])}")
