@@ -29,7 +29,8 @@ class BuildError(RuntimeError):
     """build.py failed: the FMUs could not be built (exit code 1, with build.py's output)."""
 
 
-def _description(path: Path) -> bytes | None:
+def description_of(path: Path) -> bytes | None:
+    """The FMU's modelDescription.xml bytes; None if the file or the entry is not readable."""
     try:
         with zipfile.ZipFile(path) as z:
             return z.read("modelDescription.xml")
@@ -39,7 +40,7 @@ def _description(path: Path) -> bytes | None:
 
 def fmu_guid(path: Path) -> str | None:
     """The GUID in the FMU's modelDescription.xml; None if there is no readable one."""
-    xml = _description(path)
+    xml = description_of(path)
     try:
         return None if xml is None else ET.fromstring(xml).get("guid")
     except ET.ParseError:
@@ -55,17 +56,6 @@ def is_stale(name: str, dist: Path = DIST) -> bool:
     """True if DIST/<name>.fmu is missing or was built from other sources."""
     from .pythonfmu_fmus import source_guid
     return fmu_guid(Path(dist) / f"{name}.fmu") != source_guid(name)
-
-
-def native_is_stale(name: str, dist: Path = DIST) -> bool:
-    """True if DIST/native/<name>Native.fmu is missing or was not built from DIST/<name>.fmu and
-    the current C sources (its GUID is fmu_src.build.native.native_guid of both)."""
-    xml = _description(Path(dist) / f"{name}.fmu")
-    if xml is None:
-        return True
-    from . import native
-    spec = {s.fmu: s for s in native.SPECS}[name]
-    return fmu_guid(native_path(name, dist)) != native.native_guid(xml, spec)
 
 
 def native_buildable() -> bool:

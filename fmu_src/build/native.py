@@ -45,6 +45,7 @@ from fmu_src.variables import ESTIMATOR, RAILCAR, variables_for
 
 from . import model_description
 from .model_description import LOG_CATEGORIES
+from .dist import DIST, current_pythonfmu, description_of, fmu_guid, native_path
 from .toolchain import C_DIR, CORE_DIR, ROOT, compile_c, find_compiler, fmi_headers
 
 GENERATION_TOOL = "fmu_src/build/native.py (C core, no Python)"
@@ -341,7 +342,6 @@ def build_native(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
     header is out of date."""
     check_header(spec)
     if python_fmu is None:
-        from .dist import current_pythonfmu
         python_fmu = current_pythonfmu(spec.fmu)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
@@ -362,6 +362,16 @@ def build_native(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
                 z.writestr(name, data)
         target.write_bytes(tmp_fmu.read_bytes())
     return target
+
+
+def native_is_stale(name: str, dist: Path = DIST) -> bool:
+    """True if DIST/native/<name>Native.fmu is missing or was not built from DIST/<name>.fmu and
+    the current C sources (its GUID is fmu_src.build.native.native_guid of both)."""
+    xml = description_of(Path(dist) / f"{name}.fmu")
+    if xml is None:
+        return True
+    spec = {s.fmu: s for s in SPECS}[name]
+    return fmu_guid(native_path(name, dist)) != native_guid(xml, spec)
 
 
 def build_native_fmu(dest_dir, railcar_fmu=None) -> Path:

@@ -30,6 +30,7 @@ from xml.etree import ElementTree as ET
 from fmu_src.variables import variables_for
 
 from . import model_description, native
+from .dist import current_pythonfmu
 from .native import ESTIMATOR_SPEC, RAILCAR_SPEC, NativeSpec
 from .toolchain import C_DIR, CORE_DIR, compile_c, find_compiler, fmi_headers
 
@@ -108,7 +109,6 @@ def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
     profiles under resources/. Refuses to build when the backend's table header is out of date."""
     native.check_header(spec)
     if python_fmu is None:
-        from .dist import current_pythonfmu
         python_fmu = current_pythonfmu(spec.fmu)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)

@@ -14,11 +14,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fmu_src.build.dist import (DIST, NAMES, NATIVE_NAMES, BuildError, fmu_guid,  # noqa: F401
-                                is_stale, native_buildable, native_is_stale, native_path, run_build)
+                                is_stale, native_buildable, native_path, run_build)
 from harness.textio import InputError
 
 KINDS = ("auto", "native", "python")
 DEFAULT_KIND = "auto"
+
+
+def native_is_stale(name: str, dist: Path = DIST) -> bool:
+    """fmu_src.build.native.native_is_stale, imported when asked (it imports the models: seconds)."""
+    from fmu_src.build.native import native_is_stale as stale
+    return stale(name, dist)
 
 
 def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False,
