@@ -1,8 +1,9 @@
 """The one table of FMU variables: name, causality, variability, type, unit, start, bounds, doc.
 
-It drives the slaves' registration (``adapter.py``), the units and bounds that ``build.py``
-writes into modelDescription.xml, and docs/variables.md. The names, units and value references
-are a contract with our users' models: they never change.
+It drives the slaves' registration (``adapter.py``), every modelDescription.xml (written by
+``fmu_src/build/model_description.py``), the native C tables, and docs/variables.md. The names,
+units and value references are a contract with our users' models: they never change
+(tests/fmu_tests/value_references.json freezes them; only an appended row may add to it).
 """
 from __future__ import annotations
 

@@ -242,7 +242,7 @@ fmi3Status fmi3Reset(fmi3Instance instance) {
 /* ------------------------------------------------------------------- getting and setting */
 
 /* FMI 3 wants exactly one independent variable: "time", value reference n_vars
-   (GlueStandard.time_variable; fmu_src/native_fmi3.py writes the same), read-only, its value the
+   (GlueStandard.time_variable; fmu_src/build/model_description.py writes the same), read-only, its value the
    instance's time (the start time, then the end of the last successful step). The backend never
    sees it. A `type` < 0 is an FMI 3 type none of our variables has (named by `type_name`). */
 static fmi3Status get_values(fmi3Instance instance, const char *function, int type,

@@ -388,7 +388,7 @@ static int utf8_valid(const char *s) {
 }
 
 /* With GlueStandard.time_variable: "time", value reference n_vars (the first one after the
-   backend's table; fmu_src/native_fmi3.py writes the same), read-only. The backend never sees
+   backend's table; fmu_src/build/model_description.py writes the same), read-only. The backend never sees
    it; the glue gives its value (the instance's time). */
 static char time_name[] = "time";
 static const GlueVar time_var = {time_name, GLUE_REAL, GLUE_INDEPENDENT, GLUE_CONTINUOUS, 0};

@@ -12,7 +12,7 @@ entry and rewrites the file.
 
 The only allowed change is a documented, appended addition (a new variable after the existing
 ones of its FMU, with a CHANGELOG entry). Appending moves the FMI 3 FMUs' ``time`` variable,
-which sits after the table (``fmu_src/native_fmi3.py``): that move is expected and reported
+which sits after the table (``fmu_src/build/model_description.py``): that move is expected and reported
 as such. A removed or changed entry is a breaking change: the script refuses to write it
 unless ``--allow-breaking`` is given.
 
