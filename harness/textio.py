@@ -8,6 +8,7 @@ Errors are ``InputError`` (or the caller's subclass of it): invalid input, exit 
 """
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
 
 BOM = "\ufeff"
@@ -67,3 +68,10 @@ def check_out_dir(path: str | Path, option: str = "--out") -> None:
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise InputError(f"{option} {p}: exists and is not a folder")
+
+
+def did_you_mean(name: str, known) -> str:
+    """'; did you mean 'x'?' naming the known name closest to a misspelt ``name`` (difflib, ratio
+    >= 0.6), or '' when none is close: the tail of every "unknown name" message of the harness."""
+    close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+    return f"; did you mean '{close[0]}'?" if close else ""

@@ -40,7 +40,6 @@ range, 0..2**31 - 1 (``seed`` is a 32-bit fmi2Integer).
 from __future__ import annotations
 
 import copy
-import difflib
 import hashlib
 import itertools
 import json
@@ -55,7 +54,7 @@ import numpy as np
 from harness.run.scenario import RAILCAR_PARAMETERS as PARAMETERS
 from harness.run.scenario import (PATH_PARAMETERS, SEED_MAX, Scenario, ScenarioError, check_integer, parse_parameters,
                        read_toml, scenario_from_dict)
-from harness.textio import decode_text
+from harness.textio import decode_text, did_you_mean
 
 SCENARIO_FIELDS = {"step_s": "s", "duration_s": "s", "stop_after_last_phase": ""}
 WIND_KEYS = {"time_s": "s", "speed_mps": "m/s"}
@@ -132,13 +131,6 @@ def name_kind(name: str) -> str:
     if m and (m.group(1) == "wind" or m.group(3) not in ("action", "until_brake_curve")):
         return "float"
     return "str"
-
-
-def did_you_mean(name: str, known) -> str:
-    """'; did you mean 'x'?' naming the known name closest to a misspelt ``name`` (difflib), or ''
-    when none is close."""
-    close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
-    return f"; did you mean '{close[0]}'?" if close else ""
 
 
 def _finite_number(value, where: str) -> float:

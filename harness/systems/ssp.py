@@ -23,7 +23,6 @@ against the SSP 1.0 schema.
 """
 from __future__ import annotations
 
-import difflib
 import io
 import math
 import re
@@ -33,7 +32,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 from xml.etree import ElementTree as ET
 
-from harness.textio import InputError
+from harness.textio import InputError, did_you_mean
 
 __all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
            "write_ssp", "ssp_type", "unit_of", "split_name"]
@@ -168,9 +167,8 @@ def find_variable(md, comp: str, name: str, where: str):
     for v in md.modelVariables:
         if v.name == name:
             return v
-    close = difflib.get_close_matches(name, [v.name for v in md.modelVariables], n=1, cutoff=0.6)
     raise SspError(f"{where}: component '{comp}' ({md.modelName}) has no variable '{name}'"
-                   + (f"; did you mean '{close[0]}'?" if close else ""))
+                   + did_you_mean(name, [v.name for v in md.modelVariables]))
 
 
 def _interface(md) -> list:
