@@ -60,9 +60,14 @@ def _check_log_path(path: str) -> None:
 
 
 def cmd_run(args) -> int:
+    """One run, walked once: the scenario loaded and resolved (parameters checked by the FMU's
+    rules, profiles read, the ATO built: harness.run.scenario), the FMU run once through the loop
+    (the RunResult holds the outputs, the held inputs, the ATO's calls and log), every metric
+    computed once (harness.metrics.run: the oracle filter is the one other model run), then
+    printed and drawn (harness.reports.run_report)."""
     from harness.run.fmus import select
-    from harness.metrics.estimation import summarise
-    from harness.reports.run_report import format_run_summary, write_report
+    from harness.metrics.run import run_metrics
+    from harness.reports.run_report import format_run_summary, short_path, write_report
     from harness.run.runner import FmuRunner, InitError, RunError
 
     scenario = load_scenario(args.scenario)
@@ -73,25 +78,27 @@ def cmd_run(args) -> int:
     choice = select(args.fmu, "RailCar", args.dist, args.rebuild, [(str(args.scenario), scenario.parameters)])
     print(f"running '{scenario.name}': {scenario.purpose}", flush=True)
     print(choice.line(), flush=True)
-    driver = scenario.new_driver()
     with FmuRunner(choice.path) as runner:
         try:
-            result = runner.run(scenario, driver=driver)
+            result = runner.run(scenario)
         except InitError as e:
             return _init_failed(f"{args.scenario}: parameters", e,
                                 _native_hint(choice, "RailCar", scenario.parameters))
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    summary = summarise(result)
-    true_A = summary.A_true
-    print(format_run_summary(summary, result))
-    ato_steps = driver.steps if scenario.ato is not None else None
-    if ato_steps is not None:
-        from harness.metrics.ato import ato_metrics, format_ato
+    metrics = run_metrics(result)
+    print(format_run_summary(metrics.summary, result))
+    if metrics.ato is not None:
+        from harness.metrics.ato import format_ato
         print("ATO, per span:")
-        print(format_ato(ato_metrics(scenario, result, ato_steps)))
-    files = write_report(result, summary, true_A, out, fmu=choice.describe(), ato_steps=ato_steps)
+        print(format_ato(metrics.ato))
+        for line in metrics.driver_log:
+            print(f"  log: {line}")
+    if not metrics.A_covariance_full:
+        print("  (resistance band from the A's stds alone: this FMU outputs no est.cov_*)")
+    fmu = f"{choice.kind} {short_path(choice.path)} (--fmu {choice.asked}: {choice.why})"
+    files = write_report(result, metrics, out, fmu=fmu)
     if args.log:
         from harness.run.replay import write_log
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
