@@ -169,7 +169,8 @@ def unknown_parameter(name: str, known, what: str = "a RailCar parameter") -> st
     """The message for a parameter name that is not ``what``: where the names are listed
     (docs/variables.md, the variable table) and the closest known names (difflib). One message
     for scenarios, overrides and sweeps."""
-    close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+    by_lower = {k.lower(): k for k in known}        # car.a0 is car.A0
+    close = [by_lower[c] for c in difflib.get_close_matches(name.lower(), list(by_lower), n=2, cutoff=0.8)]
     hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
     return f"not {what} (see {VARIABLES_DOC}){hint}"
 
