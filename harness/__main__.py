@@ -220,23 +220,28 @@ def cmd_report(args) -> int:
 
 def cmd_replay(args) -> int:
     from harness.run.fmus import select
-    from harness.run.replay import estimator_parameters, read_log, replay_report
+    from harness.run.replay import (estimator_parameters, params_path, read_log, read_log_parameters, replay_report,
+                                    uniform_step)
     from harness.run.runner import FmuRunner, InitError, RunError
     log = read_log(args.log)                     # LogError, ParamError: invalid input (exit 2)
-    params = estimator_parameters(args.param, dt=float(log.time[1] - log.time[0]))
+    # a harness run's log has its estimator's parameters beside it; --param overrides them
+    logged, forces = read_log_parameters(Path(args.log))
+    params = estimator_parameters(logged + (args.param or []), dt=float(log.time[1] - log.time[0]))
     out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
     check_out_dir(out)
     choice = select(args.fmu, "RailCarEstimator", args.dist, args.rebuild, [("--param", params)])
     print(choice.line(), flush=True)
+    if logged:
+        print(f"parameters: {params_path(Path(args.log)).name} ({len(logged)}), then --param", flush=True)
     with FmuRunner(choice.path) as runner:
         try:
-            signals, _ = runner.replay(log, params, what=Path(args.log).name)
+            signals, _ = runner.replay(log, params, what=Path(args.log).name, step=uniform_step(log.time))
         except InitError as e:
             return _init_failed("--param", e, _native_hint(choice, "RailCarEstimator", params))
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    print(replay_report(log, signals, out, fmu=f"{choice.kind} ({choice.path.name})"))
+    print(replay_report(log, signals, out, fmu=f"{choice.kind} ({choice.path.name})", forces=forces))
     return EXIT_OK
 
 
