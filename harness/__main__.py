@@ -1,7 +1,7 @@
 """Command line of the validation harness.
 
     python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild] [--fmu KIND]
-    python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
+    python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]    (LOG.params beside it: the run's parameters)
     python -m harness regress [--update] [NAME ...]    (a NAME may be a pattern: 'ato_*')
     python -m harness report [--out DIR] [NAME ...]
     python -m harness filters [NAME ...]
