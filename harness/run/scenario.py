@@ -14,7 +14,7 @@ schedule, and the run's step and duration. Every error names the file, the key a
     "car.mass" = 34.0
     "track.grade_profile" = "profiles/demo_grade.csv"   # relative to this file
 
-    [[driver]]                        # phases, in order (see harness/run/driver.py)
+    [[driver]]                        # phases, in order (see harness/run/phases.py)
     action = "traction"
     until_speed_mps = 16.7
 
