@@ -1,7 +1,7 @@
 """Command line of the validation harness.
 
     python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild] [--fmu KIND]
-    python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]
+    python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]    (LOG.params beside it: the run's parameters)
     python -m harness regress [--update] [--variants] [NAME ...]    (a NAME may be a pattern: 'ato_*')
     python -m harness report [--out DIR] [NAME ...]
     python -m harness filters [NAME ...]
@@ -60,9 +60,14 @@ def _check_log_path(path: str) -> None:
 
 
 def cmd_run(args) -> int:
+    """One run, walked once: the scenario loaded and resolved (parameters checked by the FMU's
+    rules, profiles read, the ATO built: harness.run.scenario), the FMU run once through the loop
+    (the RunResult holds the outputs, the held inputs, the ATO's calls and log), every metric
+    computed once (harness.metrics.run: the oracle filter is the one other model run), then
+    printed and drawn (harness.reports.run_report)."""
     from harness.run.fmus import select
-    from harness.metrics.estimation import summarise
-    from harness.reports.run_report import format_run_summary, write_report
+    from harness.metrics.run import run_metrics
+    from harness.reports.run_report import format_run_summary, short_path, write_report
     from harness.run.runner import FmuRunner, InitError, RunError
 
     scenario = load_scenario(args.scenario)
@@ -73,25 +78,27 @@ def cmd_run(args) -> int:
     choice = select(args.fmu, "RailCar", args.dist, args.rebuild, [(str(args.scenario), scenario.parameters)])
     print(f"running '{scenario.name}': {scenario.purpose}", flush=True)
     print(choice.line(), flush=True)
-    driver = scenario.new_driver()
     with FmuRunner(choice.path) as runner:
         try:
-            result = runner.run(scenario, driver=driver)
+            result = runner.run(scenario)
         except InitError as e:
             return _init_failed(f"{args.scenario}: parameters", e,
                                 _native_hint(choice, "RailCar", scenario.parameters))
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    summary = summarise(result)
-    true_A = summary.A_true
-    print(format_run_summary(summary, result))
-    ato_steps = driver.steps if scenario.ato is not None else None
-    if ato_steps is not None:
-        from harness.metrics.ato import ato_metrics, format_ato
+    metrics = run_metrics(result)
+    print(format_run_summary(metrics.summary, result))
+    if metrics.ato is not None:
+        from harness.metrics.ato import format_ato
         print("ATO, per span:")
-        print(format_ato(ato_metrics(scenario, result, ato_steps)))
-    files = write_report(result, summary, true_A, out, fmu=choice.describe(), ato_steps=ato_steps)
+        print(format_ato(metrics.ato))
+        for line in metrics.driver_log:
+            print(f"  log: {line}")
+    if not metrics.A_covariance_full:
+        print("  (resistance band from the A's stds alone: this FMU outputs no est.cov_*)")
+    fmu = f"{choice.kind} {short_path(choice.path)} (--fmu {choice.asked}: {choice.why})"
+    files = write_report(result, metrics, out, fmu=fmu)
     if args.log:
         from harness.run.replay import write_log
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
@@ -198,23 +205,28 @@ def cmd_report(args) -> int:
 
 def cmd_replay(args) -> int:
     from harness.run.fmus import select
-    from harness.run.replay import estimator_parameters, read_log, replay_report
+    from harness.run.replay import (estimator_parameters, params_path, read_log, read_log_parameters, replay_report,
+                                    uniform_step)
     from harness.run.runner import FmuRunner, InitError, RunError
     log = read_log(args.log)                     # LogError, ParamError: invalid input (exit 2)
-    params = estimator_parameters(args.param, dt=float(log.time[1] - log.time[0]))
+    # a harness run's log has its estimator's parameters beside it; --param overrides them
+    logged, forces = read_log_parameters(Path(args.log))
+    params = estimator_parameters(logged + (args.param or []), dt=float(log.time[1] - log.time[0]))
     out = Path(args.out) if args.out else Path("out") / f"replay_{Path(args.log).stem}"
     check_out_dir(out)
     choice = select(args.fmu, "RailCarEstimator", args.dist, args.rebuild, [("--param", params)])
     print(choice.line(), flush=True)
+    if logged:
+        print(f"parameters: {params_path(Path(args.log)).name} ({len(logged)}), then --param", flush=True)
     with FmuRunner(choice.path) as runner:
         try:
-            signals, _ = runner.replay(log, params, what=Path(args.log).name)
+            signals, _ = runner.replay(log, params, what=Path(args.log).name, step=uniform_step(log.time))
         except InitError as e:
             return _init_failed("--param", e, _native_hint(choice, "RailCarEstimator", params))
         except RunError as e:
             print(f"error: {e}", file=sys.stderr)
             return EXIT_RUN_FAILED
-    print(replay_report(log, signals, out, fmu=f"{choice.kind} ({choice.path.name})"))
+    print(replay_report(log, signals, out, fmu=f"{choice.kind} ({choice.path.name})", forces=forces))
     return EXIT_OK
 
 

@@ -1,9 +1,9 @@
 """Metrics of a run, as functions of result arrays. Units in each docstring.
 
 Input arrays come from ``RunResult`` (one value per communication step); the car's
-configuration and track profiles from a ``fmu_src.adapter.ChainSetup`` (the scenario's:
-``Scenario.chain_setup()``, which ``summarise`` asks for once). Nothing here reads or writes
-files.
+configuration and track profiles from a ``fmu_src.adapter.ChainSetup`` (the scenario's, resolved
+once when it was loaded: ``result.setup.chain``). Nothing here reads or writes files, and
+nothing runs the model but ``oracle_filter`` (the same filter knowing the truth, once a run).
 """
 from __future__ import annotations
 
@@ -110,7 +110,8 @@ def _segments(speed: np.ndarray) -> list[tuple[int, int]]:
 
 def summarise(result, true_A: tuple | None = None, setup=None) -> RunSummary:
     """Compute the summary of a ``RunResult`` of RailCar (true A's default to the scenario's);
-    ``setup``: the run's ChainSetup (default: ``result.scenario.chain_setup()``)."""
+    ``setup``: the run's ChainSetup (default: the scenario's, resolved at loading). The
+    estimates are the FMU run's outputs; the one model run here is the oracle filter."""
     s = result.scenario
     setup = s.chain_setup() if setup is None else setup
     if true_A is None:   # the coefficients at the end, moved by the wind then blowing
@@ -169,7 +170,7 @@ def format_summary(s: RunSummary) -> str:
         ("mass within 1 % after departure", ", ".join(f(x, "{:.1f}") for x in s.mass_time_within_1pct_s) or "n/a", "s"),
         ("A0 true / est", f"{s.A_true[0]:.4g} / {s.A_est[0]:.4g}", "N/kN"),
         ("A1 true / est", f"{s.A_true[1]:.4g} / {s.A_est[1]:.4g}", "N/kN/(m/s)"),
-        ("A2 true / est", f"{s.A_true[2]:.4g} / {s.A_est[2]:.4g}", "N/kN/(m/s)2"),
+        ("A2 true / est", f"{s.A_true[2]:.4g} / {s.A_est[2]:.4g}", "N/kN/(m/s)²"),
         ("w0(V) relative RMS error", f(100 * s.w0_rel_rms_error, "{:.1f}"), "%"),
         ("coast run-time prediction error", ", ".join(f"{e:+.2f}" for e in s.coast_time_errors_s) or "n/a", "s"),
         ("speed RMSE sensor / filter / oracle", f"{s.speed_rmse_sensor:.4f} / {s.speed_rmse_filter:.4f} / "
@@ -180,6 +181,26 @@ def format_summary(s: RunSummary) -> str:
     ]
     w = max(len(r[0]) for r in rows)
     return "\n".join(f"  {name:<{w}}  {val} {unit}".rstrip() for name, val, unit in rows)
+
+
+A_COVARIANCE_COLUMNS = {(0, 1): "est.cov_A0_A1", (0, 2): "est.cov_A0_A2", (1, 2): "est.cov_A1_A2"}
+"""The FMU outputs of the A's covariances off the diagonal [(N/kN)^2 / (m/s)^(i+j)]; the
+diagonal is est.A0_std^2, est.A1_std^2, est.A2_std^2."""
+
+
+def resistance_covariance(result, row: int = -1) -> tuple[np.ndarray, bool]:
+    """(covariance 3x3 of (A0, A1, A2) at ``row``, full): the stds on the diagonal and the
+    est.cov_* outputs off it when the run recorded them (``full`` True). The A's are strongly
+    correlated (A0 with A2 about -0.8 at the end of the default scenario), so without those
+    columns (an FMU built before they existed) the diagonal alone overstates w0's uncertainty
+    at speed; ``full`` False says so."""
+    sd = [float(result[f"est.A{j}_std"][row]) for j in range(3)]
+    cov = np.diag(np.square(sd))
+    full = all(name in result.signals for name in A_COVARIANCE_COLUMNS.values())
+    if full:
+        for (i, j), name in A_COVARIANCE_COLUMNS.items():
+            cov[i, j] = cov[j, i] = float(result[name][row])
+    return cov, full
 
 
 # ---------------------------------------------------------------- oracle filter and coast times
@@ -280,7 +301,7 @@ def coast_time_errors(result, A_at, still_air: bool = False, setup=None) -> list
     """Predicted - actual time [s] of each coast of at least 10 s in a RailCar ``RunResult``,
     re-run with the resistance ``A_at(last)`` gives for the coast ending at row ``last`` (seed
     003's measure) on the run's grade with its car's gamma and length (``setup``, the run's
-    ChainSetup; default: ``result.scenario.chain_setup()``, read at the first coast).
+    ChainSetup; default: the scenario's, resolved at loading).
 
     Identified A's are the coefficients of eq. (2) as the car met them, the wind included
     (A0' = A0 + A2 Vw^2, ...): the coast is re-run in still air. With ``still_air`` the A's are

@@ -1,7 +1,9 @@
 """The report of a span scenario: planned vs actual V(s) with the mode bar, and the ATO table.
 
 ``ato_figure`` returns the matplotlib figure (tests read its artists); ``write_ato_report``
-saves it as ato.png and gives the text summary.md takes. Per span, two axes over the true
+saves it as ato.png and gives the table summary.md takes, from the metrics computed once
+(harness.metrics.ato, via harness.metrics.run) and the ATO's calls the run recorded
+(RunResult.driver_steps). Per span, two axes over the true
 distance from the previous station [m]: the speeds (true car.speed, filter.speed the ATO reads,
 the planned speed of its commands, V_lim(s)) and a bar of the ATO's mode (AtoMode) along s.
 """
@@ -14,7 +16,7 @@ import numpy as np
 from models.ato.controller import AtoMode
 
 from harness.reports.plotting import pyplot
-from harness.metrics.ato import ato_metrics, format_ato, markdown_ato
+from harness.metrics.ato import markdown_ato
 
 MODE_COLOURS = {
     AtoMode.TG: "tab:green", AtoMode.C: "yellowgreen", AtoMode.VB: "lightgrey",
@@ -100,11 +102,13 @@ def ato_figure(result, steps):
     return fig
 
 
-def write_ato_report(result, steps, out_dir: Path) -> tuple[Path, list, str, list[str]]:
-    """ato.png into ``out_dir``; returns (its path, the metrics, the table as text, as markdown)."""
-    import matplotlib.pyplot as plt
-    metrics = ato_metrics(result.scenario, result, steps)
-    fig = ato_figure(result, steps)
+def write_ato_report(result, metrics, out_dir: Path, steps=None) -> tuple[Path, list[str]]:
+    """ato.png into ``out_dir`` for a run (``steps``: the ATO's calls, default the run's own,
+    ``result.driver_steps``) and its span metrics ``metrics`` (harness.metrics.ato.SpanMetrics);
+    returns (its path, the ATO table in markdown)."""
+    from harness.reports.plotting import pyplot
+    plt = pyplot()
+    fig = ato_figure(result, result.driver_steps if steps is None else steps)
     fig.suptitle(f"{result.scenario.name}: planned vs actual V(s), ATO mode")
     # nested grids (a bar under each speed plot) are not tight_layout's: fixed margins, and
     # the legends right of the bars kept by bbox_inches
@@ -113,4 +117,4 @@ def write_ato_report(result, steps, out_dir: Path) -> tuple[Path, list, str, lis
     path = out_dir / "ato.png"
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
-    return path, metrics, format_ato(metrics), markdown_ato(metrics)
+    return path, markdown_ato(metrics)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.metrics.estimation import RunSummary, summarise
+from harness.metrics.estimation import RunSummary
 
 MASS_BOUND_PCT = 1.0
 RMSE_RATIO_BOUND = 0.6
@@ -66,8 +66,10 @@ class Row:
 
 
 def library_rows(results) -> list[Row]:
-    """(scenario, RunResult or exception) pairs -> rows. A span scenario's ATO commands are
-    those its recorded outputs give (harness.run.span_scenario.replay_steps: the same as the run's)."""
+    """(scenario, RunResult or exception) pairs -> rows, each run's metrics computed once
+    (harness.metrics.run.run_metrics; a span scenario's ATO table from the calls the run
+    recorded)."""
+    from harness.metrics.run import run_metrics
     rows = []
     for s, r in results:
         std = s.parameter("sensor.speed_std")     # [m/s]; a relative part counts at top speed
@@ -76,12 +78,8 @@ def library_rows(results) -> list[Row]:
         if isinstance(r, Exception):
             rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", "")))
             continue
-        ato = None
-        if s.ato is not None:
-            from harness.metrics.ato import ato_metrics
-            from harness.run.span_scenario import replay_steps
-            ato = ato_metrics(s, r, replay_steps(s, r).steps)
-        rows.append(Row(s.name, std, summarise(r), fmu=r.fmu, ato=ato))
+        m = run_metrics(r)
+        rows.append(Row(s.name, std, m.summary, fmu=r.fmu, ato=m.ato))
     return rows
 
 

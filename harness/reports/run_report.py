@@ -3,7 +3,9 @@
 The figures are built by ``*_figure`` functions that return the matplotlib figure (the tests
 read its artists); ``plot_*`` save them. Uncertainty bands are +-2 sigma of the estimator's own
 standard deviations; the band of the identified resistance curve w0(V) comes from the covariance
-of (A0, A1, A2) (``resistance_covariance``), which the FMU does not output.
+of (A0, A1, A2) the run recorded (harness.metrics.estimation.resistance_covariance). Everything
+shown is computed once, before (harness.metrics.run.RunMetrics): the report only draws and
+writes; nothing here runs a model.
 """
 from __future__ import annotations
 
@@ -14,15 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from harness.reports.plotting import pyplot, save_figure
-from harness.metrics.estimation import RunSummary, format_summary
+from harness.metrics.estimation import RunSummary, format_summary, resistance_covariance
 
-A_NAMES = (("A0", "N/kN"), ("A1", "N/kN/(m/s)"), ("A2", "N/kN/(m/s)2"))
+A_NAMES = (("A0", "N/kN"), ("A1", "N/kN/(m/s)"), ("A2", "N/kN/(m/s)²"))
 """The main resistance coefficients of eq. (1) and their units."""
 
-MAX_REPLAY_STEPS = 100_000
-"""``resistance_covariance`` replays at most this many steps (~30 s of Python at the ~0.3 ms a
-step measured on the library scenarios): a longer run's resistance band falls back to the stds
-alone, and says so."""
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def write_result_csv(result, path: Path) -> Path:
@@ -50,26 +49,70 @@ def format_run_summary(summary: RunSummary, result) -> str:
     return "\n".join(lines)
 
 
+def format_value(x) -> str:
+    """A metric's value for summary.md: floats to 6 significant digits (140.7, not
+    140.70000000000002), lists and tuples element by element."""
+    if isinstance(x, float):
+        return f"{x:.6g}"
+    if isinstance(x, (list, tuple)):
+        inner = ", ".join(format_value(v) for v in x)
+        return f"({inner})" if isinstance(x, tuple) else f"[{inner}]"
+    return str(x)
+
+
+def short_path(path) -> str:
+    """``path`` relative to the repository when it lies inside it, else its file name: a report
+    names no machine's folders."""
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(ROOT).as_posix()
+    except ValueError:
+        return p.name
+
+
 def write_summary_md(summary: RunSummary, scenario, path: Path, figures: list[Path], fmu: str = "",
-                     result=None, ato: list[str] | None = None) -> Path:
-    """``fmu``: which FMU ran and why (harness.run.fmus.FmuChoice.line), a line of its own.
+                     result=None, ato: list[str] | None = None, driver_log: list[str] | None = None) -> Path:
+    """``fmu``: which FMU ran and why (a line of its own; paths as ``short_path`` gives them).
     ``result``: the run, for the A's standard deviations (``format_run_summary``). ``ato``: a
-    span scenario's ATO table in markdown (harness.reports.ato_report), first."""
+    span scenario's ATO table in markdown (harness.reports.ato_report), first; ``driver_log``:
+    the ATO's log lines (RunResult.driver_log), after it."""
     lines = [f"# Run report: {summary.scenario}", "", scenario.purpose or "", ""]
     if fmu:
         lines += [f"FMU: {fmu}", ""]
     if ato:
-        lines += ["ATO, per span (docs/ato.md):", "", *ato, "", "Estimation:", ""]
+        lines += ["ATO, per span (docs/ato.md):", "", *ato, ""]
+        if driver_log:
+            lines += ["ATO log:", "", *(f"- {x}" for x in driver_log), ""]
+        lines += ["Estimation:", ""]
     text = format_summary(summary) if result is None else format_run_summary(summary, result)
     lines += ["```", text, "```", ""]
     for fig in figures:
         lines += [f"![{fig.stem}]({fig.name})", ""]
     lines += ["Raw values:", "", "| metric | value |", "|---|---|"]
-    lines += [f"| {k} | {v} |" for k, v in asdict(summary).items()]
+    lines += [f"| {k} | {format_value(v)} |" for k, v in asdict(summary).items()]
     if result is not None:
-        lines.append(f"| A_std | {tuple(float(result[f'est.{n}_std'][-1]) for n, _ in A_NAMES)} |")
+        lines.append(f"| A_std | {format_value(tuple(float(result[f'est.{n}_std'][-1]) for n, _ in A_NAMES))} |")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
+
+
+def clipped_band(ax, t, centre, sd, lo: float, hi: float, colour: str, label: str) -> str:
+    """Fill centre +- 2 sd over ``t`` inside the axis range [lo, hi] only: where the band is
+    wider than the range (the prior, a coefficient the run hardly excites) it is not drawn, so
+    that it never paints the whole panel; elsewhere its edges are clipped to the range. Returns
+    the label given, with what was left out said."""
+    wide = 4.0 * np.asarray(sd) > (hi - lo)
+    if wide.all():
+        note = "\nwider than the axes all along: not drawn"
+    elif wide[0] and not wide[np.argmax(~wide):].any():
+        note = f"\nwider than the axes until t = {float(t[np.argmax(~wide)]):.0f} s: not drawn there"
+    elif wide.any():
+        note = "\nwider than the axes at times: not drawn there"
+    else:
+        note = ""
+    ax.fill_between(t, np.clip(centre - 2 * sd, lo, hi), np.clip(centre + 2 * sd, lo, hi), where=~wide,
+                    color=colour, alpha=0.15, label=label + note)
+    return label + note
 
 
 def run_figures(result) -> tuple:
@@ -98,9 +141,10 @@ def run_figures(result) -> tuple:
     m, s = result["est.mass"], result["est.mass_std"]
     ax[0].plot(t, result["car.total_mass"], color="k", label="true")
     ax[0].plot(t, m, color="tab:blue", label="identified")
-    ax[0].fill_between(t, m - 2 * s, m + 2 * s, color="tab:blue", alpha=0.15, label="+-2 sigma")
     mt = result["car.total_mass"]
-    ax[0].set_ylim(0.8 * mt.min(), 1.2 * mt.max())
+    lo, hi = 0.8 * mt.min(), 1.2 * mt.max()
+    clipped_band(ax[0], t, m, s, lo, hi, "tab:blue", "+-2 sigma")     # the prior's: est.mass_std_initial
+    ax[0].set_ylim(lo, hi)
     ax[0].set_ylabel("mass [t]")
     ax[0].legend(loc="best")
     ax[1].plot(t, result["filter.position"] - x, color="tab:red", label="filtered - true")
@@ -123,46 +167,6 @@ def plot_run(result, out_dir: Path) -> list[Path]:
             save_figure(fig2, f"{name}: identification and filter vs time", out_dir / "estimates.png")]
 
 
-def _same_bits(a: float, b: float) -> bool:
-    return np.float64(a).tobytes() == np.float64(b).tobytes()
-
-
-def resistance_covariance(result) -> np.ndarray | None:
-    """Covariance (3x3) of the identified (A0, A1, A2) at the end of a RailCar run, or None.
-
-    The FMU outputs the three standard deviations only, and the A's are strongly correlated
-    (A0 with A2 about -0.8 at the end of the default scenario), so a band from the stds alone
-    overstates w0's uncertainty at speed. The covariance comes from re-running the run on the
-    Python reference chain (``models.chain.RailCarChain``, bit-identical to both FMUs), fed the
-    inputs the run recorded (``result.inputs``, held over each step): the estimator's own
-    covariance of Theta-hat (``OnlineEstimator.method.with_resistance_covariance``, what
-    est.A*_std are the square roots of the diagonal of). It is accepted only when the re-run ends
-    on the run's est.A0..A2 and est.A0_std..A2_std bit for bit; otherwise (no recorded inputs, a
-    parameter the reference refuses, a run over ``MAX_REPLAY_STEPS``) None."""
-    from models.chain import RailCarChain
-    from harness.run.runner import INPUTS
-
-    s = result.scenario
-    n = len(result.time)
-    if not result.inputs or any(len(result.inputs.get(k, ())) < n - 1 for k in INPUTS) \
-            or n - 1 > MAX_REPLAY_STEPS:
-        return None
-    try:
-        setup = s.chain_setup()
-        chain = RailCarChain(setup.config, setup.grade, setup.speed)
-        u = [np.asarray(result.inputs[k], dtype=float) for k in INPUTS]
-        for k in range(n - 1):
-            chain.do_step(float(result.time[k]), s.step_s, *(float(c[k]) for c in u))
-        out = chain.outputs()
-    except (ValueError, KeyError, OSError):      # StepRejected, ParameterError are ValueErrors
-        return None
-    names = [f"est.{a}" for a, _ in A_NAMES] + [f"est.{a}_std" for a, _ in A_NAMES]
-    if not all(_same_bits(out[k], result[k][-1]) for k in names):
-        return None
-    e = chain.estimator
-    return np.array(e.method.with_resistance_covariance(e.ident.covariance())[1:, 1:], dtype=float)
-
-
 def resistance_band(v: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Standard deviation of w0(V) = A0 + A1 V + A2 V^2 at speeds ``v`` [m/s] for a covariance
     ``cov`` of (A0, A1, A2): sqrt(phi^T cov phi), phi = (1, V, V^2) (w0 is linear in the A's, so
@@ -171,22 +175,19 @@ def resistance_band(v: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(np.einsum("in,ij,jn->n", phi, cov, phi), 0.0))
 
 
-def resistance_figure(result, true_A: tuple, cov: np.ndarray | None = None):
+def resistance_figure(result, true_A: tuple, cov: np.ndarray | None = None, full: bool | None = None):
     """w0(V) identified (end of run) with +-2 sigma vs true, over 0 .. the run's top speed.
 
-    ``cov``: covariance of (A0, A1, A2); by default ``resistance_covariance(result)``, and when
-    that is None the diagonal of the end-of-run est.A*_std (the band then ignores the A's
-    correlations, and its legend says so)."""
+    ``cov``: covariance of (A0, A1, A2) and ``full`` whether it holds the correlations; by
+    default the run's own (harness.metrics.estimation.resistance_covariance: est.cov_* off the
+    diagonal, or the stds alone, and then the legend says the correlations are ignored)."""
     from harness.metrics.estimation import w0
     plt = pyplot()
     v = np.linspace(0.0, max(float(result["car.speed"].max()), 1.0), 100)
     est = tuple(float(result[f"est.{a}"][-1]) for a, _ in A_NAMES)
-    how = "covariance of A0, A1, A2"
     if cov is None:
-        cov = resistance_covariance(result)
-    if cov is None:
-        cov = np.diag([float(result[f"est.{a}_std"][-1]) ** 2 for a, _ in A_NAMES])
-        how = "stds of A0, A1, A2 alone: correlations ignored"
+        cov, full = resistance_covariance(result)
+    how = "covariance of A0, A1, A2" if full or full is None else "stds of A0, A1, A2 alone: correlations ignored"
     w_est, sd = w0(v, *est), resistance_band(v, cov)
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.plot(v, w0(v, *true_A), color="k", label="true")
@@ -199,17 +200,19 @@ def resistance_figure(result, true_A: tuple, cov: np.ndarray | None = None):
     return fig
 
 
-def plot_resistance(result, true_A: tuple, out_dir: Path, cov: np.ndarray | None = None) -> Path:
+def plot_resistance(result, true_A: tuple, out_dir: Path, cov: np.ndarray | None = None,
+                    full: bool | None = None) -> Path:
     """resistance.png (``resistance_figure``)."""
-    return save_figure(resistance_figure(result, true_A, cov), f"{result.scenario.name}: main resistance eq. (1)",
-                 out_dir / "resistance.png")
+    return save_figure(resistance_figure(result, true_A, cov, full),
+                       f"{result.scenario.name}: main resistance eq. (1)", out_dir / "resistance.png")
 
 
 def resistance_vs_time_figure(result, true_A: tuple):
     """A0, A1, A2 identified vs time with +-2 sigma bands, and the truth. Each axis is scaled to
     the estimate and the truth (10 % margin), not to the band: the prior's band (A0 +-10 N/kN
-    against A0 ~ 1) would hide the estimate's error. The legend (right of each axis) gives the
-    band's half-width at the end and says when the axes cut the band."""
+    against A0 ~ 1) would hide the estimate's error. The band is drawn only where it fits the
+    axis (``clipped_band``); the legend (right of each axis) gives its half-width at the end
+    and says where it was left out."""
     plt = pyplot()
     t = result.time
     fig, ax = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
@@ -218,11 +221,9 @@ def resistance_vs_time_figure(result, true_A: tuple):
         lo, hi = min(float(est.min()), true_A[j]), max(float(est.max()), true_A[j])
         pad = 0.1 * (hi - lo) if hi > lo else 0.1 * max(abs(hi), 1e-6)
         lo, hi = lo - pad, hi + pad
-        clipped = bool(np.any(est - 2 * sd < lo) or np.any(est + 2 * sd > hi))
         ax[j].plot(t, est, color="tab:blue", label="identified")
-        ax[j].fill_between(t, est - 2 * sd, est + 2 * sd, color="tab:blue", alpha=0.15,
-                           label=f"+-2 sigma (+-{2 * float(sd[-1]):.3g} {unit} at the end)"
-                                 + ("\ncut by the axes" if clipped else ""))
+        clipped_band(ax[j], t, est, sd, lo, hi, "tab:blue",
+                     f"+-2 sigma (+-{2 * float(sd[-1]):.3g} {unit} at the end)")
         ax[j].axhline(true_A[j], color="k", lw=1, label="true (at the end)")
         ax[j].set_ylim(lo, hi)
         ax[j].set_ylabel(f"{name} [{unit}]")
@@ -237,20 +238,21 @@ def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
                  f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
 
 
-def write_report(result, summary: RunSummary, true_A: tuple, out_dir: Path, fmu: str = "",
-                 ato_steps=None) -> list[Path]:
-    """Everything for one run into ``out_dir``; returns the files written. ``fmu``: which FMU ran
-    (a line of summary.md; default: the kind the result records). ``ato_steps``: for a span
-    scenario, the ATO's calls (AtoDriver.steps): ato.png and the ATO table come first."""
+def write_report(result, metrics, out_dir: Path, fmu: str = "") -> list[Path]:
+    """Everything for one run into ``out_dir``, drawn from ``metrics`` (harness.metrics.run.
+    RunMetrics, computed once); returns the files written. ``fmu``: which FMU ran (a line of
+    summary.md; default: the kind the result records). A span scenario's ato.png and ATO
+    table come first."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_result_csv(result, out_dir / f"{result.scenario.name}_result.csv")
     figs, ato_md = [], None
-    if ato_steps is not None:
+    if metrics.ato is not None:
         from harness.reports.ato_report import write_ato_report
-        png, _, _, ato_md = write_ato_report(result, ato_steps, out_dir)
+        png, ato_md = write_ato_report(result, metrics.ato, out_dir)
         figs.append(png)
-    figs += plot_run(result, out_dir) + [plot_resistance(result, true_A, out_dir),
-                                         plot_resistance_vs_time(result, true_A, out_dir)]
-    md = write_summary_md(summary, result.scenario, out_dir / "summary.md", figs,
-                          fmu or getattr(result, "fmu", ""), result, ato_md)
+    figs += plot_run(result, out_dir) + [
+        plot_resistance(result, metrics.true_A, out_dir, metrics.A_covariance, metrics.A_covariance_full),
+        plot_resistance_vs_time(result, metrics.true_A, out_dir)]
+    md = write_summary_md(metrics.summary, result.scenario, out_dir / "summary.md", figs,
+                          fmu or getattr(result, "fmu", ""), result, ato_md, metrics.driver_log)
     return [csv_path, md, *figs]

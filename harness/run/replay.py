@@ -12,6 +12,21 @@ RailCarEstimator requires). The file is UTF-8 text; a BOM is skipped (harness.te
 ``estimator_parameters`` checks ``--param NAME=VALUE`` against RailCarEstimator's variable table
 and the FMU's own rules (profiles parsed, the estimator configured as the FMU configures it), so
 that a bad parameter is invalid input before any FMU runs.
+
+**Replaying a RailCar run's own log** (``run --log``). ``write_log`` writes every value in full
+precision (repr), the run's est.* (to compare with), and beside the log ``<log>.params``: the
+run's values of RailCarEstimator's parameters (all shared with RailCar), NAME=VALUE a line, which
+``replay`` reads (``--param`` overrides them). On a uniform time grid the replay steps with the
+grid's step exactly, as RailCar's estimator does (not t[k+1] - t[k], which differs in the last
+bits). With the forces RailCar's estimator saw, the means over each sample interval, the replay
+gives the run's est.* bit for bit, one row later (RailCarEstimator outputs, at row k + 1, what it
+identified from the samples up to row k: tests/harness_tests/run/test_replay.py shows it on the
+models' chain). RailCar does not output those means (``INTERVAL_FORCES``: an output the model
+would need): its log carries the force applied at the next row instead, the instantaneous force
+at the interval's end, and the est.* differ (est.mass 34.184 t against the run's 34.212 t on the
+default scenario). filter.* never compare bit for bit: RailCarEstimator outputs the filter's
+one-step prediction for the next row, RailCar its posterior at the row. ``replay_report`` says
+which case a log is.
 """
 from __future__ import annotations
 
@@ -32,6 +47,18 @@ from harness.textio import InputError, read_text
 REQUIRED = {"time": ("s",), "traction_force": ("N",), "brake_force": ("N",),
             "sensor.speed": ("m/s", "km/h"), "sensor.position": ("m",)}
 OPTIONAL = {"car.speed": ("m/s",), "car.position": ("m",), "car.total_mass": ("t",)}
+RUN_ESTIMATES = {"est.mass": "t", "est.mass_std": "t", "est.A0": "N/kN", "est.A1": "N/kN/(m/s)",
+                 "est.A2": "N/kN/(m/s)2", "est.A0_std": "N/kN", "est.A1_std": "N/kN/(m/s)",
+                 "est.A2_std": "N/kN/(m/s)2", "est.sigma2": "m2/s2"}
+"""A RailCar run's own estimates, which its log carries to compare the replay with (ASCII units:
+a log is read by programs)."""
+OPTIONAL.update({n: (u,) for n, u in RUN_ESTIMATES.items()})
+
+INTERVAL_FORCES = ("car.traction_force_mean", "car.brake_force_mean")
+"""[N] The traction and brake force applied over the last sample interval, averaged (the impulse
+over it / sensor.sample_period): what RailCar's estimator is fed. RailCar does not output them
+(yet): a log of a run that recorded them replays to the run's est.* bit for bit."""
+EXACT, NEXT_ROW = "interval_mean", "next_row"     # what a log's forces are (its .params says)
 _HEADER = re.compile(r"^\s*\"?([A-Za-z0-9_.]+)\s*\[([^\]]*)\]\"?\s*$")
 
 
@@ -167,28 +194,96 @@ def _applied_until_next_row(x: np.ndarray) -> np.ndarray:
     return np.append(x[1:], x[-1:])
 
 
+def params_path(log_path: Path) -> Path:
+    """The parameters beside a log: default_log.csv -> default_log.params."""
+    return Path(log_path).with_suffix(".params")
+
+
 def write_log(path: Path, result) -> Path:
-    """A RailCar run as a replayable log (measurements, applied forces, and the truth)."""
+    """A RailCar run as a replayable log: the measurements, the forces (the interval means where
+    the run recorded them, ``INTERVAL_FORCES``, else the force applied at the next row), the
+    truth and the run's own est.*, every value in full precision; and ``params_path(path)``: the
+    run's values of RailCarEstimator's parameters (module docstring)."""
+    exact = all(n in result.signals for n in INTERVAL_FORCES)
+    forces = INTERVAL_FORCES if exact else ("car.traction_force", "car.brake_force")
     cols = [("time", "s", result.time),
-            ("traction_force", "N", _applied_until_next_row(result["car.traction_force"])),
-            ("brake_force", "N", _applied_until_next_row(result["car.brake_force"])),
+            ("traction_force", "N", _applied_until_next_row(result[forces[0]])),
+            ("brake_force", "N", _applied_until_next_row(result[forces[1]])),
             ("sensor.speed", "m/s", result["sensor.speed"]),
             ("sensor.position", "m", result["sensor.position"]), ("car.speed", "m/s", result["car.speed"]),
             ("car.position", "m", result["car.position"]), ("car.total_mass", "t", result["car.total_mass"])]
+    cols += [(n, u, result[n]) for n, u in RUN_ESTIMATES.items() if n in result.signals]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow([f"{n} [{u}]" for n, u, _ in cols])
         for k in range(len(result.time)):
             w.writerow([repr(float(c[k])) for _, _, c in cols])
+    values = result.setup.values
+    lines = [f"# RailCarEstimator parameters of the run '{result.scenario.name}' that wrote {Path(path).name}: "
+             f"python -m harness replay reads them (--param overrides)",
+             f"# forces: {EXACT if exact else NEXT_ROW}"]
+    lines += [f"{n}={_param_text(values[n])}" for n in _ESTIMATOR_PARAMETERS]
+    params_path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
 
-def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path, fmu: str = "") -> str:
+def _param_text(value) -> str:
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def read_log_parameters(log_path: Path) -> tuple[list[str], str]:
+    """(NAME=VALUE items, what the forces are: EXACT, NEXT_ROW, or "" for a log without
+    parameters beside it) from ``params_path(log_path)``."""
+    p = params_path(log_path)
+    if not p.is_file():
+        return [], ""
+    items, forces = [], NEXT_ROW
+    for line in read_text(p, ParamError).splitlines():
+        line = line.strip()
+        if line.startswith("# forces:"):
+            forces = line.split(":", 1)[1].strip()
+        elif line and not line.startswith("#"):
+            items.append(line)
+    return items, forces
+
+
+def uniform_step(time: np.ndarray) -> float | None:
+    """The step [s] of a uniform time grid, t[k] = t[0] + k * (t[1] - t[0]) to the bit (a harness
+    run's rows), else None: then the replay steps t[k+1] - t[k]."""
+    h = float(time[1] - time[0])
+    k = np.arange(len(time))
+    return h if np.array_equal(time, time[0] + k * h) else None
+
+
+def compare_with_run(log: Log, signals: dict[str, np.ndarray], forces: str) -> list[str]:
+    """Lines comparing the replay's est.* with the run's own that the log carries: the replay's
+    row k + 1 with the run's row k (module docstring), bit for bit or the largest difference,
+    and why they differ when they may."""
+    names = [n for n in RUN_ESTIMATES if n in log.columns and n in signals]
+    if not names:
+        return []
+    diff = {n: float(np.max(np.abs(signals[n][1:] - log.columns[n][:-1]))) for n in names}
+    same = all(np.array_equal(signals[n][1:], log.columns[n][:-1]) for n in names)
+    if same:
+        return [f"  est.* vs the run's own  bit for bit ({', '.join(names)}; the replay's row k+1 is the run's row k)"]
+    worst = max(diff, key=diff.get)
+    lines = [f"  est.* vs the run's own  not bit for bit: max |diff| {diff[worst]:.3g} ({worst}; the replay's "
+             f"row k+1 against the run's row k)"]
+    if forces != EXACT:
+        lines.append("    why: the log's forces are those applied at the next row, not the means over each "
+                     "sample interval that RailCar's estimator saw (RailCar outputs no "
+                     f"{' / '.join(INTERVAL_FORCES)}); see harness/run/replay.py")
+    return lines
+
+
+def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path, fmu: str = "", forces: str = "") -> str:
     """Write the estimates (CSV, units in the header) and return a short summary text.
 
     RailCarEstimator's outputs at row k are its estimates for row k's instant (the one-step
     prediction made at row k-1), so they compare directly with truth columns on the same row.
-    ``fmu``: which FMU ran (harness.run.fmus.FmuChoice.describe), a line of the text.
+    ``fmu``: which FMU ran (harness.run.fmus.FmuChoice.describe), a line of the text. ``forces``:
+    what the log's forces are (``read_log_parameters``), for the comparison with the run's own
+    est.* where the log carries them.
     """
     from harness.metrics.estimation import rmse
     out.mkdir(parents=True, exist_ok=True)
@@ -209,13 +304,15 @@ def replay_report(log: Log, signals: dict[str, np.ndarray], out: Path, fmu: str 
     c = log.columns
     if "car.speed" in c:
         lines.append(f"  speed RMSE sensor/filter {rmse(c['sensor.speed'], c['car.speed']):.4f} / "
-                     f"{rmse(signals['filter.speed'][1:], c['car.speed'][1:]):.4f} m/s")
+                     f"{rmse(signals['filter.speed'][1:], c['car.speed'][1:]):.4f} m/s (the filter's one-step "
+                     f"predictions)")
     if "car.position" in c:
         lines.append(f"  distance RMSE s./filter  {rmse(c['sensor.position'], c['car.position']):.3f} / "
                      f"{rmse(signals['filter.position'][1:], c['car.position'][1:]):.3f} m")
     if "car.total_mass" in c:
         err = 100 * (signals["est.mass"][-1] - c["car.total_mass"][-1]) / c["car.total_mass"][-1]
         lines.append(f"  mass error at the end    {err:+.3f} %")
+    lines += compare_with_run(log, signals, forces)
     if fmu:
         lines.append(f"  ran on the FMU {fmu}")
     lines.append(f"  estimates: {path}")

@@ -186,10 +186,11 @@ class FmuRunner:
             raise InitError(f"{what}: initialisation failed: {e}", log) from None
         return fmu
 
-    def replay(self, log_data, parameters: dict, what: str = "replay"):
-        """Run RailCarEstimator over a measured log (see harness.run.replay); returns (time, signals).
+    def replay(self, log_data, parameters: dict, what: str = "replay", step: float | None = None):
+        """Run RailCarEstimator over a measured log (see harness.run.replay); returns (signals, log).
 
-        Row k's measurements and forces drive doStep(t_k, t_k+1 - t_k); the outputs after it
+        Row k's measurements and forces drive doStep(t_k, h_k), h_k = ``step`` (a uniform grid's
+        step, exactly as RailCar's estimator steps) or else t_k+1 - t_k; the outputs after it
         (estimates for t_k+1) are stored at row k+1.
         """
         outputs = [n for n in self.outputs if self.vars[n].type == "Real"]
@@ -204,7 +205,8 @@ class FmuRunner:
             for k in range(len(t) - 1):
                 fmu.setReal(in_vr, [float(log_data.columns[n][k]) for n in in_names])
                 try:
-                    fmu.doStep(currentCommunicationPoint=float(t[k]), communicationStepSize=float(t[k + 1] - t[k]))
+                    h = step if step is not None else float(t[k + 1] - t[k])
+                    fmu.doStep(currentCommunicationPoint=float(t[k]), communicationStepSize=h)
                 except Exception as e:
                     raise RunError(f"{what}: doStep at t = {t[k]:.3f} s (row {k + 2}) failed: {e}", log) from None
                 rows.append(fmu.getReal(out_vr))

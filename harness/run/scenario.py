@@ -14,7 +14,7 @@ schedule, and the run's step and duration. Every error names the file, the key a
     "car.mass" = 34.0
     "track.grade_profile" = "profiles/demo_grade.csv"   # relative to this file
 
-    [[driver]]                        # phases, in order (see harness/run/driver.py)
+    [[driver]]                        # phases, in order (see harness/run/phases.py)
     action = "traction"
     until_speed_mps = 16.7
 
@@ -27,16 +27,23 @@ Instead of a driving script, a ``[span]`` table (or ``[[span]]`` tables: a line)
 """
 from __future__ import annotations
 
+import difflib
 import math
 import re
 import tomllib
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fmu_src.variables import RAILCAR, variables_for
 
-from harness.run.driver import DriverPhase, PhaseDriver, TimeTable, parse_phase, parse_time_table
+from harness.run.phases import DriverPhase, PhaseDriver, TimeTable, parse_phase, parse_time_table
+from harness.run.span_scenario import AtoDriver, AtoSetup, parse_ato
 from harness.textio import InputError, read_text
+
+if TYPE_CHECKING:       # fmu_src.adapter imports pythonfmu: loaded when a setup is resolved, not before
+    from fmu_src.adapter import ChainSetup
 
 PATH_PARAMETERS = ("track.grade_profile", "track.speed_profile")
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,7 +65,25 @@ class WindStep:
 
 
 @dataclass(frozen=True)
+class ScenarioSetup:
+    """A scenario's RailCar resolved once, as the FMU will build it at initialisation, without
+    building it: every parameter's value, the chain's configuration and track profiles
+    (fmu_src.adapter.ChainSetup: ``.open()`` gives a models chain), and a span scenario's ATO over
+    the grade those parameters name."""
+    values: dict                 # every RailCar parameter by FMU name: the scenario's, else the default
+    chain: ChainSetup
+    ato: AtoSetup | None = None
+
+    @property
+    def vehicle(self):
+        """The true car (models.plant.dynamics.VehicleParams)."""
+        return self.chain.config.vehicle
+
+
+@dataclass(frozen=True)
 class Scenario:
+    """A validated scenario; ``setup`` is its RailCar and ATO resolved once (``ScenarioSetup``:
+    at loading, or at first use for a copy made with other parameters)."""
     name: str
     purpose: str
     path: Path | None
@@ -69,7 +94,14 @@ class Scenario:
     step_s: float = 0.1
     duration_s: float = 200.0
     stop_after_last_phase: bool = True
-    ato: object = None          # harness.run.span_scenario.AtoSetup of a span scenario, else None
+    ato: AtoSetup | None = None  # a span scenario's ATO over the file's grade, else None
+
+    @cached_property
+    def setup(self) -> ScenarioSetup:
+        """This scenario's ScenarioSetup. load_scenario resolves it while checking the file; a
+        copy with other parameters (dataclasses.replace: a sweep's, a test's) resolves its own
+        on first use, ScenarioError naming the parameter if the FMU would refuse them."""
+        return resolve_setup(self.parameters, f"{self.path or self.name}: parameters", self.ato)
 
     def parameter(self, name: str):
         """The scenario's value of an FMU parameter, or the FMU's default."""
@@ -82,41 +114,34 @@ class Scenario:
         ``overrides`` on top (ValueError for a name RailCar does not have)."""
         return railcar_values({**self.parameters, **_known(overrides or {})})
 
-    def chain_setup(self, overrides: dict | None = None):
-        """The models chain's configuration and profiles (fmu_src.adapter.ChainSetup) for
-        ``railcar_parameters(overrides)``, as the RailCar FMU builds them at initialisation (a
-        relative profile path looked up where the FMU looks: its resources, then the working
-        directory). ``.open()`` gives the chain."""
+    def chain_setup(self, overrides: dict | None = None) -> ChainSetup:
+        """The models chain's configuration and profiles (fmu_src.adapter.ChainSetup), as the
+        RailCar FMU builds them at initialisation: the resolved ``setup.chain``, or with
+        ``overrides`` (by FMU name) a new one (a relative profile path looked up where the FMU
+        looks: its resources, then the working directory). ``.open()`` gives the chain."""
+        if not overrides:
+            return self.setup.chain
         from fmu_src.adapter import chain_setup
         return chain_setup(self.railcar_parameters(overrides), str(BUNDLED_RESOURCES))
 
     def new_driver(self, mass_t: float | None = None):
-        """A fresh driver of this scenario's script (harness.run.driver): a PhaseDriver of its phases
+        """A fresh driver of this scenario's script (harness.run.phases): a PhaseDriver of its phases
         for a car of ``mass_t`` [t] (default car.mass; it sizes the cruise and brake_to_stop
         demands) and the car's force limits, or its time table; for a span scenario a fresh
         harness.run.span_scenario.AtoDriver (the ATO, one controller per span)."""
         if self.ato is not None:
-            from harness.run.span_scenario import AtoDriver
-            return AtoDriver(self.ato_setup())
+            return AtoDriver(self.ato_setup(), self.name)
         if not self.phases:
             return self.time_table
         return PhaseDriver(self.phases, self.parameter("car.mass") if mass_t is None else mass_t,
                            self.parameter("car.traction_force_max"), self.parameter("car.brake_force_max"))
 
-    def ato_setup(self):
+    def ato_setup(self) -> AtoSetup | None:
         """A span scenario's ATO (harness.run.span_scenario.AtoSetup) over the grade its parameters
         name now: a copy of the scenario with another track.grade_profile (a sweep's, a test's)
         gets its spans over that grade, never the file's (one source). None if not a span
         scenario."""
-        if self.ato is None:
-            return None
-        value = self.parameter("track.grade_profile")
-        if value == self.ato.grade_profile:
-            return self.ato
-        from models.plant.track import GradeProfile
-        grade = (read_profile("track.grade_profile", profile_file(value, None), "track.grade_profile")
-                 if value else GradeProfile.level())
-        return self.ato.with_grade(grade, value)
+        return None if self.ato is None else self.setup.ato
 
     def wind_at(self, t: float) -> float:
         """Wind speed [m/s] at time t [s]."""
@@ -137,10 +162,23 @@ def railcar_values(parameters: dict) -> dict:
     return {n: parameters.get(n, var.start) for n, var in RAILCAR_PARAMETERS.items()}
 
 
+VARIABLES_DOC = "docs/variables.md"
+
+
+def unknown_parameter(name: str, known, what: str = "a RailCar parameter") -> str:
+    """The message for a parameter name that is not ``what``: where the names are listed
+    (docs/variables.md, the variable table) and the closest known names (difflib). One message
+    for scenarios, overrides and sweeps."""
+    by_lower = {k.lower(): k for k in known}        # car.a0 is car.A0
+    close = [by_lower[c] for c in difflib.get_close_matches(name.lower(), list(by_lower), n=2, cutoff=0.8)]
+    hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+    return f"not {what} (see {VARIABLES_DOC}){hint}"
+
+
 def _known(overrides: dict) -> dict:
     for name in overrides:
         if name not in RAILCAR_PARAMETERS:
-            raise ValueError(f"{name}: not a RailCar parameter (see fmu_src/variables.py)")
+            raise ValueError(f"{name}: {unknown_parameter(name, RAILCAR_PARAMETERS)}")
     return overrides
 
 
@@ -205,7 +243,7 @@ def parse_parameters(raw: dict, where: str, base_dir: Path | None) -> dict:
         key = f"{where}.\"{name}\""
         var = RAILCAR_PARAMETERS.get(name)
         if var is None:
-            raise ScenarioError(f"{key}: not a RailCar parameter (see fmu_src/variables.py)")
+            raise ScenarioError(f"{key}: {unknown_parameter(name, RAILCAR_PARAMETERS)}")
         if var.type == "Real":
             out[name] = _number(value, key)
         elif var.type == "Integer":
@@ -229,13 +267,15 @@ def named_parameter(message: str, names) -> str | None:
     return min(found)[1] if found else None
 
 
-def check_fmu_parameters(parameters: dict, where: str, error=None) -> None:
-    """Check a scenario's RailCar parameters with the FMU's own rules, before any FMU runs: the
-    models chain is built from them as RailCar builds it at initialisation (fmu_src.adapter
-    chain_config, the models' validate()). ``error`` (default ScenarioError) names ``where`` and
-    the parameter."""
-    from fmu_src.adapter import chain_config
-    from models.chain import RailCarChain
+def resolve_setup(parameters: dict, where: str, ato: AtoSetup | None = None, error=None) -> ScenarioSetup:
+    """Resolve and check a scenario's RailCar parameters with the FMU's own rules, before any
+    FMU runs and without building a chain: the profiles are read as the FMU reads them, the
+    configuration is made as RailCar makes it at initialisation (fmu_src.adapter.chain_config)
+    and checked by the models' validate() in the order RailCarChain meets them
+    (models.compiled.validate). ``ato``: a span scenario's ATO, moved onto the grade the
+    parameters name. ``error`` (default ScenarioError) names ``where`` and the parameter."""
+    from fmu_src.adapter import ChainSetup, chain_config
+    from models.compiled import validate
     from models.plant.track import GradeProfile
     error = error or ScenarioError
     v = railcar_values(parameters)
@@ -243,15 +283,26 @@ def check_fmu_parameters(parameters: dict, where: str, error=None) -> None:
     for n in PATH_PARAMETERS:
         if v[n]:
             profiles[n] = read_profile(n, profile_file(v[n], None), f"{where}.\"{n}\"", error)
+    grade = profiles.get("track.grade_profile") or GradeProfile.level()
+    speed = profiles.get("track.speed_profile")
     try:
-        RailCarChain(chain_config(v), profiles.get("track.grade_profile") or GradeProfile.level(),
-                     profiles.get("track.speed_profile"))
+        config = chain_config(v)
+        validate(config, speed, 0.0)
     except (ValueError, ArithmeticError) as e:
         name = named_parameter(str(e), RAILCAR_PARAMETERS)
         if name is None:
             raise error(f"{where}: {e}") from None
         note = "" if name in parameters else f" (not set: the FMU's default {RAILCAR_PARAMETERS[name].start!r})"
         raise error(f"{where}.\"{name}\"{note}: {e}") from None
+    if ato is not None and v["track.grade_profile"] != ato.grade_profile:
+        ato = ato.with_grade(grade, v["track.grade_profile"])
+    return ScenarioSetup(v, ChainSetup(config, grade, speed), ato)
+
+
+def check_fmu_parameters(parameters: dict, where: str, error=None) -> None:
+    """Check RailCar parameters with the FMU's own rules (``resolve_setup``); ``error`` (default
+    ScenarioError) names ``where`` and the parameter."""
+    resolve_setup(parameters, where, None, error)
 
 
 def _table_list(data: dict, key: str, source: str) -> list:
@@ -338,8 +389,8 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     stop_after = data.get("stop_after_last_phase", True)
     if not isinstance(stop_after, bool):
         raise ScenarioError(f"{source}: stop_after_last_phase must be true or false")
-    check_fmu_parameters(params, f"{source}: parameters")
-    ato = _ato(data, source, params) if "span" in data else None
+    setup = resolve_setup(params, f"{source}: parameters")
+    ato = _ato(data, source, setup) if "span" in data else None
     default_duration = ato.default_duration_s if ato is not None else 200.0
     duration = _number(data.get("duration_s", default_duration), f"{source}: duration_s")
     if duration < step:
@@ -347,23 +398,20 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     if ato is not None and duration < ato.scheduled_s:
         raise ScenarioError(f"{source}: duration_s: {duration} s ends before the schedules and dwells "
                             f"({ato.scheduled_s:g} s); leave it out for them and a minute more")
-    return Scenario(name=name, purpose=purpose,
-                    path=Path(source) if base_dir is not None else None, parameters=params,
-                    phases=phases, time_table=table, wind=tuple(sorted(wind, key=lambda w: w.time_s)),
-                    step_s=step, duration_s=duration, stop_after_last_phase=stop_after, ato=ato)
+    scenario = Scenario(name=name, purpose=purpose,
+                        path=Path(source) if base_dir is not None else None, parameters=params,
+                        phases=phases, time_table=table, wind=tuple(sorted(wind, key=lambda w: w.time_s)),
+                        step_s=step, duration_s=duration, stop_after_last_phase=stop_after, ato=ato)
+    # the setup resolved by the checks above is the scenario's: nothing is read or built again
+    scenario.__dict__["setup"] = ScenarioSetup(setup.values, setup.chain, ato)
+    return scenario
 
 
-def _ato(data: dict, source: str, params: dict):
+def _ato(data: dict, source: str, setup: ScenarioSetup) -> AtoSetup:
     """The ATO of a span scenario (harness.run.span_scenario.parse_ato): the span's grade is the
-    RailCar parameter track.grade_profile, read as the FMU reads it (one source)."""
-    from models.plant.track import GradeProfile
-    from harness.run.span_scenario import parse_ato
-    v = railcar_values(params)
-    grade = GradeProfile.level()
-    if v["track.grade_profile"]:
-        grade = read_profile("track.grade_profile", profile_file(v["track.grade_profile"], None),
-                             f"{source}: parameters.\"track.grade_profile\"")
-    return parse_ato(data, source, grade, float(v["track.station_dwell"]), ScenarioError,
+    RailCar parameter track.grade_profile, as the resolved setup read it (one source)."""
+    v = setup.values
+    return parse_ato(data, source, setup.chain.grade, float(v["track.station_dwell"]), ScenarioError,
                      v["track.grade_profile"])
 
 

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import logging
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, fields, replace
 from typing import Mapping
 
@@ -46,7 +47,7 @@ from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 from models.units import kmh_to_mps
 
-from harness.run.driver import Demands
+from harness.run.phases import Demands
 
 SPAN_KEYS = ("stop_m", "schedule_s", "length_m", "limit_kmh", "limit_mps", "dwell_s", "boarding_t")
 LINE_ONLY = ("dwell_s", "boarding_t")     # the station before a span of a line, not the first
@@ -252,6 +253,39 @@ class _Shifted(Mapping):
         return len(self._o)
 
 
+class _ControllerLog(logging.Handler):
+    """Takes models.ato.controller's log records while an AtoDriver calls a controller (``into``)
+    and appends them to that driver's lines; the logger neither propagates to the root nor
+    reaches Python's last-resort stderr handler meanwhile. The model keeps its logger (a host
+    without this harness still sees the warnings); the harness decides where they go."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.logger = logging.getLogger("models.ato.controller")
+        self.sink: list[str] | None = None
+        self.prefix = ""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.sink is not None:
+            self.sink.append(self.prefix + record.getMessage())
+
+    @contextmanager
+    def into(self, sink: list[str], prefix: str):
+        log, was = self.logger, self.logger.propagate
+        self.sink, self.prefix = sink, prefix
+        log.addHandler(self)
+        log.propagate = False
+        try:
+            yield
+        finally:
+            log.removeHandler(self)
+            log.propagate = was
+            self.sink = None
+
+
+_CONTROLLER_LOG = _ControllerLog()
+
+
 class AtoDriver:
     """A harness.run.driver Driver over a span scenario's spans: one AtoController per span, a
     holding brake of ``dwell_s`` between them (``boarding_t`` boarding at its start). It records
@@ -260,12 +294,18 @@ class AtoDriver:
     The controllers read the estimator's outputs only; the driver reads two more: car.speed, the
     bench's truth, to end a span once the car really stands (a test bench ends a run so; no
     control decision uses it), and est.station_stops, to know when the estimator has restarted
-    its filter at a station. ``finished``: the last span's car stands at its mark."""
+    its filter at a station. ``finished``: the last span's car stands at its mark.
 
-    def __init__(self, setup: AtoSetup):
+    What the controllers log (models.ato.controller's logger: "ATO at t = 10.70 s: estimates not
+    usable ...") goes to ``log_lines``, "<scenario>: span k: ..." (RunResult.driver_log), not to
+    stderr: the command that wants it prints it, naming the scenario."""
+
+    def __init__(self, setup: AtoSetup, name: str = ""):
         self.setup = setup
+        self.name = name                       # the scenario's, first on every log line
         self.controllers = setup.controllers()
         self.steps: list[AtoStep] = []
+        self.log_lines: list[str] = []         # the controllers' log (module docstring of _ControllerLog)
         self.departures: list[float] = []      # [s] each span's first command
         self.k = 0
         self._dwell_from: float | None = None
@@ -296,7 +336,8 @@ class AtoDriver:
                 view = _Shifted(outputs, self._offset)
         if len(self.departures) == self.k:
             self.departures.append(t)
-        cmd = ctrl.demands(t, view)
+        with _CONTROLLER_LOG.into(self.log_lines, f"{self.name or 'ATO'}: span {self.k + 1}: "):
+            cmd = ctrl.demands(t, view)
         self.steps.append(AtoStep(t, self.k, cmd))
         if ctrl.finished and outputs["car.speed"] == 0.0:
             if self.k == len(self.controllers) - 1:
@@ -313,21 +354,16 @@ class AtoDriver:
 def replay_steps(scenario, result) -> AtoDriver:
     """A fresh AtoDriver fed the outputs a run of ``scenario`` recorded (``result``, every row
     but the last, as the loop fed them): the controllers read nothing but those outputs, so this
-    gives the run's commands again (tests check them equal to the run's own, bit for bit)."""
-    driver = AtoDriver(scenario.ato_setup())
+    gives the run's commands again (tests check them equal to the run's own, bit for bit; the
+    run's own are in ``result.driver_steps``, the reports read those)."""
+    driver = AtoDriver(scenario.ato_setup(), scenario.name)
     names = [n for n in driver.reads if n in result.signals]
     missing = set(driver.reads) - set(names)
     if missing:
         raise ValueError(f"{scenario.name}: the run did not record {', '.join(sorted(missing))}")
     cols = [result.signals[n] for n in names]
-    log = logging.getLogger("models.ato.controller")
-    was = log.disabled
-    log.disabled = True                 # the run has logged these events once already
-    try:
-        for j in range(len(result.time)):
-            driver.demands(float(result.time[j]), {n: float(c[j]) for n, c in zip(names, cols)})
-            if driver.finished:
-                break
-    finally:
-        log.disabled = was
+    for j in range(len(result.time)):
+        driver.demands(float(result.time[j]), {n: float(c[j]) for n, c in zip(names, cols)})
+        if driver.finished:
+            break
     return driver

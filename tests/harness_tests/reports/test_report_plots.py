@@ -1,12 +1,14 @@
 """What a run report's plots and summary show, read from matplotlib's objects (never pixels):
-the band of the identified resistance curve is the A's covariance propagated (or, when the run
-cannot be re-run, the stds alone, labelled so); the resistance-vs-time axes are scaled to the
-estimate and the truth, not to the prior's band; every band has a legend entry; the summary gives
-each A's standard deviation with its unit. And the command line: every option has a help text.
+the band of the identified resistance curve is the A's covariance the run recorded (est.cov_*
+off the diagonal) propagated, or without those outputs the stds alone, labelled so, and no
+model runs for it; the bands of the time plots stay inside their axes, which are scaled to the
+estimate and the truth, not to the prior's band; every band has a legend entry; the summary
+gives each A's standard deviation with its unit, floats in few digits. And the command line:
+every option has a help text.
 
-The runs are made here on the models' Python chain (no FMU, well under a second each); one test
-runs the native FMU from the session build to show that an FMU's run re-runs to the same
-covariance."""
+The runs are made here on the models' Python chain (no FMU, well under a second each), with the
+est.cov_* columns taken from the chain's estimator as the FMUs output them; one test runs the
+native FMU from the session build."""
 from __future__ import annotations
 
 import argparse
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 from matplotlib.collections import PolyCollection
 
+from harness.metrics.estimation import resistance_covariance
 from harness.reports import run_report as report
 from harness.run.runner import INPUTS, RunResult
 from harness.run.scenario import load_scenario
@@ -23,23 +26,37 @@ from models.chain import RailCarChain
 
 ROOT = Path(__file__).resolve().parents[3]
 DEFAULT = ROOT / "scenarios" / "default.toml"
-UNITS = {"A0": "N/kN", "A1": "N/kN/(m/s)", "A2": "N/kN/(m/s)2"}
+UNITS = {"A0": "N/kN", "A1": "N/kN/(m/s)", "A2": "N/kN/(m/s)²"}
+COV = {(0, 1): "est.cov_A0_A1", (0, 2): "est.cov_A0_A2", (1, 2): "est.cov_A1_A2"}
+
+
+def a_covariance(chain) -> np.ndarray:
+    """The chain's estimator's covariance of (A0, A1, A2) now (what est.A*_std are the square
+    roots of the diagonal of, and est.cov_* the rest)."""
+    e = chain.estimator
+    return np.array(e.method.with_resistance_covariance(e.ident.covariance())[1:, 1:], dtype=float)
 
 
 def open_loop_run(scenario, seconds: float = 100.0):
     """``scenario``'s car (its parameters and seed) driven open loop: 40 kN of traction for 25 s,
-    coast to 60 s, 20 kN to 70 s, then 30 kN of brake; a RunResult as the FMU runner makes one,
-    and the chain at the end (its estimator holds the covariance)."""
+    coast to 60 s, 20 kN to 70 s, then 30 kN of brake; a RunResult as the FMU runner makes one
+    (with the est.cov_* outputs), and the chain at the end (its estimator holds the covariance)."""
     s = scenario.chain_setup()
     chain = RailCarChain(s.config, s.grade, s.speed)
     h = scenario.step_s
-    rows, inputs = [chain.outputs()], []
+
+    def outputs():
+        out, c = chain.outputs(), a_covariance(chain)
+        out.update({name: float(c[i, j]) for (i, j), name in COV.items()})
+        return out
+
+    rows, inputs = [outputs()], []
     for k in range(int(round(seconds / h))):
         t = k * h
         u = (40e3 if t < 25 else 0.0 if t < 60 else 20e3 if t < 70 else 0.0,
              30e3 if t >= 70 else 0.0, 0.0, 0.0)
         chain.do_step(t, h, *u)
-        rows.append(chain.outputs())
+        rows.append(outputs())
         inputs.append(u)
     inputs.append(inputs[-1])
     u_arr = np.array(inputs)
@@ -81,17 +98,28 @@ def close(fig):
     plt.close(fig)
 
 
+def without_covariances(result) -> RunResult:
+    """The run as an FMU built before the est.cov_* outputs records it."""
+    return RunResult(result.scenario, result.time, {n: v for n, v in result.signals.items() if n not in COV.values()},
+                     {}, inputs=result.inputs)
+
+
 # ------------------------------------------------------------------------------ resistance.png
 
-def test_the_rerun_gives_the_runs_own_covariance_of_the_As(run):
+def test_the_covariance_of_the_As_is_the_runs_own_outputs(run):
+    """The stds on the diagonal (squared), est.cov_* off it, bit for bit: the estimator's own
+    covariance at the end (the diagonal within an ulp or two: sqrt then square)."""
     result, chain = run
-    cov = report.resistance_covariance(result)
-    e = chain.estimator
-    own = e.method.with_resistance_covariance(e.ident.covariance())[1:, 1:]
-    assert cov is not None and cov.shape == (3, 3)
-    assert cov.tobytes() == np.ascontiguousarray(own).tobytes()          # bit for bit
-    # its diagonal is what the run reported as est.A*_std (the FMU's outputs are these square roots)
-    assert np.sqrt(np.diag(cov)).tobytes() == np.array([result[f"est.{a}_std"][-1] for a in UNITS]).tobytes()
+    cov, full = resistance_covariance(result)
+    assert full and cov.shape == (3, 3)
+    own = a_covariance(chain)
+    for (i, j), name in COV.items():
+        assert cov[i, j] == cov[j, i] == result[name][-1] == own[i, j]
+    std = np.array([result[f"est.{a}_std"][-1] for a in UNITS])
+    assert np.diag(cov).tobytes() == (std * std).tobytes()
+    np.testing.assert_allclose(np.diag(cov), np.diag(own), rtol=1e-15, atol=0)
+    corr = cov[0, 2] / np.sqrt(cov[0, 0] * cov[2, 2])
+    assert corr < -0.5            # A0 and A2 trade off: why the stds alone would mislead
 
 
 def test_resistance_band_is_the_covariance_propagated_to_w0(run):
@@ -99,7 +127,7 @@ def test_resistance_band_is_the_covariance_propagated_to_w0(run):
     Tolerance 1e-12 relative: the figure computes the same sum in another order (einsum), a few
     ulps apart. Control: the stds alone give a band that differs by far more (the A's correlate)."""
     result, chain = run
-    cov = report.resistance_covariance(result)
+    cov, _ = resistance_covariance(result)
     fig = report.resistance_figure(result, true_A(result))
     ax = fig.axes[0]
     [poly] = bands(ax)
@@ -112,42 +140,54 @@ def test_resistance_band_is_the_covariance_propagated_to_w0(run):
     sd_diag = np.sqrt(np.array([p @ np.diag(np.diag(cov)) @ p for p in phi]))
     assert np.max(np.abs(sd_diag / sd - 1)) > 0.1                    # correlations matter here
     label = poly.get_label()
-    assert "covariance" in label and label in legend_texts(ax)
+    assert "covariance" in label and "ignored" not in label and label in legend_texts(ax)
     close(fig)
 
 
 def test_resistance_band_falls_back_to_the_stds_and_says_so(run):
-    """A run the reference cannot reproduce bit for bit (here est.A0_std one ulp off) gets the
-    band of the stds alone, labelled as ignoring the correlations."""
+    """A run without the est.cov_* outputs gets the band of the stds alone, labelled as ignoring
+    the correlations."""
     result, _ = run
-    signals = dict(result.signals)
-    signals["est.A0_std"] = signals["est.A0_std"].copy()
-    signals["est.A0_std"][-1] = np.nextafter(signals["est.A0_std"][-1], np.inf)
-    tampered = RunResult(result.scenario, result.time, signals, {}, inputs=result.inputs)
-    assert report.resistance_covariance(tampered) is None
-    fig = report.resistance_figure(tampered, true_A(result))
+    bare = without_covariances(result)
+    cov, full = resistance_covariance(bare)
+    assert not full and np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
+    fig = report.resistance_figure(bare, true_A(result))
     ax = fig.axes[0]
     [poly] = bands(ax)
     v = ax.lines[1].get_xdata()
     lo, hi = band_edges(poly, v)
-    s = [signals[f"est.{a}_std"][-1] for a in UNITS]
+    s = [bare.signals[f"est.{a}_std"][-1] for a in UNITS]
     sd = np.sqrt(s[0] ** 2 + v ** 2 * s[1] ** 2 + v ** 4 * s[2] ** 2)
     np.testing.assert_allclose((hi - lo) / 4, sd, rtol=1e-12, atol=0)   # as above
     assert "correlations ignored" in poly.get_label() and poly.get_label() in legend_texts(ax)
     close(fig)
 
 
-def test_no_recorded_inputs_no_rerun(run):
+def test_no_model_runs_for_a_plot(run, monkeypatch, tmp_path):
+    """Drawing the whole report builds no chain and no estimator (the metrics' oracle filter is
+    the only model run after the FMU's, and it is not the report's)."""
+    import models.chain
+    import models.estimation.online
+    from harness.metrics.run import RunMetrics
+    from harness.metrics.estimation import summarise
     result, _ = run
-    bare = RunResult(result.scenario, result.time, result.signals, {})
-    assert report.resistance_covariance(bare) is None
+    metrics = RunMetrics(summarise(result), true_A(result), (1.0, 1.0, 1.0), *resistance_covariance(result))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a model was built for a plot")
+
+    monkeypatch.setattr(models.chain.RailCarChain, "__init__", refuse)
+    monkeypatch.setattr(models.estimation.online.OnlineEstimator, "__init__", refuse)
+    files = report.write_report(result, metrics, tmp_path)
+    assert [f.name for f in files[2:]] == ["speed.png", "estimates.png", "resistance.png", "resistance_vs_time.png"]
 
 
 # ----------------------------------------------------------------------- resistance_vs_time.png
 
 def test_resistance_vs_time_is_scaled_to_the_estimate_and_the_truth(run):
     """Each axis holds the whole estimate and the truth, with a 10 % margin, however wide the
-    band; the prior's band (A0 +-10 N/kN) is cut, and the legend says so and gives its width."""
+    band; the band stays inside the axis: where it is wider (the prior's, A0 +-10 N/kN) it is not
+    drawn, and the legend says so and gives its width at the end."""
     result, _ = run
     A = true_A(result)
     fig = report.resistance_vs_time_figure(result, A)
@@ -159,14 +199,28 @@ def test_resistance_vs_time_is_scaled_to_the_estimate_and_the_truth(run):
         assert y0 < lo and hi < y1, name
         assert (y1 - y0) == pytest.approx(1.2 * (hi - lo), rel=1e-12), name   # margin 10 % each side
         [poly] = bands(ax)
-        b_lo, b_hi = band_edges(poly, result.time[:1])
-        assert b_lo[0] < y0 and y1 < b_hi[0], name                   # the prior's band is cut ...
+        ys = np.concatenate([p.vertices[:, 1] for p in poly.get_paths()]) if poly.get_paths() else np.array([])
+        assert np.all((ys >= y0) & (ys <= y1)), name                  # never beyond the axis
+        xs = np.concatenate([p.vertices[:, 0] for p in poly.get_paths()]) if poly.get_paths() else np.array([])
+        assert result.time[0] not in xs, name                         # the prior's band: left out ...
         label = poly.get_label()
-        assert "cut by the axes" in label and f"+-{2 * sd[-1]:.3g} {unit}" in label, label
+        assert "wider than the axes" in label and f"+-{2 * sd[-1]:.3g} {unit}" in label, label   # ... and said
         assert label in legend_texts(ax)
     # control: scaled to the band (as before), A0's axis would be > 10x the estimate's range
     est0 = result["est.A0"]
     assert 4 * result["est.A0_std"][0] > 10 * (max(est0.max(), A[0]) - min(est0.min(), A[0]))
+    close(fig)
+
+
+def test_a_band_narrower_than_its_axis_is_drawn_where_it_fits(run):
+    """Where 4 sigma fits the axis the band is drawn, clipped to it: A1's band at the end."""
+    result, _ = run
+    fig = report.resistance_vs_time_figure(result, true_A(result))
+    drawn = [bool(bands(ax)[0].get_paths()) for ax in fig.axes[:3]]
+    sd = [result[f"est.{a}_std"][-1] for a in UNITS]
+    spans = [ax.get_ylim()[1] - ax.get_ylim()[0] for ax in fig.axes[:3]]
+    assert drawn == [4 * s <= w or bool(np.any(4 * result[f"est.{a}_std"] <= w))
+                     for s, w, a in zip(sd, spans, UNITS)]
     close(fig)
 
 
@@ -183,7 +237,22 @@ def test_every_band_has_a_legend_entry(run):
                 assert poly.get_label() in legend_texts(ax)
                 found.append(poly.get_label())
         close(fig)
-    assert found.count("filter +-2 sigma") == 2 and "+-2 sigma" in found   # speed, distance; mass
+    assert found.count("filter +-2 sigma") == 2                                 # speed, distance
+    [mass] = [x for x in found if not x.startswith("filter")]
+    # the mass's prior band (est.mass_std_initial) is wider than the axis: left out, and said
+    assert mass.startswith("+-2 sigma") and "wider than the axes until t =" in mass, mass
+
+
+def test_the_mass_band_stays_inside_its_axis(run):
+    result, _ = run
+    fig = report.run_figures(result)[1]
+    ax = fig.axes[0]
+    y0, y1 = ax.get_ylim()
+    [poly] = bands(ax)
+    ys = np.concatenate([p.vertices[:, 1] for p in poly.get_paths()])
+    assert ys.size and np.all((ys >= y0) & (ys <= y1))
+    assert 4 * result["est.mass_std"][0] > y1 - y0          # control: the prior's band would not fit
+    close(fig)
 
 
 # ---------------------------------------------------------------------------------- the summary
@@ -205,26 +274,28 @@ def test_summary_md_holds_the_As_stds(run, tmp_path):
     result, _ = run
     page = report.write_summary_md(summarise(result), result.scenario, tmp_path / "summary.md", [],
                                    result=result).read_text(encoding="utf-8")
-    assert f"+- {result['est.A2_std'][-1]:.4g} N/kN/(m/s)2" in page and "| A_std |" in page
+    assert f"+- {result['est.A2_std'][-1]:.4g} N/kN/(m/s)²" in page and "| A_std |" in page
+    # floats in 6 significant digits: 100.0 s of 0.1 s steps, not 100.00000000000001
+    duration = [x for x in page.splitlines() if x.startswith("| duration_s |")]
+    assert duration == [f"| duration_s | {result.time[-1]:.6g} |"] and repr(result.time[-1]) not in page
 
 
 # ------------------------------------------------------------------------------ the native FMU
 
-def test_a_native_fmu_run_reruns_to_its_covariance(built_fmus):
-    """The FMU outputs the A's stds only; the report re-runs the run on the Python chain, and the
-    re-run must end on the FMU's est.A* and est.A*_std bit for bit (it does: the native FMU is the
-    reference's bit-identical twin), so the band uses the full covariance."""
+def test_a_native_fmu_runs_covariance_comes_from_its_outputs(built_fmus):
+    """The diagonal is the FMU's stds squared, bit for bit; the off-diagonal its est.cov_*
+    outputs where it has them (``full``), zeros where it does not (an FMU built before them)."""
     from harness.run.runner import FmuRunner
     native = built_fmus["RailCar"].parent / "native" / "RailCarNative.fmu"
     assert native.is_file()
     scenario = load_scenario(DEFAULT)
     with FmuRunner(native) as runner:
         result = runner.run(scenario)
-    cov = report.resistance_covariance(result)
-    assert cov is not None
+    cov, full = resistance_covariance(result)
     assert np.sqrt(np.diag(cov)).tobytes() == np.array([result[f"est.{a}_std"][-1] for a in UNITS]).tobytes()
-    corr = cov[0, 2] / np.sqrt(cov[0, 0] * cov[2, 2])
-    assert corr < -0.5            # A0 and A2 trade off: why the stds alone would mislead
+    assert full == all(name in result.signals for name in COV.values())
+    for (i, j), name in COV.items():
+        assert cov[i, j] == (result[name][-1] if full else 0.0)
 
 
 # ---------------------------------------------------------------------------------------- CLI

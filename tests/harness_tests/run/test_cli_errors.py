@@ -257,13 +257,15 @@ def test_an_unreadable_reference_is_invalid_input_naming_the_file(tmp_path):
 def test_an_fmu_that_refuses_to_initialise_is_invalid_input(built_fmus, tmp_path, monkeypatch, capsys):
     """Should the harness's checks miss a parameter the FMU refuses, the refusal is still exit 2,
     naming the scenario file (with the checks skipped here to make the FMU see car.mass = 0)."""
-    import harness.run.scenario
+    import models.compiled
     from harness.__main__ import main
-    monkeypatch.setattr(harness.run.scenario, "check_fmu_parameters", lambda *a, **k: None)
+    # the checks at loading (harness.run.scenario.resolve_setup) validate with this
+    monkeypatch.setattr(models.compiled, "validate", lambda cfg, *a, **k: cfg)
     p = scenario(tmp_path, '"car.mass" = 0.0')
     assert main(["run", str(p), "--out", str(tmp_path / "o"), "--dist", str(built_fmus["RailCar"].parent)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "s.toml: parameters" in err[0] and "car.mass must be > 0" in err[0], err
+    assert len(err) == 1 and "s.toml: parameters: the FMU refused to initialise" in err[0], err
+    assert "car.mass must be > 0" in err[0], err
 
 
 SWEEP_BODY = "seeds = 2\n[fixed]\nduration_s = 20.0"

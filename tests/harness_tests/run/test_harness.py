@@ -22,7 +22,10 @@ def test_default_scenario_loads_and_resolves_profiles():
 
 
 @pytest.mark.parametrize("patch,needle", [
-    ({"parameters": {"car.mas": 3.0}}, 'parameters."car.mas": not a RailCar parameter'),
+    ({"parameters": {"car.mas": 3.0}}, 'parameters."car.mas": not a RailCar parameter (see docs/variables.md); '
+                                       "did you mean 'car.mass'?"),
+    ({"parameters": {"colour.depth": 3.0}}, 'parameters."colour.depth": not a RailCar parameter '
+                                            '(see docs/variables.md)'),
     ({"parameters": {"car.mass": "heavy"}}, 'parameters."car.mass": expected a finite number'),
     ({"parameters": {"seed": 1.5}}, 'parameters."seed": expected an integer'),
     ({"parameters": {"track.grade_profile": "nope.csv"}}, "file not found"),
@@ -38,6 +41,20 @@ def test_invalid_scenarios_name_file_key_and_reason(patch, needle):
     with pytest.raises(ScenarioError) as e:
         scenario_from_dict(data, "my.toml", ROOT / "scenarios")
     assert "my.toml" in str(e.value) and needle in str(e.value)
+
+
+def test_an_unknown_parameter_gets_the_close_names_or_none():
+    """One message builder (harness.run.scenario.unknown_parameter) for scenarios, overrides and
+    (later) sweeps: it points to the table of names and offers the close ones, and only those."""
+    from harness.run.scenario import RAILCAR_PARAMETERS, unknown_parameter
+    assert unknown_parameter("sensor.speed_sd", RAILCAR_PARAMETERS) == (
+        "not a RailCar parameter (see docs/variables.md); did you mean 'sensor.speed_std' or "
+        "'sensor.speed_std_rel'?")
+    assert unknown_parameter("car.a0", RAILCAR_PARAMETERS).endswith("did you mean 'car.A0' or 'car.A2'?")   # the case ignored
+    assert unknown_parameter("est.method", {"est.method_x": None}, "a sweep key").startswith(
+        "not a sweep key (see docs/variables.md); did you mean 'est.method_x'?")
+    assert unknown_parameter("colour", RAILCAR_PARAMETERS).endswith("(see docs/variables.md)")
+    assert (ROOT / "docs" / "variables.md").is_file()
 
 
 def test_bad_toml_names_the_file(tmp_path):

@@ -78,3 +78,74 @@ def test_replay_cli_runs_and_writes_estimates(built_fmus, default_run, tmp_path,
     header = (tmp_path / "o" / "estimates.csv").read_text().splitlines()[0]
     assert header.startswith("time [s],est.mass [t]")
     assert main(["replay", str(log), "--param", "no.such=1", "--dist", str(built_fmus["RailCar"].parent)]) == 2
+
+
+# ------------------------------------------------------------------- replaying a run bit for bit
+
+def chain_run_with_interval_forces(scenario):
+    """``scenario`` on the models' Python chain (bit-identical to both RailCar FMUs), with the
+    forces its estimator was fed (the means over each sample interval) recorded as the RailCar
+    outputs a log needs for that (harness.run.replay.INTERVAL_FORCES): row k + 1 holds the
+    interval [t_k, t_k+1]'s."""
+    from harness.run.driver import chain_result
+    from harness.run.replay import INTERVAL_FORCES
+    from models.chain import RailCarChain
+    setup = scenario.setup.chain
+    chain = RailCarChain(setup.config, setup.grade, setup.speed)
+    fed = [(0.0, 0.0)]
+    propagate = chain.estimator.propagate
+
+    def recording(traction, brake, dt):
+        fed.append((traction, brake))
+        return propagate(traction, brake, dt)
+    chain.estimator.propagate = recording
+    result = chain_result(chain, scenario)
+    assert len(fed) == len(result.time)           # one sample per row: step_s = sensor.sample_period
+    for j, name in enumerate(INTERVAL_FORCES):
+        result.signals[name] = np.array([f[j] for f in fed])
+    return result
+
+
+def read_estimates(path: Path) -> dict[str, np.ndarray]:
+    lines = path.read_text().splitlines()
+    names = [c.split(" [")[0] for c in lines[0].split(",")]
+    rows = np.array([[float(x) for x in line.split(",")] for line in lines[1:]])
+    return {n: rows[:, j] for j, n in enumerate(names)}
+
+
+def test_a_log_with_the_interval_forces_replays_to_the_runs_estimates_bit_for_bit(built_fmus, tmp_path, capsys):
+    """The log carries what the run's estimator saw: the measurements and forces in full
+    precision, the estimator's parameters beside it, the uniform step. The replay on the native
+    RailCarEstimator then gives the run's every est.* bit for bit, one row later (it outputs at
+    row k + 1 what it identified from the samples up to row k)."""
+    from harness.__main__ import main
+    from harness.run.replay import RUN_ESTIMATES, read_log_parameters
+    run = chain_run_with_interval_forces(load_scenario(ROOT / "scenarios" / "default.toml"))
+    log = write_log(tmp_path / "run.csv", run)
+    items, forces = read_log_parameters(log)
+    assert forces == "interval_mean" and "sensor.speed_std=0.05" in items and len(items) == 35
+    dist = str(built_fmus["RailCar"].parent)
+    assert main(["replay", str(log), "--out", str(tmp_path / "o"), "--dist", dist, "--fmu", "native"]) == 0
+    out = capsys.readouterr().out
+    assert "parameters: run.params (35), then --param" in out
+    assert "est.* vs the run's own  bit for bit" in out, out
+    replayed = read_estimates(tmp_path / "o" / "estimates.csv")
+    for name in RUN_ESTIMATES:
+        assert replayed[name][1:].tobytes() == run[name][:-1].tobytes(), name
+    # control: a parameter that differs from the run's (--param overrides the log's) breaks it
+    assert main(["replay", str(log), "--out", str(tmp_path / "p"), "--dist", dist, "--fmu", "native",
+                 "--param", "est.batch_size=49"]) == 0
+    assert "not bit for bit" in capsys.readouterr().out
+
+
+def test_a_railcar_fmu_log_says_why_its_replay_differs(built_fmus, default_run, tmp_path, capsys):
+    """RailCar outputs no interval-mean forces: its log has the forces at the next row, and the
+    replay says that this is why its est.* are not the run's."""
+    from harness.__main__ import main
+    log = write_log(tmp_path / "log.csv", default_run)
+    assert "# forces: next_row" in (tmp_path / "log.params").read_text(encoding="utf-8")
+    assert main(["replay", str(log), "--out", str(tmp_path / "o"), "--dist", str(built_fmus["RailCar"].parent),
+                 "--fmu", "native"]) == 0
+    out = capsys.readouterr().out
+    assert "est.* vs the run's own  not bit for bit" in out
+    assert "why: the log's forces are those applied at the next row" in out
