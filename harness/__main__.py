@@ -205,8 +205,8 @@ def cmd_report(args) -> int:
 
 def cmd_replay(args) -> int:
     from harness.run.fmus import select
-    from harness.run.replay import (estimator_parameters, params_path, read_log, read_log_parameters, replay_report,
-                                    uniform_step)
+    from harness.reports.replay_report import replay_report
+    from harness.run.replay import estimator_parameters, params_path, read_log, read_log_parameters, uniform_step
     from harness.run.runner import FmuRunner, InitError, RunError
     log = read_log(args.log)                     # LogError, ParamError: invalid input (exit 2)
     # a harness run's log has its estimator's parameters beside it; --param overrides them
