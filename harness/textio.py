@@ -70,8 +70,11 @@ def check_out_dir(path: str | Path, option: str = "--out") -> None:
         raise InputError(f"{option} {p}: exists and is not a folder")
 
 
-def did_you_mean(name: str, known) -> str:
-    """'; did you mean 'x'?' naming the known name closest to a misspelt ``name`` (difflib, ratio
-    >= 0.6), or '' when none is close: the tail of every "unknown name" message of the harness."""
-    close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
-    return f"; did you mean '{close[0]}'?" if close else ""
+def did_you_mean(name: str, known, n: int = 1, cutoff: float = 0.6, ignore_case: bool = False) -> str:
+    """'; did you mean 'x'?' (or 'x' or 'y' for ``n`` = 2) naming the known names closest to a
+    misspelt ``name`` (difflib ratio >= ``cutoff``; ``ignore_case``: car.a0 is car.A0), or '' when
+    none is close: the tail of every "unknown name" message of the harness."""
+    fold = str.lower if ignore_case else str
+    by_key = {fold(k): k for k in sorted(known)}
+    close = [by_key[c] for c in difflib.get_close_matches(fold(name), list(by_key), n=n, cutoff=cutoff)]
+    return f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""

@@ -27,7 +27,6 @@ Instead of a driving script, a ``[span]`` table (or ``[[span]]`` tables: a line)
 """
 from __future__ import annotations
 
-import difflib
 import math
 import re
 import tomllib
@@ -40,7 +39,7 @@ from fmu_src.variables import RAILCAR, variables_for
 
 from harness.run.phases import DriverPhase, PhaseDriver, TimeTable, parse_phase, parse_time_table
 from harness.run.span_scenario import AtoDriver, AtoSetup, parse_ato
-from harness.textio import InputError, read_text
+from harness.textio import InputError, did_you_mean, read_text
 
 if TYPE_CHECKING:       # fmu_src.adapter imports pythonfmu: loaded when a setup is resolved, not before
     from fmu_src.adapter import ChainSetup
@@ -169,10 +168,7 @@ def unknown_parameter(name: str, known, what: str = "a RailCar parameter") -> st
     """The message for a parameter name that is not ``what``: where the names are listed
     (docs/variables.md, the variable table) and the closest known names (difflib). One message
     for scenarios, overrides and sweeps."""
-    by_lower = {k.lower(): k for k in known}        # car.a0 is car.A0
-    close = [by_lower[c] for c in difflib.get_close_matches(name.lower(), list(by_lower), n=2, cutoff=0.8)]
-    hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
-    return f"not {what} (see {VARIABLES_DOC}){hint}"
+    return f"not {what} (see {VARIABLES_DOC}){did_you_mean(name, known, n=2, cutoff=0.8, ignore_case=True)}"
 
 
 def _known(overrides: dict) -> dict:

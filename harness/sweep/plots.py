@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.reports.plotting import pyplot, save_figure
+from harness.reports.plotting import display_unit, pyplot, save_figure
 from harness.sweep.spec import Sweep
 from harness.sweep.table import CALIBRATION_COLUMNS, Column, Table, finite_values, metric_columns
 
@@ -77,7 +77,7 @@ def _safe(name: str) -> str:
 
 def _label(column: Column) -> str:
     """Axis label of a column: its key and unit ('-' for a dimensionless number)."""
-    return f"{column.key} [{column.unit or '-'}]"
+    return f"{column.key} [{display_unit(column.unit) if column.unit else '-'}]"
 
 
 def _varying_metrics(table: Table) -> list[Column]:
