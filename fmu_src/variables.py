@@ -165,6 +165,8 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.cov_A0_A1", "output", "Real", "(N/kN)2/(m/s)", 0.0, "covariance of est.A0 and est.A1 (the variances are est.A0_std^2 ..): w0(V)'s variance is [1 V V^2] C [1 V V^2]^T; 0 while a variance is 0"),
     Var("est.cov_A0_A2", "output", "Real", "(N/kN)2/(m/s)2", 0.0, "covariance of est.A0 and est.A2 (see est.cov_A0_A1)"),
     Var("est.cov_A1_A2", "output", "Real", "(N/kN)2/(m/s)3", 0.0, "covariance of est.A1 and est.A2 (see est.cov_A0_A1)"),
+    Var("car.traction_force_mean", "output", "Real", "N", 0.0, "the traction force averaged over the last sample interval, as the estimator was fed it (the plant's impulse over the interval / sensor.sample_period); 0 before the first interval ends. A log of it replays to est.* bit for bit", R),
+    Var("car.brake_force_mean", "output", "Real", "N", 0.0, "the brake force averaged over the last sample interval, as the estimator was fed it (see car.traction_force_mean)", R),
 )
 
 

@@ -185,6 +185,10 @@ class RailCarChain:
                                          speed_profile, cfg.sample_period, method, noise)
         self._pending_track = None
         self._sample_index = 0
+        # the forces the estimator's last propagate() received: the plant's impulse over the
+        # last sample interval / sample_period [N] (0 before the first interval ends)
+        self.traction_force_mean = 0.0
+        self.brake_force_mean = 0.0
         self.sensor_speed = 0.0
         self.sensor_position = 0.0
         self._take_sample()
@@ -289,13 +293,16 @@ class RailCarChain:
                 self._track_passages(*before)
             # forces applied over the last sample interval, then the new measurement
             ts = self.cfg.sample_period
-            self.estimator.propagate(self.plant.traction_impulse / ts, self.plant.brake_impulse / ts, ts)
+            self.traction_force_mean = self.plant.traction_impulse / ts
+            self.brake_force_mean = self.plant.brake_impulse / ts
+            self.estimator.propagate(self.traction_force_mean, self.brake_force_mean, ts)
             self.plant.traction_impulse = self.plant.brake_impulse = 0.0
             self._sample_index += 1
             self._take_sample()
 
     def outputs(self) -> dict[str, float]:
-        """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*)."""
+        """Truth (car.*), measurements (sensor.*), estimates (est.*, filter.*), then the forces
+        the estimator was last fed (car.traction_force_mean, car.brake_force_mean [N])."""
         s = self.plant.state
         out = {
             "car.speed": s.speed, "car.position": s.position, "car.acceleration": s.acceleration,
@@ -305,6 +312,8 @@ class RailCarChain:
             "sensor.track_speed": self.track_speed, "sensor.track_time": self.track_time,
         }
         out.update(self.estimator.outputs())
+        out["car.traction_force_mean"] = self.traction_force_mean
+        out["car.brake_force_mean"] = self.brake_force_mean
         return out
 
 

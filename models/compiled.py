@@ -41,7 +41,8 @@ OUTPUT_NAMES = (
     "est.mass", "est.mass_std", "est.A0", "est.A1", "est.A2", "est.A0_std", "est.A1_std",
     "est.A2_std", "est.sigma2", "est.samples", "est.station_stops", "filter.speed",
     "filter.position", "filter.speed_std", "filter.position_std", "est.status", "filter.rejected",
-    "est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2",
+    "est.cov_A0_A1", "est.cov_A0_A2", "est.cov_A1_A2", "car.traction_force_mean",
+    "car.brake_force_mean",
 )
 """RailCarChain.outputs()'s names in the C core's order (models/core/railcar.h)."""
 INTEGER_OUTPUTS = frozenset({"car.mode", "est.samples", "est.station_stops", "est.status",
@@ -155,8 +156,10 @@ def open_chain(cfg: ChainConfig, grade_profile: GradeProfile,
     return chain
 
 
-ESTIMATOR_OUTPUT_NAMES = OUTPUT_NAMES[12:]
-"""EstimatorChain.outputs()'s names in the C core's order."""
+ESTIMATOR_OUTPUT_NAMES = OUTPUT_NAMES[12:-2]
+"""EstimatorChain.outputs()'s names in the C core's order: RailCar's after its 12 car.* and
+sensor.* outputs, without its last two (the forces its estimator was fed, RailCar's own)."""
+assert ESTIMATOR_OUTPUT_NAMES[-1] == "est.cov_A1_A2", "RailCar's outputs after the estimator's moved"
 
 
 class CompiledEstimatorChain(_railcar.Estimator if _railcar is not None else object):

@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NRC_NVARS 88
+#define NRC_NVARS 90
 
 /* indexed by value reference */
 static const native_var NRC_VARS[NRC_NVARS] = {
@@ -98,6 +98,8 @@ static const native_var NRC_VARS[NRC_NVARS] = {
     /* 85 */ {"est.cov_A0_A1", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 86 */ {"est.cov_A0_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 87 */ {"est.cov_A1_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 88 */ {"car.traction_force_mean", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 89 */ {"car.brake_force_mean", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
 };
 
 /* models/compiled.py _config_values: index -> value reference of the parameter
@@ -230,7 +232,7 @@ static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {
 static const int NRC_INPUT_VRS[NRC_NINPUTS] = {0, 1, 2, 3};
 
 /* the core's output order (models/compiled.py) -> value reference */
-#define NRC_NOUTPUTS 32
+#define NRC_NOUTPUTS 34
 static const int NRC_OUTPUT_VRS[NRC_NOUTPUTS] = {
     55,   /* car.speed */
     56,   /* car.position */
@@ -264,6 +266,8 @@ static const int NRC_OUTPUT_VRS[NRC_NOUTPUTS] = {
     85,   /* est.cov_A0_A1 */
     86,   /* est.cov_A0_A2 */
     87,   /* est.cov_A1_A2 */
+    88,   /* car.traction_force_mean */
+    89,   /* car.brake_force_mean */
 };
 
 /* parameters outside the flat configuration */

@@ -65,7 +65,8 @@ BAND_OUTLIERS_ALLOWED = 0.01
 # centimetres per second). By kind:
 #   truth and measurements (car.*, sensor.*): rtol 1e-6; atol 1e-6 m/s for speeds and
 #     accelerations, 1e-5 m for distances (integrated from the speed over ~10^3 steps), 1e-6 N for
-#     forces (the demands' own tolerance: closed-loop demands follow the truth), 1e-6 t for the
+#     forces (the demands' own tolerance: closed-loop demands follow the truth; the forces'
+#     means over a sample interval, car.*_force_mean, as the forces they average), 1e-6 t for the
 #     mass (car.mass + boarded payload), 1e-4 permille for the grade (averaged over the car's
 #     length, so it moves with the position: <= 25 permille over ~20 m times 1e-5 m is 1.3e-5),
 #     1e-5 s for a track-sensor time stamp (a distance tolerance over a speed of >= 1 m/s);
@@ -82,6 +83,7 @@ FLOAT_TOLERANCES: dict[str, tuple[float, float]] = {
     "car.speed": (1e-6, 1e-6), "car.position": (1e-5, 1e-6), "car.acceleration": (1e-6, 1e-6),
     "car.traction_force": (1e-6, 1e-6), "car.brake_force": (1e-6, 1e-6), "car.grade": (1e-4, 1e-6),
     "car.total_mass": (1e-6, 1e-6),
+    "car.traction_force_mean": (1e-6, 1e-6), "car.brake_force_mean": (1e-6, 1e-6),
     "sensor.speed": (1e-6, 1e-6), "sensor.position": (1e-5, 1e-6),
     "sensor.track_speed": (1e-6, 1e-6), "sensor.track_time": (1e-5, 1e-6),
     "est.mass": (1e-5, 1e-6), "est.mass_std": (1e-5, 1e-5),

@@ -18,15 +18,19 @@ precision (repr), the run's est.* (to compare with), and beside the log ``<log>.
 run's values of RailCarEstimator's parameters (all shared with RailCar), NAME=VALUE a line, which
 ``replay`` reads (``--param`` overrides them). On a uniform time grid the replay steps with the
 grid's step exactly, as RailCar's estimator does (not t[k+1] - t[k], which differs in the last
-bits). With the forces RailCar's estimator saw, the means over each sample interval, the replay
-gives the run's est.* bit for bit, one row later (RailCarEstimator outputs, at row k + 1, what it
-identified from the samples up to row k: tests/harness_tests/run/test_replay.py shows it on the
-models' chain). RailCar does not output those means (``INTERVAL_FORCES``: an output the model
-would need): its log carries the force applied at the next row instead, the instantaneous force
-at the interval's end, and the est.* differ (est.mass 34.184 t against the run's 34.212 t on the
-default scenario). filter.* never compare bit for bit: RailCarEstimator outputs the filter's
-one-step prediction for the next row, RailCar its posterior at the row. ``compare_with_run`` (and
-the replay's report, harness/reports/replay_report.py) says which case a log is.
+bits). The log's forces are the ones RailCar's estimator was fed, which RailCar outputs
+(``INTERVAL_FORCES``: the means over each sample interval, the plant's impulse / sample period),
+so with the communication step equal to ``sensor.sample_period`` (one sample a row) the replay
+gives the run's every est.* bit for bit, one row later: RailCarEstimator outputs, at row k + 1,
+what it identified from the samples up to row k (tests/harness_tests/run/test_replay.py shows it
+on the native and the pythonfmu FMUs). A run result without those outputs (an FMU built before
+them) is logged with the force applied at the next row instead, the instantaneous force at the
+interval's end, and the est.* differ slightly (est.mass 34.184 t against the run's 34.212 t on the
+default scenario). filter.* never compare bit for bit, whatever the forces: RailCarEstimator
+outputs the filter's one-step prediction for the next row (its estimate for t + h, from the
+measurements up to t), RailCar its posterior at the row (updated with that row's measurement).
+``compare_with_run`` (and the replay's report, harness/reports/replay_report.py) says which case
+a log is.
 """
 from __future__ import annotations
 
@@ -55,9 +59,9 @@ a log is read by programs)."""
 OPTIONAL.update({n: (u,) for n, u in RUN_ESTIMATES.items()})
 
 INTERVAL_FORCES = ("car.traction_force_mean", "car.brake_force_mean")
-"""[N] The traction and brake force applied over the last sample interval, averaged (the impulse
-over it / sensor.sample_period): what RailCar's estimator is fed. RailCar does not output them
-(yet): a log of a run that recorded them replays to the run's est.* bit for bit."""
+"""[N] RailCar's outputs: the traction and brake force applied over the last sample interval,
+averaged (the impulse over it / sensor.sample_period), what RailCar's estimator was fed. A log of
+a run that recorded them replays to the run's est.* bit for bit."""
 EXACT, NEXT_ROW = "interval_mean", "next_row"     # what a log's forces are (its .params says)
 _HEADER = re.compile(r"^\s*\"?([A-Za-z0-9_.]+)\s*\[([^\]]*)\]\"?\s*$")
 
@@ -271,6 +275,6 @@ def compare_with_run(log: Log, signals: dict[str, np.ndarray], forces: str) -> l
              f"row k+1 against the run's row k)"]
     if forces != EXACT:
         lines.append("    why: the log's forces are those applied at the next row, not the means over each "
-                     "sample interval that RailCar's estimator saw (RailCar outputs no "
+                     "sample interval that RailCar's estimator saw (the run recorded no "
                      f"{' / '.join(INTERVAL_FORCES)}); see harness/run/replay.py")
     return lines

@@ -145,6 +145,7 @@ static rc_status start(rc_chain *c, rc_error *err)
     }
     c->sample_index = 0;
     c->sensor_speed = c->sensor_position = 0.0;
+    c->traction_force_mean = c->brake_force_mean = 0.0;
     take_sample(c);
     return RC_OK;
 }
@@ -262,7 +263,9 @@ rc_status rc_chain_step(rc_chain *c, double current_time, double step_size, doub
             track_passages(c, t0, x0, v0);
         /* forces applied over the last sample interval, then the new measurement */
         double ts = c->cfg.sample_period;
-        rc_estimator_propagate(&c->est, c->plant.traction_impulse / ts, c->plant.brake_impulse / ts, ts);
+        c->traction_force_mean = c->plant.traction_impulse / ts;
+        c->brake_force_mean = c->plant.brake_impulse / ts;
+        rc_estimator_propagate(&c->est, c->traction_force_mean, c->brake_force_mean, ts);
         c->plant.traction_impulse = c->plant.brake_impulse = 0.0;
         c->sample_index += 1;
         take_sample(c);
@@ -285,4 +288,6 @@ void rc_chain_outputs(rc_chain *c, double *out)
     out[10] = c->track_speed;
     out[11] = c->track_time;
     rc_estimator_outputs(&c->est, 0, out + 12);
+    out[12 + RC_EST_OUTPUTS] = c->traction_force_mean;
+    out[12 + RC_EST_OUTPUTS + 1] = c->brake_force_mean;
 }

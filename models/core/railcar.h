@@ -44,9 +44,10 @@ typedef struct {                       /* models.chain.ChainConfig + the profile
 
 /* RailCarChain.outputs(): car.speed, car.position, car.acceleration, car.traction_force,
  * car.brake_force, car.grade, car.mode, car.total_mass, sensor.speed, sensor.position,
- * sensor.track_speed, sensor.track_time, then the estimator's RC_EST_OUTPUTS (estimator.h);
- * integers as doubles. The names are models/compiled.py's OUTPUT_NAMES. */
-#define RC_CHAIN_OUTPUTS (12 + RC_EST_OUTPUTS)
+ * sensor.track_speed, sensor.track_time, then the estimator's RC_EST_OUTPUTS (estimator.h),
+ * then car.traction_force_mean, car.brake_force_mean (the forces the estimator's last propagate
+ * received); integers as doubles. The names are models/compiled.py's OUTPUT_NAMES. */
+#define RC_CHAIN_OUTPUTS (12 + RC_EST_OUTPUTS + 2)
 
 enum { RC_PROCESS, RC_SPEED_SENSOR, RC_POSITION_SENSOR, RC_TRACK_SENSOR, RC_STREAMS };
 
@@ -67,6 +68,8 @@ typedef struct {
     rc_estimator est;
     long sample_index;
     double sensor_speed, sensor_position;
+    /* the forces the estimator's last propagate received: impulse / sample_period [N], 0 before */
+    double traction_force_mean, brake_force_mean;
 } rc_chain;
 
 /* The configuration from n numbers in models/compiled.py's _config_values order (the profile

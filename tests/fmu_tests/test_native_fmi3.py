@@ -346,7 +346,7 @@ def test_covariance_outputs_bit_identical_to_fmi2_and_seen_to_the_ulp(runners):
     times = [0.1 * k for k in range(600)]
     a, b = _drive(c2, {"seed": 5}, inputs, times), _drive(c3, {"seed": 5}, inputs, times)
     real = [n for n in c3.outputs if c3.vars[n].type == "Real"]
-    assert real[-3:] == list(COVARIANCES)
+    assert real[-5:-2] == list(COVARIANCES)
     assert a[1] == b[1] == [OK] * len(times) and a[0] == b[0]
     for name in COVARIANCES:
         k = real.index(name)
@@ -356,3 +356,29 @@ def test_covariance_outputs_bit_identical_to_fmi2_and_seen_to_the_ulp(runners):
         off[k] = int(bits([math.nextafter(x, math.copysign(math.inf, x))])[0])
         assert a[0][-1] != off, name
 
+
+FORCE_MEANS = ("car.traction_force_mean", "car.brake_force_mean")
+
+
+def test_force_mean_outputs_bit_identical_to_fmi2_and_seen_to_the_ulp(runners):
+    """car.*_force_mean (appended to the table last; FMI 3's time after them) are among the
+    compared Reals, 0 before the first step, the demands' means later, FMI 3 == FMI 2; one ulp
+    off in either is a difference."""
+    _, c2, c3 = runners
+
+    def inputs(k):
+        return [25e3 if k < 100 else 0.0, 0.0 if k < 150 else 20e3, 0.0, 0.0]
+
+    times = [0.1 * k for k in range(200)]
+    a, b = _drive(c2, {"seed": 5}, inputs, times), _drive(c3, {"seed": 5}, inputs, times)
+    real = [n for n in c3.outputs if c3.vars[n].type == "Real"]
+    assert real[-2:] == list(FORCE_MEANS)
+    assert a[1] == b[1] == [OK] * len(times) and a[0] == b[0]
+    for name, row in (("car.traction_force_mean", 50), ("car.brake_force_mean", -1)):
+        k = real.index(name)
+        assert float(np.int64(b[0][0][k]).view(np.float64)) == 0.0, name
+        x = float(np.int64(b[0][row][k]).view(np.float64))
+        assert x > 1e3 and math.isfinite(x), name
+        off = list(b[0][row])
+        off[k] = int(bits([math.nextafter(x, math.inf)])[0])
+        assert a[0][row] != off, name

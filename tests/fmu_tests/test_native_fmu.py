@@ -308,7 +308,7 @@ def test_covariance_outputs_compared_and_seen_to_the_ulp(pair):
     b = _drive(pair["c"], {"seed": 5}, 0.0, inputs, 600)
     reals = [v.name for v in pair["c"].md.modelVariables
              if v.causality == "output" and v.type == "Real"]
-    assert reals[-3:] == list(COVARIANCES)           # the table's end: earlier vrs unchanged
+    assert reals[-5:-2] == list(COVARIANCES)         # the table's end: earlier vrs unchanged
     assert a[0] == b[0] and a[1] == b[1] == [OK] * 600
     for name in COVARIANCES:
         k = reals.index(name)
@@ -317,6 +317,33 @@ def test_covariance_outputs_compared_and_seen_to_the_ulp(pair):
         off = list(b[0][-1])
         off[k] = int(bits([np.nextafter(x, np.copysign(np.inf, x))])[0])
         assert a[0][-1] != off, name
+
+
+FORCE_MEANS = ("car.traction_force_mean", "car.brake_force_mean")
+
+
+def test_force_mean_outputs_compared_and_seen_to_the_ulp(pair):
+    """car.*_force_mean (the forces RailCar's estimator was fed, appended to the table last) are
+    among the outputs _drive compares: 0 before the first step, the demand's mean while it is
+    held below the limits, bit-identical; one ulp off in either is a difference."""
+    def inputs(k):
+        return {"traction_force_demand": 25e3 if k < 100 else 0.0,
+                "brake_force_demand": 0.0 if k < 150 else 20e3}
+
+    a = _drive(pair["py"], {"seed": 5}, 0.0, inputs, 200)
+    b = _drive(pair["c"], {"seed": 5}, 0.0, inputs, 200)
+    reals = [v.name for v in pair["c"].md.modelVariables
+             if v.causality == "output" and v.type == "Real"]
+    assert reals[-2:] == list(FORCE_MEANS)           # the table's end: earlier vrs unchanged
+    assert a[0] == b[0] and a[1] == b[1] == [OK] * 200
+    for name, row in (("car.traction_force_mean", 50), ("car.brake_force_mean", -1)):
+        k = reals.index(name)
+        assert [float(np.int64(r[k]).view(np.float64)) for r in b[0][:2]] == [0.0, 0.0], name
+        x = float(np.int64(b[0][row][k]).view(np.float64))
+        assert x > 1e3 and np.isfinite(x), name
+        off = list(b[0][row])
+        off[k] = int(bits([np.nextafter(x, np.inf)])[0])
+        assert a[0][row] != off, name
 
 
 def test_the_comparison_sees_a_difference(pair):

@@ -18,12 +18,9 @@ def default_run(built_fmus):
 
 
 def test_replay_of_a_railcar_log_identifies_the_same_mass(built_fmus, default_run, tmp_path):
-    """Same data, same algorithm: the mass agrees with RailCar's own estimate.
-
-    RailCar's identification uses the force averaged over each sample interval, the log the
-    force applied from each row on (the next row's reported force); the difference is the
-    force's variation within 0.1 s in the constant-power zone: 0.1 % of the mass covers it.
-    """
+    """Same data, same algorithm: the mass agrees with RailCar's own estimate, with only the
+    profiles and the sensor noise given (the other parameters the FMU's defaults, as the run's;
+    the bit-for-bit replay with the run's parameters is below)."""
     path = write_log(tmp_path / "log.csv", default_run)
     log = read_log(path)
     s = default_run.scenario
@@ -83,10 +80,9 @@ def test_replay_cli_runs_and_writes_estimates(built_fmus, default_run, tmp_path,
 # ------------------------------------------------------------------- replaying a run bit for bit
 
 def chain_run_with_interval_forces(scenario):
-    """``scenario`` on the models' Python chain (bit-identical to both RailCar FMUs), with the
-    forces its estimator was fed (the means over each sample interval) recorded as the RailCar
-    outputs a log needs for that (harness.run.replay.INTERVAL_FORCES): row k + 1 holds the
-    interval [t_k, t_k+1]'s."""
+    """``scenario`` on the models' Python chain (bit-identical to both RailCar FMUs), checking
+    that its outputs harness.run.replay.INTERVAL_FORCES are, row by row, the forces its estimator
+    was fed (0 at t = 0; row k + 1 holds the interval [t_k, t_k+1]'s means)."""
     from harness.run.driver import chain_result
     from harness.run.replay import INTERVAL_FORCES
     from models.chain import RailCarChain
@@ -102,7 +98,7 @@ def chain_run_with_interval_forces(scenario):
     result = chain_result(chain, scenario)
     assert len(fed) == len(result.time)           # one sample per row: step_s = sensor.sample_period
     for j, name in enumerate(INTERVAL_FORCES):
-        result.signals[name] = np.array([f[j] for f in fed])
+        assert result[name].tobytes() == np.array([f[j] for f in fed]).tobytes(), name
     return result
 
 
@@ -117,7 +113,8 @@ def test_a_log_with_the_interval_forces_replays_to_the_runs_estimates_bit_for_bi
     """The log carries what the run's estimator saw: the measurements and forces in full
     precision, the estimator's parameters beside it, the uniform step. The replay on the native
     RailCarEstimator then gives the run's every est.* bit for bit, one row later (it outputs at
-    row k + 1 what it identified from the samples up to row k)."""
+    row k + 1 what it identified from the samples up to row k). filter.* are close, not equal:
+    the replay's is the one-step prediction, the run's the posterior."""
     from harness.__main__ import main
     from harness.run.replay import RUN_ESTIMATES, read_log_parameters
     run = chain_run_with_interval_forces(load_scenario(ROOT / "scenarios" / "default.toml"))
@@ -132,20 +129,53 @@ def test_a_log_with_the_interval_forces_replays_to_the_runs_estimates_bit_for_bi
     replayed = read_estimates(tmp_path / "o" / "estimates.csv")
     for name in RUN_ESTIMATES:
         assert replayed[name][1:].tobytes() == run[name][:-1].tobytes(), name
+    prediction, posterior = replayed["filter.speed"][1:], run["filter.speed"][:-1]
+    assert not np.array_equal(prediction, posterior)
+    assert np.sqrt(np.mean((prediction - posterior) ** 2)) < 0.05      # [m/s]: the same filter
     # control: a parameter that differs from the run's (--param overrides the log's) breaks it
     assert main(["replay", str(log), "--out", str(tmp_path / "p"), "--dist", dist, "--fmu", "native",
                  "--param", "est.batch_size=49"]) == 0
     assert "not bit for bit" in capsys.readouterr().out
 
 
-def test_a_railcar_fmu_log_says_why_its_replay_differs(built_fmus, default_run, tmp_path, capsys):
-    """RailCar outputs no interval-mean forces: its log has the forces at the next row, and the
-    replay says that this is why its est.* are not the run's."""
+@pytest.mark.parametrize("kind", ["native", "python"])
+def test_a_railcar_fmu_runs_log_replays_to_its_estimates_bit_for_bit(built_fmus, tmp_path, capsys, kind):
+    """`harness run SCEN --log LOG` then `harness replay LOG`, both on the FMUs of one kind:
+    RailCar outputs the forces its estimator was fed (INTERVAL_FORCES), the log carries them, and
+    RailCarEstimator gives the run's every est.* bit for bit one row later, which the replay says."""
     from harness.__main__ import main
-    log = write_log(tmp_path / "log.csv", default_run)
+    from harness.run.replay import RUN_ESTIMATES, read_log_parameters
+    dist, log = str(built_fmus["RailCar"].parent), tmp_path / "run" / "log.csv"
+    assert main(["run", str(ROOT / "scenarios" / "default.toml"), "--out", str(tmp_path / "run"),
+                 "--log", str(log), "--dist", dist, "--fmu", kind]) == 0
+    assert read_log_parameters(log)[1] == "interval_mean"
+    run = read_log(log).columns
+    assert run["traction_force"][0] > 0.0 and run["brake_force"].max() > 0.0   # it drove and braked
+    capsys.readouterr()
+    assert main(["replay", str(log), "--out", str(tmp_path / "o"), "--dist", dist, "--fmu", kind]) == 0
+    out = capsys.readouterr().out
+    assert f"fmu: {kind}" in out and "est.* vs the run's own  bit for bit" in out, out
+    replayed = read_estimates(tmp_path / "o" / "estimates.csv")
+    assert len(replayed["est.mass"]) == len(run["est.mass"]) > 1000
+    for name in RUN_ESTIMATES:
+        assert replayed[name][1:].tobytes() == run[name][:-1].tobytes(), name
+    assert replayed["est.mass"][-1] != replayed["est.mass"][1]       # identified, not the prior
+
+
+def test_a_run_without_the_interval_forces_says_why_its_replay_differs(built_fmus, default_run, tmp_path, capsys):
+    """A run result without INTERVAL_FORCES (a RailCar FMU built before them) is logged with the
+    forces at the next row, and the replay says that this is why its est.* are not the run's."""
+    from dataclasses import replace
+
+    from harness.__main__ import main
+    from harness.run.replay import INTERVAL_FORCES
+    assert all(n in default_run.signals for n in INTERVAL_FORCES)
+    older = replace(default_run, signals={n: x for n, x in default_run.signals.items()
+                                          if n not in INTERVAL_FORCES})
+    log = write_log(tmp_path / "log.csv", older)
     assert "# forces: next_row" in (tmp_path / "log.params").read_text(encoding="utf-8")
     assert main(["replay", str(log), "--out", str(tmp_path / "o"), "--dist", str(built_fmus["RailCar"].parent),
                  "--fmu", "native"]) == 0
     out = capsys.readouterr().out
     assert "est.* vs the run's own  not bit for bit" in out
-    assert "why: the log's forces are those applied at the next row" in out
+    assert "the run recorded no car.traction_force_mean / car.brake_force_mean" in out

@@ -324,7 +324,7 @@ def test_covariance_outputs_bit_identical_from_the_stds_matrix_and_seen_to_the_u
     semidefinite A block with the stds, and one ulp off in any of them is a difference."""
     sc, py, c = scenario_chains(ROOT / "scenarios" / "library" / "station_day.toml", {})
     rows_py, rows_c = drive_chain(py, sc, 3000), drive_chain(c, sc, 3000)
-    assert list(rows_c[-1])[-3:] == list(COVARIANCES) == list(compiled.OUTPUT_NAMES[-3:])
+    assert list(rows_c[-1])[-5:-2] == list(COVARIANCES) == list(compiled.ESTIMATOR_OUTPUT_NAMES[-3:])
     assert all(r[n] == 0.0 for r in rows_py[:2] for n in COVARIANCES)   # the prior: diagonal
     last = rows_py[-1]
     cov = py.estimator.method.with_resistance_covariance(py.estimator.ident.covariance())
@@ -341,6 +341,66 @@ def test_covariance_outputs_bit_identical_from_the_stds_matrix_and_seen_to_the_u
         assert same(a, b), f"row {k}: {[(n, a[n], b[n]) for n in a if not same(a[n], b[n])][:4]}"
     for name in COVARIANCES:
         assert not same(rows_py[-1], one_ulp_off(rows_c[-1], name)), name
+
+
+# ---------------------------------------------------------------- the forces the estimator was fed
+
+FORCE_MEANS = ("car.traction_force_mean", "car.brake_force_mean")
+
+
+def test_force_means_are_what_the_estimator_was_fed_bit_identical_and_seen_to_the_ulp():
+    """car.*_force_mean after a step are the forces the estimator's last propagate() received
+    (0 before the first sample interval ends), are bit-identical in C, are the interval's means
+    (not the instantaneous car.*_force at the row), and one ulp off in either is a difference."""
+    sc, py, c = scenario_chains(ROOT / "scenarios" / "library" / "station_day.toml", {})
+    assert list(compiled.OUTPUT_NAMES[-2:]) == list(FORCE_MEANS)
+    fed = []                                   # (traction, brake) of each propagate [N]
+    propagate = py.estimator.propagate
+
+    def recording_propagate(traction, brake, dt):
+        fed.append((traction, brake))
+        return propagate(traction, brake, dt)
+
+    py.estimator.propagate = recording_propagate
+    rows_py, rows_c = drive_chain(py, sc, 3000), drive_chain(c, sc, 3000)
+    assert all(rows_py[0][n] == 0.0 and rows_c[0][n] == 0.0 for n in FORCE_MEANS)
+    assert len(fed) >= 3000 - 1, "the scenario's step is not the sample period"
+    assert list(rows_py[-1])[-2:] == list(FORCE_MEANS)
+    for k, (a, b) in enumerate(zip(rows_py, rows_c)):
+        assert same(a, b), f"row {k}: {[(n, a[n], b[n]) for n in a if not same(a[n], b[n])][:4]}"
+        assert all(math.isfinite(a[n]) and a[n] >= 0.0 for n in FORCE_MEANS), f"row {k}"
+    last_traction, last_brake = fed[-1]
+    assert same(rows_py[-1]["car.traction_force_mean"], last_traction)
+    assert same(rows_py[-1]["car.brake_force_mean"], last_brake)
+    # the run both drives and brakes, and the means are not the instantaneous forces
+    assert any(r["car.traction_force_mean"] > 1e3 for r in rows_py)
+    assert any(r["car.brake_force_mean"] > 1e3 for r in rows_py)
+    assert any(r["car.traction_force_mean"] != r["car.traction_force"] for r in rows_py)
+    for name in FORCE_MEANS:
+        moving = next(r for r in reversed(rows_c) if r[name] != 0.0)
+        assert not same(moving, one_ulp_off(moving, name)), name
+
+
+def test_force_means_hold_between_samples_and_restart_at_reset():
+    """A communication step shorter than the sample period leaves the means as they were until
+    the next sample (the estimator is fed once a sample); reset gives 0 again; C as Python."""
+    grade = GradeProfile.level()
+    cfg = ChainConfig(sample_period=0.1, solver_step=0.05)
+    py, c = RailCarChain(cfg, grade), CompiledChain(cfg, grade)
+    seen = []
+    t = 0.0
+    for k in range(40):                       # 0.025 s steps: a sample every fourth step
+        for chain in (py, c):
+            chain.do_step(t, 0.025, 20e3 + 500.0 * k, 0.0, 0.0)
+        t += 0.025
+        a, b = py.outputs(), c.outputs()
+        assert same(a, b), f"step {k}"
+        seen.append(a["car.traction_force_mean"])
+    assert seen[:3] == [0.0, 0.0, 0.0] and seen[3] > 0.0
+    for k in range(3, 40):
+        assert (seen[k] != seen[k - 1]) == ((k + 1) % 4 == 0), f"step {k}: {seen[k - 1]} -> {seen[k]}"
+    c.reset()
+    assert all(c.outputs()[n] == 0.0 for n in FORCE_MEANS)
 
 
 def test_covariance_outputs_finite_and_zero_without_a_variance():
