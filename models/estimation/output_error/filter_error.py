@@ -18,6 +18,8 @@ from models.estimation.output_error.simulation import Segment, rk4_stages, step_
 from models.plant.dynamics import acceleration_polynomial
 
 
+# Its own 2x2 Kalman algebra, not models.filtering.kalman's: the likelihood needs K = P S^-1 and S's
+# Cholesky factor, which the paper's (17)-(18) form (mirrored by core/filter.c) does not give.
 def riccati(seg: Segment, a: np.ndarray, cx: np.ndarray, q: float):
     """Kalman gains and innovation Cholesky factors along the segment (scalar loop, 2 states).
 
