@@ -1,5 +1,6 @@
 /* estimator.h -- models.estimation.online: StationDetector and OnlineEstimator for est.method 0 (the
- * paper's LS), est.sigma2_method 0, est.physical 0, filter kinds 1-4: per sample, measure()
+ * paper's LS) and 2 (methods.SlopeLS: the LS on Sidorenko's centred slopes), est.sigma2_method 0,
+ * est.physical 0, filter kinds 1-4: per sample, measure()
  * (identification of the pair, station logic, the filter's gate and update), then propagate()
  * (the filter's prediction with the forces applied until the next sample), and the outputs with
  * finish_outputs' guarantees (every value finite, est.mass plausible, est.status). */
@@ -36,8 +37,19 @@ enum { RC_STATUS_PRIOR = 0, RC_STATUS_IDENTIFYING = 1, RC_STATUS_HOLDING = 2, RC
 #define RC_EST_OUTPUTS (RC_EST_RAW + 2 + RC_EST_COVARIANCES)
 #define RC_FINISH_MAX 40         /* values finish_outputs can guard (the chain's 12 + 15) */
 
-typedef struct {                 /* models.estimation.online.OnlineEstimator (method 0) */
+typedef struct {                 /* models.estimation.methods.SlopeLS (est.method 2) */
+    long size;                   /* est.slope_window */
+    long len;                    /* speeds held (len - 1 intervals) */
+    double *v;                   /* the window's speeds [m/s], oldest first */
+    double *i;                   /* its intervals' (F [N], B [N], grade [permille], dt [s]) */
+    int contiguous;              /* the last row fed follows the one before */
+    int has_weights;             /* dts, w, c hold centred_slope_weights(dts) */
+    double *dts, *w, *c;
+} rc_slope_ls;
+
+typedef struct {                 /* models.estimation.online.OnlineEstimator (method 0 or 2) */
     rc_ident ident;
+    rc_slope_ls *slope;          /* est.method 2's rows, else NULL */
     rc_filter filter;
     rc_station station;
     const rc_grade_profile *grade;   /* the chain's */
@@ -53,12 +65,21 @@ typedef struct {                 /* models.estimation.online.OnlineEstimator (me
 } rc_estimator;
 
 /* models.chain.build_estimator + OnlineEstimator.__init__, sampling every dt [s] (configs
- * validated by the caller; private copies are taken): 0, or -1 when the identifier's buffers
- * cannot be allocated. The estimator points at grade and speed: they must outlive it. */
+ * validated by the caller; private copies are taken); slope_window 0: est.method 0, >= 2:
+ * est.method 2 with that est.slope_window. 0, or -1 when the identifier's buffers cannot be
+ * allocated. The estimator points at grade and speed: they must outlive it. */
 int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
                       const rc_station_config *station, const rc_grade_profile *grade,
-                      const rc_speed_profile *speed, double dt);
+                      const rc_speed_profile *speed, double dt, long slope_window);
 void rc_estimator_free(rc_estimator *e);
+/* What the core does not run, as models/compiled.py's estimator_not_covered says it */
+#define RC_NOT_COVERED "est.method 1 or 3, est.physical 1 or est.sigma2_method 1"
+#define RC_NO_SLOPE_WINDOW "est.method 2 without est.slope_window (>= 2; the value after the " \
+    "flat configuration)"
+/* NULL when the core runs est.method, est.physical, est.sigma2_method and est.slope_window
+ * (slope_window read with method 2 only), else what it does not cover */
+const char *rc_estimator_not_covered(int method, int physical, int sigma2_method,
+                                     long slope_window);
 void rc_estimator_measure(rc_estimator *e, double speed_meas, double position_meas);
 void rc_estimator_propagate(rc_estimator *e, double traction, double brake, double dt);
 /* OnlineEstimator.measure_track_speed */

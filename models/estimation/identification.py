@@ -184,8 +184,7 @@ class ParameterIdentifier:
     ``regularised_forgetting``, ``accumulate_meats``; the first batch and the running estimate
     before it: ``batch_ls``; restart_mass: ``marginalise_meat``, ``marginalise_mass``; the
     covariance: ``meat``, ``sandwich``). Flat 4x4 lists inside (see the module's docstring); S,
-    W, D, covariance() give 4x4 numpy arrays. est.method 2's _reweight_prior is the one numpy
-    path (models/core has no method 2).
+    W, D, covariance() give 4x4 numpy arrays.
     """
 
     def __init__(self, cfg: IdentifierConfig):
@@ -482,16 +481,19 @@ class ParameterIdentifier:
         s2_new = max(self._process_share(a, b), 1e-12)
         prior_var = [s2 / j for s2, j in zip(self.s2_prior, self._j0)]     # prior_std^2, as configured
         j0_new = [s2_new / pv for pv in prior_var]
-        d = np.array([0.0] + [j0_new[i] - self._j0[i] for i in range(1, 4)])   # the mass: restart_mass
+        d = [0.0] + [j0_new[i] - self._j0[i] for i in range(1, 4)]   # the mass: restart_mass
+        # linalg4 (scalar, fixed order) rather than numpy's LAPACK: models/core/ident.c repeats it
         n = self._n_info()
-        J = np.linalg.inv(self.S) * n
-        theta = np.array(self._theta)
-        J_new = J + np.diag(d)
-        self._theta = [float(x) for x in np.linalg.solve(J_new, J @ theta + d * np.array(self._prior_mean))]
-        self._S = [float(x) for x in np.linalg.inv(J_new / n).ravel()]
+        J = [x * n for x in linalg4.inverse(self._S)]
+        J_new = list(J)
+        for i in range(1, 4):
+            J_new[5 * i] += d[i]
+        Jt = linalg4.matvec(J, self._theta)
+        self._theta = linalg4.solve(J_new, [Jt[i] + d[i] * self._prior_mean[i] for i in range(4)])
+        self._S = linalg4.inverse([x / n for x in J_new])
         if self._J is not None:
-            for i in range(4):
-                self._J[5 * i] += float(d[i])
+            for i in range(1, 4):
+                self._J[5 * i] += d[i]
         self._j0 = [float(x) for x in j0_new]
         self.s2_prior = [s2_new] * 4
         self.J0 = np.diag(j0_new)

@@ -69,6 +69,13 @@ def python_state(chain: RailCarChain) -> tuple:
     return tuple(float(x) for x in values)
 
 
+def scenario_setup(path: Path, overrides: dict):
+    """(config, grade profile, speed profile) of a library scenario with ``overrides``."""
+    sc = load_scenario(path)
+    s = replace(sc, parameters={**sc.parameters, **overrides}).chain_setup()
+    return s.config, s.grade, s.speed
+
+
 def scenario_chains(path: Path, overrides: dict):
     sc = load_scenario(path)
     sc = replace(sc, parameters={**sc.parameters, **overrides})
@@ -116,6 +123,77 @@ VARIANTS = {
 def test_variant_bit_identical(name):
     path = ROOT / "scenarios" / "library" / ("station_day.toml" if "forgetting" in name else "steep_grades.toml")
     assert assert_identical(path, dict(VARIANTS[name]), max_steps=3000) > 100
+
+
+# ---------------------------------------------------------------- est.method 2 (SlopeLS)
+
+SLOPE_LS = {"est.method": 2}
+"""est.method 2: the LS on Sidorenko's centred slopes (models/estimation/methods.py SlopeLS,
+models/core/estimator.c slope_identify; ident.c its end factor, prior weights and reweight_prior)."""
+
+
+@pytest.mark.parametrize("path", LIBRARY, ids=[p.stem for p in LIBRARY])
+def test_library_scenario_with_slope_ls_bit_identical(path):
+    assert open_chain(*scenario_setup(path, SLOPE_LS)).engine == "c"
+    assert assert_identical(path, SLOPE_LS) > 100
+
+
+# station_day: station stops (the prior's reweighting, run forgetting), whole days
+SLOPE_VARIANTS = {
+    "forgetting": ("station_day", {"est.forgetting": 0.002}),
+    "run_forgetting": ("station_day", {"est.run_forgetting": 0.3}),
+    "shortest_window": ("station_day", {"est.slope_window": 2}),
+    "window_6_small_batch": ("station_day", {"est.slope_window": 6, "est.batch_size": 4}),
+    "long_window_noisy": ("etcs_noisy_sensors", {"est.slope_window": 25}),
+    "singer_relative_speed_noise": ("steep_grades", {"filter.kind": 4, "sensor.speed_std_rel": 0.02}),
+    "odd_steps_car_length_drift": ("steep_grades", {"solver.step": 0.1, "car.length": 60.0,
+                                                    "sensor.position_std_rel": 0.01}),
+}
+
+
+@pytest.mark.parametrize("name", SLOPE_VARIANTS)
+def test_slope_ls_variant_bit_identical(name):
+    scenario, overrides = SLOPE_VARIANTS[name]
+    path = ROOT / "scenarios" / "library" / f"{scenario}.toml"
+    assert assert_identical(path, {**SLOPE_LS, **overrides}) > 100
+
+
+def test_slope_ls_reweights_the_prior_at_stops_and_one_ulp_shows():
+    """station_day reaches SlopeLS's own paths: the prior reweighted at a stop once the LAG sums
+    exist (s2_prior no longer the configured one), identical in C; and one ulp off in an
+    estimate of the last row is a difference."""
+    path = ROOT / "scenarios" / "library" / "station_day.toml"
+    sc, py, c = scenario_chains(path, SLOPE_LS)
+    rows_py, rows_c = drive_chain(py, sc, None), drive_chain(c, sc, None)
+    ident = py.estimator.ident
+    assert ident.mass_restarts >= 3
+    assert ident.s2_prior[1] == ident.s2_prior[0] != IdentifierConfig().sigma2_initial
+    assert ident.s2_prior[0] != ident.s2_ref   # reweighted from the LAG sums
+    assert same(rows_py, rows_c)
+    for name in ("est.mass", "est.A0", "est.A2_std", "est.sigma2"):
+        assert not same(rows_py[-1], one_ulp_off(rows_c[-1], name)), name
+
+
+def test_slope_ls_without_a_window_and_other_methods_are_refused_by_name():
+    """The core runs est.method 0 and 2; CompiledChain refuses the rest naming exactly them,
+    and the C core itself refuses est.method 2 without est.slope_window (a host that hands it
+    only the flat configuration, as the native FMUs do)."""
+    path = ROOT / "scenarios" / "library" / "level_run.toml"
+    for overrides in ({"est.method": 1}, {"est.method": 3}, {"est.physical": 1},
+                      {"est.sigma2_method": 1}, {"est.method": 2, "est.physical": 1}):
+        cfg, grade, speed = scenario_setup(path, overrides)
+        with pytest.raises(ValueError, match="^the C core does not cover est.method 1 or 3, "
+                           "est.physical 1 or est.sigma2_method 1: use open_chain"):
+            CompiledChain(cfg, grade, speed)
+        assert open_chain(cfg, grade, speed).engine == "python"
+        assert compiled.core_not_covered(cfg.identifier) == compiled.NOT_COVERED
+    cfg, grade, _ = scenario_setup(path, SLOPE_LS)
+    assert compiled.core_not_covered(cfg.identifier) is None
+    with pytest.raises(ValueError, match=r"does not cover est.method 2 without est.slope_window"):
+        compiled._railcar.Chain(compiled._config_values(compiled.validate(cfg, None, 0.0), 0.0),
+                                grade.distances, grade.grades, (), (), compiled.OUTPUT_NAMES,
+                                tuple(n in compiled.INTEGER_OUTPUTS for n in compiled.OUTPUT_NAMES),
+                                StepRejected)
 
 
 def test_start_time_and_odd_steps_bit_identical():
@@ -258,13 +336,14 @@ def with_faults(rows, seed: int):
     return [tuple(r) for r in rows]
 
 
-@pytest.mark.parametrize("kind, faulty", [(2, False), (2, True), (0, True)])
-def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty):
+@pytest.mark.parametrize("kind, faulty, method", [(2, False, 0), (2, True, 0), (0, True, 0),
+                                                  (2, False, 2), (2, True, 2), (0, True, 2)])
+def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty, method):
     rows = measurements(1500.0, seed=4, stops=4)
     if faulty:
         rows = with_faults(rows, seed=9)
-    args = (IdentifierConfig(mass_initial=30.0), FilterConfig(kind=kind), StationConfig(dwell=20.0),
-            GradeProfile.level())
+    args = (IdentifierConfig(mass_initial=30.0, method=method), FilterConfig(kind=kind),
+            StationConfig(dwell=20.0), GradeProfile.level())
     py, c = EstimatorChain(*args), CompiledEstimatorChain(*args)
     assert c.outputs() == py.outputs() == {}
     out_py, out_c = replay(py, rows), replay(c, rows)
@@ -432,14 +511,17 @@ def test_open_chain_runs_c_where_covered_and_python_elsewhere():
     assert open_chain(ChainConfig(), grade).engine == "c"
     assert open_chain(ChainConfig(track=TrackSensorConfig(spacing=200.0)), grade).engine == "c"
     assert open_chain(ChainConfig(filter=FilterConfig(kind=4)), grade).engine == "c"   # Singer
-    for cfg in (ChainConfig(identifier=IdentifierConfig(method=2)),
+    assert open_chain(ChainConfig(identifier=IdentifierConfig(method=2)), grade).engine == "c"
+    for cfg in (ChainConfig(identifier=IdentifierConfig(method=3)),
                 ChainConfig(identifier=IdentifierConfig(physical=1)),
                 ChainConfig(identifier=IdentifierConfig(sigma2_method=1))):
         chain = open_chain(cfg, grade)
         assert chain.engine == "python" and isinstance(chain, RailCarChain)
-    assert compiled.ENGINES["c"] == before.get("c", 0) + 3
+    assert compiled.ENGINES["c"] == before.get("c", 0) + 4
     assert compiled.ENGINES["python"] == before.get("python", 0) + 3
     assert open_estimator_chain(IdentifierConfig(), FilterConfig(), StationConfig(), grade).engine == "c"
+    assert open_estimator_chain(IdentifierConfig(method=2), FilterConfig(), StationConfig(),
+                                grade).engine == "c"
     assert open_estimator_chain(IdentifierConfig(method=1), FilterConfig(), StationConfig(),
                                 grade).engine == "python"
 
