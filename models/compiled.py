@@ -8,9 +8,9 @@ Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs 
 
 The C core covers filter kinds 0-4 (the Singer filter included), est.method 0 and 2 (the LS on
 Sidorenko's slopes: est.slope_window follows the flat configuration, models/core/config.c),
-est.physical 0, est.sigma2_method 0, any forgetting, car length, odometry drift and track
+est.physical 0 and 1, est.sigma2_method 0, any forgetting, car length, odometry drift and track
 sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs do not run est.method 2
-yet (estimator_not_covered, the rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
+nor est.physical 1 yet (estimator_not_covered, the rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
 runs Python always (and a machine without a C compiler installs without the core and does the
 same).
 """
@@ -60,25 +60,26 @@ def enabled() -> bool:
     return _railcar is not None and not os.environ.get("RAILCAR_PURE_PYTHON")
 
 
-NOT_COVERED = "est.method 1 or 3, est.physical 1 or est.sigma2_method 1"
+NOT_COVERED = "est.method 1 or 3 or est.sigma2_method 1"
 """The estimator options the C core does not run (models/core/estimator.h RC_NOT_COVERED)."""
 NATIVE_NOT_COVERED = ("est.method 1, 2 or 3, est.physical 1 or est.sigma2_method 1 (est.method 2 "
-                      "runs in the C core, but the native FMUs do not hand it est.slope_window yet)")
-"""The estimator options the native FMUs refuse (models/core/validate.c): the core's, and est.method
-2, whose est.slope_window their flat configuration does not carry."""
+                      "and est.physical 1 run in the C core, not yet in the native FMUs)")
+"""The estimator options the native FMUs refuse (models/core/validate.c): the core's, est.method 2,
+whose est.slope_window their flat configuration does not carry, and est.physical 1 (their
+validation still refuses it)."""
 
 
 def core_not_covered(identifier: IdentifierConfig) -> str | None:
     """Why the C core does not run this estimator in this process (CompiledChain,
     CompiledEstimatorChain: NOT_COVERED), or None when it does."""
-    if identifier.method not in (0, 2) or identifier.physical or identifier.sigma2_method != 0:
+    if identifier.method not in (0, 2) or identifier.sigma2_method != 0:
         return NOT_COVERED
     return None
 
 
 def estimator_not_covered(identifier: IdentifierConfig, filt: FilterConfig) -> str | None:
     """Why the native FMUs do not run this estimator (NATIVE_NOT_COVERED), or None when they do."""
-    if core_not_covered(identifier) or identifier.method == 2:
+    if core_not_covered(identifier) or identifier.method == 2 or identifier.physical:
         return NATIVE_NOT_COVERED
     return None
 

@@ -3,6 +3,7 @@
  * same expressions in the same order. */
 #include "rc_fp_contract.h"
 #include "estimator.h"
+#include "linalg4.h"
 
 #include <stddef.h>
 #include <stdlib.h>
@@ -138,7 +139,8 @@ static void slope_identify(rc_estimator *e, double traction, double brake, doubl
 
 int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
                       const rc_station_config *station, const rc_grade_profile *grade,
-                      const rc_speed_profile *speed, double dt, long slope_window)
+                      const rc_speed_profile *speed, double dt, long slope_window,
+                      int physical)
 {
     rc_ident_config ic = *id_cfg;          /* build_estimator's private copies */
     rc_filter_config fc = *filt;
@@ -147,6 +149,7 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
     fc.dt = dt;
     fc.gamma = ic.gamma;
     e->slope = NULL;
+    e->physical = physical;
     if (rc_ident_init_rows(&e->ident, &ic, slope_window) != 0)
         return -1;
     if (slope_window != 0 && !(e->slope = slope_new(slope_window))) {
@@ -183,7 +186,7 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
 const char *rc_estimator_not_covered(int method, int physical, int sigma2_method,
                                      long slope_window)
 {
-    if (!(method == 0 || method == 2) || physical != 0 || sigma2_method != 0)
+    if (!(method == 0 || method == 2) || !(physical == 0 || physical == 1) || sigma2_method != 0)
         return RC_NOT_COVERED;
     if (method == 2 && slope_window < 2)
         return RC_NO_SLOPE_WINDOW;
@@ -197,10 +200,76 @@ void rc_estimator_free(rc_estimator *e)
     e->slope = NULL;
 }
 
-/* OnlineEstimator.model_theta for method 0 without est.physical: the identifier's */
-static void model_theta(const rc_estimator *e, double *theta)
+void rc_project_physical(double *th, const double *cov)
+{
+    static const int comps[2] = {1, 3};               /* identification.PHYSICAL */
+    if (!(th[1] < 0.0 || th[3] < 0.0))
+        return;
+    double C[16], best[4], best_cost = INFINITY;
+    int has_best = 0;
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++)
+            C[4 * i + j] = 0.5 * (cov[4 * i + j] + cov[4 * j + i]);
+    for (int mask = 1; mask < 4; mask++) {
+        int active[2], k = 0;
+        for (int j = 0; j < 2; j++)
+            if (mask >> j & 1)
+                active[k++] = comps[j];
+        double A[4], b[2], lam[2], t[4];
+        for (int a = 0; a < k; a++) {
+            for (int c = 0; c < k; c++)
+                A[k * a + c] = C[4 * active[a] + active[c]];
+            b[a] = th[active[a]];
+        }
+        if (rc_la_solve(A, b, k, lam))                /* minus half the KKT multipliers */
+            continue;
+        for (int i = 0; i < 4; i++) {
+            double s = C[4 * i + active[0]] * lam[0];
+            for (int j = 1; j < k; j++)
+                s += C[4 * i + active[j]] * lam[j];
+            t[i] = th[i] - s;
+        }
+        for (int a = 0; a < k; a++)
+            t[active[a]] = 0.0;
+        int refused = 0;                              /* multipliers >= 0, feasible */
+        for (int j = 0; j < k; j++)
+            refused |= lam[j] > 1e-12;
+        for (int j = 0; j < 2; j++)
+            refused |= t[comps[j]] < -1e-12;
+        if (refused)
+            continue;
+        double cost = th[active[0]] * lam[0];
+        for (int j = 1; j < k; j++)
+            cost += th[active[j]] * lam[j];
+        if (cost < best_cost) {
+            memcpy(best, t, sizeof best);
+            best_cost = cost;
+            has_best = 1;
+        }
+    }
+    if (!has_best) {                                  /* a singular cov: clip */
+        for (int j = 0; j < 2; j++)
+            if (th[comps[j]] < 0.0)
+                th[comps[j]] = 0.0;
+        return;
+    }
+    memcpy(th, best, sizeof best);
+}
+
+/* OnlineEstimator.theta for methods 0 and 2: the identifier's, projected with est.physical */
+static void reported_theta(rc_estimator *e, double *theta)
+{
+    memcpy(theta, e->ident.theta, 4 * sizeof(double));
+    if (e->physical && (theta[1] < 0.0 || theta[3] < 0.0))
+        rc_project_physical(theta, rc_ident_covariance(&e->ident));
+}
+
+/* OnlineEstimator.model_theta for methods 0 and 2: the identifier's, projected with est.physical */
+static void model_theta(rc_estimator *e, double *theta)
 {
     rc_ident_model_theta(&e->ident, theta);
+    if (e->physical && (theta[1] < 0.0 || theta[3] < 0.0))
+        rc_project_physical(theta, rc_ident_model_covariance(&e->ident));
 }
 
 /* OnlineEstimator.process_noise */
@@ -326,8 +395,8 @@ void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double
 void rc_estimator_raw_outputs(rc_estimator *e, int predicted, double *out)
 {
     const rc_filter *f = &e->filter;
-    const double *th = e->ident.theta;   /* OnlineEstimator.theta() for method 0 */
-    double sd[4];
+    double th[4], sd[4];
+    reported_theta(e, th);
     rc_ident_stds(&e->ident, sd);
     out[0] = rc_ident_mass(&e->ident);
     out[1] = rc_ident_mass_std(&e->ident);

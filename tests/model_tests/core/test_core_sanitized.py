@@ -6,12 +6,13 @@ after every step). Here
 
 - it is built once with -fsanitize=address,undefined -fno-sanitize-recover=all and runs every
   library scenario, with est.method 0 and 2 (the LS on Sidorenko's slopes, est.slope_window after
-  the flat configuration), with the closed-loop inputs the Python chain (models.chain.RailCarChain) saw:
+  the flat configuration) and est.physical 0 and 1 (OPTIONS), with the closed-loop inputs the
+  Python chain (models.chain.RailCarChain) saw:
   exit 0, not a byte on stderr (any sanitizer report would be there), and every output of every
   step equal bit for bit to the Python chain's;
 - a one-ulp-sized change of one expression (issue 17: "a one-ulp change in one C expression must
   fail a test") in plant.c, filter.c, ident.c, linalg4.c, estimator.c and railcar.c (and in
-  est.method 2's code in estimator.c and ident.c, on est.method 2 runs) -- a
+  est.method 2's and est.physical's code in estimator.c and ident.c, on such runs) -- a
   re-associated sum or one operand times (1 + 2**-52) -- makes the outputs differ from Python's,
   while the unmutated copy built the same way gives them exactly.
 """
@@ -55,6 +56,10 @@ def compile_(*args: str) -> None:
 # ---------------------------------------------------------------- the Python chain's runs
 
 SLOPE_LS = {"est.method": 2}
+PHYSICAL = {"est.physical": 1}
+OPTIONS = {"paper_ls": {}, "slope_ls": SLOPE_LS, "physical": PHYSICAL,
+           "slope_ls_physical": {**SLOPE_LS, **PHYSICAL}}
+"""The estimator options the core runs, each over the whole library."""
 
 
 class Run:
@@ -91,7 +96,7 @@ class Run:
             grade.distances, grade.grades, sd, sv, steps.ravel()]).astype("<f8")
 
     def write(self, directory: Path) -> Path:
-        path = directory / f"{self.name}_{self.cfg.identifier.method}.in"
+        path = directory / f"{self.name}_{self.cfg.identifier.method}{self.cfg.identifier.physical}.in"
         self.data.tofile(path)
         return path
 
@@ -102,9 +107,16 @@ def runs() -> dict[str, Run]:
 
 
 @pytest.fixture(scope="module")
-def slope_runs() -> dict[str, Run]:
+def option_runs(runs) -> dict[str, dict[str, Run]]:
+    """The library with each of OPTIONS."""
+    return {option: runs if not overrides else {p.stem: Run(p, overrides) for p in LIBRARY}
+            for option, overrides in OPTIONS.items()}
+
+
+@pytest.fixture(scope="module")
+def slope_runs(option_runs) -> dict[str, Run]:
     """The library with est.method 2."""
-    return {p.stem: Run(p, SLOPE_LS) for p in LIBRARY}
+    return option_runs["slope_ls"]
 
 
 def run_driver(exe: Path, run: Run, directory: Path, env: dict | None = None):
@@ -134,12 +146,14 @@ def sanitized_driver(tmp_path_factory) -> Path:
     return exe
 
 
-@pytest.mark.parametrize("method", [0, 2])
+@pytest.mark.parametrize("option", OPTIONS)
 @pytest.mark.parametrize("name", [p.stem for p in LIBRARY])
-def test_library_scenario_under_sanitizers_bit_identical(name, method, runs, slope_runs,
+def test_library_scenario_under_sanitizers_bit_identical(name, option, option_runs,
                                                          sanitized_driver, tmp_path):
-    run = (runs if method == 0 else slope_runs)[name]
-    assert run.cfg.identifier.method == method
+    run = option_runs[option][name]
+    ident = run.cfg.identifier
+    assert (ident.method, ident.physical) == (OPTIONS[option].get("est.method", 0),
+                                              OPTIONS[option].get("est.physical", 0))
     env = dict(os.environ, ASAN_OPTIONS="detect_leaks=1:halt_on_error=1",
                UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
     status, stderr, rows = run_driver(sanitized_driver, run, tmp_path, env)
@@ -167,7 +181,8 @@ def test_driver_reports_a_rejected_step_and_a_refused_configuration(runs, saniti
     proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "refused.out")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
-    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method 1 or 3"), \
+    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method 1 or 3 "
+                                  "or est.sigma2_method 1 (the Python chain runs it)"), \
         proc.stderr
     # est.method 2 without est.slope_window after the flat configuration
     method2 = run.file_data(replace(run.cfg, identifier=replace(run.cfg.identifier, method=2)))
@@ -228,6 +243,11 @@ SLOPE_MUTATIONS = {
                              "j0_new[i] = s2_new / prior_var;",
                              f"j0_new[i] = s2_new * {ONE_ULP} / prior_var;"),
 }
+# est.physical's projection, checked on est.physical 1 runs (est.method 2: more projections)
+PHYSICAL_MUTATIONS = {
+    # the projected Theta: theta - C[:, active] lambda
+    "physical_projection": ("estimator.c", "t[i] = th[i] - s;", f"t[i] = th[i] - s * {ONE_ULP};"),
+}
 # One ulp can vanish in a scenario (the RK4 mutation leaves coasting_rusich_row1 unchanged, the
 # sensor one coasting_rusich_row2); each mutation above changes both of these.
 MUTATION_SCENARIOS = ("station_day", "crush_load")
@@ -266,9 +286,9 @@ def build_mutant(pristine: Path, directory: Path, mutation: tuple[str, str, str]
     return exe
 
 
-def test_the_unmutated_copy_gives_python_s_outputs(pristine, runs, slope_runs, tmp_path):
+def test_the_unmutated_copy_gives_python_s_outputs(pristine, option_runs, tmp_path):
     exe = build_mutant(pristine, tmp_path, None)
-    for run in [*(runs[n] for n in MUTATION_SCENARIOS), *(slope_runs[n] for n in MUTATION_SCENARIOS)]:
+    for run in [option_runs[o][n] for o in OPTIONS for n in MUTATION_SCENARIOS]:
         status, stderr, rows = run_driver(exe, run, tmp_path)
         assert status == 0 and stderr == "", stderr
         assert not differences(rows, run.expected), run.name
@@ -295,4 +315,18 @@ def test_a_one_ulp_mutation_of_slope_ls_changes_the_outputs(mutation, pristine, 
         status, stderr, rows = run_driver(exe, slope_runs[name], tmp_path)
         assert status == 0 and stderr == "", stderr
         changed[name] = len(differences(rows, slope_runs[name].expected))
+    assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
+
+
+@pytest.mark.parametrize("mutation", PHYSICAL_MUTATIONS)
+def test_a_one_ulp_mutation_of_the_projection_changes_the_outputs(mutation, pristine, option_runs,
+                                                                  tmp_path):
+    """est.physical's code: the mutation must fail the comparison on an est.physical 1 run."""
+    exe = build_mutant(pristine, tmp_path, PHYSICAL_MUTATIONS[mutation])
+    runs = option_runs["slope_ls_physical"]
+    changed = {}
+    for name in MUTATION_SCENARIOS:
+        status, stderr, rows = run_driver(exe, runs[name], tmp_path)
+        assert status == 0 and stderr == "", stderr
+        changed[name] = len(differences(rows, runs[name].expected))
     assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
