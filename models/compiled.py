@@ -6,10 +6,13 @@ Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs 
 (tests/model_tests/core/test_core_chain.py). Which one runs is visible: ``chain.engine`` is "c" or "python", and
 ``ENGINES`` counts the chains opened with each.
 
-The C core covers filter kinds 0-4 (the Singer filter included), est.method 0, est.physical 0,
-est.sigma2_method 0, any forgetting, car length, odometry drift and track sensors; the other
-estimation methods run in Python. ``RAILCAR_PURE_PYTHON=1`` runs Python always (and a machine
-without a C compiler installs without the core and does the same).
+The C core covers filter kinds 0-4 (the Singer filter included), est.method 0 and 2 (the LS on
+Sidorenko's slopes: est.slope_window follows the flat configuration, models/core/config.c),
+est.physical 0 and 1, est.sigma2_method 0, any forgetting, car length, odometry drift and track
+sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs do not run est.method 2
+yet (estimator_not_covered, the rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
+runs Python always (and a machine without a C compiler installs without the core and does the
+same).
 """
 from __future__ import annotations
 
@@ -57,15 +60,31 @@ def enabled() -> bool:
     return _railcar is not None and not os.environ.get("RAILCAR_PURE_PYTHON")
 
 
+NOT_COVERED = "est.method 1 or 3 or est.sigma2_method 1"
+"""The estimator options the C core does not run (models/core/estimator.h RC_NOT_COVERED)."""
+NATIVE_NOT_COVERED = ("est.method 1, 2 or 3 or est.sigma2_method 1 (est.method 2 runs in the C "
+                      "core, but the native FMUs do not hand it est.slope_window yet)")
+"""The estimator options the native FMUs refuse (models/core/validate.c): the core's, and est.method
+2, whose est.slope_window their flat configuration does not carry."""
+
+
+def core_not_covered(identifier: IdentifierConfig) -> str | None:
+    """Why the C core does not run this estimator in this process (CompiledChain,
+    CompiledEstimatorChain: NOT_COVERED), or None when it does."""
+    if identifier.method not in (0, 2) or identifier.sigma2_method != 0:
+        return NOT_COVERED
+    return None
+
+
 def estimator_not_covered(identifier: IdentifierConfig, filt: FilterConfig) -> str | None:
-    """Why the C core does not run this estimator, or None when it does."""
-    if identifier.method != 0 or identifier.physical or identifier.sigma2_method != 0:
-        return "est.method, est.physical or est.sigma2_method other than 0"
+    """Why the native FMUs do not run this estimator (NATIVE_NOT_COVERED), or None when they do."""
+    if core_not_covered(identifier) or identifier.method == 2:
+        return NATIVE_NOT_COVERED
     return None
 
 
 def not_covered(cfg: ChainConfig) -> str | None:
-    """Why the C core does not run this chain, or None when it does."""
+    """Why the native RailCar FMU does not run this chain, or None when it does."""
     return estimator_not_covered(cfg.identifier, cfg.filter)
 
 
@@ -121,13 +140,14 @@ class CompiledChain(_railcar.Chain if _railcar is not None else object):
         if _railcar is None:
             raise RuntimeError("the C core (models._railcar) is not compiled")
         cfg = validate(cfg, speed_profile, start_time)
-        why = not_covered(cfg)
+        why = core_not_covered(cfg.identifier)
         if why:
             raise ValueError(f"the C core does not cover {why}: use open_chain()")
         self.cfg = cfg
         self.start_time = start_time
         sp = speed_profile
-        super().__init__(_config_values(cfg, start_time), grade_profile.distances,
+        super().__init__([*_config_values(cfg, start_time), int(cfg.identifier.slope_window)],
+                         grade_profile.distances,
                          grade_profile.grades, sp.distances if sp else (), sp.speeds if sp else (),
                          OUTPUT_NAMES, tuple(n in INTEGER_OUTPUTS for n in OUTPUT_NAMES),
                          StepRejected)
@@ -148,7 +168,7 @@ def open_chain(cfg: ChainConfig, grade_profile: GradeProfile,
                speed_profile: SpeedProfile | None = None, start_time: float = 0.0):
     """The chain for this configuration: C when it is compiled, enabled and covers it, else the
     Python reference. ``chain.engine`` says which; ENGINES counts them."""
-    if enabled() and not_covered(cfg) is None:
+    if enabled() and core_not_covered(cfg.identifier) is None:
         chain = CompiledChain(cfg, grade_profile, speed_profile, start_time)
     else:
         chain = RailCarChain(cfg, grade_profile, speed_profile, start_time)
@@ -175,13 +195,14 @@ class CompiledEstimatorChain(_railcar.Estimator if _railcar is not None else obj
         track = track or TrackSensorConfig()
         track.validate()
         build_estimator(identifier, filt, station, grade_profile, speed_profile, dt=1.0)  # validates
-        why = estimator_not_covered(identifier, filt)
+        why = core_not_covered(identifier)
         if why:
             raise ValueError(f"the C core does not cover {why}: use open_estimator_chain()")
         sp = speed_profile
         st = station
         super().__init__([*_estimator_values(identifier, filt), st.dwell, st.speed_threshold,
-                          st.position_threshold, track.base, track.resolution, track.jitter],
+                          st.position_threshold, track.base, track.resolution, track.jitter,
+                          int(identifier.slope_window)],
                          grade_profile.distances, grade_profile.grades,
                          sp.distances if sp else (), sp.speeds if sp else (),
                          ESTIMATOR_OUTPUT_NAMES,
@@ -192,7 +213,7 @@ def open_estimator_chain(identifier: IdentifierConfig, filt: FilterConfig, stati
                          grade_profile: GradeProfile, speed_profile: SpeedProfile | None = None,
                          track: TrackSensorConfig | None = None):
     """EstimatorChain for this configuration: C when it can, else the Python reference."""
-    if enabled() and estimator_not_covered(identifier, filt) is None:
+    if enabled() and core_not_covered(identifier) is None:
         chain = CompiledEstimatorChain(identifier, filt, station, grade_profile, speed_profile, track)
     else:
         chain = EstimatorChain(identifier, filt, station, grade_profile, speed_profile, track)

@@ -1,5 +1,7 @@
 /* config.c -- the chains' configurations from flat arrays of numbers, the one format the
- * Python binding (models/_railcar.c) and C hosts (tests/core_cases/chain_driver.c) share. */
+ * Python binding (models/_railcar.c) and C hosts (tests/core_cases/chain_driver.c) share. One
+ * optional value may follow the configuration: est.slope_window, which est.method 2 needs (the
+ * native FMUs' flat configuration does not carry it; without it slope_window is 0). */
 #include "rc_fp_contract.h"
 #include "railcar.h"
 
@@ -32,15 +34,16 @@ long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
         &c->start_time,
     };
     const long count = (long)(sizeof f / sizeof f[0]);
-    if (n != count)
+    if (n != count && n != count + 1)
         return count;
-    for (long k = 0; k < n; k++)
+    for (long k = 0; k < count; k++)
         if (f[k])
             *f[k] = v[k];
     c->seed = (long)v[14];
     c->identifier.batch_size = (long)v[21];
     c->identifier.frozen = v[34] != 0.0;
     c->method = (int)v[36];
+    c->slope_window = n > count ? (long)v[count] : 0;
     c->physical = (int)v[37];
     c->sigma2_method = (int)v[38];
     c->filter.kind = (int)v[44];
@@ -67,14 +70,15 @@ long rc_estchain_config_from_values(rc_estchain_config *c, const double *v, long
         &c->track_base, &c->track_resolution, &c->track_jitter,
     };
     const long count = (long)(sizeof f / sizeof f[0]);
-    if (n != count)
+    if (n != count && n != count + 1)
         return count;
-    for (long k = 0; k < n; k++)
+    for (long k = 0; k < count; k++)
         if (f[k])
             *f[k] = v[k];
     c->identifier.batch_size = (long)v[1];
     c->identifier.frozen = v[14] != 0.0;
     c->method = (int)v[16];
+    c->slope_window = n > count ? (long)v[count] : 0;
     c->physical = (int)v[17];
     c->sigma2_method = (int)v[18];
     c->filter.kind = (int)v[24];

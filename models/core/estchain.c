@@ -16,10 +16,11 @@ rc_status rc_estchain_init(rc_estchain *c, const rc_estchain_config *cfg, rc_err
     memset(c, 0, sizeof *c);
     if (err)
         err->msg[0] = '\0';
-    if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0) {
+    const char *why = rc_estimator_not_covered(cfg->method, cfg->physical, cfg->sigma2_method,
+                                               cfg->slope_window);
+    if (why) {
         if (err)
-            snprintf(err->msg, sizeof err->msg, "the C core does not cover est.method, "
-                     "est.physical or est.sigma2_method other than 0");
+            snprintf(err->msg, sizeof err->msg, "the C core does not cover %s", why);
         return RC_BAD_CONFIG;
     }
     if (rc_profiles_copy(cfg->grade_distances, cfg->grades, cfg->grade_n, cfg->speed_distances,
@@ -86,7 +87,9 @@ rc_status rc_estchain_step(rc_estchain *c, double current_time, double step_size
     }
     if (!c->started) {
         if (rc_estimator_init(&c->est, &c->cfg.identifier, &c->cfg.filter, &c->cfg.station,
-                              &c->grade, c->speed.n ? &c->speed : NULL, step_size) != 0) {
+                              &c->grade, c->speed.n ? &c->speed : NULL, step_size,
+                              c->cfg.method == 2 ? c->cfg.slope_window : 0,
+                              c->cfg.physical) != 0) {
             if (err)
                 snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
             return RC_BAD_CONFIG;

@@ -1,9 +1,13 @@
 /* estimator.c -- see estimator.h; the bodies of models/estimation/online.py's StationDetector and
- * OnlineEstimator (est.method 0), same expressions in the same order. */
+ * OnlineEstimator (est.method 0), and of models/estimation/methods.py's SlopeLS (est.method 2),
+ * same expressions in the same order. */
 #include "rc_fp_contract.h"
 #include "estimator.h"
+#include "linalg4.h"
 
 #include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
 
 #include "rc_common.h"
 
@@ -48,11 +52,95 @@ static int station_observe(rc_station *s, double speed_meas, double position_mea
     return 0;
 }
 
+/* ------------------------------------------------------------------ SlopeLS */
+
+static void slope_free(rc_slope_ls *s)
+{
+    if (!s)
+        return;
+    free(s->v);
+    free(s->i);
+    free(s->dts);
+    free(s->w);
+    free(s->c);
+    free(s);
+}
+
+static rc_slope_ls *slope_new(long size)
+{
+    rc_slope_ls *s = calloc(1, sizeof *s);
+    if (!s)
+        return NULL;
+    s->size = size;
+    s->v = malloc((size_t)(size + 1) * sizeof(double));   /* one more before the oldest goes */
+    s->i = malloc((size_t)size * 4 * sizeof(double));
+    s->dts = malloc((size_t)size * sizeof(double));
+    s->w = malloc((size_t)size * sizeof(double));
+    s->c = malloc((size_t)size * sizeof(double));
+    if (!s->v || !s->i || !s->dts || !s->w || !s->c) {
+        slope_free(s);
+        return NULL;
+    }
+    return s;
+}
+
+/* SlopeLS.identify: one regression row per new sample once the window is full */
+static void slope_identify(rc_estimator *e, double traction, double brake, double speed,
+                           double speed_next, double grade, double dt, int contiguous)
+{
+    rc_slope_ls *s = e->slope;
+    if (!contiguous) {           /* a new contiguous stretch starts at the previous sample */
+        s->v[0] = speed;
+        s->len = 1;
+        s->contiguous = 0;
+    }
+    double *row = &s->i[4 * (s->len - 1)];
+    s->v[s->len] = speed_next;
+    row[0] = traction;
+    row[1] = brake;
+    row[2] = grade;
+    row[3] = dt;
+    s->len += 1;
+    if (s->len > s->size) {      /* del self.v[0], self.i[0] */
+        memmove(s->v, s->v + 1, (size_t)(s->len - 1) * sizeof(double));
+        memmove(s->i, s->i + 4, (size_t)(s->len - 2) * 4 * sizeof(double));
+        s->len -= 1;
+    }
+    if (s->len < s->size)
+        return;
+    long m = s->size - 1;        /* intervals */
+    int same = s->has_weights;   /* constant at a fixed sampling period: computed once */
+    for (long j = 0; j < m && same; j++)
+        same = s->i[4 * j + 3] == s->dts[j];
+    if (!same) {
+        for (long j = 0; j < m; j++)
+            s->dts[j] = s->i[4 * j + 3];
+        rc_centred_slope_weights(s->dts, m, s->w, s->c);
+        s->has_weights = 1;
+    }
+    double v_sum = 0.0, a_c = 0.0, f = 0.0, b = 0.0, g = 0.0;
+    for (long k = 0; k < s->size; k++)
+        v_sum += s->v[k];
+    double v_c = v_sum / (double)s->size;
+    for (long k = 0; k < s->size; k++)
+        a_c += s->w[k] * s->v[k];
+    for (long j = 0; j < m; j++)
+        f += s->c[j] * s->i[4 * j];
+    for (long j = 0; j < m; j++)
+        b += s->c[j] * s->i[4 * j + 1];
+    for (long j = 0; j < m; j++)
+        g += s->c[j] * s->i[4 * j + 2];
+    double step = e->dt_nominal;
+    rc_ident_update(&e->ident, f, b, v_c, v_c + a_c * step, g, step, s->contiguous);
+    s->contiguous = 1;
+}
+
 /* ------------------------------------------------------------------ OnlineEstimator */
 
 int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
                       const rc_station_config *station, const rc_grade_profile *grade,
-                      const rc_speed_profile *speed, double dt)
+                      const rc_speed_profile *speed, double dt, long slope_window,
+                      int physical)
 {
     rc_ident_config ic = *id_cfg;          /* build_estimator's private copies */
     rc_filter_config fc = *filt;
@@ -60,8 +148,14 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
     ic.speed_std = fc.speed_std;
     fc.dt = dt;
     fc.gamma = ic.gamma;
-    if (rc_ident_init(&e->ident, &ic) != 0)
+    e->slope = NULL;
+    e->physical = physical;
+    if (rc_ident_init_rows(&e->ident, &ic, slope_window) != 0)
         return -1;
+    if (slope_window != 0 && !(e->slope = slope_new(slope_window))) {
+        rc_ident_free(&e->ident);
+        return -1;
+    }
     rc_filter_init(&e->filter, &fc, grade, speed);
     station_init(&e->station, station, fc.speed_std, fc.position_std);
     e->grade = grade;
@@ -89,15 +183,93 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
     return 0;
 }
 
+const char *rc_estimator_not_covered(int method, int physical, int sigma2_method,
+                                     long slope_window)
+{
+    if (!(method == 0 || method == 2) || !(physical == 0 || physical == 1) || sigma2_method != 0)
+        return RC_NOT_COVERED;
+    if (method == 2 && slope_window < 2)
+        return RC_NO_SLOPE_WINDOW;
+    return NULL;
+}
+
 void rc_estimator_free(rc_estimator *e)
 {
     rc_ident_free(&e->ident);
+    slope_free(e->slope);
+    e->slope = NULL;
 }
 
-/* OnlineEstimator.model_theta for method 0 without est.physical: the identifier's */
-static void model_theta(const rc_estimator *e, double *theta)
+void rc_project_physical(double *th, const double *cov)
+{
+    static const int comps[2] = {1, 3};               /* identification.PHYSICAL */
+    if (!(th[1] < 0.0 || th[3] < 0.0))
+        return;
+    double C[16], best[4], best_cost = INFINITY;
+    int has_best = 0;
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++)
+            C[4 * i + j] = 0.5 * (cov[4 * i + j] + cov[4 * j + i]);
+    for (int mask = 1; mask < 4; mask++) {
+        int active[2], k = 0;
+        for (int j = 0; j < 2; j++)
+            if (mask >> j & 1)
+                active[k++] = comps[j];
+        double A[4], b[2], lam[2], t[4];
+        for (int a = 0; a < k; a++) {
+            for (int c = 0; c < k; c++)
+                A[k * a + c] = C[4 * active[a] + active[c]];
+            b[a] = th[active[a]];
+        }
+        if (rc_la_solve(A, b, k, lam))                /* minus half the KKT multipliers */
+            continue;
+        for (int i = 0; i < 4; i++) {
+            double s = C[4 * i + active[0]] * lam[0];
+            for (int j = 1; j < k; j++)
+                s += C[4 * i + active[j]] * lam[j];
+            t[i] = th[i] - s;
+        }
+        for (int a = 0; a < k; a++)
+            t[active[a]] = 0.0;
+        int refused = 0;                              /* multipliers >= 0, feasible */
+        for (int j = 0; j < k; j++)
+            refused |= lam[j] > 1e-12;
+        for (int j = 0; j < 2; j++)
+            refused |= t[comps[j]] < -1e-12;
+        if (refused)
+            continue;
+        double cost = th[active[0]] * lam[0];
+        for (int j = 1; j < k; j++)
+            cost += th[active[j]] * lam[j];
+        if (cost < best_cost) {
+            memcpy(best, t, sizeof best);
+            best_cost = cost;
+            has_best = 1;
+        }
+    }
+    if (!has_best) {                                  /* a singular cov: clip */
+        for (int j = 0; j < 2; j++)
+            if (th[comps[j]] < 0.0)
+                th[comps[j]] = 0.0;
+        return;
+    }
+    memcpy(th, best, sizeof best);
+}
+
+/* OnlineEstimator.theta for methods 0 and 2: the identifier's, projected with est.physical */
+static void reported_theta(rc_estimator *e, double *theta)
+{
+    memcpy(theta, e->ident.theta, 4 * sizeof(double));
+    if (e->physical && (theta[1] < 0.0 || theta[3] < 0.0))
+        rc_project_physical(theta, rc_ident_covariance(&e->ident));
+}
+
+/* OnlineEstimator.model_theta for methods 0 and 2: the identifier's, projected with est.physical */
+static void model_theta(rc_estimator *e, double *theta)
 {
     rc_ident_model_theta(&e->ident, theta);
+    if (e->physical && (theta[1] < 0.0 || theta[3] < 0.0))
+        rc_project_physical(theta, rc_ident_model_covariance(&e->ident));
 }
 
 /* OnlineEstimator.process_noise */
@@ -166,8 +338,12 @@ void rc_estimator_measure(rc_estimator *e, double speed_meas, double position_me
                && position_meas >= e->prev_position - 10.0 * e->filter.cfg.position_std - 1.0;
     if (used) {
         double grade = rc_grade_average(e->grade, e->prev_position, e->length);
-        rc_ident_update(&e->ident, e->force_traction, e->force_brake, e->prev_speed, speed_meas,
-                        grade, dt, e->pair_used);
+        if (e->slope)
+            slope_identify(e, e->force_traction, e->force_brake, e->prev_speed, speed_meas, grade,
+                           dt, e->pair_used);
+        else
+            rc_ident_update(&e->ident, e->force_traction, e->force_brake, e->prev_speed,
+                            speed_meas, grade, dt, e->pair_used);
     }
     e->pair_used = used;
     /* a refused distance would pick the next pair's grade: its prediction stands in */
@@ -219,8 +395,8 @@ void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double
 void rc_estimator_raw_outputs(rc_estimator *e, int predicted, double *out)
 {
     const rc_filter *f = &e->filter;
-    const double *th = e->ident.theta;   /* OnlineEstimator.theta() for method 0 */
-    double sd[4];
+    double th[4], sd[4];
+    reported_theta(e, th);
     rc_ident_stds(&e->ident, sd);
     out[0] = rc_ident_mass(&e->ident);
     out[1] = rc_ident_mass_std(&e->ident);

@@ -67,6 +67,11 @@ static void sandwich4(const double *J, const double *M, double *c)
 
 int rc_ident_init(rc_ident *id, const rc_ident_config *cfg)
 {
+    return rc_ident_init_rows(id, cfg, 0);
+}
+
+int rc_ident_init_rows(rc_ident *id, const rc_ident_config *cfg, long slope_window)
+{
     memset(id, 0, sizeof *id);
     id->cfg = *cfg;
     long nb = cfg->batch_size;
@@ -78,6 +83,24 @@ int rc_ident_init(rc_ident *id, const rc_ident_config *cfg)
         return -1;
     }
     id->end_factor = 2.0;                                  /* the paper's differenced rows */
+    id->slope_rows = slope_window != 0;
+    if (id->slope_rows) {          /* 2 sum c_j^2 of centred_slope_weights([dt] * (window - 1)) */
+        long m = slope_window - 1;
+        double *buf = calloc((size_t)(3 * m + 1), sizeof(double));
+        if (!buf) {
+            rc_ident_free(id);
+            return -1;
+        }
+        double *dts = buf, *w = buf + m, *c = buf + 2 * m + 1;
+        for (long j = 0; j < m; j++)
+            dts[j] = cfg->dt;
+        rc_centred_slope_weights(dts, m, w, c);
+        double sum = 0.0;
+        for (long j = 0; j < m; j++)
+            sum += c[j] * c[j];
+        id->end_factor = 2.0 * sum;
+        free(buf);
+    }
     id->end_weight = sqrt(0.5 * id->end_factor);
     id->theta0[0] = 1.0 / (RC_G * cfg->mass_initial);      /* theta_from_params */
     id->theta0[1] = cfg->A0_initial;
@@ -90,6 +113,9 @@ int rc_ident_init(rc_ident *id, const rc_ident_config *cfg)
     for (int i = 0; i < 4; i++)
         id->s2_prior[i] = id->s2_ref;
     id->s2_prior[0] = rc_square(id->scale) * rc_max(cfg->sigma2_initial, 1e-12);
+    if (id->slope_rows)                    /* the A's prior takes the process-noise weight too */
+        for (int i = 1; i < 4; i++)
+            id->s2_prior[i] = id->s2_prior[0];
     for (int i = 0; i < 4; i++)            /* s2p / prior_std ** 2: numpy squares by x * x */
         id->j0[i] = id->s2_prior[i] / (prior_std[i] * prior_std[i]);
     rc_ident_reset(id);
@@ -430,6 +456,51 @@ static void marginalise_mass(double *R, double lam, const double *j0)
     R[0] = j0[0];
 }
 
+static double process_share(const rc_ident *id, double a, double b);
+
+/* _reweight_prior (est.method 2, at a mass restart): the prior's weight follows the identified
+ * process noise once the LAG sums exist; J and Theta-hat move with it */
+static int reweight_prior(rc_ident *id)
+{
+    if (!(id->has_cL && id->n_cL >= RC_LAG))
+        return RC_OK;
+    double a, b, j0_new[4], d[4] = {0.0, 0.0, 0.0, 0.0};
+    rc_ident_noise_split(id, &a, &b);
+    double s2_new = rc_max(process_share(id, a, b), 1e-12);
+    for (int i = 0; i < 4; i++) {
+        double prior_var = id->s2_prior[i] / id->j0[i];  /* prior_std^2, as configured */
+        j0_new[i] = s2_new / prior_var;
+    }
+    for (int i = 1; i < 4; i++)                           /* the mass: restart_mass */
+        d[i] = j0_new[i] - id->j0[i];
+    double n = n_info(id), J[16], J_new[16], Jt[4], rhs[4];
+    int st = rc_la_inverse(id->S, 4, J) ? RC_MATH : RC_OK;
+    for (int k = 0; k < 16; k++)
+        J[k] *= n;
+    memcpy(J_new, J, sizeof J);
+    for (int i = 1; i < 4; i++)
+        J_new[5 * i] += d[i];
+    rc_la_matvec(J, id->theta, 4, Jt);
+    for (int i = 0; i < 4; i++)
+        rhs[i] = Jt[i] + d[i] * id->prior_mean[i];
+    if (rc_la_solve(J_new, rhs, 4, id->theta))
+        st = RC_MATH;
+    for (int k = 0; k < 16; k++)
+        J_new[k] /= n;
+    if (rc_la_inverse(J_new, 4, id->S))
+        st = RC_MATH;
+    if (id->has_J)
+        for (int i = 1; i < 4; i++)
+            id->J[5 * i] += d[i];
+    for (int i = 0; i < 4; i++) {
+        id->j0[i] = j0_new[i];
+        id->s2_prior[i] = s2_new;
+    }
+    id->has_cov = 0;
+    id->has_sigma2 = 0;
+    return st;
+}
+
 int rc_ident_restart_mass(rc_ident *id)
 {
     int st = RC_OK;
@@ -439,6 +510,8 @@ int rc_ident_restart_mass(rc_ident *id)
         return RC_OK;
     if (!rc_la_is_positive_definite(id->S, 4))
         st = restore_positive_definite(id);
+    if (id->slope_rows && reweight_prior(id) != RC_OK)
+        st = RC_MATH;
     if (rc_la_inverse(id->S, 4, R))
         st = RC_MATH;
     double lam = 1.0 - id->cfg.run_forgetting;
@@ -487,6 +560,10 @@ void rc_ident_model_theta(const rc_ident *id, double *out)
 
 void rc_ident_noise_split(const rc_ident *id, double *a, double *b)
 {
+    if (id->slope_rows) {          /* smoothed slopes: residuals correlated over the window */
+        configured_noise(id, a, b);
+        return;
+    }
     *a = rc_max(-id->c1, 0.0);
     *b = rc_max(id->c0 - 2.0 * *a, 1e-12 * id->c0);
 }
@@ -605,4 +682,27 @@ double rc_ident_sigma2(rc_ident *id)
 long rc_ident_samples(const rc_ident *id)
 {
     return id->has_S ? id->n : id->batch_len;
+}
+
+void rc_centred_slope_weights(const double *dts, long n, double *w, double *c)
+{
+    double t = 0.0, sum = 0.0;     /* w holds the times t, then tau, then the weights */
+    w[0] = t;
+    for (long k = 0; k < n; k++)
+        w[k + 1] = t = t + dts[k];
+    for (long k = 0; k <= n; k++)
+        sum += w[k];
+    double mean = sum / (double)(n + 1);
+    double ss = 0.0;
+    for (long k = 0; k <= n; k++) {
+        w[k] = w[k] - mean;
+        ss += w[k] * w[k];
+    }
+    for (long k = 0; k <= n; k++)
+        w[k] = w[k] / ss;
+    double tail = 0.0;
+    for (long j = n - 1; j >= 0; j--) {
+        tail += w[j + 1];
+        c[j] = dts[j] * tail;
+    }
 }

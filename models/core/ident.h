@@ -1,5 +1,7 @@
 /* ident.h -- models.estimation.identification.ParameterIdentifier for the paper's differenced rows
- * (est.method 0; the other methods' rows are not here): the first batch with its prior, the
+ * (est.method 0) and Sidorenko's centred slopes (est.method 2: the rows come from estimator.c;
+ * here their end factor, the A's prior weight, the configured noise split and the prior's
+ * reweighting at a mass restart): the first batch with its prior, the
  * running estimate before it, the recursive step (8), (9), (11) with mu = 1/n or a constant
  * forgetting mu0 (J kept), the sandwich covariance, sigma^2 from LAG sums, the mass restart at a
  * station (with est.run_forgetting) and the positive-definiteness repair. The rare paths use
@@ -16,7 +18,7 @@
 
 #define RC_LAG 50              /* ParameterIdentifier.LAG */
 
-typedef struct {               /* models.estimation.identification.IdentifierConfig (method 0) */
+typedef struct {               /* models.estimation.identification.IdentifierConfig */
     double dt;                 /* [s] */
     long batch_size;           /* >= 4 */
     double forgetting;         /* mu0 in [0, 1) */
@@ -34,6 +36,7 @@ typedef struct {               /* models.estimation.identification.ParameterIden
     rc_ident_config cfg;
     double theta0[4], scale, s2_ref, s2_prior[4], j0[4];
     double end_factor, end_weight;     /* 2 and 1 for the paper's rows */
+    int slope_rows;                    /* _slope_rows: est.method 2 */
     double theta[4], prior_mean[4];
     int has_running;  double running_theta[4];         /* _running_theta */
     double batch_info_inv[16], batch_j0[4], batch_s2p[4];   /* _batch_info_inv, _batch_prior */
@@ -60,6 +63,9 @@ typedef struct {               /* models.estimation.identification.ParameterIden
 /* ParameterIdentifier.__init__ (cfg as IdentifierConfig.validate accepts it); allocates the
  * batch buffers: 0, or -1 out of memory (nothing to free then) */
 int rc_ident_init(rc_ident *id, const rc_ident_config *cfg);
+/* rc_ident_init for est.method 2's rows, Sidorenko's slopes over slope_window (>= 2) samples
+ * (IdentifierConfig.method 2, .slope_window); slope_window 0: the paper's rows (method 0) */
+int rc_ident_init_rows(rc_ident *id, const rc_ident_config *cfg, long slope_window);
 void rc_ident_free(rc_ident *id);
 void rc_ident_reset(rc_ident *id);
 /* update(traction, brake, speed, speed_next, grade, dt, contiguous); dt == 0 means cfg.dt
@@ -80,6 +86,8 @@ double rc_ident_mass_std(rc_ident *id);
 double rc_ident_sigma2(rc_ident *id);
 void rc_ident_noise_split(const rc_ident *id, double *a, double *b);
 long rc_ident_samples(const rc_ident *id);
+/* differentiation.centred_slope_weights for the n intervals dts[n]: w[n + 1], c[n] */
+void rc_centred_slope_weights(const double *dts, long n, double *w, double *c);
 /* _quadratic4: phi^T C phi */
 double rc_ident_quadratic4(const double *c, const double *phi);
 

@@ -138,7 +138,8 @@ static rc_status start(rc_chain *c, rc_error *err)
     rc_filter_config filt = c->cfg.filter;
     filt.length = c->cfg.vehicle.length;
     if (rc_estimator_init(&c->est, &c->cfg.identifier, &filt, &c->cfg.station, &c->grade,
-                          c->speed.n ? &c->speed : NULL, c->cfg.sample_period) != 0) {
+                          c->speed.n ? &c->speed : NULL, c->cfg.sample_period,
+                          c->cfg.method == 2 ? c->cfg.slope_window : 0, c->cfg.physical) != 0) {
         if (err)
             snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
         return RC_BAD_CONFIG;
@@ -159,8 +160,10 @@ rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
                                               cfg->track_resolution, cfg->track_jitter, err);
     if (bad)
         return bad;
-    if (cfg->method != 0 || cfg->physical != 0 || cfg->sigma2_method != 0)
-        return refuse(err, "est.method, est.physical or est.sigma2_method other than 0");
+    const char *why = rc_estimator_not_covered(cfg->method, cfg->physical, cfg->sigma2_method,
+                                               cfg->slope_window);
+    if (why)
+        return refuse(err, why);
     if (rc_profiles_copy(cfg->grade_distances, cfg->grades, cfg->grade_n, cfg->speed_distances,
                          cfg->speeds, cfg->speed_n, &c->profiles, &c->grade, &c->speed) != 0) {
         if (err)

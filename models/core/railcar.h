@@ -8,10 +8,11 @@
  *   rc_chain_free(c); free(c);
  *
  * The struct points into itself (the plant at its noise stream and profiles): initialise it
- * where it stays, never copy it. Covered: filter kinds 0-4 (Singer: singer.h), est.method 0,
- * est.physical 0, est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length,
+ * where it stays, never copy it. Covered: filter kinds 0-4 (Singer: singer.h), est.method 0 and
+ * 2 (est.method 2 needs slope_window: the optional value after the flat configuration,
+ * config.c), est.physical 0, est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length,
  * odometry drift, track sensors (track_sensors.h); not covered (rc_chain_init answers
- * RC_BAD_CONFIG, the Python chain runs): est.method 1-3, est.physical 1, est.sigma2_method 1.
+ * RC_BAD_CONFIG, the Python chain runs): est.method 1 and 3, est.physical 1, est.sigma2_method 1.
  */
 #ifndef RAILCAR_RAILCAR_H
 #define RAILCAR_RAILCAR_H
@@ -34,7 +35,8 @@ typedef struct {                       /* models.chain.ChainConfig + the profile
     rc_filter_config filter;
     double track_spacing;              /* [m]: a sensor pair every spacing from a station; 0 none */
     double track_base, track_resolution, track_jitter;   /* [m], [s], [s] (TrackSensorConfig) */
-    int method, physical, sigma2_method;      /* est.*: must be 0 */
+    int method, physical, sigma2_method;      /* est.*: method 0 or 2, the others 0 */
+    long slope_window;                 /* est.slope_window, with method 2 (config.c) */
     const double *grade_distances, *grades;   /* [m], [permille] */
     long grade_n;
     const double *speed_distances, *speeds;   /* [m], [m/s]; speed_n 0: no speed profile */
@@ -72,9 +74,9 @@ typedef struct {
     double traction_force_mean, brake_force_mean;
 } rc_chain;
 
-/* The configuration from n numbers in models/compiled.py's _config_values order (the profile
- * pointers are left to the caller): 0, or the
- * number of values expected when n is not it (config.c) */
+/* The configuration from n numbers in models/compiled.py's _config_values order, optionally
+ * followed by est.slope_window (the profile pointers are left to the caller): 0, or the
+ * number of values expected when n is neither it nor one more (config.c) */
 long rc_chain_config_from_values(rc_chain_config *c, const double *values, long n);
 rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err);
 void rc_chain_free(rc_chain *c);
@@ -98,7 +100,8 @@ typedef struct {                       /* what EstimatorChain is built from */
     rc_filter_config filter;
     rc_station_config station;
     double track_base, track_resolution, track_jitter;   /* [m], [s], [s] */
-    int method, physical, sigma2_method;      /* est.*: must be 0 */
+    int method, physical, sigma2_method;      /* est.*: method 0 or 2, the others 0 */
+    long slope_window;                 /* est.slope_window, with method 2 (config.c) */
     const double *grade_distances, *grades;
     long grade_n;
     const double *speed_distances, *speeds;

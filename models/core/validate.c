@@ -90,9 +90,6 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
     if (!(physical == 0 || physical == 1))
         return refuse(err, "est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got %d",
                       physical);
-    if (native_fmu && physical != 0)
-        return refuse(err, fmt, "est.physical", physical, native_fmu, "as identified",
-                      native_fmu);
     if (slope_window < 2)
         return refuse(err, "est.slope_window must be >= 2 (a first-order fit), got %ld",
                       slope_window);

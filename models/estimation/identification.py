@@ -66,34 +66,47 @@ def project_physical(theta, cov, components=PHYSICAL) -> np.ndarray:
     nonlinear algorithms", IET Control Theory Appl. 4(8), 2010, sec. 2.3). A clipped A0 moves
     A1 and A2 along their correlation with it, so w0 over the speeds the data covered changes
     as little as the data allow. Exact: every set of active bounds is tried (at most 4 for
-    two bounds) and the feasible one whose KKT multipliers are all >= 0 kept. Returns a copy."""
-    theta = np.asarray(theta, dtype=float)
-    out = theta.copy()
+    two bounds) and the feasible one whose KKT multipliers are all >= 0 kept. Returns a copy.
+
+    Scalar arithmetic in a fixed order (the small solves by models/linalg4.py), as the rest of
+    the identification: models/core/estimator.c repeats it bit for bit."""
+    theta = [float(x) for x in theta]
     violated = [i for i in components if theta[i] < 0.0]
     if not violated:
-        return out
-    C = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+        return np.array(theta)
+    cov = np.asarray(cov, dtype=float)
+    n = len(theta)
+    C = [[0.5 * (float(cov[i, j]) + float(cov[j, i])) for j in range(n)] for i in range(n)]
     comps = list(components)
     best, best_cost = None, math.inf
     for mask in range(1, 1 << len(comps)):
         active = [comps[j] for j in range(len(comps)) if mask >> j & 1]
-        Caa = C[np.ix_(active, active)]
-        try:
-            lam = np.linalg.solve(Caa, theta[active])        # minus half the KKT multipliers
-        except np.linalg.LinAlgError:
+        k = len(active)
+        try:                                                 # minus half the KKT multipliers
+            lam = linalg4.solve([C[a][b] for a in active for b in active], [theta[a] for a in active], k)
+        except linalg4.SingularMatrixError:
             continue
-        t = theta - C[:, active] @ lam
-        t[active] = 0.0
-        if np.any(lam > 1e-12) or any(t[i] < -1e-12 for i in comps):   # multipliers >= 0, feasible
+        t = []
+        for i in range(n):
+            s = C[i][active[0]] * lam[0]
+            for j in range(1, k):
+                s += C[i][active[j]] * lam[j]
+            t.append(theta[i] - s)
+        for a in active:
+            t[a] = 0.0
+        if any(x > 1e-12 for x in lam) or any(t[i] < -1e-12 for i in comps):   # multipliers >= 0, feasible
             continue
-        cost = float(theta[active] @ lam)                   # (t - theta)^T C^-1 (t - theta)
+        cost = theta[active[0]] * lam[0]                     # (t - theta)^T C^-1 (t - theta)
+        for j in range(1, k):
+            cost += theta[active[j]] * lam[j]
         if cost < best_cost:
             best, best_cost = t, cost
     if best is None:                                         # a singular cov: clip
+        out = list(theta)
         for i in violated:
             out[i] = 0.0
-        return out
-    return best
+        return np.array(out)
+    return np.array(best)
 
 
 # ---------------------------------------------------------------- stateful wrapper
@@ -184,8 +197,7 @@ class ParameterIdentifier:
     ``regularised_forgetting``, ``accumulate_meats``; the first batch and the running estimate
     before it: ``batch_ls``; restart_mass: ``marginalise_meat``, ``marginalise_mass``; the
     covariance: ``meat``, ``sandwich``). Flat 4x4 lists inside (see the module's docstring); S,
-    W, D, covariance() give 4x4 numpy arrays. est.method 2's _reweight_prior is the one numpy
-    path (models/core has no method 2).
+    W, D, covariance() give 4x4 numpy arrays.
     """
 
     def __init__(self, cfg: IdentifierConfig):
@@ -482,16 +494,19 @@ class ParameterIdentifier:
         s2_new = max(self._process_share(a, b), 1e-12)
         prior_var = [s2 / j for s2, j in zip(self.s2_prior, self._j0)]     # prior_std^2, as configured
         j0_new = [s2_new / pv for pv in prior_var]
-        d = np.array([0.0] + [j0_new[i] - self._j0[i] for i in range(1, 4)])   # the mass: restart_mass
+        d = [0.0] + [j0_new[i] - self._j0[i] for i in range(1, 4)]   # the mass: restart_mass
+        # linalg4 (scalar, fixed order) rather than numpy's LAPACK: models/core/ident.c repeats it
         n = self._n_info()
-        J = np.linalg.inv(self.S) * n
-        theta = np.array(self._theta)
-        J_new = J + np.diag(d)
-        self._theta = [float(x) for x in np.linalg.solve(J_new, J @ theta + d * np.array(self._prior_mean))]
-        self._S = [float(x) for x in np.linalg.inv(J_new / n).ravel()]
+        J = [x * n for x in linalg4.inverse(self._S)]
+        J_new = list(J)
+        for i in range(1, 4):
+            J_new[5 * i] += d[i]
+        Jt = linalg4.matvec(J, self._theta)
+        self._theta = linalg4.solve(J_new, [Jt[i] + d[i] * self._prior_mean[i] for i in range(4)])
+        self._S = linalg4.inverse([x / n for x in J_new])
         if self._J is not None:
-            for i in range(4):
-                self._J[5 * i] += float(d[i])
+            for i in range(1, 4):
+                self._J[5 * i] += d[i]
         self._j0 = [float(x) for x in j0_new]
         self.s2_prior = [s2_new] * 4
         self.J0 = np.diag(j0_new)

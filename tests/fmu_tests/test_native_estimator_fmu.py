@@ -79,8 +79,8 @@ def test_check_fails_on_a_stale_estimator_header(tmp_path, monkeypatch, capsys):
 
 
 def test_the_flat_configuration_is_compiled_estimator_chains():
-    """native.estimator_config_values is what CompiledEstimatorChain hands the C core: caught on
-    its way to models._railcar.Estimator for random parameters."""
+    """native.estimator_config_values is what CompiledEstimatorChain hands the C core (before
+    est.slope_window): caught on its way to models._railcar.Estimator for random parameters."""
     from fmu_src.adapter import estimator_settings, track_settings
     from models import compiled
     from models.plant.track import GradeProfile
@@ -110,7 +110,9 @@ def test_the_flat_configuration_is_compiled_estimator_chains():
         ident, filt, station = estimator_settings(values)
         caught.clear()
         Capture(ident, filt, station, GradeProfile.level(), None, track_settings(values))
-        assert caught == [native.estimator_config_values(values)]
+        # the flat configuration, then est.slope_window, which the native FMU does not carry (its
+        # core refuses est.method 2; models/core/config.c)
+        assert caught == [[*native.estimator_config_values(values), values["est.slope_window"]]]
         # and each index is the parameter the generated table says
         sources, constants = native.config_sources(native.ESTIMATOR_SPEC)
         for k, s in enumerate(sources):
@@ -366,7 +368,7 @@ def test_bad_profile_file_as_python_words_it(pair, tmp_path):
         assert text_c == text_py.splitlines()[0] and str(p) in text_c
 
 
-@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.physical": 1},
+@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 2}, {"est.method": 3},
                                     {"est.sigma2_method": 1}])
 def test_an_option_only_python_runs_is_refused_naming_it(pair, option):
     status, text = _init_failure(pair["c"], option)
@@ -374,6 +376,24 @@ def test_an_option_only_python_runs_is_refused_naming_it(pair, option):
     assert status == ERROR
     assert name in text and str(value) in text and "RailCarEstimator.fmu" in text
     assert _init_failure(pair["py"], option) == (OK, "")      # Python runs it
+
+
+def test_physical_runs_natively_bit_identical(pair, railcar_runner):
+    """est.physical 1 (A0, A2 >= 0 by projection) in the native FMU: accepted, and a replay of
+    coasting_rusich_row3, where the free LS's A0 or A2 goes negative, bit for bit the pythonfmu
+    FMU's, with no negative A0, A2 reported."""
+    params, rows, times, steps = _railcar_run(railcar_runner, "coasting_rusich_row3")
+    free, _, _ = _compare(pair, params, rows, times, steps)
+    out, statuses, _ = _compare(pair, {**params, "est.physical": 1}, rows, times, steps)
+    assert statuses == [OK] * len(rows)
+    assert out != free                                     # the projection acted
+    with Slave(pair["c"], "physical") as s:
+        s.initialize({**params, "est.physical": 1})
+        in_vr = [pair["c"].vr[n] for n in INPUTS]
+        for k in range(len(rows)):
+            s.fmu.setReal(in_vr, [float(x) for x in rows[k]])
+            assert s.do_step(float(times[k]), float(steps[k])) == OK
+            assert s.get("est.A0") >= 0.0 and s.get("est.A2") >= 0.0, k
 
 
 def test_not_initialised_and_outputs_before_the_first_step(pair):

@@ -69,6 +69,13 @@ def python_state(chain: RailCarChain) -> tuple:
     return tuple(float(x) for x in values)
 
 
+def scenario_setup(path: Path, overrides: dict):
+    """(config, grade profile, speed profile) of a library scenario with ``overrides``."""
+    sc = load_scenario(path)
+    s = replace(sc, parameters={**sc.parameters, **overrides}).chain_setup()
+    return s.config, s.grade, s.speed
+
+
 def scenario_chains(path: Path, overrides: dict):
     sc = load_scenario(path)
     sc = replace(sc, parameters={**sc.parameters, **overrides})
@@ -116,6 +123,86 @@ VARIANTS = {
 def test_variant_bit_identical(name):
     path = ROOT / "scenarios" / "library" / ("station_day.toml" if "forgetting" in name else "steep_grades.toml")
     assert assert_identical(path, dict(VARIANTS[name]), max_steps=3000) > 100
+
+
+# ---------------------------------------------------------------- est.method 2 (SlopeLS)
+
+PHYSICAL = {"est.physical": 1}
+"""est.physical 1: Theta-hat reported and predicted with projected onto A0, A2 >= 0
+(identification.project_physical, models/core/estimator.c rc_project_physical)."""
+
+SLOPE_LS = {"est.method": 2}
+"""est.method 2: the LS on Sidorenko's centred slopes (models/estimation/methods.py SlopeLS,
+models/core/estimator.c slope_identify; ident.c its end factor, prior weights and reweight_prior)."""
+
+
+@pytest.mark.parametrize("path", LIBRARY, ids=[p.stem for p in LIBRARY])
+def test_library_scenario_with_slope_ls_bit_identical(path):
+    assert open_chain(*scenario_setup(path, SLOPE_LS)).engine == "c"
+    assert assert_identical(path, SLOPE_LS) > 100
+
+
+# station_day: station stops (the prior's reweighting, run forgetting), whole days
+SLOPE_VARIANTS = {
+    "forgetting": ("station_day", {"est.forgetting": 0.002}),
+    "run_forgetting": ("station_day", {"est.run_forgetting": 0.3}),
+    "shortest_window": ("station_day", {"est.slope_window": 2}),
+    "window_6_small_batch": ("station_day", {"est.slope_window": 6, "est.batch_size": 4}),
+    "long_window_noisy": ("etcs_noisy_sensors", {"est.slope_window": 25}),
+    "singer_relative_speed_noise": ("steep_grades", {"filter.kind": 4, "sensor.speed_std_rel": 0.02}),
+    "odd_steps_car_length_drift": ("steep_grades", {"solver.step": 0.1, "car.length": 60.0,
+                                                    "sensor.position_std_rel": 0.01}),
+}
+
+
+@pytest.mark.parametrize("name", SLOPE_VARIANTS)
+def test_slope_ls_variant_bit_identical(name):
+    scenario, overrides = SLOPE_VARIANTS[name]
+    path = ROOT / "scenarios" / "library" / f"{scenario}.toml"
+    assert assert_identical(path, {**SLOPE_LS, **overrides}) > 100
+
+
+def test_slope_ls_reweights_the_prior_at_stops_and_one_ulp_shows():
+    """station_day reaches SlopeLS's own paths: the prior reweighted at a stop once the LAG sums
+    exist (s2_prior no longer the configured one), identical in C; and one ulp off in an
+    estimate of the last row is a difference."""
+    path = ROOT / "scenarios" / "library" / "station_day.toml"
+    sc, py, c = scenario_chains(path, SLOPE_LS)
+    rows_py, rows_c = drive_chain(py, sc, None), drive_chain(c, sc, None)
+    ident = py.estimator.ident
+    assert ident.mass_restarts >= 3
+    assert ident.s2_prior[1] == ident.s2_prior[0] != IdentifierConfig().sigma2_initial
+    assert ident.s2_prior[0] != ident.s2_ref   # reweighted from the LAG sums
+    assert same(rows_py, rows_c)
+    for name in ("est.mass", "est.A0", "est.A2_std", "est.sigma2"):
+        assert not same(rows_py[-1], one_ulp_off(rows_c[-1], name)), name
+
+
+def test_slope_ls_without_a_window_and_other_methods_are_refused_by_name():
+    """The core runs est.method 0 and 2, est.physical 0 and 1; CompiledChain refuses the rest
+    naming exactly them, and the C core itself refuses est.method 2 without est.slope_window (a
+    host that hands it only the flat configuration, as the native FMUs do)."""
+    path = ROOT / "scenarios" / "library" / "level_run.toml"
+    for overrides in ({"est.method": 1}, {"est.method": 3}, {"est.sigma2_method": 1},
+                      {"est.method": 2, "est.physical": 1, "est.sigma2_method": 1}):
+        cfg, grade, speed = scenario_setup(path, overrides)
+        with pytest.raises(ValueError, match="^the C core does not cover est.method 1 or 3 or "
+                           "est.sigma2_method 1: use open_chain"):
+            CompiledChain(cfg, grade, speed)
+        assert open_chain(cfg, grade, speed).engine == "python"
+        assert compiled.core_not_covered(cfg.identifier) == compiled.NOT_COVERED
+    for overrides in (SLOPE_LS, PHYSICAL, {**SLOPE_LS, **PHYSICAL}):
+        cfg = scenario_setup(path, overrides)[0]
+        assert compiled.core_not_covered(cfg.identifier) is None
+        # the native FMUs: est.physical 1, not est.method 2 (no est.slope_window in their values)
+        assert compiled.not_covered(cfg) == (compiled.NATIVE_NOT_COVERED if "est.method" in overrides
+                                             else None)
+    cfg, grade, _ = scenario_setup(path, SLOPE_LS)
+    with pytest.raises(ValueError, match=r"does not cover est.method 2 without est.slope_window"):
+        compiled._railcar.Chain(compiled._config_values(compiled.validate(cfg, None, 0.0), 0.0),
+                                grade.distances, grade.grades, (), (), compiled.OUTPUT_NAMES,
+                                tuple(n in compiled.INTEGER_OUTPUTS for n in compiled.OUTPUT_NAMES),
+                                StepRejected)
 
 
 def test_start_time_and_odd_steps_bit_identical():
@@ -258,13 +345,15 @@ def with_faults(rows, seed: int):
     return [tuple(r) for r in rows]
 
 
-@pytest.mark.parametrize("kind, faulty", [(2, False), (2, True), (0, True)])
-def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty):
+@pytest.mark.parametrize("kind, faulty, method, physical", [
+    (2, False, 0, 0), (2, True, 0, 0), (0, True, 0, 0), (2, False, 2, 0), (2, True, 2, 0),
+    (0, True, 2, 0), (2, True, 0, 1), (0, True, 2, 1)])
+def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty, method, physical):
     rows = measurements(1500.0, seed=4, stops=4)
     if faulty:
         rows = with_faults(rows, seed=9)
-    args = (IdentifierConfig(mass_initial=30.0), FilterConfig(kind=kind), StationConfig(dwell=20.0),
-            GradeProfile.level())
+    args = (IdentifierConfig(mass_initial=30.0, method=method, physical=physical),
+            FilterConfig(kind=kind), StationConfig(dwell=20.0), GradeProfile.level())
     py, c = EstimatorChain(*args), CompiledEstimatorChain(*args)
     assert c.outputs() == py.outputs() == {}
     out_py, out_c = replay(py, rows), replay(c, rows)
@@ -432,14 +521,18 @@ def test_open_chain_runs_c_where_covered_and_python_elsewhere():
     assert open_chain(ChainConfig(), grade).engine == "c"
     assert open_chain(ChainConfig(track=TrackSensorConfig(spacing=200.0)), grade).engine == "c"
     assert open_chain(ChainConfig(filter=FilterConfig(kind=4)), grade).engine == "c"   # Singer
-    for cfg in (ChainConfig(identifier=IdentifierConfig(method=2)),
-                ChainConfig(identifier=IdentifierConfig(physical=1)),
+    assert open_chain(ChainConfig(identifier=IdentifierConfig(method=2)), grade).engine == "c"
+    assert open_chain(ChainConfig(identifier=IdentifierConfig(physical=1)), grade).engine == "c"
+    for cfg in (ChainConfig(identifier=IdentifierConfig(method=3)),
+                ChainConfig(identifier=IdentifierConfig(method=1, physical=1)),
                 ChainConfig(identifier=IdentifierConfig(sigma2_method=1))):
         chain = open_chain(cfg, grade)
         assert chain.engine == "python" and isinstance(chain, RailCarChain)
-    assert compiled.ENGINES["c"] == before.get("c", 0) + 3
+    assert compiled.ENGINES["c"] == before.get("c", 0) + 5
     assert compiled.ENGINES["python"] == before.get("python", 0) + 3
     assert open_estimator_chain(IdentifierConfig(), FilterConfig(), StationConfig(), grade).engine == "c"
+    assert open_estimator_chain(IdentifierConfig(method=2), FilterConfig(), StationConfig(),
+                                grade).engine == "c"
     assert open_estimator_chain(IdentifierConfig(method=1), FilterConfig(), StationConfig(),
                                 grade).engine == "python"
 
@@ -483,3 +576,68 @@ def test_reset_gives_the_first_run_again():
         chain.do_step(k * 0.1, 0.1, 30e3, 0.0, 0.0)
         again.append(chain.outputs())
     assert same(first, again)
+
+
+# ---------------------------------------------------------------- est.physical 1
+
+@pytest.mark.parametrize("method", [0, 2])
+@pytest.mark.parametrize("path", LIBRARY, ids=[p.stem for p in LIBRARY])
+def test_library_scenario_with_physical_bit_identical(path, method):
+    overrides = {**PHYSICAL, "est.method": method}
+    assert open_chain(*scenario_setup(path, overrides)).engine == "c"
+    assert assert_identical(path, overrides) > 100
+
+
+@pytest.mark.parametrize("method", [0, 2])
+def test_physical_projects_what_the_ls_left_negative_and_one_ulp_shows(method):
+    """ato_speed_noise: without est.physical an A0 or A2 goes negative at some rows; with it, none
+    does (the projection ran, in C as in Python), and one ulp off in a projected A is a
+    difference."""
+    path = ROOT / "scenarios" / "library" / "ato_speed_noise.toml"
+    sc, _, free = scenario_chains(path, {"est.method": method})
+    rows_free = drive_chain(free, sc, None)
+    negative = [k for k, r in enumerate(rows_free) if r["est.A0"] < 0.0 or r["est.A2"] < 0.0]
+    assert len(negative) > 10
+    sc, py, c = scenario_chains(path, {**PHYSICAL, "est.method": method})
+    rows_py, rows_c = drive_chain(py, sc, None), drive_chain(c, sc, None)
+    assert same(rows_py, rows_c)
+    assert all(r["est.A0"] >= 0.0 and r["est.A2"] >= 0.0 for r in rows_c)
+    moved = [k for k in negative                          # (the closed loop may end sooner)
+             if k < len(rows_c) and not same(rows_c[k]["est.A1"], rows_free[k]["est.A1"])]
+    assert moved
+    k = moved[0]
+    assert not same(rows_py[k], one_ulp_off(rows_c[k], "est.A1"))
+
+
+def test_project_physical_in_c_is_python_s_on_random_and_singular_cases(tmp_path):
+    """rc_project_physical (the core compiled as a shared library, called through ctypes) against
+    identification.project_physical on 400 seeded random cases (random correlations, signs and
+    scales) and covariances singular along A0 or A2: equal bit for bit."""
+    import ctypes
+    import shutil as _shutil
+    from models.estimation.identification import project_physical
+    lib_path = tmp_path / "core.so"
+    core = sorted(str(p) for p in (ROOT / "models" / "core").glob("*.c"))
+    proc = subprocess.run([_shutil.which("gcc"), "-std=c99", "-O2", "-ffp-contract=off", "-fPIC",
+                           "-shared", "-I", str(ROOT / "models" / "core"), *core, "-lm", "-o",
+                           str(lib_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    lib = ctypes.CDLL(str(lib_path))
+    vec4, mat4 = ctypes.c_double * 4, ctypes.c_double * 16
+    rng = np.random.default_rng(7)
+    cases = []
+    for _ in range(400):
+        L = rng.normal(size=(4, 4)) * rng.choice([1e-3, 1.0, 30.0])
+        cases.append((rng.normal(size=4) * rng.choice([0.1, 1.0, 5.0]), L @ L.T))
+    for zero in (1, 3):                                    # singular along A0 or A2
+        c = np.diag([1e-4, 2.0, 0.5, 1e-3])
+        c[zero, :] = c[:, zero] = 0.0
+        cases.append((np.array([1e-4, -1.0, 0.2, -0.01]), c))
+    projected = 0
+    for theta, cov in cases:
+        th = vec4(*theta)
+        lib.rc_project_physical(th, mat4(*cov.ravel()))
+        want = project_physical(theta, cov)
+        assert same([float(x) for x in th], [float(x) for x in want]), (theta, cov)
+        projected += theta[1] < 0.0 or theta[3] < 0.0
+    assert projected > 250

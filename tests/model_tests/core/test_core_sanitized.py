@@ -5,11 +5,14 @@ configuration, the profiles, the inputs of every step), a file out (the outputs 
 after every step). Here
 
 - it is built once with -fsanitize=address,undefined -fno-sanitize-recover=all and runs every
-  library scenario with the closed-loop inputs the Python chain (models.chain.RailCarChain) saw:
+  library scenario, with est.method 0 and 2 (the LS on Sidorenko's slopes, est.slope_window after
+  the flat configuration) and est.physical 0 and 1 (OPTIONS), with the closed-loop inputs the
+  Python chain (models.chain.RailCarChain) saw:
   exit 0, not a byte on stderr (any sanitizer report would be there), and every output of every
   step equal bit for bit to the Python chain's;
 - a one-ulp-sized change of one expression (issue 17: "a one-ulp change in one C expression must
-  fail a test") in plant.c, filter.c, ident.c, linalg4.c, estimator.c and railcar.c -- a
+  fail a test") in plant.c, filter.c, ident.c, linalg4.c, estimator.c and railcar.c (and in
+  est.method 2's and est.physical's code in estimator.c and ident.c, on such runs) -- a
   re-associated sum or one operand times (1 + 2**-52) -- makes the outputs differ from Python's,
   while the unmutated copy built the same way gives them exactly.
 """
@@ -52,11 +55,20 @@ def compile_(*args: str) -> None:
 
 # ---------------------------------------------------------------- the Python chain's runs
 
-class Run:
-    """One library scenario on the Python chain: the driver's input file and the outputs."""
+SLOPE_LS = {"est.method": 2}
+PHYSICAL = {"est.physical": 1}
+OPTIONS = {"paper_ls": {}, "slope_ls": SLOPE_LS, "physical": PHYSICAL,
+           "slope_ls_physical": {**SLOPE_LS, **PHYSICAL}}
+"""The estimator options the core runs, each over the whole library."""
 
-    def __init__(self, path: Path):
+
+class Run:
+    """One library scenario (with parameter ``overrides``) on the Python chain: the driver's
+    input file and the outputs."""
+
+    def __init__(self, path: Path, overrides: dict | None = None):
         sc = load_scenario(path)
+        sc = replace(sc, parameters={**sc.parameters, **(overrides or {})})
         setup = sc.chain_setup()
         grade, speed = setup.grade, setup.speed
         chain = RailCarChain(setup.config, grade, speed)
@@ -74,8 +86,9 @@ class Run:
         self.data = self.file_data(self.cfg)
 
     def file_data(self, cfg) -> np.ndarray:
-        """The driver's input for this configuration (tests/core_cases/chain_driver.c)."""
-        config = compiled._config_values(cfg, 0.0)
+        """The driver's input for this configuration (tests/core_cases/chain_driver.c): the flat
+        configuration and est.slope_window after it (models/core/config.c)."""
+        config = [*compiled._config_values(cfg, 0.0), cfg.identifier.slope_window]
         grade, speed, steps = self.grade, self.speed, self.steps
         sd, sv = (speed.distances, speed.speeds) if speed else ((), ())
         return np.concatenate([
@@ -83,7 +96,7 @@ class Run:
             grade.distances, grade.grades, sd, sv, steps.ravel()]).astype("<f8")
 
     def write(self, directory: Path) -> Path:
-        path = directory / f"{self.name}.in"
+        path = directory / f"{self.name}_{self.cfg.identifier.method}{self.cfg.identifier.physical}.in"
         self.data.tofile(path)
         return path
 
@@ -91,6 +104,19 @@ class Run:
 @pytest.fixture(scope="module")
 def runs() -> dict[str, Run]:
     return {p.stem: Run(p) for p in LIBRARY}
+
+
+@pytest.fixture(scope="module")
+def option_runs(runs) -> dict[str, dict[str, Run]]:
+    """The library with each of OPTIONS."""
+    return {option: runs if not overrides else {p.stem: Run(p, overrides) for p in LIBRARY}
+            for option, overrides in OPTIONS.items()}
+
+
+@pytest.fixture(scope="module")
+def slope_runs(option_runs) -> dict[str, Run]:
+    """The library with est.method 2."""
+    return option_runs["slope_ls"]
 
 
 def run_driver(exe: Path, run: Run, directory: Path, env: dict | None = None):
@@ -120,9 +146,14 @@ def sanitized_driver(tmp_path_factory) -> Path:
     return exe
 
 
+@pytest.mark.parametrize("option", OPTIONS)
 @pytest.mark.parametrize("name", [p.stem for p in LIBRARY])
-def test_library_scenario_under_sanitizers_bit_identical(name, runs, sanitized_driver, tmp_path):
-    run = runs[name]
+def test_library_scenario_under_sanitizers_bit_identical(name, option, option_runs,
+                                                         sanitized_driver, tmp_path):
+    run = option_runs[option][name]
+    ident = run.cfg.identifier
+    assert (ident.method, ident.physical) == (OPTIONS[option].get("est.method", 0),
+                                              OPTIONS[option].get("est.physical", 0))
     env = dict(os.environ, ASAN_OPTIONS="detect_leaks=1:halt_on_error=1",
                UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
     status, stderr, rows = run_driver(sanitized_driver, run, tmp_path, env)
@@ -150,8 +181,19 @@ def test_driver_reports_a_rejected_step_and_a_refused_configuration(runs, saniti
     proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "refused.out")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
-    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method"), \
+    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method 1 or 3 "
+                                  "or est.sigma2_method 1 (the Python chain runs it)"), \
         proc.stderr
+    # est.method 2 without est.slope_window after the flat configuration
+    method2 = run.file_data(replace(run.cfg, identifier=replace(run.cfg.identifier, method=2)))
+    n_config = int(method2[0])
+    np.concatenate([[n_config - 1], method2[1:4 + n_config - 1], method2[4 + n_config:]]).astype(
+        "<f8").tofile(path)
+    proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "refused.out")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("configuration refused: the C core does not cover est.method 2 "
+                                  "without est.slope_window"), proc.stderr
     path.write_bytes(run.data[:-1].tobytes())           # one value short
     proc = subprocess.run([str(sanitized_driver), str(path), str(tmp_path / "short.out")],
                           capture_output=True, text=True, timeout=60)
@@ -185,6 +227,26 @@ MUTATIONS = {
     "railcar_speed_sensor": ("railcar.c",
                              "c->sensor_speed = s->speed + (f->speed_std + f->speed_std_rel",
                              f"c->sensor_speed = s->speed + (f->speed_std * {ONE_ULP} + f->speed_std_rel"),
+}
+# est.method 2's own code, checked on est.method 2 runs of MUTATION_SCENARIOS
+SLOPE_MUTATIONS = {
+    # SlopeLS's value V_c: the window's mean speed
+    "slope_value": ("estimator.c",
+                    "double v_c = v_sum / (double)s->size;",
+                    f"double v_c = v_sum * {ONE_ULP} / (double)s->size;"),
+    # the slope's weight of interval j's force, grade (centred_slope_weights' c)
+    "slope_interval_weights": ("ident.c",
+                               "c[j] = dts[j] * tail;",
+                               f"c[j] = dts[j] * tail * {ONE_ULP};"),
+    # the prior's new information at a mass restart (reweight_prior)
+    "slope_prior_reweight": ("ident.c",
+                             "j0_new[i] = s2_new / prior_var;",
+                             f"j0_new[i] = s2_new * {ONE_ULP} / prior_var;"),
+}
+# est.physical's projection, checked on est.physical 1 runs (est.method 2: more projections)
+PHYSICAL_MUTATIONS = {
+    # the projected Theta: theta - C[:, active] lambda
+    "physical_projection": ("estimator.c", "t[i] = th[i] - s;", f"t[i] = th[i] - s * {ONE_ULP};"),
 }
 # One ulp can vanish in a scenario (the RK4 mutation leaves coasting_rusich_row1 unchanged, the
 # sensor one coasting_rusich_row2); each mutation above changes both of these.
@@ -224,18 +286,44 @@ def build_mutant(pristine: Path, directory: Path, mutation: tuple[str, str, str]
     return exe
 
 
-def test_the_unmutated_copy_gives_python_s_outputs(pristine, runs, tmp_path):
+def test_the_unmutated_copy_gives_python_s_outputs(pristine, option_runs, tmp_path):
     exe = build_mutant(pristine, tmp_path, None)
-    for name in MUTATION_SCENARIOS:
-        status, stderr, rows = run_driver(exe, runs[name], tmp_path)
+    for run in [option_runs[o][n] for o in OPTIONS for n in MUTATION_SCENARIOS]:
+        status, stderr, rows = run_driver(exe, run, tmp_path)
         assert status == 0 and stderr == "", stderr
-        assert not differences(rows, runs[name].expected), name
+        assert not differences(rows, run.expected), run.name
 
 
 @pytest.mark.parametrize("mutation", MUTATIONS)
 def test_a_one_ulp_mutation_changes_the_outputs(mutation, pristine, runs, tmp_path):
     """The mutation must fail the comparison (in at least one of the scenarios)."""
     exe = build_mutant(pristine, tmp_path, MUTATIONS[mutation])
+    changed = {}
+    for name in MUTATION_SCENARIOS:
+        status, stderr, rows = run_driver(exe, runs[name], tmp_path)
+        assert status == 0 and stderr == "", stderr
+        changed[name] = len(differences(rows, runs[name].expected))
+    assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
+
+
+@pytest.mark.parametrize("mutation", SLOPE_MUTATIONS)
+def test_a_one_ulp_mutation_of_slope_ls_changes_the_outputs(mutation, pristine, slope_runs, tmp_path):
+    """est.method 2's code: the mutation must fail the comparison on an est.method 2 run."""
+    exe = build_mutant(pristine, tmp_path, SLOPE_MUTATIONS[mutation])
+    changed = {}
+    for name in MUTATION_SCENARIOS:
+        status, stderr, rows = run_driver(exe, slope_runs[name], tmp_path)
+        assert status == 0 and stderr == "", stderr
+        changed[name] = len(differences(rows, slope_runs[name].expected))
+    assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
+
+
+@pytest.mark.parametrize("mutation", PHYSICAL_MUTATIONS)
+def test_a_one_ulp_mutation_of_the_projection_changes_the_outputs(mutation, pristine, option_runs,
+                                                                  tmp_path):
+    """est.physical's code: the mutation must fail the comparison on an est.physical 1 run."""
+    exe = build_mutant(pristine, tmp_path, PHYSICAL_MUTATIONS[mutation])
+    runs = option_runs["slope_ls_physical"]
     changed = {}
     for name in MUTATION_SCENARIOS:
         status, stderr, rows = run_driver(exe, runs[name], tmp_path)

@@ -351,7 +351,7 @@ def test_the_fields_the_chain_sets_itself_are_not_read(lib):
 
 UNCOVERED = [
     ("est.method", 1, "the paper's LS"), ("est.method", 2, "the paper's LS"),
-    ("est.method", 3, "the paper's LS"), ("est.physical", 1, "as identified"),
+    ("est.method", 3, "the paper's LS"),
     ("est.sigma2_method", 1, "LAG sums of the LS residuals"),
 ]
 
@@ -369,6 +369,14 @@ def test_uncovered_options_name_the_fmu_that_runs_them(lib, name, value, only):
     assert c_estimator(lib, ve, None) == (
         2, f"{name} = {value} is not in the native RailCarEstimator FMU (only 0, {only}): use "
            f"RailCarEstimator.fmu (pythonfmu) for it")
+
+
+def test_physical_is_in_the_native_fmus(lib):
+    """est.physical 1 runs in the core, and the native FMUs' validation lets it through."""
+    v = {**CHAIN_DEFAULTS, "est.physical": 1}
+    assert c_chain(lib, v, None, 0.0) == (0, "") and python_chain(v, None, 0.0) is None
+    assert compiled.not_covered(chain_config(v)) is None
+    assert c_estimator(lib, {**EST_DEFAULTS, "est.physical": 1}, None) == (0, "")
 
 
 def test_uncovered_options_are_refused_where_python_checks_them(lib):
