@@ -211,7 +211,7 @@ void rc_project_physical(double *th, const double *cov)
         for (int j = 0; j < 4; j++)
             C[4 * i + j] = 0.5 * (cov[4 * i + j] + cov[4 * j + i]);
     for (int mask = 1; mask < 4; mask++) {
-        int active[2], k = 0;
+        int active[2] = {0, 0}, k = 0;            /* mask >= 1: k >= 1 (for -Wmaybe-uninitialized) */
         for (int j = 0; j < 2; j++)
             if (mask >> j & 1)
                 active[k++] = comps[j];
