@@ -9,8 +9,9 @@ Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs 
 The C core covers filter kinds 0-4 (the Singer filter included), est.method 0 and 2 (the LS on
 Sidorenko's slopes: est.slope_window follows the flat configuration, models/core/config.c),
 est.physical 0 and 1, est.sigma2_method 0, any forgetting, car length, odometry drift and track
-sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs do not run est.method 2
-yet (estimator_not_covered, the rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
+sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs run the same options
+(they hand the core est.slope_window after their flat configuration; estimator_not_covered is the
+rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
 runs Python always (and a machine without a C compiler installs without the core and does the
 same).
 """
@@ -62,10 +63,6 @@ def enabled() -> bool:
 
 NOT_COVERED = "est.method 1 or 3 or est.sigma2_method 1"
 """The estimator options the C core does not run (models/core/estimator.h RC_NOT_COVERED)."""
-NATIVE_NOT_COVERED = ("est.method 1, 2 or 3 or est.sigma2_method 1 (est.method 2 runs in the C "
-                      "core, but the native FMUs do not hand it est.slope_window yet)")
-"""The estimator options the native FMUs refuse (models/core/validate.c): the core's, and est.method
-2, whose est.slope_window their flat configuration does not carry."""
 
 
 def core_not_covered(identifier: IdentifierConfig) -> str | None:
@@ -77,10 +74,9 @@ def core_not_covered(identifier: IdentifierConfig) -> str | None:
 
 
 def estimator_not_covered(identifier: IdentifierConfig, filt: FilterConfig) -> str | None:
-    """Why the native FMUs do not run this estimator (NATIVE_NOT_COVERED), or None when they do."""
-    if core_not_covered(identifier) or identifier.method == 2:
-        return NATIVE_NOT_COVERED
-    return None
+    """Why the native FMUs do not run this estimator, or None when they do: the C core's rule
+    (core_not_covered; models/core/validate.c refuses the same options in a native FMU)."""
+    return core_not_covered(identifier)
 
 
 def not_covered(cfg: ChainConfig) -> str | None:

@@ -287,7 +287,8 @@ static void *new_chain(GlueInstance *g, native_values *v, const native_chain_kin
 
 void *native_build_chain(GlueInstance *g, native_values *v, const native_chain_kind *kind,
                          double *outputs) {
-    double *values = malloc((size_t)v->md->nconfig * sizeof *values);
+    /* the flat configuration, then est.slope_window (models/core/config.c's optional value) */
+    double *values = malloc((size_t)(v->md->nconfig + 1) * sizeof *values);
     void *cfg = calloc(1, kind->config_size);
     void *chain = NULL;
     long expected;
@@ -295,7 +296,8 @@ void *native_build_chain(GlueInstance *g, native_values *v, const native_chain_k
         log_init_failure(g, "out of memory");
     } else {
         native_config_values(v, values);
-        expected = kind->config_from_values(cfg, values, v->md->nconfig);
+        values[v->md->nconfig] = (double)v->integer[kind->vr_slope_window];
+        expected = kind->config_from_values(cfg, values, v->md->nconfig + 1);
         if (expected != 0)
             glue_log(g, fmi2Error, "logStatusError", "%sExitInitializationMode: the C core "
                      "expects %ld configuration values, this FMU has %d (rebuild it)",

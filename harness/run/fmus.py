@@ -3,9 +3,9 @@
 Two kinds of FMU run the same model (docs/using_fmus.md): the pythonfmu FMUs ``DIST/RailCar.fmu``,
 ``DIST/RailCarEstimator.fmu`` (every option) and the native ones ``DIST/native/RailCarNative.fmu``,
 ``DIST/native/RailCarEstimatorNative.fmu`` (the C core: bit-identical outputs, no Python, but
-``est.method`` 1-3, ``est.physical`` 1 and ``est.sigma2_method`` 1 are refused at initialisation).
+``est.method`` 1 and 3 and ``est.sigma2_method`` 1 are refused at initialisation).
 ``--fmu`` picks one (``choose``): ``python``, ``native``, or ``auto`` (the default): the native FMU
-when the C core covers every parameter set the command will run, else the pythonfmu FMU. The
+when it covers every parameter set the command will run, else the pythonfmu FMU. The
 choice is always printed (``FmuChoice.line``) and recorded in what the command writes.
 """
 from __future__ import annotations
@@ -50,12 +50,13 @@ def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False,
 
 # ------------------------------------------------------------------------------ which kind runs
 
-UNCOVERED_OPTIONS = ("est.method", "est.physical", "est.sigma2_method")
+COVERED_VALUES = {"est.method": (0, 2), "est.sigma2_method": (0,)}
+"""The values of the estimator options the native FMUs run (models.compiled.NOT_COVERED names the
+rest): a refusal names the options set outside them."""
 
 
 def uncovered(model: str, parameters: dict) -> str | None:
-    """Why the native ``model`` FMU would refuse these parameter values (None: the C core covers
-    them). Decided by models.compiled (not_covered), the rule the C core is built to; the reason
+    """Why the native ``model`` FMU would refuse these parameter values (None: it runs them). Decided by models.compiled (not_covered), the rule the C core is built to; the reason
     names the parameters and values. Unset parameters take the FMU's start values."""
     from fmu_src.adapter import chain_config, estimator_settings
     from fmu_src.variables import RAILCAR, variables_for
@@ -68,7 +69,7 @@ def uncovered(model: str, parameters: dict) -> str | None:
         return None               # a bad value: either FMU refuses it at initialisation, with one message
     if why is None:
         return None
-    named = [f"{n} = {v[n]}" for n in UNCOVERED_OPTIONS if n in v and v[n] != 0]
+    named = [f"{n} = {v[n]}" for n, ok in COVERED_VALUES.items() if n in v and v[n] not in ok]
     return ", ".join(named) or why
 
 
@@ -90,8 +91,8 @@ class FmuChoice:
 
 def choose(asked: str, model: str, dist: Path, parameter_sets) -> FmuChoice:
     """The FMU of ``model`` to run for ``parameter_sets`` ((label, parameters) pairs: a scenario,
-    or every run of a sweep). ``auto``: the native FMU unless one set is not covered by the C
-    core or the native FMU is missing (then the pythonfmu FMU, saying why). ``native`` runs the
+    or every run of a sweep). ``auto``: the native FMU unless one set is not covered by it
+    (``uncovered``) or the native FMU is missing (then the pythonfmu FMU, saying why). ``native`` runs the
     native FMU even so: it refuses an uncovered option at initialisation, naming it."""
     if asked not in KINDS:
         raise InputError(f"--fmu {asked}: expected one of {', '.join(KINDS)}")
@@ -108,7 +109,7 @@ def choose(asked: str, model: str, dist: Path, parameter_sets) -> FmuChoice:
         return FmuChoice("native", native, asked, "as asked" + (
             f"; it refuses {gap[1]} ({gap[0]}) at initialisation" if gap else ""))
     if gap is not None:
-        return FmuChoice("python", python, asked, f"{gap[0]} sets {gap[1]}, which the C core does not cover")
+        return FmuChoice("python", python, asked, f"{gap[0]} sets {gap[1]}, which the native FMU does not cover")
     if not native.is_file():
         return FmuChoice("python", python, asked, f"no native FMU: {native} is missing (build.py builds it "
                          f"with a C compiler on linux x86-64)")

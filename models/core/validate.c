@@ -79,8 +79,9 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
         return refuse(err, "est.method must be 0 (paper LS), 1 (LS + filter-error refit), "
                            "2 (LS on Sidorenko's slopes), 3 (LS mass + Meleshin's coasting EKF), "
                            "got %d", method);
-    if (native_fmu && method != 0)
-        return refuse(err, fmt, "est.method", method, native_fmu, "the paper's LS", native_fmu);
+    if (native_fmu && method != 0 && method != 2)
+        return refuse(err, fmt, "est.method", method, native_fmu,
+                      "the paper's LS, or 2, LS on Sidorenko's slopes", native_fmu);
     if (!(sigma2_method == 0 || sigma2_method == 1))
         return refuse(err, "est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
                            "(innovation likelihood), got %d", sigma2_method);

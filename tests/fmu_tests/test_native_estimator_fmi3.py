@@ -164,6 +164,28 @@ def test_replay_of_a_railcar_run_bit_identical_to_fmi2(pair, railcar_runner, ste
     assert out[-1] != out[1]                     # the estimate moved
 
 
+@pytest.mark.parametrize("stem,option", [
+    ("station_day", {"est.method": 2}),
+    ("station_day", {"est.method": 2, "est.slope_window": 6}),
+    ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+])
+def test_slope_ls_bit_identical_to_fmi2(pair, railcar_runner, stem, option):  # noqa: F811
+    """est.method 2 (LS on Sidorenko's slopes; the default window, a non-default one, and with
+    est.physical 1): FMI 3 == FMI 2 (itself == pythonfmu, test_native_estimator_fmu.py)."""
+    params, rows, times, steps = est2._railcar_run(railcar_runner, stem)
+    out, statuses, _ = _compare(pair, {**params, **option}, rows, times, steps)
+    assert statuses == [OK] * len(rows) and out[-1] != out[1]
+
+
+def test_slope_window_reaches_the_fmi3_core(pair, railcar_runner):  # noqa: F811
+    """The control for the comparison above: est.slope_window 6 and 10 give different outputs
+    in the FMI 3 FMU."""
+    params, rows, times, steps = est2._railcar_run(railcar_runner, "station_day")
+    a, b = (est2._drive(pair["c3"], {**params, "est.method": 2, "est.slope_window": w}, rows,
+                        times, steps)[0] for w in (6, 10))
+    assert a != b
+
+
 def test_relative_speed_noise_bit_identical_to_fmi2(pair, railcar_runner):  # noqa: F811
     """sensor.speed_std_rel 2 % in the run and in the estimator (Singer filter): FMI 3 == FMI 2."""
     extra = {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01}
@@ -229,6 +251,7 @@ def test_bad_input_is_discarded_with_the_message(pair, column, value, named):
     ({"sensor.speed_std_rel": -1.0}, "sensor.speed_std_rel"),
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
     ({"est.method": 1}, "est.method"),
+    ({"est.method": 3}, "est.method"),
 ])
 def test_bad_parameter_fails_initialisation_with_the_message(pair, parameters, named):
     status2, text2 = est2._init_failure(pair["c2"], parameters)

@@ -110,8 +110,8 @@ def test_the_flat_configuration_is_compiled_estimator_chains():
         ident, filt, station = estimator_settings(values)
         caught.clear()
         Capture(ident, filt, station, GradeProfile.level(), None, track_settings(values))
-        # the flat configuration, then est.slope_window, which the native FMU does not carry (its
-        # core refuses est.method 2; models/core/config.c)
+        # the flat configuration, then est.slope_window (models/core/config.c's optional value,
+        # which the native FMU appends the same way: fmu_src/c/native_common.c)
         assert caught == [[*native.estimator_config_values(values), values["est.slope_window"]]]
         # and each index is the parameter the generated table says
         sources, constants = native.config_sources(native.ESTIMATOR_SPEC)
@@ -368,7 +368,7 @@ def test_bad_profile_file_as_python_words_it(pair, tmp_path):
         assert text_c == text_py.splitlines()[0] and str(p) in text_c
 
 
-@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 2}, {"est.method": 3},
+@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3},
                                     {"est.sigma2_method": 1}])
 def test_an_option_only_python_runs_is_refused_naming_it(pair, option):
     status, text = _init_failure(pair["c"], option)
@@ -394,6 +394,30 @@ def test_physical_runs_natively_bit_identical(pair, railcar_runner):
             s.fmu.setReal(in_vr, [float(x) for x in rows[k]])
             assert s.do_step(float(times[k]), float(steps[k])) == OK
             assert s.get("est.A0") >= 0.0 and s.get("est.A2") >= 0.0, k
+
+
+@pytest.mark.parametrize("stem,option", [
+    ("station_day", {"est.method": 2}),
+    ("station_day", {"est.method": 2, "est.slope_window": 6}),
+    ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+])
+def test_slope_ls_runs_natively_bit_identical(pair, railcar_runner, stem, option):
+    """est.method 2 (LS on Sidorenko's slopes; the default window, a non-default one, and with
+    est.physical 1) in the native FMU: a replay bit for bit the pythonfmu FMU's."""
+    params, rows, times, steps = _railcar_run(railcar_runner, stem)
+    _, statuses, _ = _compare(pair, {**params, **option}, rows, times, steps)
+    assert statuses == [OK] * len(rows)
+
+
+def test_slope_window_reaches_the_native_core(pair, railcar_runner):
+    """The control for the comparison above: the native FMU's outputs with est.slope_window 6
+    and 10 differ (the parameter is what the core uses), and est.method 2's differ from 0's."""
+    params, rows, times, steps = _railcar_run(railcar_runner, "station_day")
+    out = {key: _drive(pair["c"], {**params, **option}, rows, times, steps)[0]
+           for key, option in (("m0", {"est.method": 0}),
+                               ("w10", {"est.method": 2, "est.slope_window": 10}),
+                               ("w6", {"est.method": 2, "est.slope_window": 6}))}
+    assert out["w6"] != out["w10"] and out["w10"] != out["m0"]
 
 
 def test_not_initialised_and_outputs_before_the_first_step(pair):

@@ -10,6 +10,7 @@ import math
 import shutil
 import subprocess
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
@@ -223,6 +224,42 @@ def test_scenario_bit_identical_to_the_fmi2_fmus(runners, name):
                                     f"{a.signals[sig][diff[0]]!r} vs {b.signals[sig][diff[0]]!r}")
         assert not_debug(a.log) == not_debug(b.log)
     assert len(a.time) > 100
+
+
+SLOPE_LS_CASES = [
+    ("ato_speed_noise", {"est.method": 2}),
+    ("ato_speed_noise", {"est.method": 2, "est.slope_window": 6}),
+    ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+]
+"""est.method 2 (LS on Sidorenko's slopes): the default window, a non-default one (it must reach
+the core, after the flat configuration) and with est.physical 1's projection."""
+
+
+@pytest.mark.parametrize("name,option", SLOPE_LS_CASES)
+def test_slope_ls_bit_identical_to_the_fmi2_fmus(runners, name, option):
+    """est.method 2 in the FMI 3 FMU: every output bit for bit the native FMI 2 FMU's and the
+    pythonfmu FMU's."""
+    py, c2, c3 = runners
+    scenario = load_scenario(ROOT / "scenarios" / "library" / f"{name}.toml")
+    scenario = replace(scenario, parameters={**scenario.parameters, **option})
+    a = c3.run(scenario)
+    for b in (c2.run(scenario), py.run(scenario)):
+        assert np.array_equal(bits(a.time), bits(b.time))
+        for sig in a.signals:
+            diff = np.flatnonzero(bits(a.signals[sig]) != bits(b.signals[sig]))
+            assert diff.size == 0, f"{name} {option}: {sig} differs first at row {diff[0]}"
+    assert np.isfinite(a.signals["est.mass"]).any()
+
+
+def test_slope_window_reaches_the_fmi3_core(runners):
+    """The control for the comparison above: est.slope_window 6 and 10 give different
+    estimates in the FMI 3 FMU."""
+    _, _, c3 = runners
+    scenario = load_scenario(ROOT / "scenarios" / "library" / "ato_speed_noise.toml")
+    mass = [c3.run(replace(scenario, parameters={**scenario.parameters, "est.method": 2,
+                                                 "est.slope_window": w})).signals["est.mass"]
+            for w in (6, 10)]
+    assert not np.array_equal(bits(mass[0]), bits(mass[1]))
 
 
 def _drive(runner, parameters: dict, inputs, times, step: float = 0.1):

@@ -269,10 +269,10 @@ def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, na
     assert text_c == text_py.splitlines()[0]
 
 
-@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 2},
+@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3},
                                     {"est.sigma2_method": 1}])
 def test_an_option_only_python_runs_is_refused_naming_it(pair, option):
-    """est.method 2 runs in the C core, but the native FMU does not hand it est.slope_window."""
+    """The options the C core does not run (models/compiled.py NOT_COVERED)."""
     status, text = _init_failure(pair["c"], option)
     (name, value), = option.items()
     assert status == ERROR
@@ -294,6 +294,49 @@ def test_physical_runs_natively_bit_identical(runners, stem):
         diff = np.flatnonzero(bits(a.signals[name]) != bits(b.signals[name]))
         assert diff.size == 0, f"{stem}: {name} differs first at row {diff[0]}"
     assert np.all(b.signals["est.A0"] >= 0.0) and np.all(b.signals["est.A2"] >= 0.0)
+
+
+def assert_runs_bit_identical(a, b, case: str) -> None:
+    """Every output of run b bit for bit run a's, naming the first that differs."""
+    assert np.array_equal(bits(a.time), bits(b.time)), case
+    for name in a.signals:
+        diff = np.flatnonzero(bits(a.signals[name]) != bits(b.signals[name]))
+        assert diff.size == 0, f"{case}: {name} differs first at row {diff[0]}"
+
+
+SLOPE_LS_CASES = [
+    ("ato_speed_noise", {"est.method": 2}),
+    ("ato_speed_noise", {"est.method": 2, "est.slope_window": 6}),
+    ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+]
+"""est.method 2 (LS on Sidorenko's slopes): the default window, a non-default one (it must reach
+the core, after the flat configuration) and with est.physical 1's projection."""
+
+
+@pytest.mark.parametrize("stem,option", SLOPE_LS_CASES)
+def test_slope_ls_runs_natively_bit_identical(runners, stem, option):
+    """est.method 2 in the native FMU: every output bit for bit the pythonfmu FMU's."""
+    py, c = runners
+    scenario = load_scenario(ROOT / "scenarios" / "library" / f"{stem}.toml")
+    scenario = replace(scenario, parameters={**scenario.parameters, **option})
+    b = c.run(scenario)
+    assert_runs_bit_identical(py.run(scenario), b, f"{stem} {option}")
+    assert np.isfinite(b.signals["est.mass"]).any()              # the estimator did estimate
+    if option.get("est.physical"):
+        assert np.all(b.signals["est.A0"] >= 0.0) and np.all(b.signals["est.A2"] >= 0.0)
+
+
+def test_slope_window_reaches_the_native_core(runners):
+    """The control for the comparison above: est.slope_window 6 and 10 give different estimates
+    (so the FMU's parameter is what the core uses), and est.method 2 differs from 0."""
+    _, c = runners
+    scenario = load_scenario(ROOT / "scenarios" / "library" / "ato_speed_noise.toml")
+    runs = {}
+    for key, option in (("m0", {}), ("w10", {"est.method": 2, "est.slope_window": 10}),
+                        ("w6", {"est.method": 2, "est.slope_window": 6})):
+        runs[key] = c.run(replace(scenario, parameters={**scenario.parameters, **option})).signals
+    for a, b in (("w10", "w6"), ("m0", "w10")):
+        assert not np.array_equal(bits(runs[a]["est.mass"]), bits(runs[b]["est.mass"])), (a, b)
 
 
 def test_innovation_gate_warning_as_python_logs_it(pair):

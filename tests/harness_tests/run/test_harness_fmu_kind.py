@@ -3,11 +3,12 @@
 - run, regress, report, filters, replay and sweep each run with each kind; the choice is printed
   ("fmu: native|python PATH ...") and recorded (summary.md, library.md, the replay's text, the
   sweep's ``fmu`` column and summary);
-- ``auto`` picks the native FMU when the C core covers the parameters and the pythonfmu FMU for
-  ``est.method`` 2 (run, replay, a sweep with one such run, a library scenario);
+- ``auto`` picks the native FMU when it covers the parameters (est.method 2 and est.physical 1
+  included) and the pythonfmu FMU for ``est.method`` 3 (run, replay, a sweep with one such run)
+  or 1 (a library scenario);
 - the outputs of both kinds are bit-identical on a covered scenario (result CSV, replay
   estimates, sweep rows, library and filter tables); a one-ulp change is seen by the comparison;
-- ``native`` with ``est.method`` 2 fails initialisation with a message naming est.method;
+- ``native`` with ``est.method`` 3 fails initialisation with a message naming est.method;
 - ensure_built rebuilds a stale native FMU (and not for ``--fmu python``); without a native FMU
   that cannot be built, auto falls back to the pythonfmu FMU and ``native`` says why;
 - a sweep worker loads a native FMU rebuilt at the same path (the pythonfmu one refuses).
@@ -123,21 +124,37 @@ def test_the_bit_comparison_sees_one_ulp(runs):
         assert_same_bits(a, b.view(np.uint64))
 
 
-def test_run_auto_takes_python_for_est_method_2_and_native_refuses_it_by_name(dist, paths, tmp_path, capsys):
-    scenario = short_scenario(tmp_path, '"est.method" = 2\n')
+def test_run_auto_takes_python_for_est_method_3_and_native_refuses_it_by_name(dist, paths, tmp_path, capsys):
+    scenario = short_scenario(tmp_path, '"est.method" = 3\n')
     assert main(["run", str(scenario), "--out", str(tmp_path / "auto"), "--dist", str(dist)]) == 0   # default: auto
     out = capsys.readouterr().out
-    assert fmu_lines(out) == [f"fmu: python {paths['python']} (--fmu auto: {scenario} sets est.method = 2, "
-                              f"which the C core does not cover)"], out
+    assert fmu_lines(out) == [f"fmu: python {paths['python']} (--fmu auto: {scenario} sets est.method = 3, "
+                              f"which the native FMU does not cover)"], out
     assert f"FMU: python {paths['python'].name} (--fmu auto: " in (tmp_path / "auto" / "summary.md").read_text(encoding="utf-8")
     assert main(["run", str(scenario), "--out", str(tmp_path / "native"), "--dist", str(dist), "--fmu", "native"]) == 2
     cap = capsys.readouterr()
     assert fmu_lines(cap.out)[0].startswith(f"fmu: native {paths['native']} (--fmu native: as asked; it refuses "
-                                            f"est.method = 2")
+                                            f"est.method = 3")
     err = cap.err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {scenario}: parameters: the FMU refused to initialise: "
-                                               f"est.method = 2 is not in the native RailCar FMU"), err
+                                               f"est.method = 3 is not in the native RailCar FMU"), err
     assert err[0].endswith("(--fmu auto or --fmu python runs it on the pythonfmu FMU)"), err
+
+
+@pytest.mark.parametrize("model", ["RailCar", "RailCarEstimator"])
+def test_auto_takes_native_for_slope_ls_and_names_only_what_it_lacks(dist, paths, model):
+    """est.method 2 (any est.slope_window) and est.physical 1 run on the native FMU; a refusal
+    names the options the native FMU lacks, not est.physical beside them."""
+    from harness.run.fmus import choose, uncovered
+    native = paths["native" if model == "RailCar" else "est_native"]
+    for params in ({"est.method": 2}, {"est.method": 2, "est.slope_window": 6, "est.physical": 1}):
+        assert uncovered(model, params) is None
+        choice = choose("auto", model, dist, [("s", params)])
+        assert (choice.kind, choice.path) == ("native", native), choice
+    assert uncovered(model, {"est.method": 3, "est.physical": 1}) == "est.method = 3"
+    assert uncovered(model, {"est.method": 2, "est.sigma2_method": 1}) == "est.sigma2_method = 1"
+    choice = choose("auto", model, dist, [("a", {"est.method": 2}), ("b", {"est.method": 1})])
+    assert choice.kind == "python" and choice.why == "b sets est.method = 1, which the native FMU does not cover"
 
 
 # ------------------------------------------------------------------------------ replay
@@ -154,15 +171,15 @@ def test_replay_with_each_kind(runs, dist, paths, tmp_path, capsys):
     assert est["python"].shape[0] == 601
     assert_same_bits(est["native"], est["python"])
     assert_same_bits(est["auto"], est["native"])
-    # est.method 2: auto runs the pythonfmu RailCarEstimator, native refuses it by name
-    assert main(["replay", str(log), "--out", str(tmp_path / "m2"), "--dist", str(dist), "--param", "est.method=2"]) == 0
+    # est.method 3: auto runs the pythonfmu RailCarEstimator, native refuses it by name
+    assert main(["replay", str(log), "--out", str(tmp_path / "m2"), "--dist", str(dist), "--param", "est.method=3"]) == 0
     out = capsys.readouterr().out
-    assert fmu_lines(out) == [f"fmu: python {paths['est_python']} (--fmu auto: --param sets est.method = 2, which the "
-                              f"C core does not cover)"]
-    assert main(["replay", str(log), "--out", str(tmp_path / "n2"), "--dist", str(dist), "--param", "est.method=2",
+    assert fmu_lines(out) == [f"fmu: python {paths['est_python']} (--fmu auto: --param sets est.method = 3, which the "
+                              f"native FMU does not cover)"]
+    assert main(["replay", str(log), "--out", str(tmp_path / "n2"), "--dist", str(dist), "--param", "est.method=3",
                  "--fmu", "native"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "error: --param: the FMU refused to initialise: est.method = 2 is not in the native " \
+    assert len(err) == 1 and "error: --param: the FMU refused to initialise: est.method = 3 is not in the native " \
                              "RailCarEstimator FMU" in err[0], err
 
 
@@ -204,7 +221,7 @@ def test_auto_decides_per_library_scenario(dist, paths, capsys):
     lines = fmu_lines(capsys.readouterr().out)
     assert lines[0].startswith(f"fmu: native {paths['native']} for level_run, steep_grades (--fmu auto: ")
     assert lines[1] == (f"fmu: python {paths['python']} for steep_m1 (--fmu auto: {steep.path} sets "
-                        f"est.method = 1, which the C core does not cover)")
+                        f"est.method = 1, which the native FMU does not cover)")
 
 
 # ------------------------------------------------------------------------------ sweeps
@@ -252,11 +269,11 @@ def test_sweep_with_each_kind(dist, paths, scheduler, tmp_path, capsys):
 def test_sweep_auto_takes_python_when_one_run_needs_it_and_native_fails_those_runs(dist, paths, scheduler, tmp_path,
                                                                                     capsys):
     from harness.sweep.main import read_results
-    sw = sweep_file(tmp_path, "[grid]\n\"est.method\" = [0, 2]\n", "m.toml")
+    sw = sweep_file(tmp_path, "[grid]\n\"est.method\" = [0, 3]\n", "m.toml")
     assert main(["sweep", str(sw), "--out", str(tmp_path / "auto"), "--dist", str(dist), "--scheduler", scheduler,
                  "--no-plots"]) == 0
     assert fmu_lines(capsys.readouterr().out) == [f"fmu: python {paths['python']} (--fmu auto: run 1 sets "
-                                                  f"est.method = 2, which the C core does not cover)"]
+                                                  f"est.method = 3, which the native FMU does not cover)"]
     auto = read_results(tmp_path / "auto")
     assert [(r["status"], r["fmu"]) for r in auto.rows] == [("ok", "python")] * 2
     assert main(["sweep", str(sw), "--out", str(tmp_path / "native"), "--dist", str(dist), "--scheduler", scheduler,
@@ -264,7 +281,7 @@ def test_sweep_auto_takes_python_when_one_run_needs_it_and_native_fails_those_ru
     capsys.readouterr()
     rows = read_results(tmp_path / "native").rows
     assert [(r["status"], r["fmu"]) for r in rows] == [("ok", "native"), ("failed", "native")]
-    assert "est.method = 2 is not in the native RailCar FMU" in rows[1]["error"]
+    assert "est.method = 3 is not in the native RailCar FMU" in rows[1]["error"]
     keep = ("wall_time", "fmu")
     assert read_results(tmp_path / "native").comparable(keep)[0] == auto.comparable(keep)[0]   # est.method 0
     # --resume on the other kind is refused, naming both

@@ -349,9 +349,11 @@ def test_the_fields_the_chain_sets_itself_are_not_read(lib):
 
 # ------------------------------------------------------------------ options the core lacks
 
+NATIVE_METHODS = "the paper's LS, or 2, LS on Sidorenko's slopes"
+"""What the native FMUs' refusal of est.method lists after "only 0, " (validate.c)."""
+
 UNCOVERED = [
-    ("est.method", 1, "the paper's LS"), ("est.method", 2, "the paper's LS"),
-    ("est.method", 3, "the paper's LS"),
+    ("est.method", 1, NATIVE_METHODS), ("est.method", 3, NATIVE_METHODS),
     ("est.sigma2_method", 1, "LAG sums of the LS residuals"),
 ]
 
@@ -371,18 +373,34 @@ def test_uncovered_options_name_the_fmu_that_runs_them(lib, name, value, only):
            f"RailCarEstimator.fmu (pythonfmu) for it")
 
 
-def test_physical_is_in_the_native_fmus(lib):
-    """est.physical 1 runs in the core, and the native FMUs' validation lets it through."""
-    v = {**CHAIN_DEFAULTS, "est.physical": 1}
+@pytest.mark.parametrize("option", [{"est.physical": 1}, {"est.method": 2},
+                                    {"est.method": 2, "est.slope_window": 6},
+                                    {"est.method": 2, "est.physical": 1}])
+def test_physical_and_slope_ls_are_in_the_native_fmus(lib, option):
+    """est.physical 1 and est.method 2 run in the core, and the native FMUs' validation lets
+    them through."""
+    v = {**CHAIN_DEFAULTS, **option}
     assert c_chain(lib, v, None, 0.0) == (0, "") and python_chain(v, None, 0.0) is None
     assert compiled.not_covered(chain_config(v)) is None
-    assert c_estimator(lib, {**EST_DEFAULTS, "est.physical": 1}, None) == (0, "")
+    ve = {**EST_DEFAULTS, **option}
+    assert c_estimator(lib, ve, None) == (0, "") and python_estimator(ve, None) is None
+
+
+def test_slope_ls_with_a_bad_window_is_refused_as_python_words_it(lib):
+    """est.method 2 now passes the native refusal, so est.slope_window's own check speaks."""
+    v = {**CHAIN_DEFAULTS, "est.method": 2, "est.slope_window": 1}
+    st, c = c_chain(lib, v, None, 0.0)
+    assert_same_message(python_chain(v, None, 0.0), st, c, "slope_window 1")
+    assert c.startswith("est.slope_window must be >= 2")
+    ve = {**EST_DEFAULTS, "est.method": 2, "est.slope_window": 1}
+    st, c = c_estimator(lib, ve, None)
+    assert_same_message(python_estimator(ve, None), st, c, "estimator slope_window 1")
 
 
 def test_uncovered_options_are_refused_where_python_checks_them(lib):
     """Refused at Python's check of their value: before every later rule, after every earlier."""
-    v = {**CHAIN_DEFAULTS, "est.method": 2, "est.forgetting": 1.5, "track.station_dwell": 0.0}
-    assert c_chain(lib, v, None, 0.0)[1].startswith("est.method = 2 is not in the native")
+    v = {**CHAIN_DEFAULTS, "est.method": 3, "est.forgetting": 1.5, "track.station_dwell": 0.0}
+    assert c_chain(lib, v, None, 0.0)[1].startswith("est.method = 3 is not in the native")
     v = {**CHAIN_DEFAULTS, "est.physical": 1, "est.sigma2_method": 1}   # sigma2_method first
     assert c_chain(lib, v, None, 0.0)[1].startswith("est.sigma2_method = 1 is not")
     v = {**CHAIN_DEFAULTS, "est.method": 1, "est.batch_size": 3}
