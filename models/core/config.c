@@ -1,7 +1,8 @@
 /* config.c -- the chains' configurations from flat arrays of numbers, the one format the
  * Python binding (models/_railcar.c) and C hosts (tests/core_cases/chain_driver.c) share. One
  * optional value may follow the configuration: est.slope_window, which est.method 2 needs (the
- * native FMUs' flat configuration does not carry it; without it slope_window is 0). */
+ * native FMUs append it after their flat configuration, fmu_src/c/native_common.c; without it
+ * slope_window is 0). */
 #include "rc_fp_contract.h"
 #include "railcar.h"
 

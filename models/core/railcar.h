@@ -10,9 +10,9 @@
  * The struct points into itself (the plant at its noise stream and profiles): initialise it
  * where it stays, never copy it. Covered: filter kinds 0-4 (Singer: singer.h), est.method 0 and
  * 2 (est.method 2 needs slope_window: the optional value after the flat configuration,
- * config.c), est.physical 0, est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length,
+ * config.c), est.physical 0 and 1, est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length,
  * odometry drift, track sensors (track_sensors.h); not covered (rc_chain_init answers
- * RC_BAD_CONFIG, the Python chain runs): est.method 1 and 3, est.physical 1, est.sigma2_method 1.
+ * RC_BAD_CONFIG, the Python chain runs): est.method 1 and 3, est.sigma2_method 1.
  */
 #ifndef RAILCAR_RAILCAR_H
 #define RAILCAR_RAILCAR_H
