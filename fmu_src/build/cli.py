@@ -9,7 +9,9 @@
 3. with our binary and unless ``--no-native``: the native FMUs (no Python at run time,
    docs/native_fmus.md) into ``DEST/native/``: RailCarNative.fmu and RailCarEstimatorNative.fmu
    (FMI 2.0, ``native``), RailCarNative3.fmu and RailCarEstimatorNative3.fmu (FMI 3.0,
-   ``native_fmi3``).
+   ``native_fmi3``), each with binaries for every platform of ``toolchain.TARGETS`` whose
+   compiler this machine has (linux x86-64, Windows x86-64 with mingw-w64, linux aarch64 with
+   gcc-aarch64-linux-gnu); a missing compiler is printed as a SKIPPED platform.
 
 The build fails (exit code 1) unless ``fmpy.validation.validate_fmu`` reports no problem for
 every FMU; one line per FMU says what was built.
@@ -31,6 +33,14 @@ def validate(path: Path) -> list[str]:
     """fmpy's validation of the FMU: its problems, none when it is good."""
     from fmpy.validation import validate_fmu
     return list(validate_fmu(str(path)))
+
+
+def binary_folders(path: Path) -> list[str]:
+    """The binaries/ folders of the FMU at ``path``: its platforms."""
+    import zipfile
+    with zipfile.ZipFile(path) as z:
+        return sorted({n.split("/")[1] for n in z.namelist()
+                       if n.startswith("binaries/") and n.count("/") == 2 and not n.endswith("/")})
 
 
 def report(path: Path, problems: list[str], what: str) -> bool:
@@ -68,7 +78,8 @@ def build_all(dest: Path, pythonfmu_binary: bool = False, native: bool = True) -
                          native_fmi2.build_native_estimator_fmu(native_dir, built[ESTIMATOR]),
                          native_fmi3.build_native3_fmu(native_dir, built[RAILCAR]),
                          native_fmi3.build_native3_estimator_fmu(native_dir, built[ESTIMATOR])):
-                good &= report(path, validate(path), "native: no Python at run time")
+                good &= report(path, validate(path),
+                               f"native, no Python at run time: {', '.join(binary_folders(path))}")
     return good
 
 

@@ -22,15 +22,21 @@ path, so that the C backends (``fmu_src/c/native_railcar.c``, ``native_estimator
 - the inputs in the chain's do_step order and the outputs in the core's order.
 
 ``build_native_fmu(dest)`` / ``build_native_estimator_fmu(dest)`` compile the glue, the backend
-and ``models/core/*.c`` into ``binaries/linux64/<modelIdentifier>.so`` and zip the FMU: the
+and ``models/core/*.c`` once per platform of ``toolchain.TARGETS`` this machine has a compiler
+for (``binaries/linux64/<modelIdentifier>.so``, ``binaries/win64/<modelIdentifier>.dll``,
+``binaries/aarch64-linux/<modelIdentifier>.so``; a platform without one is skipped with a
+printed message naming the compiler and its package) and zip the FMU: the
 pythonfmu FMU's modelDescription.xml (``model_description.fmi2``: same modelIdentifier, variables
 and value references) with its own GUID, ``needsExecutionTool="false"`` and its C sources under
-``sources/`` (listed in SourceFiles), and the pythonfmu FMU's profiles under ``resources/``.
+``sources/`` (listed in SourceFiles), the pythonfmu FMU's profiles under ``resources/``, and
+``documentation/_main.html``: the platforms it carries and how to compile ``sources/``
+(FMI 2.0 <SourceFiles> has no place for options, include folders or libraries).
 """
 from __future__ import annotations
 
 import argparse
 import hashlib
+import html
 import math
 import sys
 import tempfile
@@ -46,14 +52,19 @@ from fmu_src.variables import ESTIMATOR, RAILCAR, variables_for
 from . import model_description
 from .model_description import LOG_CATEGORIES
 from .dist import DIST, current_pythonfmu, description_of, fmu_guid, native_path
-from .toolchain import C_DIR, CORE_DIR, ROOT, compile_c, find_compiler, fmi_headers
+from .toolchain import (C_DIR, CORE_DIR, LINUX_X86_64, ROOT, Target, available_targets,
+                        compile_c, fmi_headers, missing_compiler, target_compiler)
 
 GENERATION_TOOL = "fmu_src/build/native.py (C core, no Python)"
-C_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-ffp-contract=off", "-fPIC",
-           "-shared", "-fvisibility=hidden", "-pthread", "-Wl,--no-undefined"]
+BASE_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-ffp-contract=off",
+              "-shared", "-Wl,--no-undefined"]
+"""Every platform's flags; each ``toolchain.Target`` adds its own (``-fPIC -pthread``, ``-static``)."""
+C_FLAGS = [*BASE_FLAGS, *LINUX_X86_64.flags]
+"""The linux x86-64 flags (benchmarks compile with them)."""
 CONFIG_CONSTANT, CONFIG_START_TIME = -1, -2
 COMMON_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_common.c"]
 COMMON_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_common.h"]
+FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 
 _GLUE = {"Real": "GLUE_REAL", "Integer": "GLUE_INTEGER", "String": "GLUE_STRING"}
 _CAUSALITY = {"parameter": "GLUE_PARAMETER", "input": "GLUE_INPUT", "output": "GLUE_OUTPUT"}
@@ -276,17 +287,46 @@ def c_sources(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
 
 
 def c_headers(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
-    return [C_DIR / h for h in [*COMMON_HEADERS, spec.header]] + sorted(CORE_DIR.glob("*.h"))
+    """Every header the sources include: ours, the core's, and the FMI 2 headers (fmpy's copy
+    of the standard's), so that sources/ compiles with no other include folder."""
+    return ([C_DIR / h for h in [*COMMON_HEADERS, spec.header]] + sorted(CORE_DIR.glob("*.h"))
+            + [fmi_headers() / h for h in FMI2_HEADERS])
 
 
-def compile_native(out: Path, spec: NativeSpec = RAILCAR_SPEC) -> Path:
-    """binaries/linux64/<id>.so from the C sources; RuntimeError with the compiler's output."""
-    cc = find_compiler()
+def compile_for(target: Target, sources: list[Path], out: Path, what: str) -> Path:
+    """Compile ``sources`` into the shared library ``out`` for ``target``; RuntimeError with
+    the compiler's output, or naming the compiler and its package when it is missing."""
+    cc = target_compiler(target)
     if cc is None:
-        raise RuntimeError("no C compiler found (set CC or install gcc)")
-    compile_c([*cc, *C_FLAGS, "-I", str(C_DIR), "-I", str(CORE_DIR), "-I", str(fmi_headers()),
-               *[str(s) for s in c_sources(spec)], "-o", str(out), "-lm"], "the native FMU")
+        raise RuntimeError(f"cannot build {what}: {missing_compiler(target)}")
+    compile_c([*cc, *BASE_FLAGS, *target.flags, "-I", str(C_DIR), "-I", str(CORE_DIR),
+               "-I", str(fmi_headers()), *[str(s) for s in sources], "-o", str(out),
+               *target.libraries], f"{what} for {target.tuple}")
     return out
+
+
+def compile_native(out: Path, spec: NativeSpec = RAILCAR_SPEC,
+                   target: Target = LINUX_X86_64) -> Path:
+    """The FMI 2 binary of ``spec`` for ``target`` (default linux x86-64) from the C sources."""
+    return compile_for(target, c_sources(spec), out, f"the native FMU {spec.native_name}")
+
+
+def platforms_page(title: str, folders: list[str], build_note: str) -> bytes:
+    """documentation/ page of a native FMU: the binaries it carries and how to build others."""
+    items = "".join(f"<li><code>binaries/{html.escape(f)}/</code></li>" for f in folders)
+    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}"
+            f"</title></head><body>\n<h1>{html.escape(title)}</h1>\n"
+            f"<p>Binaries for these platforms:</p>\n<ul>{items}</ul>\n"
+            f"<p>{build_note}</p>\n</body></html>\n").encode()
+
+
+SOURCES_NOTE = (
+    "Any other platform: compile every <code>.c</code> file of <code>sources/</code> into one "
+    "shared library named after the modelIdentifier, with <code>sources/</code> as the include "
+    "folder, C99, no preprocessor definitions, <code>-ffp-contract=off</code> (no fused "
+    "multiply-add: bit-identity with the Python reference), linked with the maths library "
+    "(<code>-lm</code>) and, on POSIX systems, <code>-pthread</code>; Windows needs no thread "
+    "library. See docs/native_fmus.md of the project.")
 
 
 def native_model_description(guid: str, spec: NativeSpec = RAILCAR_SPEC) -> bytes:
@@ -296,10 +336,14 @@ def native_model_description(guid: str, spec: NativeSpec = RAILCAR_SPEC) -> byte
                                   source_files=tuple(p.name for p in c_sources(spec)))
 
 
-def native_guid(xml: bytes, spec: NativeSpec = RAILCAR_SPEC) -> str:
-    """From the pythonfmu FMU's modelDescription.xml ``xml`` and every C file: a native FMU is
-    current when it was built from that FMU and these sources (fmu_src.build.dist)."""
-    h = hashlib.sha256(f"{spec.native_name}|".encode() + xml)
+def native_guid(xml: bytes, spec: NativeSpec = RAILCAR_SPEC, targets=None) -> str:
+    """From the pythonfmu FMU's modelDescription.xml ``xml``, the platforms (default: those this
+    machine can build) and every C file: a native FMU is current when it was built from that FMU
+    and these sources for these platforms (fmu_src.build.dist)."""
+    if targets is None:
+        targets = available_targets(report=False)
+    platforms = ",".join(t.tuple for t in targets)
+    h = hashlib.sha256(f"{spec.native_name}|{platforms}|".encode() + xml)
     for p in [*c_sources(spec), *c_headers(spec)]:
         h.update(p.name.encode())
         h.update(p.read_bytes())
@@ -335,12 +379,17 @@ def _rel(p: Path) -> Path:
         return p
 
 
-def build_native(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
+def build_native(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> Path:
     """Compile and zip ``dest_dir/<spec.native_name>.fmu``; ``python_fmu`` is its pythonfmu
     twin, which its GUID follows and whose profiles it carries (default: dist/'s, built by
-    fmu_src.build.dist.current_pythonfmu when missing or stale). Refuses to build when the table
-    header is out of date."""
+    fmu_src.build.dist.current_pythonfmu when missing or stale); ``targets``: the platforms
+    (default: every one of toolchain.TARGETS this machine has a compiler for, the others
+    printed). Refuses to build when the table header is out of date."""
     check_header(spec)
+    if targets is None:
+        targets = available_targets()
+    if not targets:
+        raise RuntimeError(f"{spec.native_name}: no platform has a compiler here")
     if python_fmu is None:
         python_fmu = current_pythonfmu(spec.fmu)
     dest = Path(dest_dir)
@@ -349,13 +398,19 @@ def build_native(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
     names = [p.name for p in [*c_sources(spec), *c_headers(spec)]]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binary = compile_native(Path(tmp) / f"{spec.fmu}.so", spec)
+        binaries = {f"binaries/{t.fmi2_folder}/{spec.fmu}{t.extension}":
+                    compile_native(Path(tmp) / f"{t.tuple}{t.extension}", spec, t)
+                    for t in targets}
         python_xml, profiles = read_pythonfmu(python_fmu, spec)
-        xml = native_model_description(native_guid(python_xml, spec), spec)
+        xml = native_model_description(native_guid(python_xml, spec, targets), spec)
         tmp_fmu = Path(tmp) / target.name
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("modelDescription.xml", xml)
-            z.writestr(f"binaries/linux64/{spec.fmu}.so", binary.read_bytes())
+            for name, binary in binaries.items():
+                z.writestr(name, binary.read_bytes())
+            z.writestr("documentation/_main.html", platforms_page(
+                f"{spec.native_name}.fmu (FMI 2.0)", [t.fmi2_folder for t in targets],
+                SOURCES_NOTE))
             for p in [*c_sources(spec), *c_headers(spec)]:
                 z.writestr(f"sources/{p.name}", p.read_bytes())
             for name, data in profiles:          # relative profile paths resolve here first

@@ -13,9 +13,12 @@ what it needs, as ``native.c_sources(spec)`` lists them) and ``models/core/*.c``
 ``RailCarEstimator.fmu`` with the same names and value references, and the independent "time"
 after them. Outputs are ``initial="calculated"``: set in fmi3ExitInitializationMode (RailCar's
 chain computes them, RailCarEstimator's hold the table's start values until the first step, as
-the FMI 2 FMUs do). The binary is ``binaries/x86_64-linux/<modelIdentifier>.so``; ``sources/``
-holds the C sources with an FMI 3 ``sources/buildDescription.xml`` (and the FMI 2 headers the
-backend's types come from, so that an FMI 3 importer needs only its own FMI 3 headers).
+the FMI 2 FMUs do). The binaries are ``binaries/<platform tuple>/<modelIdentifier>.so|.dll``
+for each platform of ``toolchain.TARGETS`` this machine has a compiler for (x86_64-linux,
+x86_64-windows, aarch64-linux; the others are skipped with a printed message); ``sources/``
+holds the C sources with an FMI 3 ``sources/buildDescription.xml`` and every header they need:
+the FMI 3 headers of the glue and the FMI 2 headers the backend's types come from, so that
+``sources/`` compiles alone. ``documentation/index.html`` lists the platforms.
 """
 from __future__ import annotations
 
@@ -32,13 +35,13 @@ from fmu_src.variables import variables_for
 from . import model_description, native
 from .dist import current_pythonfmu
 from .native import ESTIMATOR_SPEC, RAILCAR_SPEC, NativeSpec
-from .toolchain import C_DIR, CORE_DIR, compile_c, find_compiler, fmi_headers
+from .toolchain import C_DIR, LINUX_X86_64, Target, available_targets, fmi_headers
 
 GENERATION_TOOL = "fmu_src/build/native_fmi3.py (C core, no Python)"
 SPECS = (RAILCAR_SPEC, ESTIMATOR_SPEC)
-PLATFORM = "x86_64-linux"
+PLATFORM = LINUX_X86_64.tuple
 GLUE3_SOURCE, GLUE3_HEADER = "fmi3_glue.c", "fmi3_glue.h"
-FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
 
 
 def native3_name(spec: NativeSpec = RAILCAR_SPEC) -> str:
@@ -53,19 +56,17 @@ def c_sources(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
 
 
 def c_headers(spec: NativeSpec = RAILCAR_SPEC) -> list[Path]:
-    """Our headers (fmi2_glue.h stays: it is the backend interface) and the FMI 2 headers."""
-    ours = [C_DIR / GLUE3_HEADER, *native.c_headers(spec)]
-    return ours + [fmi_headers() / h for h in FMI2_HEADERS]
+    """The FMI 3 glue's header, the FMI 2 FMU's headers (fmi2_glue.h and the FMI 2 headers stay:
+    they are the backend interface) and the FMI 3 headers of the glue."""
+    return [C_DIR / GLUE3_HEADER, *native.c_headers(spec),
+            *[fmi_headers() / h for h in FMI3_HEADERS]]
 
 
-def compile_binary(out: Path, spec: NativeSpec = RAILCAR_SPEC) -> Path:
-    """binaries/x86_64-linux/<modelIdentifier>.so; RuntimeError with the compiler's output."""
-    cc = find_compiler()
-    if cc is None:
-        raise RuntimeError("no C compiler found (set CC or install gcc)")
-    compile_c([*cc, *native.C_FLAGS, "-I", str(C_DIR), "-I", str(CORE_DIR), "-I", str(fmi_headers()),
-               *[str(s) for s in c_sources(spec)], "-o", str(out), "-lm"], "the FMI 3 native FMU")
-    return out
+def compile_binary(out: Path, spec: NativeSpec = RAILCAR_SPEC,
+                   target: Target = LINUX_X86_64) -> Path:
+    """The FMI 3 binary of ``spec`` for ``target``; RuntimeError with the compiler's output."""
+    return native.compile_for(target, c_sources(spec), out,
+                              f"the FMI 3 native FMU {native3_name(spec)}")
 
 
 def instantiation_token(spec: NativeSpec = RAILCAR_SPEC) -> str:
@@ -85,10 +86,12 @@ def model_description_xml(token: str, spec: NativeSpec = RAILCAR_SPEC) -> bytes:
 
 
 def build_description(spec: NativeSpec = RAILCAR_SPEC) -> bytes:
-    """sources/buildDescription.xml (FMI 3.0): one configuration, every .c file, flat folder."""
+    """sources/buildDescription.xml (FMI 3.0): one configuration, every .c file, the flat
+    sources/ folder as the include directory, no preprocessor definitions, the libraries."""
     root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
     conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=spec.fmu,
-                         description="C99; link with -lm -pthread")
+                         description="C99, no preprocessor definitions; link with -lm, and "
+                                     "-pthread on POSIX systems (Windows: no thread library)")
     # compilerOptions: an attribute of SourceFileSet in the FMI 3.0 standard's
     # fmi3BuildDescription.xsd (fmpy/schema/fmi3/). -ffp-contract=off keeps a*b+c unfused, as
     # bit-identity with the Python reference needs; the core's .c files also turn contraction
@@ -97,17 +100,26 @@ def build_description(spec: NativeSpec = RAILCAR_SPEC) -> bytes:
                           compilerOptions="-ffp-contract=off")
     for src in c_sources(spec):
         ET.SubElement(files, "SourceFile", name=src.name)
-    ET.SubElement(conf, "Library", name="m")
-    ET.SubElement(conf, "Library", name="pthread")
+    ET.SubElement(files, "IncludeDirectory", name=".")     # relative to sources/
+    ET.SubElement(conf, "Library", name="m", description="the C maths library (libm)")
+    ET.SubElement(conf, "Library", name="pthread",
+                  description="POSIX threads (the instance registry's lock); not on Windows, "
+                              "where the glue uses a Win32 SRW lock")
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
-def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
+def build_native3(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> Path:
     """Compile and zip ``dest_dir/<spec.native_name>3.fmu``. ``python_fmu`` (the pythonfmu FMU
     of ``spec.fmu``, default dist/'s via fmu_src.build.dist.current_pythonfmu) only supplies the
-    profiles under resources/. Refuses to build when the backend's table header is out of date."""
+    profiles under resources/; ``targets``: the platforms (default: those this machine has a
+    compiler for, the others printed). Refuses to build when the backend's table header is out
+    of date."""
     native.check_header(spec)
+    if targets is None:
+        targets = available_targets()
+    if not targets:
+        raise RuntimeError(f"{native3_name(spec)}: no platform has a compiler here")
     if python_fmu is None:
         python_fmu = current_pythonfmu(spec.fmu)
     dest = Path(dest_dir)
@@ -117,12 +129,19 @@ def build_native3(spec: NativeSpec, dest_dir, python_fmu=None) -> Path:
     names = [p.name for p in files]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binary = compile_binary(Path(tmp) / f"{spec.fmu}.so", spec)
+        binaries = {f"binaries/{t.tuple}/{spec.fmu}{t.extension}":
+                    compile_binary(Path(tmp) / f"{t.tuple}{t.extension}", spec, t)
+                    for t in targets}
         _, profiles = native.read_pythonfmu(python_fmu, spec)
         tmp_fmu = Path(tmp) / target.name
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("modelDescription.xml", model_description_xml(instantiation_token(spec), spec))
-            z.writestr(f"binaries/{PLATFORM}/{spec.fmu}.so", binary.read_bytes())
+            for name, binary in binaries.items():
+                z.writestr(name, binary.read_bytes())
+            z.writestr("documentation/index.html", native.platforms_page(
+                f"{native3_name(spec)}.fmu (FMI 3.0)", [t.tuple for t in targets],
+                "Any other platform: sources/buildDescription.xml lists what to compile. "
+                + native.SOURCES_NOTE))
             z.writestr("sources/buildDescription.xml", build_description(spec))
             for p in files:
                 z.writestr(f"sources/{p.name}", p.read_bytes())

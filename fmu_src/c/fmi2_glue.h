@@ -24,8 +24,15 @@
 #include "fmi2Functions.h"
 #include "glue_common.h"
 
-/* Only symbols marked GLUE_EXPORT leave the shared library (build with -fvisibility=hidden). */
+/* Only symbols marked GLUE_EXPORT leave the shared library (build with -fvisibility=hidden;
+   a Windows DLL exports only what is marked dllexport, as the FMI headers mark theirs). */
+#if defined(_WIN32)
+#define GLUE_EXPORT __declspec(dllexport)
+#elif defined(__GNUC__)
 #define GLUE_EXPORT __attribute__((visibility("default")))
+#else
+#define GLUE_EXPORT
+#endif
 
 /* GlueInstance, GlueVar, GlueType, ... and the services of the glue to the backend (glue_log,
    glue_alloc_vars, ...) are in glue_common.h: the FMI 3.0 glue offers the same. Its statuses are

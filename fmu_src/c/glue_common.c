@@ -3,11 +3,12 @@
  * Compile these sources with -ffp-contract=off (GCC ignores #pragma STDC FP_CONTRACT): the model
  * core is bit-identical to the Python reference only without fused multiply-adds (its own .c
  * files also turn contraction off, models/core/rc_fp_contract.h).
+ * Portable to Windows (mingw-w64, MSVC): no thread library there (see the lock below), and
+ * size_t is printed as %llu of a cast, because msvcrt's printf has no %zu.
  */
 #define _POSIX_C_SOURCE 200809L
 
 #include <math.h>
-#include <pthread.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -16,19 +17,33 @@
 
 #include "glue_common.h"
 
+/* The registry's lock: a slim reader/writer lock on Windows (kernel32 since Vista, statically
+   initialised, no thread library to ship), a POSIX mutex elsewhere. */
+#ifdef _WIN32
+#define WIN32_LEAN_AND_MEAN
+#include <windows.h>
+static SRWLOCK registry_lock = SRWLOCK_INIT;
+#define REGISTRY_LOCK() AcquireSRWLockExclusive(&registry_lock)
+#define REGISTRY_UNLOCK() ReleaseSRWLockExclusive(&registry_lock)
+#else
+#include <pthread.h>
+static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
+#define REGISTRY_LOCK() pthread_mutex_lock(&registry_lock)
+#define REGISTRY_UNLOCK() pthread_mutex_unlock(&registry_lock)
+#endif
+
 #define LOG_ERROR(g, ...) glue_log((g), GLUE_STATUS_ERROR, "logStatusError", __VA_ARGS__)
 
 /* ------------------------------------------------------------------------------- registry */
 
 /* Live instances of this library. Looked up by pointer value only, so a stale or garbage
    pointer is recognised without being read. A handful of instances: a linear scan is enough. */
-static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
 static GlueInstance **registry;
 static size_t registry_count, registry_capacity;
 
 int gc_register(GlueInstance *g) {
     int ok = 1;
-    pthread_mutex_lock(&registry_lock);
+    REGISTRY_LOCK();
     if (registry_count == registry_capacity) {
         size_t cap = registry_capacity ? 2 * registry_capacity : 8;
         GlueInstance **grown = realloc(registry, cap * sizeof *grown);
@@ -40,7 +55,7 @@ int gc_register(GlueInstance *g) {
         }
     }
     if (ok) registry[registry_count++] = g;
-    pthread_mutex_unlock(&registry_lock);
+    REGISTRY_UNLOCK();
     return ok;
 }
 
@@ -49,7 +64,7 @@ static GlueInstance *registry_find(const void *handle, int remove) {
     GlueInstance *found = NULL;
     size_t i;
     if (!handle) return NULL;
-    pthread_mutex_lock(&registry_lock);
+    REGISTRY_LOCK();
     for (i = 0; i < registry_count; i++) {
         if ((const void *)registry[i] == handle) {
             found = registry[i];
@@ -64,7 +79,7 @@ static GlueInstance *registry_find(const void *handle, int remove) {
             break;
         }
     }
-    pthread_mutex_unlock(&registry_lock);
+    REGISTRY_UNLOCK();
     return found;
 }
 
@@ -306,13 +321,14 @@ int gc_set_debug_logging(GlueInstance *g, const char *function, int logging_on, 
     char **copy = NULL;
     size_t i, k;
     if (n > 0 && !categories) {
-        LOG_ERROR(g, "%s: categories[] is NULL but nCategories = %zu", function, n);
+        LOG_ERROR(g, "%s: categories[] is NULL but nCategories = %llu", function,
+                  (unsigned long long)n);
         return 0;
     }
     for (i = 0; i < n; i++) {                /* check all before changing anything */
         int known = g->n_known_categories == 0;
         if (!categories[i]) {
-            LOG_ERROR(g, "%s: categories[%zu] is NULL", function, i);
+            LOG_ERROR(g, "%s: categories[%llu] is NULL", function, (unsigned long long)i);
             return 0;
         }
         for (k = 0; k < g->n_known_categories && !known; k++)
@@ -420,13 +436,13 @@ static int check_settable(GlueInstance *g, const char *function, const GlueVar *
     if (type == GLUE_STRING) {
         const char *s = ((const char *const *)values)[i];
         if (!s) {
-            LOG_ERROR(g, "%s: %s[%zu] for '%s' (value reference %lu) is NULL", function,
-                      std->values_array, i, v->name, r);
+            LOG_ERROR(g, "%s: %s[%llu] for '%s' (value reference %lu) is NULL", function,
+                      std->values_array, (unsigned long long)i, v->name, r);
             return 0;
         }
         if (!utf8_valid(s)) {
-            LOG_ERROR(g, "%s: %s[%zu] for '%s' (value reference %lu) is not valid UTF-8",
-                      function, std->values_array, i, v->name, r);
+            LOG_ERROR(g, "%s: %s[%llu] for '%s' (value reference %lu) is not valid UTF-8",
+                      function, std->values_array, (unsigned long long)i, v->name, r);
             return 0;
         }
     }
@@ -441,19 +457,20 @@ int gc_check_refs(GlueInstance *g, const char *function, int type, const char *t
     size_t i;
     if (!type_name) type_name = type >= 0 && type < 4 ? std->type_phrase[type] : "?";
     if (nvalues != nvr) {
-        LOG_ERROR(g, "%s: nValues = %zu but nValueReferences = %zu (all variables of %s are "
-                     "scalars)", function, nvalues, nvr, model);
+        LOG_ERROR(g, "%s: nValues = %llu but nValueReferences = %llu (all variables of %s are "
+                     "scalars)", function, (unsigned long long)nvalues, (unsigned long long)nvr,
+                  model);
         return 0;
     }
     if (nvr == 0) return 1;
     if (!vr) {
-        LOG_ERROR(g, "%s: %s[] is NULL but %s = %zu", function, std->vr_array, std->vr_count,
-                  nvr);
+        LOG_ERROR(g, "%s: %s[] is NULL but %s = %llu", function, std->vr_array, std->vr_count,
+                  (unsigned long long)nvr);
         return 0;
     }
     if (!values) {
-        LOG_ERROR(g, "%s: %s[] is NULL but %s = %zu", function, std->values_array,
-                  std->values_count, nvr);
+        LOG_ERROR(g, "%s: %s[] is NULL but %s = %llu", function, std->values_array,
+                  std->values_count, (unsigned long long)nvr);
         return 0;
     }
     for (i = 0; i < nvr; i++) {
@@ -462,15 +479,15 @@ int gc_check_refs(GlueInstance *g, const char *function, int type, const char *t
         if (std->time_variable && r == g->n_vars) {
             v = &time_var;
         } else if (r >= g->n_vars || !g->vars[r].name) {
-            LOG_ERROR(g, "%s: value reference %lu (%s[%zu]) is not a variable of %s", function,
-                      r, std->vr_array, i, model);
+            LOG_ERROR(g, "%s: value reference %lu (%s[%llu]) is not a variable of %s", function,
+                      r, std->vr_array, (unsigned long long)i, model);
             return 0;
         } else {
             v = &g->vars[r];
         }
         if ((int)v->type != type) {
-            LOG_ERROR(g, "%s: value reference %lu (%s[%zu]) is '%s', %s variable, not %s",
-                      function, r, std->vr_array, i, v->name, std->type_phrase[v->type],
+            LOG_ERROR(g, "%s: value reference %lu (%s[%llu]) is '%s', %s variable, not %s",
+                      function, r, std->vr_array, (unsigned long long)i, v->name, std->type_phrase[v->type],
                       type_name);
             return 0;
         }
@@ -488,6 +505,19 @@ static int hex_value(char c) {
     return -1;
 }
 
+int gc_is_drive_path(const char *p) {
+    return ((p[0] >= 'A' && p[0] <= 'Z') || (p[0] >= 'a' && p[0] <= 'z')) && p[1] == ':' &&
+           (p[2] == '/' || p[2] == '\\');
+}
+
+int gc_is_absolute_path(const char *p) {
+#ifdef _WIN32
+    return gc_is_drive_path(p) || p[0] == '/' || p[0] == '\\';
+#else
+    return p[0] == '/';
+#endif
+}
+
 char *gc_resource_path(const char *location, int decode) {
     const char *p = location;
     char *out, *q;
@@ -499,7 +529,13 @@ char *gc_resource_path(const char *location, int decode) {
     } else if (strncmp(p, "file:", 5) == 0) {
         p += 5;
     }
+#ifdef _WIN32
+    /* "file:///C:/dir" names C:/dir; FMI 3 passes "C:\\dir\\" as it is */
+    if (p[0] == '/' && gc_is_drive_path(p + 1)) p++;
+    if (!gc_is_drive_path(p) && *p != '/' && *p != '\\') return NULL;
+#else
     if (*p != '/') return NULL;                 /* relative, or file://host/...: not here */
+#endif
     out = malloc(strlen(p) + 1);
     if (!out) return NULL;
     for (q = out; *p; p++) {
@@ -513,7 +549,7 @@ char *gc_resource_path(const char *location, int decode) {
     }
     *q = '\0';
     n = strlen(out);
-    while (n > 1 && out[n - 1] == '/') out[--n] = '\0';
+    while (n > 1 && (out[n - 1] == '/' || out[n - 1] == GC_PATH_SEPARATOR)) out[--n] = '\0';
     return out;
 }
 

@@ -188,9 +188,20 @@ int gc_check_refs(GlueInstance *g, const char *function, int type, const char *t
                   const unsigned int vr[], size_t nvr, const void *values, size_t nvalues,
                   int setting);
 
+/* Windows also separates folders with '\\' (GC_PATH_SEPARATOR; '/' everywhere else). */
+#ifdef _WIN32
+#define GC_PATH_SEPARATOR '\\'
+#else
+#define GC_PATH_SEPARATOR '/'
+#endif
+/* "C:/..." or "C:\\..." (1; else 0), on any machine. */
+int gc_is_drive_path(const char *p);
+/* An absolute path on this machine: "/..." (on Windows also "\\...", "C:/...", "C:\\..."). */
+int gc_is_absolute_path(const char *p);
 /* A resource location -> a malloc'd path without trailing '/', or NULL if it is not a local
    absolute path: "file:///p", "file://localhost/p", "file:/p" or "/p"; with `decode`, %XX
-   escapes are decoded (FMI 2's URI; FMI 3 passes a path). */
+   escapes are decoded (FMI 2's URI; FMI 3 passes a path). On Windows also "file:///C:/p",
+   "C:\\p\\" and "\\\\server\\p". */
 char *gc_resource_path(const char *location, int decode);
 /* The value of `attribute` (e.g. "guid") of <fmiModelDescription> in
    <resources>/../modelDescription.xml (its first size - 1 bytes) into out[size]: 1, or -1 when

@@ -9,7 +9,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#ifdef _MSC_VER
+#include <direct.h>
+#define getcwd _getcwd
+#define S_ISREG(mode) (((mode) & _S_IFMT) == _S_IFREG)
+#else
 #include <unistd.h>
+#endif
 
 GLUE_EXPORT const char *railcar_fmu_binary_id(void) { return NATIVE_BINARY_ID; }
 
@@ -171,7 +177,7 @@ static int is_file(const char *path) {
 static char *resolve_profile_path(const char *raw, const char *resources) {
     char *candidate, *cwd;
     size_t size;
-    if (raw[0] == '/') {
+    if (gc_is_absolute_path(raw)) {
         size = strlen(raw) + 1;
         candidate = malloc(size);
         if (candidate) memcpy(candidate, raw, size);
