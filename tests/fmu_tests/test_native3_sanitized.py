@@ -95,8 +95,8 @@ def _compile_all(out: Path) -> dict[str, Path]:
     assert cc, "no C compiler"
     flags = ["-std=c99", "-O1", "-g", "-ffp-contract=off", "-Wall", "-Wextra", "-pedantic",
              "-Werror", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-pthread",
-             "-I", str(native_fmi3.C_DIR), "-I", str(native_fmi3.CORE_DIR),
-             "-I", str(native_fmi3.fmi_headers())]
+             "-I", str(toolchain.C_DIR), "-I", str(toolchain.CORE_DIR),
+             "-I", str(toolchain.fmi_headers())]
     backends = {spec.backend for spec in BACKENDS.values()}
     shared = sorted({s for spec in BACKENDS.values() for s in native_fmi3.c_sources(spec)
                      if s.name not in backends})
@@ -104,7 +104,7 @@ def _compile_all(out: Path) -> dict[str, Path]:
     assert not any(s.name == "fmi2_glue.c" for s in shared)
     jobs = {s.stem: (s, []) for s in shared}
     for spec in BACKENDS.values():
-        jobs[Path(spec.backend).stem] = (native_fmi3.C_DIR / spec.backend, [])
+        jobs[Path(spec.backend).stem] = (toolchain.C_DIR / spec.backend, [])
     jobs["host_railcar"] = (HOST, [])
     jobs["host_estimator"] = (HOST, ["-DNATIVE_ESTIMATOR"])
     jobs["host_leak_host"] = (HOST, ["-DNATIVE3_LEAK_HOST"])
