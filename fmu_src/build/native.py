@@ -379,19 +379,27 @@ def _rel(p: Path) -> Path:
         return p
 
 
+def build_inputs(spec: NativeSpec, fmu_name: str, python_fmu=None, targets=None) -> tuple:
+    """What every native build (FMI 2 here, FMI 3 in native_fmi3) starts from: the table header
+    checked, the platforms (default: those with a compiler here; none is an error naming
+    ``fmu_name``) and the pythonfmu twin (default: dist/'s, built when missing or stale)."""
+    check_header(spec)
+    if targets is None:
+        targets = available_targets()
+    if not targets:
+        raise RuntimeError(f"{fmu_name}: no platform has a compiler here")
+    if python_fmu is None:
+        python_fmu = current_pythonfmu(spec.fmu)
+    return targets, python_fmu
+
+
 def build_native(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> Path:
     """Compile and zip ``dest_dir/<spec.native_name>.fmu``; ``python_fmu`` is its pythonfmu
     twin, which its GUID follows and whose profiles it carries (default: dist/'s, built by
     fmu_src.build.dist.current_pythonfmu when missing or stale); ``targets``: the platforms
     (default: every one of toolchain.TARGETS this machine has a compiler for, the others
     printed). Refuses to build when the table header is out of date."""
-    check_header(spec)
-    if targets is None:
-        targets = available_targets()
-    if not targets:
-        raise RuntimeError(f"{spec.native_name}: no platform has a compiler here")
-    if python_fmu is None:
-        python_fmu = current_pythonfmu(spec.fmu)
+    targets, python_fmu = build_inputs(spec, spec.native_name, python_fmu, targets)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
     target = dest / f"{spec.native_name}.fmu"

@@ -33,9 +33,8 @@ from xml.etree import ElementTree as ET
 from fmu_src.variables import variables_for
 
 from . import model_description, native
-from .dist import current_pythonfmu
 from .native import ESTIMATOR_SPEC, RAILCAR_SPEC, NativeSpec
-from .toolchain import C_DIR, LINUX_X86_64, Target, available_targets, fmi_headers
+from .toolchain import C_DIR, LINUX_X86_64, Target, fmi_headers
 
 GENERATION_TOOL = "fmu_src/build/native_fmi3.py (C core, no Python)"
 SPECS = (RAILCAR_SPEC, ESTIMATOR_SPEC)
@@ -115,13 +114,7 @@ def build_native3(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> 
     profiles under resources/; ``targets``: the platforms (default: those this machine has a
     compiler for, the others printed). Refuses to build when the backend's table header is out
     of date."""
-    native.check_header(spec)
-    if targets is None:
-        targets = available_targets()
-    if not targets:
-        raise RuntimeError(f"{native3_name(spec)}: no platform has a compiler here")
-    if python_fmu is None:
-        python_fmu = current_pythonfmu(spec.fmu)
+    targets, python_fmu = native.build_inputs(spec, native3_name(spec), python_fmu, targets)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
     target = dest / f"{native3_name(spec)}.fmu"
