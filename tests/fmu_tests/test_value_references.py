@@ -5,7 +5,7 @@ variability, type and unit as frozen in value_references.json.
 The FMU test reads the session build (conftest's ``built_fmus``: the pythonfmu FMUs and, beside
 them in native/, the native FMI 2 and FMI 3 ones); the unit test checks the variable table
 itself against the same file, so that the fast layer notices a reordered table too. The frozen
-file changes only through freeze_value_references.py (see its docstring for the policy).
+file changes only through fmu_src/build/value_references.py (see its docstring for the policy).
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import copy
 
 import pytest
 
-from freeze_value_references import COMMAND, FMU_FILES, INDEPENDENT, compare, load_frozen, read_build
+from fmu_src.build.value_references import COMMAND, FMU_FILES, INDEPENDENT, compare, load_frozen, read_build
 from fmu_src.variables import ATO, ESTIMATOR, RAILCAR, variables_for
 
 POLICY = (f"Value references are a contract with users' models: a change is only allowed as a "

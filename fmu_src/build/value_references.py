@@ -1,10 +1,10 @@
-"""Freeze the value references of every FMU the build makes into value_references.json.
+"""Freeze the value references of every FMU the build makes into tests/fmu_tests/value_references.json.
 
-    python tests/fmu_tests/freeze_value_references.py [--dist DIR] [--allow-breaking]
+    python -m fmu_src.build.value_references [--dist DIR] [--allow-breaking]
 
 Value references are a contract with our users' models (fmu_src/variables.py): a saved system,
 an SSP file or a user's master addresses a variable by its value reference, so a build whose
-references moved breaks them silently. ``test_value_references.py`` compares the built FMUs'
+references moved breaks them silently. ``tests/fmu_tests/test_value_references.py`` compares the built FMUs'
 modelDescription.xml with the frozen file; this script is the one explicit way to change that
 file. It builds the FMUs into a temporary folder (``build.py``, as the tests' session build
 does), or reads an existing build with ``--dist``, prints every added, removed and changed
@@ -28,9 +28,11 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-HERE = Path(__file__).resolve().parent
-FROZEN = HERE / "value_references.json"
-COMMAND = "python tests/fmu_tests/freeze_value_references.py"
+from .dist import run_build
+from .toolchain import ROOT
+
+FROZEN = ROOT / "tests" / "fmu_tests" / "value_references.json"
+COMMAND = "python -m fmu_src.build.value_references"
 
 FMU_FILES = {   # every FMU build.py makes: name -> path inside the build folder
     "RailCar": "RailCar.fmu",
@@ -172,11 +174,9 @@ def main(argv=None) -> int:
     if args.dist is not None:
         built = read_build(args.dist)
     else:
-        sys.path.insert(0, str(HERE.parent))
-        from conftest import build_fmus     # the tests' own session build (build.py in a subprocess)
         with tempfile.TemporaryDirectory() as tmp:
             dist = Path(tmp) / "dist"
-            build_fmus(dist)
+            run_build(dist)                 # build.py in a subprocess: the current sources
             built = read_build(dist)
     breaking, added, moved = compare(frozen, built)
     for label, lines in (("BREAKING", breaking), ("added", added), ("moved", moved)):
