@@ -18,7 +18,7 @@ The day (seeded, reproducible; numbers in DayConfig and FaultConfig):
   on a braking curve of 0.6-0.9 m/s^2 planned so that the run lasts its drawn time;
 - a piecewise-constant head/tailwind, |wind| <= 5 m/s, changing every 10-60 min;
 - the estimator configured for service (SERVICE_PARAMETERS: est.run_forgetting = 0.3).
-The driver sees the TRUE speed and distance (as harness.run.driver.PhaseDriver); the communication
+The driver sees the TRUE speed and distance (as harness.run.phases.PhaseDriver); the communication
 step is 0.1 s (= sensor.sample_period), so 864,000 steps for 24 h.
 
 Two estimators are scored on the same run:
@@ -67,7 +67,7 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 from fmu_src.adapter import chain_config, estimator_settings  # noqa: E402
-from harness.run.driver import CRUISE_GAIN  # noqa: E402
+from harness.run.phases import CRUISE_GAIN  # noqa: E402
 from harness.run.scenario import railcar_values  # noqa: E402
 from models.chain import StepRejected  # noqa: E402
 from models.compiled import open_chain, open_estimator_chain  # noqa: E402

@@ -8,9 +8,8 @@ harness.run.runner.FmuStepper) and run_on_chain (a models chain, ChainStepper) b
 phases, time tables, wind, payload, stop_after_last_phase and the step count exist once; the
 trace becomes a RunResult (harness.run.result) with the driver's records.
 
-Imports go one way: driver -> scenario -> span_scenario -> phases (and result). The driver
-protocols and phase drivers are re-exported here for the code that imported them from this
-module (studies, tests); new code imports them from harness.run.phases.
+Imports go one way: driver -> scenario -> span_scenario -> phases (and result); the driver
+protocols and phase drivers live in harness.run.phases, RunResult in harness.run.result.
 """
 from __future__ import annotations
 
@@ -19,8 +18,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from harness.run.phases import (ACTIONS, CRUISE_GAIN, INPUTS, PHASE_KEYS, _PHASE_KEYS, Demands, Driver,  # noqa: F401
-                                DriverPhase, PhaseDriver, Stepper, TimeTable, parse_phase, parse_time_table)
+from harness.run.phases import INPUTS, Driver, Stepper
 from harness.run.result import RunResult
 from harness.run.scenario import Scenario
 

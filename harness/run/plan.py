@@ -14,7 +14,8 @@ from models.compiled import open_chain
 from models.plant.dynamics import VehicleParams
 from models.filtering.motion_filter import FilterConfig
 
-from harness.run.driver import ChainStepper, Demands, drive
+from harness.run.driver import ChainStepper, drive
+from harness.run.phases import Demands
 from harness.run.scenario import Scenario
 
 

@@ -45,7 +45,9 @@ import numpy as np
 from fmpy.util import read_csv, read_ref_opt_file, validate_result
 
 from fmu_src.variables import RAILCAR, VARIABLES
-from harness.run.driver import INPUTS, RunResult, run_on_chain
+from harness.run.driver import run_on_chain
+from harness.run.phases import INPUTS
+from harness.run.result import RunResult
 from harness.run.scenario import load_scenario
 from harness.textio import InputError, check_text_file
 

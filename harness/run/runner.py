@@ -22,7 +22,9 @@ from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
 from fmpy import calloc, free
 
-from harness.run.driver import INPUTS, Driver, RunResult, drive
+from harness.run.driver import drive
+from harness.run.phases import INPUTS, Driver
+from harness.run.result import RunResult
 from harness.run.scenario import Scenario, integer_range
 
 __all__ = ["INPUTS", "FmuRunner", "FmuStepper", "InitError", "RunError", "RunResult"]

@@ -164,7 +164,7 @@ def _check_value(name: str, value, path: Path, block: str, base: dict, sweep_dir
     if index >= len(entries):
         raise SweepError(f"{where}: the base scenario has {len(entries)} [[{table}]] entries, no index {index}")
     if table == "driver":
-        from harness.run.driver import _PHASE_KEYS
+        from harness.run.phases import _PHASE_KEYS
         if key not in _PHASE_KEYS:
             raise SweepError(f"{where}: '{key}' is not a driver phase key (known: {', '.join(sorted(_PHASE_KEYS))})"
                              f"{did_you_mean(key, _PHASE_KEYS)}")

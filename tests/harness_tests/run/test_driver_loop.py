@@ -23,8 +23,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from harness.run.driver import (INPUTS, ChainStepper, Demands, PhaseDriver, chain_result, drive,
-                            run_on_chain)
+from harness.run.driver import ChainStepper, chain_result, drive, run_on_chain
+from harness.run.phases import INPUTS, Demands, PhaseDriver
 from harness.run.regress import library_scenarios
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario, scenario_from_dict

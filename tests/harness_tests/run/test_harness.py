@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.run.driver import PhaseDriver, parse_phase
+from harness.run.phases import PhaseDriver, parse_phase
 from harness.metrics.estimation import rmse, stop_indices, time_to_stay_within, w0_relative_rms_error
 from harness.run.scenario import ScenarioError, load_scenario, scenario_from_dict
 
@@ -121,7 +121,7 @@ def test_cli_exit_code_2_on_invalid_scenario(tmp_path, capsys):
 
 
 def test_time_table_driver_is_piecewise_linear_and_validated(tmp_path):
-    from harness.run.driver import parse_time_table
+    from harness.run.phases import parse_time_table
     tt = parse_time_table({"time_s": [0.0, 10.0, 20.0], "traction_N": [0.0, 10e3, 10e3],
                            "brake_N": [0.0, 0.0, 5e3]}, "x", None)
     assert tt.at(5.0) == pytest.approx((5e3, 0.0), rel=1e-15)

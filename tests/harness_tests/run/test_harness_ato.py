@@ -27,7 +27,8 @@ from harness.metrics.ato import (INTERVENTIONS, ato_metrics, energy_kwh, standst
                                  step_work)
 from harness.reports.ato_report import MODE_COLOURS, ato_figure, mode_runs
 from harness.run.span_scenario import AtoDriver, AtoStep, replay_steps
-from harness.run.driver import RunResult, run_on_chain
+from harness.run.driver import run_on_chain
+from harness.run.result import RunResult
 from harness.run.scenario import ScenarioError, load_scenario, scenario_from_dict
 from models.ato.controller import AtoCommand, AtoMode, AtoTuning
 from models.plant.dynamics import VehicleParams

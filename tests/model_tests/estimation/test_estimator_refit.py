@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.run.driver import PhaseDriver
+from harness.run.phases import PhaseDriver
 from harness.metrics.estimation import w0_relative_rms_error
 from harness.run.scenario import load_scenario
 from models.chain import ChainConfig, RailCarChain
