@@ -233,7 +233,8 @@ def open_ato(v: dict, resources: str | None):
     tuning; the profiles read as RailCar reads its own, ``resolve_profile_path``). Raises
     ParameterError naming the parameter (a profile: its file and line): an infeasible schedule,
     a stop mark beyond the span, a limit the brakes cannot keep, a bad tuning value."""
-    from models.ato.controller import AtoController, AtoTuning
+    from models.ato.controller import AtoController
+    from models.ato.interface import AtoTuning
     from models.planning.span import CarTraction, Span
     from models.plant.track import parse_profile_csv
     from .variables import _CAR_ROWS, _TUNING_ROWS

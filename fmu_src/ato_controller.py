@@ -13,7 +13,7 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_src.adapter import initialise, not_initialised, open_ato, register_variables
 from fmu_src.variables import ATO, variables_for
-from models.ato.controller import AtoMode
+from models.ato.interface import AtoMode
 
 READS = tuple(v.name for v in variables_for(ATO) if v.causality == "input")
 

@@ -238,7 +238,7 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
 
 
 def _ato_rows() -> tuple[Var, ...]:
-    from models.ato.controller import AtoTuning
+    from models.ato.interface import AtoTuning
     from models.planning.span import CarTraction
     from models.units import kmh_to_mps
     car, tuning = CarTraction(), AtoTuning()

@@ -72,7 +72,8 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 from harness.metrics.ato import INTERVENTIONS, energy_kwh, standstill_time, step_work  # noqa: E402
-from models.ato.controller import AtoController, AtoTuning  # noqa: E402
+from models.ato.controller import AtoController  # noqa: E402
+from models.ato.interface import AtoTuning  # noqa: E402
 from models.plant.dynamics import VehicleParams  # noqa: E402
 from models.planning.span import CarTraction, Span  # noqa: E402
 from models.plant.track import GradeProfile  # noqa: E402

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from models.ato.controller import AtoMode
+from models.ato.interface import AtoMode
 from models.plant.dynamics import VehicleParams, brake_force_limit, traction_force_limit
 from models.planning.span import CarTraction, Span
 

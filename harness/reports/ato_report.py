@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.ato.controller import AtoMode
+from models.ato.interface import AtoMode
 
 from harness.reports.plotting import pyplot
 from harness.metrics.ato import markdown_ato

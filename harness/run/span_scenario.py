@@ -41,8 +41,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass, fields, replace
 from typing import Mapping
 
-from models.ato.controller import INPUTS as ATO_INPUTS
-from models.ato.controller import AtoCommand, AtoController, AtoMode, AtoTuning
+from models.ato.controller import AtoController
+from models.ato.interface import INPUTS as ATO_INPUTS
+from models.ato.interface import AtoCommand, AtoMode, AtoTuning
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 from models.units import kmh_to_mps

@@ -15,7 +15,8 @@ import math
 import pytest
 
 from conftest import ERROR, OK, STATUS_LABEL
-from models.ato.controller import INPUTS, AtoController, AtoMode
+from models.ato.controller import AtoController
+from models.ato.interface import INPUTS, AtoMode
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 
@@ -168,7 +169,7 @@ def test_every_tuning_field_and_input_of_the_controller_is_a_variable(ato_fmu):
     """The FMU exposes all of models.ato.controller: each AtoTuning field as ato.<field> (its type and its
     default as the start value), each CarTraction field as car.<field>, each INPUTS as an input."""
     from dataclasses import fields
-    from models.ato.controller import AtoTuning
+    from models.ato.interface import AtoTuning
     v = ato_fmu.variables
     tuning = AtoTuning()
     typed = {"bool": "Boolean", "int": "Integer", "float": "Real"}

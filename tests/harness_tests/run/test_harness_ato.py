@@ -30,7 +30,7 @@ from harness.run.span_scenario import AtoDriver, AtoStep, replay_steps
 from harness.run.driver import run_on_chain
 from harness.run.result import RunResult
 from harness.run.scenario import ScenarioError, load_scenario, scenario_from_dict
-from models.ato.controller import AtoCommand, AtoMode, AtoTuning
+from models.ato.interface import AtoCommand, AtoMode, AtoTuning
 from models.plant.dynamics import VehicleParams
 from models.planning.span import CarTraction
 from models.units import kmh_to_mps
@@ -354,7 +354,7 @@ def test_a_span_scenario_on_the_chain_needs_nothing_but_the_atos_reads(nominal):
     """AtoDriver.reads: what an FMU stepper must read for it (models.ato.controller.INPUTS, car.speed to
     end a span, est.station_stops for a line); every one is a RailCar output the run records."""
     s, r, d = nominal
-    from models.ato.controller import INPUTS as ATO_INPUTS
+    from models.ato.interface import INPUTS as ATO_INPUTS
     assert set(ATO_INPUTS) <= set(AtoDriver.reads) <= set(r.signals)
     assert set(AtoDriver.reads) - set(ATO_INPUTS) == {"car.speed", "est.station_stops"}
 
