@@ -70,6 +70,7 @@ from models.ato.interface import INPUTS, AtoCommand, AtoMode, AtoTuning
 from models.ato.motion import PlanCar
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
 from models.ato.stopping import RelayBrake, track_force
+from models.fpmath import square
 from models.planning.span import CarTraction, Span, check_span_for_car
 from models.plant.dynamics import acceleration_gain
 from models.units import G
@@ -179,7 +180,7 @@ class AtoController:
             b = min(car.brake_force_max, car.brake_total_max(math.sqrt(q[i + 1])))
             a = b / m - acceleration_gain(car.gamma) * (-c.g[i])    # deceleration [m/s^2], eq. (2)
             qb = q[i + 1] + 2.0 * max(a, 0.0) * (s[i + 1] - s[i])
-            q[i] = min(qb, span.v_lim_at_node(s[i]) ** 2)
+            q[i] = min(qb, square(span.v_lim_at_node(s[i])))
         return q
 
     # ----------------------------------------------------------------- helpers

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from models.ato.motion import (
     K_BRAKE, K_COAST, K_TG, PlanCar, Trace, coast_step, free_step, hold_forces, q_at, step_time,
 )
+from models.fpmath import square
 from models.planning.span import CarTraction, Span
 from models.planning.engine import Mode
 
@@ -84,7 +85,7 @@ class ReducedCourse:
         self.n = len(keep)
         L = car.length
         self.g = [span.grade.average(0.5 * (a + b), L) for a, b in zip(keep[:-1], keep[1:])]
-        self.qlim = [(span.v_lim_at_node(x) - limit_margin) ** 2 for x in keep]
+        self.qlim = [square(span.v_lim_at_node(x) - limit_margin) for x in keep]
         x_relay = span.stop - self.d_relay           # a node: where the EP curve starts
         self.i_relay = min(range(self.n), key=lambda k: abs(keep[k] - x_relay))
 
@@ -383,7 +384,7 @@ class ReducedPlanner:
         qU = self.envelope(car) if qU is None else qU
         fall = self._stretches(qU)
         s0 = min(max(s0, 0.0), c.stop)
-        q0 = max(v0, 0.0) ** 2
+        q0 = square(max(v0, 0.0))
         runs = {}
         v_top = math.sqrt(max(qU))
         v_hi = 4.0 * max(v_top, v0)

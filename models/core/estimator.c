@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fpmath.h"
 #include "rc_common.h"
 
 /* OnlineEstimator's class constants */
@@ -387,7 +388,7 @@ void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double
             th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
             - rc_grade_average(e->grade, rc_filter_position(&e->filter), e->length));
     }
-    double var = rc_square(speed_std) + rc_square(ACCEL_STD * age);
+    double var = rc_sq(speed_std) + rc_sq(ACCEL_STD * age);
     rc_filter_update_speed(&e->filter, rc_max(speed_meas + accel * age, 0.0), var);
     e->track_speeds += 1;
 }

@@ -6,11 +6,12 @@
 #include <stdio.h>
 
 #include "filter.h"
+#include "fpmath.h"
 
 /* Python's float ** 2: OverflowError when a finite base gives an infinite square */
 static rc_status square(double x, double *out)
 {
-    double y = rc_square(x);
+    double y = rc_sq(x);
     if (isinf(y) && isfinite(x))
         return RC_MATH;
     *out = y;
@@ -89,8 +90,8 @@ void rc_filter_init(rc_filter *f, const rc_filter_config *cfg, const rc_grade_pr
     f->grade = grade;
     f->speed = speed;
     f->kind = cfg->kind ? cfg->kind : (has_speed_profile(f) ? RC_LINEARISED : RC_EKF);
-    f->r0 = rc_square(cfg->speed_std);
-    f->r1 = rc_square(cfg->position_std);
+    f->r0 = rc_sq(cfg->speed_std);
+    f->r1 = rc_sq(cfg->position_std);
     f->rejected = 0;
     f->speed_run = f->position_run = 0;
     f->reacquired = 0;
@@ -137,7 +138,7 @@ static void singer_restart(rc_filter *f, double speed, double position, double p
     x0[0] = f->singer_m_w;
     x0[1] = speed;
     x0[2] = position;
-    P0[0] = rc_square(f->singer_sigma_w);
+    P0[0] = rc_sq(f->singer_sigma_w);
     P0[4] = p_v;
     P0[8] = p_x;
     rc_singer_init(&f->singer, f->cfg.singer_tau, f->singer_sigma_w, f->singer_m_w, x0, P0, 1);

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fpmath.h"
 #include "ident.h"
 #include "linalg4.h"
 
@@ -107,12 +108,12 @@ int rc_ident_init_rows(rc_ident *id, const rc_ident_config *cfg, long slope_wind
     id->theta0[2] = cfg->A1_initial;
     id->theta0[3] = cfg->A2_initial;
     id->scale = 1000.0 * (1.0 + cfg->gamma) / (RC_G * cfg->dt);
-    id->s2_ref = rc_square(id->scale) * rc_max(2.0 * rc_square(cfg->speed_std) + cfg->sigma2_initial, 1e-12);
-    double theta1_std = cfg->mass_std_initial / (RC_G * rc_square(cfg->mass_initial));
+    id->s2_ref = rc_sq(id->scale) * rc_max(2.0 * rc_sq(cfg->speed_std) + cfg->sigma2_initial, 1e-12);
+    double theta1_std = cfg->mass_std_initial / (RC_G * rc_sq(cfg->mass_initial));
     double prior_std[4] = {theta1_std, cfg->A0_std_initial, cfg->A1_std_initial, cfg->A2_std_initial};
     for (int i = 0; i < 4; i++)
         id->s2_prior[i] = id->s2_ref;
-    id->s2_prior[0] = rc_square(id->scale) * rc_max(cfg->sigma2_initial, 1e-12);
+    id->s2_prior[0] = rc_sq(id->scale) * rc_max(cfg->sigma2_initial, 1e-12);
     if (id->slope_rows)                    /* the A's prior takes the process-noise weight too */
         for (int i = 1; i < 4; i++)
             id->s2_prior[i] = id->s2_prior[0];
@@ -251,8 +252,8 @@ static void residual_stats(rc_ident *id, double err, int contiguous, double mu)
 /* _configured_noise: (a, b) */
 static void configured_noise(const rc_ident *id, double *a, double *b)
 {
-    *a = rc_square(id->scale) * rc_square(id->cfg.speed_std);
-    *b = rc_square(id->scale) * rc_max(id->cfg.sigma2_initial, 1e-12);
+    *a = rc_sq(id->scale) * rc_sq(id->cfg.speed_std);
+    *b = rc_sq(id->scale) * rc_max(id->cfg.sigma2_initial, 1e-12);
 }
 
 static double n_info(const rc_ident *id)
@@ -427,9 +428,9 @@ int rc_ident_update(rc_ident *id, double traction, double brake, double speed, d
             R[5 * i] += mu * mu * id->j0[i];
         if (rc_la_inverse(R, 4, S))
             st = RC_MATH;
-        id->s2 = (1.0 - mu) * id->s2 + mu * rc_square(pred_err) / gain_den;
+        id->s2 = (1.0 - mu) * id->s2 + mu * rc_sq(pred_err) / gain_den;
     } else {
-        id->q_e += rc_square(pred_err) / gain_den;
+        id->q_e += rc_sq(pred_err) / gain_den;
         id->s2 = n > 4 ? id->q_e / (double)(n - 4) : id->s2_ref;
     }
     id->n = n;
@@ -658,7 +659,7 @@ double rc_ident_mass(const rc_ident *id)
 double rc_ident_mass_std(rc_ident *id)
 {
     double var = rc_ident_covariance(id)[0];
-    return sqrt(rc_max(var, 0.0)) / (RC_G * rc_square(id->theta[0]));
+    return sqrt(rc_max(var, 0.0)) / (RC_G * rc_sq(id->theta[0]));
 }
 
 double rc_ident_sigma2(rc_ident *id)
@@ -673,7 +674,7 @@ double rc_ident_sigma2(rc_ident *id)
             b = b_conf;
         }
         double s2 = process_share(id, a, b);                    /* sigma2_from_residual */
-        id->sigma2 = RC_G * RC_G * id->cfg.dt * id->cfg.dt / 1e6 * s2 / rc_square(1.0 + id->cfg.gamma);
+        id->sigma2 = RC_G * RC_G * id->cfg.dt * id->cfg.dt / 1e6 * s2 / rc_sq(1.0 + id->cfg.gamma);
         id->has_sigma2 = 1;
     }
     return id->sigma2;

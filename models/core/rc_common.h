@@ -25,11 +25,6 @@ typedef struct {
     char msg[RC_MSG_SIZE];        /* names the variable and its value; "" when status is RC_OK */
 } rc_error;
 
-/* CPython's x ** 2 calls libm pow(), which is not always x * x in the last bit. The volatile
- * pointer keeps the compiler from turning pow(x, 2.0) into x * x. */
-static double (*volatile rc_libm_pow)(double, double) = pow;
-static inline double rc_square(double x) { return rc_libm_pow(x, 2.0); }
-
 /* Python's max(a, b) / min(a, b) for floats: the first unless the second is strictly
  * greater / smaller (so NaN and signed zeros come out as in Python). */
 static inline double rc_max(double a, double b) { return b > a ? b : a; }

@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "fpmath.h"
 #include "singer.h"
 
 /* singer._COEFFS: Taylor coefficients of each function, exact rationals rounded once (printed
@@ -115,16 +116,6 @@ const double *rc_singer_coefficients(int name)
     return COEFFS[name];
 }
 
-/* Python's float ** n: OverflowError when a finite base gives an infinite power */
-static rc_status power(double x, double n, double *out)
-{
-    double y = rc_libm_pow(x, n);
-    if (isinf(y) && isfinite(x))
-        return RC_MATH;
-    *out = y;
-    return RC_OK;
-}
-
 static double series(int name, double x)                 /* _series: Horner */
 {
     double acc = 0.0;
@@ -135,47 +126,47 @@ static double series(int name, double x)                 /* _series: Horner */
 
 static rc_status closed(int name, double x, double *out)  /* _closed */
 {
-    double e1 = exp(-x), e2 = exp(-2.0 * x), p;
+    double e1 = rc_exp(-x), e2 = rc_exp(-2.0 * x), p;
     switch (name) {
     case RC_SF_PHI1:
-        *out = -expm1(-x) / x;
+        *out = -rc_expm1(-x) / x;
         return RC_OK;
     case RC_SF_PHI2:
-        *out = (x + expm1(-x)) / (x * x);
+        *out = (x + rc_expm1(-x)) / (x * x);
         return RC_OK;
     case RC_SF_PHI3:
-        if (power(x, 3.0, &p))
+        if (rc_power(x, 3, &p))
             return RC_MATH;
         *out = (1.0 - x + 0.5 * x * x - e1) / p;
         return RC_OK;
     case RC_SF_WW:
-        *out = -expm1(-2.0 * x) / (2.0 * x);
+        *out = -rc_expm1(-2.0 * x) / (2.0 * x);
         return RC_OK;
     case RC_SF_WV: {
         double d = 2.0 * x * x;                   /* 0 below x ~ 1e-162: ZeroDivisionError */
-        if (power(expm1(-x), 2.0, &p) || d == 0.0)
+        if (rc_power(rc_expm1(-x), 2, &p) || d == 0.0)
             return RC_MATH;
         *out = p / d;
         return RC_OK;
     }
     case RC_SF_WR:
-        if (power(x, 3.0, &p))
+        if (rc_power(x, 3, &p))
             return RC_MATH;
-        *out = (-expm1(-2.0 * x) - 2.0 * x * e1) / (2.0 * p);
+        *out = (-rc_expm1(-2.0 * x) - 2.0 * x * e1) / (2.0 * p);
         return RC_OK;
     case RC_SF_VV:
-        if (power(x, 3.0, &p))
+        if (rc_power(x, 3, &p))
             return RC_MATH;
         *out = (2.0 * x - 3.0 + 4.0 * e1 - e2) / (2.0 * p);
         return RC_OK;
     case RC_SF_VR:
-        if (power(x, 4.0, &p))
+        if (rc_power(x, 4, &p))
             return RC_MATH;
         *out = (x * x - 2.0 * x + 1.0 - 2.0 * e1 + 2.0 * x * e1 + e2) / (2.0 * p);
         return RC_OK;
     default: {                                            /* RC_SF_RR */
         double p3;
-        if (power(x, 3.0, &p3) || power(x, 5.0, &p))
+        if (rc_power(x, 3, &p3) || rc_power(x, 5, &p))
             return RC_MATH;
         *out = (2.0 * p3 / 3.0 - 2.0 * x * x + 2.0 * x + 1.0 - e2 - 4.0 * x * e1) / (2.0 * p);
         return RC_OK;
@@ -212,7 +203,7 @@ rc_status rc_singer_discretisation(double alpha, double dt, double sigma_w, doub
     if (check_step(alpha, dt, &x))
         return RC_MATH;
     /* _transition */
-    Phi[0] = exp(-x);
+    Phi[0] = rc_exp(-x);
     Phi[1] = Phi[2] = Phi[5] = 0.0;
     if (rc_singer_f(RC_SF_PHI1, x, &f))
         return RC_MATH;
@@ -237,7 +228,7 @@ rc_status rc_singer_discretisation(double alpha, double dt, double sigma_w, doub
             Q[3 * i + j] = Q[3 * j + i] = k * scale[i] * scale[j] * f;
         }
     /* _mean_input */
-    u[0] = m_w * -expm1(-x);
+    u[0] = m_w * -rc_expm1(-x);
     if (rc_singer_f(RC_SF_PHI2, x, &f))
         return RC_MATH;
     u[1] = m_w * (dt * x * f);
@@ -390,7 +381,7 @@ static const double H_DISTANCE_ROW[3] = {0.0, 0.0, 1.0};
 rc_status rc_singer_update_speed(rc_singer *s, double speed, double speed_std)
 {
     double R;
-    if (power(speed_std, 2.0, &R))
+    if (rc_power(speed_std, 2, &R))
         return RC_MATH;
     return rc_singer_update(s, 1, &speed, H_SPEED_ROW, &R);
 }
@@ -398,7 +389,7 @@ rc_status rc_singer_update_speed(rc_singer *s, double speed, double speed_std)
 rc_status rc_singer_update_distance(rc_singer *s, double distance, double distance_std)
 {
     double R;
-    if (power(distance_std, 2.0, &R))
+    if (rc_power(distance_std, 2, &R))
         return RC_MATH;
     return rc_singer_update(s, 1, &distance, H_DISTANCE_ROW, &R);
 }
@@ -411,7 +402,7 @@ rc_status rc_singer_update_speed_distance(rc_singer *s, double speed, double dis
     z[1] = distance;
     memcpy(H, H_SPEED_ROW, sizeof H_SPEED_ROW);
     memcpy(H + 3, H_DISTANCE_ROW, sizeof H_DISTANCE_ROW);
-    if (power(speed_std, 2.0, &R[0]) || power(distance_std, 2.0, &R[3]))
+    if (rc_power(speed_std, 2, &R[0]) || rc_power(distance_std, 2, &R[3]))
         return RC_MATH;
     R[1] = R[2] = 0.0;
     return rc_singer_update(s, 2, z, H, R);
@@ -469,8 +460,8 @@ rc_status rc_singer_params(double tau, double p0, double p_plus, double p_minus,
     }
     h = rest / (a - b);                                                  /* eq. (3) */
     m = probs[1] * a + probs[2] * b + 0.5 * h * (a * a - b * b);         /* eq. (4) */
-    if (power(a - m, 2.0, &sq[0]) || power(b - m, 2.0, &sq[1]) || power(a - m, 3.0, &cu[0])
-            || power(b - m, 3.0, &cu[1]))
+    if (rc_power(a - m, 2, &sq[0]) || rc_power(b - m, 2, &sq[1]) || rc_power(a - m, 3, &cu[0])
+            || rc_power(b - m, 3, &cu[1]))
         return refuse(err, "filter.singer_*: (w_max - m_w) ** n overflows (OverflowError)");
     var = (probs[0] * m * m + probs[1] * sq[0] + probs[2] * sq[1]
            + h * (cu[0] - cu[1]) / 3.0);                                 /* eqs. (5), (6) */
@@ -489,7 +480,7 @@ rc_status rc_singer_params(double tau, double p0, double p_plus, double p_minus,
         return refuse(err, msg);
     }
     /* what Python meets later: sigma_w ** 2 at a restart, alpha = 1 / tau at a prediction */
-    if (power(*sigma_w, 2.0, &s2))
+    if (rc_power(*sigma_w, 2, &s2))
         return refuse(err, "filter.singer_*: sigma_w ** 2 overflows (OverflowError)");
     if (!isfinite(1.0 / tau)) {
         rc_repr(tau, r0, sizeof r0);

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models.fpmath import square
 from models.plant.dynamics import acceleration_eq2, acceleration_gain, resistance_eq1
 from models.units import resistance_kmh_to_si
 
@@ -179,7 +180,7 @@ class CoastEKF:
         """First coasting sample: V from the measurement, the A's from the prior."""
         c = self.cfg
         self.x = np.array([speed_meas, c.A0, c.A1, c.A2], dtype=float)
-        self.P = np.diag([c.noise_std(speed_meas) ** 2, c.A0_std ** 2, c.A1_std ** 2, c.A2_std ** 2])
+        self.P = np.diag([square(c.noise_std(speed_meas)), square(c.A0_std), square(c.A1_std), square(c.A2_std)])
         self.samples = 1
         self.nis_sum = 0.0
 
@@ -192,7 +193,7 @@ class CoastEKF:
         self.x[0] = speed_meas
         self.P[0, :] = 0.0
         self.P[:, 0] = 0.0
-        self.P[0, 0] = self.cfg.noise_std(speed_meas) ** 2
+        self.P[0, 0] = square(self.cfg.noise_std(speed_meas))
 
     def step(self, dt: float, speed_meas: float, grade: float = 0.0) -> None:
         """Predict over dt [s] (grade [permille] held), update with speed_meas [m/s]."""

@@ -50,6 +50,7 @@ from models.estimation.least_squares import (
     quadratic4, regression_target, regressor, regularised_forgetting, residual_variance, rls_step,
     sandwich, sigma2_from_residual, theta_from_params,
 )
+from models.fpmath import square
 from models.units import G
 
 
@@ -214,8 +215,8 @@ class ParameterIdentifier:
                                         cfg.A2_initial)
         self._scale = 1000.0 * (1.0 + cfg.gamma) / (G * cfg.dt)   # y per (m/s) of speed change
         # expected variance of e(n) before any data: measurement and process noise, eq. (5)
-        s2_ref = self._scale ** 2 * max(2.0 * cfg.speed_std ** 2 + cfg.sigma2_initial, 1e-12)
-        theta1_std = cfg.mass_std_initial / (G * cfg.mass_initial ** 2)
+        s2_ref = square(self._scale) * max(2.0 * square(cfg.speed_std) + cfg.sigma2_initial, 1e-12)
+        theta1_std = cfg.mass_std_initial / (G * square(cfg.mass_initial))
         prior_std = np.array([theta1_std, cfg.A0_std_initial, cfg.A1_std_initial, cfg.A2_std_initial])
         # Prior weights, in Phi^T Phi units: the prior's variance times the noise variance
         # its pseudo-observation stands for. F - B is known exactly and piecewise smooth, so
@@ -228,7 +229,7 @@ class ParameterIdentifier:
         # A's regressors contain the measured V itself, so their prior keeps the white weight
         # (the process-noise weight let them wander: filter speed RMSE +13 %).
         s2p = np.full(4, s2_ref)
-        s2p[0] = self._scale ** 2 * max(cfg.sigma2_initial, 1e-12)
+        s2p[0] = square(self._scale) * max(cfg.sigma2_initial, 1e-12)
         if self._slope_rows:
             # est.method 2: no errors in variables left, and the A's regressors are as smooth as
             # F - B, so their prior takes the process-noise weight too. With the white weight a
@@ -377,9 +378,9 @@ class ParameterIdentifier:
         self._residual_stats(err / math.sqrt(d), contiguous, mu)
         if forgetting > 0.0:
             self._J, self._S = regularised_forgetting(self._J, self._S, phi, mu, self._j0)
-            self.s2 = (1.0 - mu) * self.s2 + mu * err ** 2 / d
+            self.s2 = (1.0 - mu) * self.s2 + mu * square(err) / d
         else:
-            self.q_e += err ** 2 / d
+            self.q_e += square(err) / d
             self.s2 = residual_variance(self.q_e, n) if n > 4 else self.s2_ref
         self.n = n
 
@@ -410,8 +411,8 @@ class ParameterIdentifier:
     def _configured_noise(self) -> tuple[float, float]:
         """(a, b) [(N/kN)^2] as configured, before residual statistics exist: the measured speed's
         error variance and the process noise per step, in y units (see noise_split)."""
-        return (self._scale ** 2 * self.cfg.speed_std ** 2,
-                self._scale ** 2 * max(self.cfg.sigma2_initial, 1e-12))
+        return (square(self._scale) * square(self.cfg.speed_std),
+                square(self._scale) * max(self.cfg.sigma2_initial, 1e-12))
 
     def _solve_batch(self) -> None:
         """The first N pairs: Theta by the prior-regularised batch LS, S = R(N)^-1 (R = J / N),
@@ -613,7 +614,7 @@ class ParameterIdentifier:
     def mass_std(self) -> float:
         """Std of P-hat [t], delta method: std(Theta1) / (g Theta1^2)."""
         var = self._covariance_flat()[0]
-        return math.sqrt(max(var, 0.0)) / (G * self._theta[0] ** 2)
+        return math.sqrt(max(var, 0.0)) / (G * square(self._theta[0]))
 
     def sigma2(self) -> float:
         """Process-noise variance per step [(m/s)^2], eq. (12) applied to the process share b.

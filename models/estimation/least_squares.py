@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from models import linalg4
+from models.fpmath import square
 from models.units import G
 
 LAG = 50
@@ -149,7 +150,7 @@ def residual_variance(q_e: float, n: int) -> float:
 
 def sigma2_from_residual(s2: float, dt: float, gamma: float = 0.0) -> float:
     """sigma^2 = g^2 dt^2 / 10^6 * s^2 / (1+gamma)^2  [(m/s)^2], eq. (12)."""
-    return G * G * dt * dt / 1e6 * s2 / (1.0 + gamma) ** 2
+    return G * G * dt * dt / 1e6 * s2 / square(1.0 + gamma)
 
 
 def mass_from_theta(theta1: float) -> float:

@@ -28,6 +28,7 @@ from models.estimation.coast_ekf import CoastEKF, CoastEKFConfig
 from models.estimation.differentiation import centred_slope_weights
 from models.filtering.motion_filter import ProcessNoiseBank
 from models.estimation.identification import check_method, check_sigma2_method
+from models.fpmath import square
 from models.units import G
 
 
@@ -319,8 +320,8 @@ class LikelihoodNoise(ResidualNoise):
 
     @classmethod
     def from_config(cls, id_cfg, filt_cfg) -> "LikelihoodNoise":
-        variance_at = (lambda z: filt_cfg.speed_noise_std(z) ** 2) if filt_cfg.speed_std_rel else None
-        return cls(id_cfg.sigma2_initial, filt_cfg.speed_std ** 2, variance_at)
+        variance_at = (lambda z: square(filt_cfg.speed_noise_std(z))) if filt_cfg.speed_std_rel else None
+        return cls(id_cfg.sigma2_initial, square(filt_cfg.speed_std), variance_at)
 
     def sigma2(self, est) -> float:
         return self.bank.estimate()

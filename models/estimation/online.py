@@ -14,6 +14,7 @@ import numpy as np
 from models.filtering.motion_filter import FilterConfig, MotionFilter
 from models.estimation.identification import IdentifierConfig, ParameterIdentifier, project_physical
 from models.estimation.methods import identification_method, noise_model
+from models.fpmath import square
 from models.plant.track import GradeProfile, SpeedProfile
 from models.units import G
 
@@ -237,7 +238,7 @@ class OnlineEstimator:
             accel = G / 1000.0 / (1.0 + self.gamma) * (
                 th[0] * (traction - brake) - th[1] - th[2] * v - th[3] * v * v
                 - self.grade_profile.average(self.filter.position, self.length))
-        var = speed_std ** 2 + (self.ACCEL_STD * age) ** 2
+        var = square(speed_std) + square(self.ACCEL_STD * age)
         self.filter.update_speed(max(speed_meas + accel * age, 0.0), var)
         self.track_speeds += 1
 

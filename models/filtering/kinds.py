@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 
 from models.filtering import kalman as kalman2
+from models.fpmath import square
 
 LINEARISED, EKF, PAPER, SINGER = 1, 2, 3, 4
 """Values of ``filter.kind``: 0 = automatic (LINEARISED when a speed profile is given, else EKF);
@@ -59,7 +60,7 @@ class EKFKind:
         vzad = self.vzad(position_meas)
         f.vzad_hat = f.vzad_bar = vzad
         f.x_hat = (max(speed_meas, 0.0) - vzad, position_meas)
-        f.P = ((f.speed_variance(speed_meas), 0.0), (0.0, self.cfg.position_noise_std(position_meas) ** 2))
+        f.P = ((f.speed_variance(speed_meas), 0.0), (0.0, square(self.cfg.position_noise_std(position_meas))))
 
     def hold(self, f) -> None:
         f.x_hat, f.P = f.x_bar, f.M
@@ -198,7 +199,7 @@ class SingerKind:
         from models.filtering.singer import SingerFilter
         sp = self.params
         self.singer = SingerFilter(sp, x0=(sp.m_w, speed, position),
-                                   P0=(sp.sigma_w ** 2, 0.0, 0.0, 0.0, p_v, 0.0, 0.0, 0.0, p_x))
+                                   P0=(square(sp.sigma_w), 0.0, 0.0, 0.0, p_v, 0.0, 0.0, 0.0, p_x))
         self._publish(f, posterior=True)
         self._publish(f, posterior=False)
 
@@ -207,7 +208,7 @@ class SingerKind:
 
     def start(self, f, speed_meas: float, position_meas: float) -> None:
         self._restart(f, max(speed_meas, 0.0), position_meas, f.speed_variance(speed_meas),
-                      self.cfg.position_noise_std(position_meas) ** 2)
+                      square(self.cfg.position_noise_std(position_meas)))
 
     def hold(self, f) -> None:
         self._publish(f, posterior=True)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.filtering.kinds import EKF, LINEARISED, PAPER, SINGER, filter_kind, kind_class  # noqa: F401
+from models.fpmath import square
 from models.plant.track import GradeProfile, SpeedProfile
 
 
@@ -98,7 +99,7 @@ class MotionFilter:
         self.speed_profile = speed_profile
         self.algorithm = algorithm or filter_kind(cfg, grade_profile, speed_profile)
         self.kind = self.algorithm.kind
-        self.R = (cfg.speed_std ** 2, cfg.position_std ** 2)
+        self.R = (square(cfg.speed_std), square(cfg.position_std))
         self.rejected = 0             # measurements (speeds and distances) the gate refused
         self.speed_run = self.position_run = 0   # ... in a row, up to now
         self.reacquired = 0           # restarts from the measurements after REACQUIRE of them
@@ -145,11 +146,11 @@ class MotionFilter:
 
     def position_variance(self, position_meas: float) -> float:
         """Variance of the measured distance [m^2] at ``position_meas`` [m]."""
-        return self.cfg.position_noise_std(position_meas) ** 2 if self.cfg.position_std_rel else self.R[1]
+        return square(self.cfg.position_noise_std(position_meas)) if self.cfg.position_std_rel else self.R[1]
 
     def speed_variance(self, speed_meas: float) -> float:
         """Variance of the measured speed [(m/s)^2] at ``speed_meas`` [m/s] (R_v; sensor.speed_std_rel)."""
-        return self.cfg.speed_noise_std(speed_meas) ** 2 if self.cfg.speed_std_rel else self.R[0]
+        return square(self.cfg.speed_noise_std(speed_meas)) if self.cfg.speed_std_rel else self.R[0]
 
     def gate(self, speed_meas: float, position_meas: float) -> tuple[bool, bool]:
         """(use the speed, use the distance) [m/s, m] at this sample, against the prediction;

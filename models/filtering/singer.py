@@ -59,6 +59,9 @@ from math import factorial
 
 import numpy as np
 
+from models import fpmath
+from models.fpmath import cube, fifth, fourth, square
+
 I_W, I_V, I_R = 0, 1, 2
 """Indices of acceleration [m/s^2], speed [m/s], distance [m] in the state."""
 
@@ -105,8 +108,8 @@ def singer_mixture_moments(p0: float, p_plus: float, p_minus: float, w_max_plus:
                          f"[m/s^2], got {w_max_minus}, {w_max_plus}")
     h = rest / (a - b)                                                        # eq. (3)
     m = probs[1] * a + probs[2] * b + 0.5 * h * (a * a - b * b)               # eq. (4)
-    var = (probs[0] * m * m + probs[1] * (a - m) ** 2 + probs[2] * (b - m) ** 2
-           + h * ((a - m) ** 3 - (b - m) ** 3) / 3.0)                         # eqs. (5), (6)
+    var = (probs[0] * m * m + probs[1] * square(a - m) + probs[2] * square(b - m)
+           + h * (cube(a - m) - cube(b - m)) / 3.0)                         # eqs. (5), (6)
     return m, math.sqrt(max(var, 0.0))
 
 
@@ -188,25 +191,25 @@ def _series(name: str, x: float) -> float:
 
 def _closed(name: str, x: float) -> float:
     """Closed forms for x >= SERIES_SWITCH (and the expm1 ones, accurate for every x > 0)."""
-    e1, e2 = math.exp(-x), math.exp(-2.0 * x)
+    e1, e2 = fpmath.exp(-x), fpmath.exp(-2.0 * x)
     if name == "phi1":
-        return -math.expm1(-x) / x
+        return -fpmath.expm1(-x) / x
     if name == "phi2":
-        return (x + math.expm1(-x)) / (x * x)
+        return (x + fpmath.expm1(-x)) / (x * x)
     if name == "phi3":
-        return (1.0 - x + 0.5 * x * x - e1) / (x ** 3)
+        return (1.0 - x + 0.5 * x * x - e1) / cube(x)
     if name == "ww":
-        return -math.expm1(-2.0 * x) / (2.0 * x)
+        return -fpmath.expm1(-2.0 * x) / (2.0 * x)
     if name == "wv":
-        return math.expm1(-x) ** 2 / (2.0 * x * x)
+        return square(fpmath.expm1(-x)) / (2.0 * x * x)
     if name == "wr":
-        return (-math.expm1(-2.0 * x) - 2.0 * x * e1) / (2.0 * x ** 3)
+        return (-fpmath.expm1(-2.0 * x) - 2.0 * x * e1) / (2.0 * cube(x))
     if name == "vv":
-        return (2.0 * x - 3.0 + 4.0 * e1 - e2) / (2.0 * x ** 3)
+        return (2.0 * x - 3.0 + 4.0 * e1 - e2) / (2.0 * cube(x))
     if name == "vr":
-        return (x * x - 2.0 * x + 1.0 - 2.0 * e1 + 2.0 * x * e1 + e2) / (2.0 * x ** 4)
+        return (x * x - 2.0 * x + 1.0 - 2.0 * e1 + 2.0 * x * e1 + e2) / (2.0 * fourth(x))
     if name == "rr":
-        return (2.0 * x ** 3 / 3.0 - 2.0 * x * x + 2.0 * x + 1.0 - e2 - 4.0 * x * e1) / (2.0 * x ** 5)
+        return (2.0 * cube(x) / 3.0 - 2.0 * x * x + 2.0 * x + 1.0 - e2 - 4.0 * x * e1) / (2.0 * fifth(x))
     raise KeyError(name)
 
 
@@ -230,7 +233,7 @@ def _check_step(alpha: float, dt: float) -> float:
 def _transition(alpha: float, dt: float) -> tuple:
     """Phi of ``singer_transition`` as a flat row-major tuple of 9 floats."""
     x = _check_step(alpha, dt)
-    return (math.exp(-x), 0.0, 0.0,
+    return (fpmath.exp(-x), 0.0, 0.0,
             dt * _f("phi1", x), 1.0, 0.0,
             dt * dt * _f("phi2", x), dt, 1.0)
 
@@ -255,7 +258,7 @@ def _process_noise(alpha: float, dt: float, sigma_w: float) -> tuple:
 def _mean_input(alpha: float, dt: float, m_w: float) -> tuple:
     """u of ``singer_mean_input`` as a tuple of 3 floats (m_w times each entry)."""
     x = _check_step(alpha, dt)
-    return (m_w * -math.expm1(-x), m_w * (dt * x * _f("phi2", x)),
+    return (m_w * -fpmath.expm1(-x), m_w * (dt * x * _f("phi2", x)),
             m_w * (dt * dt * x * _f("phi3", x)))
 
 
@@ -289,7 +292,7 @@ def seed002_transition(alpha: float, dt: float) -> np.ndarray:
     v[n] dt; both are first-order in dt. alpha [1/s], dt [s].
     """
     x = _check_step(alpha, dt)
-    return np.array([[math.exp(-x), 0.0, 0.0], [dt, 1.0, 0.0], [0.0, dt, 1.0]])
+    return np.array([[fpmath.exp(-x), 0.0, 0.0], [dt, 1.0, 0.0], [0.0, dt, 1.0]])
 
 
 def seed002_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray:
@@ -300,7 +303,7 @@ def seed002_process_noise(alpha: float, dt: float, sigma_w: float) -> np.ndarray
     """
     x = _check_step(alpha, dt)
     Q = np.zeros((3, 3))
-    Q[0, 0] = -math.expm1(-2.0 * x) * sigma_w * sigma_w
+    Q[0, 0] = -fpmath.expm1(-2.0 * x) * sigma_w * sigma_w
     return Q
 
 
@@ -494,7 +497,7 @@ class SingerFilter:
         self.clip = clip
         self._x = ([params.m_w, 0.0, 0.0] if x0 is None
                    else np.asarray(x0, dtype=float).reshape(3).tolist())
-        self._P = ([params.sigma_w ** 2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0] if P0 is None
+        self._P = ([square(params.sigma_w), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0] if P0 is None
                    else np.asarray(P0, dtype=float).reshape(9).tolist())
         if clip:
             self._x = _project(self._x, self._P)
@@ -535,17 +538,17 @@ class SingerFilter:
 
     def update_speed(self, speed: float, speed_std: float) -> None:
         """Speed measurement [m/s] with noise std [m/s] (e.g. two track sensors)."""
-        self._take([float(speed)], [H_SPEED_ROW], [speed_std ** 2])
+        self._take([float(speed)], [H_SPEED_ROW], [square(speed_std)])
 
     def update_distance(self, distance: float, distance_std: float) -> None:
         """Distance measurement [m] with noise std [m] (H = [0 0 1])."""
-        self._take([float(distance)], [H_DISTANCE_ROW], [distance_std ** 2])
+        self._take([float(distance)], [H_DISTANCE_ROW], [square(distance_std)])
 
     def update_speed_distance(self, speed: float, distance: float, speed_std: float,
                               distance_std: float) -> None:
         """Speed [m/s] and distance [m] with independent noise stds [m/s], [m]."""
         self._take([float(speed), float(distance)], [H_SPEED_ROW, H_DISTANCE_ROW],
-                   [speed_std ** 2, 0.0, 0.0, distance_std ** 2])
+                   [square(speed_std), 0.0, 0.0, square(distance_std)])
 
     @property
     def acceleration(self) -> float:

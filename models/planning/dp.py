@@ -75,7 +75,7 @@ class _Tables:
         self.dt = np.empty((self.M, A, n_speeds))
         for j in range(self.M):
             i0, i1 = nodes[j], nodes[j + 1]
-            q_entry = self.grid[j] ** 2
+            q_entry = self.grid[j] ** 2          # an array: numpy squares by x * x
             for a, act in enumerate(actions):
                 q, t, e = self.propagate(q_entry, i0, i1, act)
                 self.v_next[j, a] = np.sqrt(np.maximum(q, 0.0))

@@ -13,6 +13,7 @@ from enum import IntEnum
 import numpy as np
 from scipy.optimize import brentq
 
+from models.fpmath import square
 from models.plant.dynamics import acceleration, acceleration_gain, main_resistance, specific_force_eq2
 from models.planning.span import CarTraction, Span, check_span_for_car
 
@@ -97,7 +98,7 @@ class Course:
                 g = span.grade.at(0.5 * (a + b))
                 ga.append(g), gm.append(g), gb.append(g)
         self.ga, self.gm, self.gb = ga, gm, gb
-        self.qlim = np.array([span.v_lim_at_node(x) ** 2 for x in s])
+        self.qlim = np.array([square(span.v_lim_at_node(x)) for x in s])
         self._envelope()
 
     def _fade_nodes(self) -> list[float]:
@@ -107,7 +108,7 @@ class Course:
         braking between regen and mechanical brake does not depend on the step."""
         car, span = self.car, self.span
         out, q, x, d = [], 0.0, span.stop, 0.01
-        targets = [car.regen_off_speed ** 2, car.regen_fade_speed ** 2]
+        targets = [square(car.regen_off_speed), square(car.regen_fade_speed)]
         while targets and x > d:
             g = span.grade.average(x - 0.5 * d, car.length)
             q1 = max(free_step(car, q, x, x - d, g, g, g, K_SERVICE, 1.0)[0], 0.0)
@@ -498,7 +499,7 @@ def _run_commands(course: Course, cmds) -> _Trace:
         if s_next <= sw:
             continue
         if mode in (Mode.C, Mode.SR, Mode.ST):
-            qh = q if val is None else float(val) ** 2
+            qh = q if val is None else square(float(val))
             policy = (lambda a, q0, qh=qh: (K_COAST, 0.0, qh, qh))
         else:
             u = 1.0 if val is None or mode == Mode.TM else float(val)

@@ -143,7 +143,7 @@ def track_sensor_speed_bias(v, base: float, resolution: float, jitter_std: float
     the measurement reads high on average."""
     _check_base_resolution(base, resolution)
     v = np.asarray(v, dtype=float)
-    return _out(v ** 3 * interval_error_variance(resolution, jitter_std) / (base * base))
+    return _out(v * v * v * interval_error_variance(resolution, jitter_std) / (base * base))
 
 
 def track_sensor_speed_error_bound(v, base: float, resolution: float):

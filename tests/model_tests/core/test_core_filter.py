@@ -29,7 +29,7 @@ from models.units import G
 ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "filter_shim.c"
-SOURCES = [CORE / "filter.c", CORE / "singer.c", CORE / "repr.c", CORE / "track.c"]
+SOURCES = [CORE / "filter.c", CORE / "singer.c", CORE / "repr.c", CORE / "track.c", CORE / "fpmath.c"]
 CFLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic",
           "-fPIC"]
 RC_OK, RC_BAD_CONFIG, RC_MATH = 0, 2, 3

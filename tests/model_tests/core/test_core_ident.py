@@ -27,7 +27,7 @@ from models.units import G
 ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "ident_shim.c"
-SOURCES = [CORE / "ident.c", CORE / "linalg4.c"]
+SOURCES = [CORE / "ident.c", CORE / "linalg4.c", CORE / "fpmath.c"]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 LAG = ParameterIdentifier.LAG
 N_STATE = 4 + 2 + 4 + 4 + 4 + 4 + 1 + 4 + 16 + 4 + 4 + 1 + 16 + 6 + 16 + 16 + 1 + 4 + 2 + 4 + LAG + 5 + 16

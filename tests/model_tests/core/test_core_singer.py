@@ -44,7 +44,7 @@ from test_core_filter import (FIELDS, GATE, HOLD, PREDICT, RESTART, START, THETA
 
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "singer_shim.c"
-SOURCES = [CORE / "singer.c", CORE / "filter.c", CORE / "track.c", CORE / "repr.c", SHIM]
+SOURCES = [CORE / "singer.c", CORE / "filter.c", CORE / "track.c", CORE / "repr.c", CORE / "fpmath.c", SHIM]
 CFLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic",
           "-fPIC"]
 RC_OK, RC_BAD_CONFIG, RC_MATH = 0, 2, 3

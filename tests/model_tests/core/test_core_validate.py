@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "validate_shim.c"
 SOURCES = [CORE / f for f in ("validate.c", "plant.c", "filter.c", "singer.c", "repr.c",
-                               "config.c", "track.c", "noise.c")]   # validate.c and what it needs
+                               "config.c", "track.c", "noise.c", "fpmath.c")]   # validate.c and what it needs
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic",
          "-fPIC"]
 LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
