@@ -291,8 +291,8 @@ def _fmu_options(p) -> None:
                    "sources")
     p.add_argument("--fmu", choices=KINDS, default=DEFAULT_KIND,
                    help="which FMU runs: native (the C core, no Python), python (pythonfmu, every option), or "
-                        "auto (default): native when the C core covers the parameters (est.method, est.physical "
-                        "and est.sigma2_method 0), else python; the choice is printed and recorded")
+                        "auto (default): native when the C core covers the parameters (est.method 0 or 2, "
+                        "any est.physical and est.sigma2_method), else python; the choice is printed and recorded")
     p.add_argument("--rebuild", action="store_true", help="rebuild the FMUs into --dist even if they are current")
 
 

@@ -8,7 +8,7 @@ Python reference ``models.chain.RailCarChain``. Both give bit-identical outputs 
 
 The C core covers filter kinds 0-4 (the Singer filter included), est.method 0 and 2 (the LS on
 Sidorenko's slopes: est.slope_window follows the flat configuration, models/core/config.c),
-est.physical 0 and 1, est.sigma2_method 0, any forgetting, car length, odometry drift and track
+est.physical 0 and 1, est.sigma2_method 0 and 1, any forgetting, car length, odometry drift and track
 sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs run the same options
 (they hand the core est.slope_window after their flat configuration; estimator_not_covered is the
 rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
@@ -61,14 +61,14 @@ def enabled() -> bool:
     return _railcar is not None and not os.environ.get("RAILCAR_PURE_PYTHON")
 
 
-NOT_COVERED = "est.method 1 or 3 or est.sigma2_method 1"
+NOT_COVERED = "est.method 1 or 3"
 """The estimator options the C core does not run (models/core/estimator.h RC_NOT_COVERED)."""
 
 
 def core_not_covered(identifier: IdentifierConfig) -> str | None:
     """Why the C core does not run this estimator in this process (CompiledChain,
     CompiledEstimatorChain: NOT_COVERED), or None when it does."""
-    if identifier.method not in (0, 2) or identifier.sigma2_method != 0:
+    if identifier.method not in (0, 2):
         return NOT_COVERED
     return None
 

@@ -3,7 +3,7 @@
 Two kinds of FMU run the same model (docs/using_fmus.md): the pythonfmu FMUs ``DIST/RailCar.fmu``,
 ``DIST/RailCarEstimator.fmu`` (every option) and the native ones ``DIST/native/RailCarNative.fmu``,
 ``DIST/native/RailCarEstimatorNative.fmu`` (the C core: bit-identical outputs, no Python, but
-``est.method`` 1 and 3 and ``est.sigma2_method`` 1 are refused at initialisation).
+``est.method`` 1 and 3 are refused at initialisation).
 ``--fmu`` picks one (``choose``): ``python``, ``native``, or ``auto`` (the default): the native FMU
 when it covers every parameter set the command will run, else the pythonfmu FMU. The
 choice is always printed (``FmuChoice.line``) and recorded in what the command writes.
@@ -50,7 +50,7 @@ def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False,
 
 # ------------------------------------------------------------------------------ which kind runs
 
-COVERED_VALUES = {"est.method": (0, 2), "est.sigma2_method": (0,)}
+COVERED_VALUES = {"est.method": (0, 2), "est.sigma2_method": (0, 1)}
 """The values of the estimator options the native FMUs run (models.compiled.NOT_COVERED names the
 rest): a refusal names the options set outside them."""
 

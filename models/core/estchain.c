@@ -89,7 +89,7 @@ rc_status rc_estchain_step(rc_estchain *c, double current_time, double step_size
         if (rc_estimator_init(&c->est, &c->cfg.identifier, &c->cfg.filter, &c->cfg.station,
                               &c->grade, c->speed.n ? &c->speed : NULL, step_size,
                               c->cfg.method == 2 ? c->cfg.slope_window : 0,
-                              c->cfg.physical) != 0) {
+                              c->cfg.physical, c->cfg.sigma2_method) != 0) {
             if (err)
                 snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
             return RC_BAD_CONFIG;

@@ -136,12 +136,82 @@ static void slope_identify(rc_estimator *e, double traction, double brake, doubl
     s->contiguous = 1;
 }
 
+/* ------------------------------------------------------------------ ProcessNoiseBank */
+
+/* ProcessNoiseBank.__init__ with its defaults (decades -2..1, n 13, prior_decades 1) */
+static void bank_init(rc_noise_bank *b, double q0, double speed_std, double speed_std_rel)
+{
+    const int n = RC_BANK_SIZE;
+    const double lo = -2.0, hi = 1.0, prior_decades = 1.0;
+    double ln10 = rc_log(10.0), log_q0 = rc_log(q0);
+    double width = prior_decades * ln10;
+    for (int j = 0; j < n; j++) {
+        b->log_q[j] = log_q0 + ln10 * (lo + (hi - lo) * (double)j / (double)(n - 1));
+        b->q[j] = rc_exp(b->log_q[j]);
+        b->log_prior[j] = -0.5 * rc_sq((b->log_q[j] - log_q0) / width);
+        b->log_lik[j] = 0.0;
+        b->x[j] = 0.0;
+        b->P[j] = 0.0;
+    }
+    b->started = 0;
+    b->R = rc_sq(speed_std);                      /* LikelihoodNoise.from_config */
+    b->speed_std = speed_std;
+    b->speed_std_rel = speed_std_rel;
+    b->estimate = q0;
+}
+
+static void bank_predict(rc_noise_bank *b, double dv, double q_param)
+{
+    if (!b->started)
+        return;
+    for (int j = 0; j < RC_BANK_SIZE; j++) {
+        b->x[j] = b->x[j] + dv;
+        b->P[j] = b->P[j] + b->q[j] + q_param;
+    }
+}
+
+static void bank_update(rc_noise_bank *b, double z)
+{
+    const int n = RC_BANK_SIZE;
+    /* variance_at: square(speed_noise_std(z)) with sensor.speed_std_rel, else R */
+    double R = b->speed_std_rel != 0.0 ? rc_sq(b->speed_std + b->speed_std_rel * fabs(z)) : b->R;
+    double w[RC_BANK_SIZE];
+    if (!b->started) {
+        for (int j = 0; j < n; j++) {
+            b->x[j] = z;
+            b->P[j] = R;
+        }
+        b->started = 1;
+        return;
+    }
+    for (int j = 0; j < n; j++) {
+        double S = b->P[j] + R;
+        double nu = z - b->x[j];
+        b->log_lik[j] += -0.5 * (rc_log(S) + nu * nu / S);
+        double K = b->P[j] / S;
+        b->x[j] = b->x[j] + K * nu;
+        b->P[j] = b->P[j] * (1.0 - K);
+    }
+    for (int j = 0; j < n; j++)
+        w[j] = b->log_lik[j] + b->log_prior[j];
+    double top = w[0];
+    for (int j = 1; j < n; j++)
+        top = rc_max(top, w[j]);
+    double num = 0.0, den = 0.0;
+    for (int j = 0; j < n; j++) {
+        double e = rc_exp(w[j] - top);
+        num += e * b->log_q[j];
+        den += e;
+    }
+    b->estimate = rc_exp(num / den);
+}
+
 /* ------------------------------------------------------------------ OnlineEstimator */
 
 int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
                       const rc_station_config *station, const rc_grade_profile *grade,
                       const rc_speed_profile *speed, double dt, long slope_window,
-                      int physical)
+                      int physical, int sigma2_method)
 {
     rc_ident_config ic = *id_cfg;          /* build_estimator's private copies */
     rc_filter_config fc = *filt;
@@ -151,6 +221,8 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
     fc.gamma = ic.gamma;
     e->slope = NULL;
     e->physical = physical;
+    e->likelihood_noise = sigma2_method == 1;
+    bank_init(&e->bank, ic.sigma2_initial, fc.speed_std, fc.speed_std_rel);
     if (rc_ident_init_rows(&e->ident, &ic, slope_window) != 0)
         return -1;
     if (slope_window != 0 && !(e->slope = slope_new(slope_window))) {
@@ -187,7 +259,8 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
 const char *rc_estimator_not_covered(int method, int physical, int sigma2_method,
                                      long slope_window)
 {
-    if (!(method == 0 || method == 2) || !(physical == 0 || physical == 1) || sigma2_method != 0)
+    if (!(method == 0 || method == 2) || !(physical == 0 || physical == 1)
+            || !(sigma2_method == 0 || sigma2_method == 1))
         return RC_NOT_COVERED;
     if (method == 2 && slope_window < 2)
         return RC_NO_SLOPE_WINDOW;
@@ -273,6 +346,12 @@ static void model_theta(rc_estimator *e, double *theta)
         rc_project_physical(theta, rc_ident_model_covariance(&e->ident));
 }
 
+/* OnlineEstimator.sigma2: the noise model's */
+static double sigma2(rc_estimator *e)
+{
+    return e->likelihood_noise ? e->bank.estimate : rc_ident_sigma2(&e->ident);
+}
+
 /* OnlineEstimator.process_noise */
 static double process_noise(rc_estimator *e, double traction, double brake, double dt)
 {
@@ -280,7 +359,7 @@ static double process_noise(rc_estimator *e, double traction, double brake, doub
     double k = RC_G * dt / 1000.0 / (1.0 + e->gamma);
     double phi[4] = {traction - brake, -1.0, -v, -v * v};
     double var = rc_ident_model_variance_along(&e->ident, phi);
-    return rc_ident_sigma2(&e->ident) * dt / e->dt_nominal + k * k * var;
+    return sigma2(e) * dt / e->dt_nominal + k * k * var;
 }
 
 /* OnlineEstimator._excited */
@@ -352,6 +431,12 @@ void rc_estimator_measure(rc_estimator *e, double speed_meas, double position_me
     e->prev_speed = speed_meas;
     e->prev_position = use_x ? position_meas : rc_filter_predicted_position(&e->filter);
     e->prev_fit = fit;
+    if (e->likelihood_noise) {            /* LikelihoodNoise.observe */
+        if (!e->station.moving)
+            e->bank.started = 0;
+        else if (use_v)
+            bank_update(&e->bank, speed_meas);
+    }
     if (stop) {
         e->station_stops += 1;
         rc_ident_restart_mass(&e->ident);
@@ -366,7 +451,11 @@ void rc_estimator_propagate(rc_estimator *e, double traction, double brake, doub
     double theta[4];
     model_theta(e, theta);
     double q = process_noise(e, traction, brake, dt);
+    double before = rc_filter_speed(&e->filter);
     rc_filter_predict(&e->filter, traction, brake, theta, q, dt);
+    if (e->likelihood_noise && e->station.moving)      /* LikelihoodNoise.predicted */
+        bank_predict(&e->bank, rc_filter_predicted_speed(&e->filter) - before,
+                     q - sigma2(e) * dt / e->dt_nominal);
     e->force_traction = traction;
     e->force_brake = brake;
     e->dt = dt;
@@ -407,7 +496,7 @@ void rc_estimator_raw_outputs(rc_estimator *e, int predicted, double *out)
     out[5] = sd[1];
     out[6] = sd[2];
     out[7] = sd[3];
-    out[8] = rc_ident_sigma2(&e->ident);
+    out[8] = sigma2(e);
     out[9] = (double)rc_ident_samples(&e->ident);
     out[10] = (double)e->station_stops;
     if (predicted) {

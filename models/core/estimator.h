@@ -1,6 +1,6 @@
 /* estimator.h -- models.estimation.online: StationDetector and OnlineEstimator for est.method 0 (the
- * paper's LS) and 2 (methods.SlopeLS: the LS on Sidorenko's centred slopes), est.sigma2_method 0,
- * est.physical 0 and 1, filter kinds 1-4: per sample, measure()
+ * paper's LS) and 2 (methods.SlopeLS: the LS on Sidorenko's centred slopes), est.sigma2_method 0
+ * (the LS's LAG sums) and 1 (methods.LikelihoodNoise: the likelihood bank), est.physical 0 and 1, filter kinds 1-4: per sample, measure()
  * (identification of the pair, station logic, the filter's gate and update), then propagate()
  * (the filter's prediction with the forces applied until the next sample), and the outputs with
  * finish_outputs' guarantees (every value finite, est.mass plausible, est.status). */
@@ -37,6 +37,17 @@ enum { RC_STATUS_PRIOR = 0, RC_STATUS_IDENTIFYING = 1, RC_STATUS_HOLDING = 2, RC
 #define RC_EST_OUTPUTS (RC_EST_RAW + 2 + RC_EST_COVARIANCES)
 #define RC_FINISH_MAX 40         /* values finish_outputs can guard (the chain's 12 + 15) */
 
+#define RC_BANK_SIZE 13          /* ProcessNoiseBank's n */
+
+typedef struct {                 /* models.filtering.motion_filter.ProcessNoiseBank (est.sigma2_method 1) */
+    double log_q[RC_BANK_SIZE], q[RC_BANK_SIZE], log_prior[RC_BANK_SIZE];  /* the grid [(m/s)^2] */
+    double log_lik[RC_BANK_SIZE];
+    double x[RC_BANK_SIZE], P[RC_BANK_SIZE];    /* members' speeds [m/s], variances [(m/s)^2] */
+    int started;                 /* x is not None: the car moves */
+    double R, speed_std, speed_std_rel;   /* R [(m/s)^2]; variance_at from the filter's stds */
+    double estimate;             /* sigma^2 [(m/s)^2] */
+} rc_noise_bank;
+
 typedef struct {                 /* models.estimation.methods.SlopeLS (est.method 2) */
     long size;                   /* est.slope_window */
     long len;                    /* speeds held (len - 1 intervals) */
@@ -51,6 +62,8 @@ typedef struct {                 /* models.estimation.online.OnlineEstimator (me
     rc_ident ident;
     rc_slope_ls *slope;          /* est.method 2's rows, else NULL */
     int physical;                /* est.physical: A0, A2 >= 0 reported and predicted with */
+    int likelihood_noise;        /* est.sigma2_method 1: sigma^2 from `bank`, else the LS's */
+    rc_noise_bank bank;
     rc_filter filter;
     rc_station station;
     const rc_grade_profile *grade;   /* the chain's */
@@ -67,15 +80,16 @@ typedef struct {                 /* models.estimation.online.OnlineEstimator (me
 
 /* models.chain.build_estimator + OnlineEstimator.__init__, sampling every dt [s] (configs
  * validated by the caller; private copies are taken); slope_window 0: est.method 0, >= 2:
- * est.method 2 with that est.slope_window; physical: est.physical. 0, or -1 when the identifier's buffers cannot be
+ * est.method 2 with that est.slope_window; physical: est.physical; sigma2_method:
+ * est.sigma2_method (0 or 1). 0, or -1 when the identifier's buffers cannot be
  * allocated. The estimator points at grade and speed: they must outlive it. */
 int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_filter_config *filt,
                       const rc_station_config *station, const rc_grade_profile *grade,
                       const rc_speed_profile *speed, double dt, long slope_window,
-                      int physical);
+                      int physical, int sigma2_method);
 void rc_estimator_free(rc_estimator *e);
 /* What the core does not run, as models/compiled.py's estimator_not_covered says it */
-#define RC_NOT_COVERED "est.method 1 or 3 or est.sigma2_method 1"
+#define RC_NOT_COVERED "est.method 1 or 3"
 #define RC_NO_SLOPE_WINDOW "est.method 2 without est.slope_window (>= 2; the value after the " \
     "flat configuration)"
 /* NULL when the core runs est.method, est.physical (0 or 1), est.sigma2_method and est.slope_window

@@ -139,7 +139,8 @@ static rc_status start(rc_chain *c, rc_error *err)
     filt.length = c->cfg.vehicle.length;
     if (rc_estimator_init(&c->est, &c->cfg.identifier, &filt, &c->cfg.station, &c->grade,
                           c->speed.n ? &c->speed : NULL, c->cfg.sample_period,
-                          c->cfg.method == 2 ? c->cfg.slope_window : 0, c->cfg.physical) != 0) {
+                          c->cfg.method == 2 ? c->cfg.slope_window : 0, c->cfg.physical,
+                          c->cfg.sigma2_method) != 0) {
         if (err)
             snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
         return RC_BAD_CONFIG;

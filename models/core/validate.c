@@ -85,9 +85,6 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
     if (!(sigma2_method == 0 || sigma2_method == 1))
         return refuse(err, "est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
                            "(innovation likelihood), got %d", sigma2_method);
-    if (native_fmu && sigma2_method != 0)
-        return refuse(err, fmt, "est.sigma2_method", sigma2_method, native_fmu,
-                      "LAG sums of the LS residuals", native_fmu);
     if (!(physical == 0 || physical == 1))
         return refuse(err, "est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got %d",
                       physical);
@@ -137,6 +134,12 @@ static rc_status estimator_validate(const rc_ident_config *ident, const rc_filte
     id.speed_std = filt->speed_std;
     if ((st = ident_validate(&id, method, physical, sigma2_method, slope_window, native_fmu, err)))
         return st;
+    if (sigma2_method == 1 && !(filt->speed_std * filt->speed_std > 0.0)) {
+        char q0[40], R[40];            /* ProcessNoiseBank's check (LikelihoodNoise.from_config) */
+        rc_repr(id.sigma2_initial, q0, sizeof q0);
+        rc_repr(filt->speed_std * filt->speed_std, R, sizeof R);
+        return refuse(err, "ProcessNoiseBank needs q0 > 0 and R > 0, got %s, %s", q0, R);
+    }
     if ((st = rc_filter_validate(filt, has_speed_profile, err)))
         return st;
     return rc_station_validate(station, err);

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models import fpmath
 from models.filtering.kinds import EKF, LINEARISED, PAPER, SINGER, filter_kind, kind_class  # noqa: F401
 from models.fpmath import square
 from models.plant.track import GradeProfile, SpeedProfile
@@ -283,37 +284,50 @@ class ProcessNoiseBank:
         if not (q0 > 0 and math.isfinite(q0) and R > 0 and math.isfinite(R)):
             raise ValueError(f"ProcessNoiseBank needs q0 > 0 and R > 0, got {q0}, {R}")
         self.variance_at = variance_at   # z [m/s] -> R at that measurement (sensor.speed_std_rel)
-        self.log_q = math.log(q0) + math.log(10.0) * np.linspace(*decades, n)
-        self.q = np.exp(self.log_q)
-        self.log_prior = -0.5 * ((self.log_q - math.log(q0)) / (prior_decades * math.log(10.0))) ** 2
-        self.log_lik = np.zeros(n)
+        # scalar loops in a fixed order with models.fpmath: models/core/estimator.c repeats them
+        # bit for bit (numpy's exp/log/linspace/sum are neither CPU-independent nor C's order)
+        ln10, log_q0 = fpmath.log(10.0), fpmath.log(q0)
+        lo, hi = decades
+        self.log_q = [log_q0 + ln10 * (lo + (hi - lo) * j / (n - 1)) for j in range(n)]
+        self.q = [fpmath.exp(lq) for lq in self.log_q]
+        width = prior_decades * ln10
+        self.log_prior = [-0.5 * square((lq - log_q0) / width) for lq in self.log_q]
+        self.log_lik = [0.0] * n
         self.R = R
         self.x = None                 # members' speeds [m/s]; None while the car stands
-        self.P = np.zeros(n)
+        self.P = [0.0] * n
         self._estimate = q0
 
     def predict(self, dv: float, q_param: float) -> None:
         """Speed increment dv [m/s] of the learning filter's prediction, its parameter term
         q_param [(m/s)^2]."""
         if self.x is not None:
-            self.x = self.x + dv
-            self.P = self.P + self.q + q_param
+            for j in range(len(self.q)):
+                self.x[j] = self.x[j] + dv
+                self.P[j] = self.P[j] + self.q[j] + q_param
 
     def update(self, z: float) -> None:
         """A measured speed z [m/s] of a moving car (the first one starts the members)."""
         R = self.R if self.variance_at is None else self.variance_at(z)
+        n = len(self.q)
         if self.x is None:
-            self.x, self.P = np.full(len(self.q), z), np.full(len(self.q), R)
+            self.x, self.P = [z] * n, [R] * n
             return
-        S = self.P + R
-        nu = z - self.x
-        self.log_lik += -0.5 * (np.log(S) + nu * nu / S)
-        K = self.P / S
-        self.x = self.x + K * nu
-        self.P = self.P * (1.0 - K)
-        w = self.log_lik + self.log_prior
-        w = np.exp(w - w.max())
-        self._estimate = float(np.exp(np.sum(w * self.log_q) / w.sum()))
+        for j in range(n):
+            S = self.P[j] + R
+            nu = z - self.x[j]
+            self.log_lik[j] += -0.5 * (fpmath.log(S) + nu * nu / S)
+            K = self.P[j] / S
+            self.x[j] = self.x[j] + K * nu
+            self.P[j] = self.P[j] * (1.0 - K)
+        w = [self.log_lik[j] + self.log_prior[j] for j in range(n)]
+        top = max(w)
+        num = den = 0.0
+        for j in range(n):                 # the posterior's geometric mean over the grid
+            e = fpmath.exp(w[j] - top)
+            num += e * self.log_q[j]
+            den += e
+        self._estimate = fpmath.exp(num / den)
 
     def stand(self) -> None:
         """The car stands: the members stop (the model (2) does not hold at rest)."""

@@ -168,6 +168,7 @@ def test_replay_of_a_railcar_run_bit_identical_to_fmi2(pair, railcar_runner, ste
     ("station_day", {"est.method": 2}),
     ("station_day", {"est.method": 2, "est.slope_window": 6}),
     ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+    ("station_day", {"est.sigma2_method": 1}),
 ])
 def test_slope_ls_bit_identical_to_fmi2(pair, railcar_runner, stem, option):  # noqa: F811
     """est.method 2 (LS on Sidorenko's slopes; the default window, a non-default one, and with

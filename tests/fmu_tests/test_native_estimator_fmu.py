@@ -368,8 +368,7 @@ def test_bad_profile_file_as_python_words_it(pair, tmp_path):
         assert text_c == text_py.splitlines()[0] and str(p) in text_c
 
 
-@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3},
-                                    {"est.sigma2_method": 1}])
+@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3}])
 def test_an_option_only_python_runs_is_refused_naming_it(pair, option):
     status, text = _init_failure(pair["c"], option)
     (name, value), = option.items()
@@ -400,10 +399,13 @@ def test_physical_runs_natively_bit_identical(pair, railcar_runner):
     ("station_day", {"est.method": 2}),
     ("station_day", {"est.method": 2, "est.slope_window": 6}),
     ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+    ("station_day", {"est.sigma2_method": 1}),
+    ("station_day", {"est.method": 2, "est.sigma2_method": 1}),
 ])
 def test_slope_ls_runs_natively_bit_identical(pair, railcar_runner, stem, option):
     """est.method 2 (LS on Sidorenko's slopes; the default window, a non-default one, and with
-    est.physical 1) in the native FMU: a replay bit for bit the pythonfmu FMU's."""
+    est.physical 1) and est.sigma2_method 1 (the likelihood bank) in the native FMU: a replay
+    bit for bit the pythonfmu FMU's."""
     params, rows, times, steps = _railcar_run(railcar_runner, stem)
     _, statuses, _ = _compare(pair, {**params, **option}, rows, times, steps)
     assert statuses == [OK] * len(rows)

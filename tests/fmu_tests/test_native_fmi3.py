@@ -230,9 +230,11 @@ SLOPE_LS_CASES = [
     ("ato_speed_noise", {"est.method": 2}),
     ("ato_speed_noise", {"est.method": 2, "est.slope_window": 6}),
     ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+    ("ato_speed_noise", {"est.method": 2, "est.sigma2_method": 1}),
 ]
 """est.method 2 (LS on Sidorenko's slopes): the default window, a non-default one (it must reach
-the core, after the flat configuration) and with est.physical 1's projection."""
+the core, after the flat configuration), with est.physical 1's projection and with
+est.sigma2_method 1's likelihood bank."""
 
 
 @pytest.mark.parametrize("name,option", SLOPE_LS_CASES)

@@ -269,8 +269,7 @@ def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, na
     assert text_c == text_py.splitlines()[0]
 
 
-@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3},
-                                    {"est.sigma2_method": 1}])
+@pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3}])
 def test_an_option_only_python_runs_is_refused_naming_it(pair, option):
     """The options the C core does not run (models/compiled.py NOT_COVERED)."""
     status, text = _init_failure(pair["c"], option)
@@ -308,14 +307,18 @@ SLOPE_LS_CASES = [
     ("ato_speed_noise", {"est.method": 2}),
     ("ato_speed_noise", {"est.method": 2, "est.slope_window": 6}),
     ("coasting_rusich_row3", {"est.method": 2, "est.slope_window": 6, "est.physical": 1}),
+    ("station_day", {"est.sigma2_method": 1}),
+    ("ato_speed_noise", {"est.method": 2, "est.sigma2_method": 1, "est.physical": 1}),
 ]
 """est.method 2 (LS on Sidorenko's slopes): the default window, a non-default one (it must reach
-the core, after the flat configuration) and with est.physical 1's projection."""
+the core, after the flat configuration) and with est.physical 1's projection; est.sigma2_method 1
+(the likelihood bank) alone and with both."""
 
 
 @pytest.mark.parametrize("stem,option", SLOPE_LS_CASES)
 def test_slope_ls_runs_natively_bit_identical(runners, stem, option):
-    """est.method 2 in the native FMU: every output bit for bit the pythonfmu FMU's."""
+    """est.method 2 and est.sigma2_method 1 in the native FMU: every output bit for bit the
+    pythonfmu FMU's."""
     py, c = runners
     scenario = load_scenario(ROOT / "scenarios" / "library" / f"{stem}.toml")
     scenario = replace(scenario, parameters={**scenario.parameters, **option})

@@ -143,16 +143,17 @@ def test_run_auto_takes_python_for_est_method_3_and_native_refuses_it_by_name(di
 
 @pytest.mark.parametrize("model", ["RailCar", "RailCarEstimator"])
 def test_auto_takes_native_for_slope_ls_and_names_only_what_it_lacks(dist, paths, model):
-    """est.method 2 (any est.slope_window) and est.physical 1 run on the native FMU; a refusal
+    """est.method 2 (any est.slope_window), est.physical 1 and est.sigma2_method 1 run on the native FMU; a refusal
     names the options the native FMU lacks, not est.physical beside them."""
     from harness.run.fmus import choose, uncovered
     native = paths["native" if model == "RailCar" else "est_native"]
-    for params in ({"est.method": 2}, {"est.method": 2, "est.slope_window": 6, "est.physical": 1}):
+    for params in ({"est.method": 2}, {"est.method": 2, "est.slope_window": 6, "est.physical": 1},
+                   {"est.sigma2_method": 1}, {"est.method": 2, "est.sigma2_method": 1}):
         assert uncovered(model, params) is None
         choice = choose("auto", model, dist, [("s", params)])
         assert (choice.kind, choice.path) == ("native", native), choice
     assert uncovered(model, {"est.method": 3, "est.physical": 1}) == "est.method = 3"
-    assert uncovered(model, {"est.method": 2, "est.sigma2_method": 1}) == "est.sigma2_method = 1"
+    assert uncovered(model, {"est.method": 1, "est.sigma2_method": 1}) == "est.method = 1"
     choice = choose("auto", model, dist, [("a", {"est.method": 2}), ("b", {"est.method": 1})])
     assert choice.kind == "python" and choice.why == "b sets est.method = 1, which the native FMU does not cover"
 

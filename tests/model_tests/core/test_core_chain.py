@@ -178,20 +178,60 @@ def test_slope_ls_reweights_the_prior_at_stops_and_one_ulp_shows():
         assert not same(rows_py[-1], one_ulp_off(rows_c[-1], name)), name
 
 
+# ---------------------------------------------------------------- est.sigma2_method 1
+
+LIKELIHOOD = {"est.sigma2_method": 1}
+"""est.sigma2_method 1: sigma^2 from the likelihood bank (models/filtering/motion_filter.py
+ProcessNoiseBank via methods.LikelihoodNoise; models/core/estimator.c bank_*)."""
+
+
+@pytest.mark.parametrize("path", LIBRARY, ids=[p.stem for p in LIBRARY])
+def test_library_scenario_with_the_likelihood_bank_bit_identical(path):
+    assert open_chain(*scenario_setup(path, LIKELIHOOD)).engine == "c"
+    assert assert_identical(path, LIKELIHOOD) > 100
+
+
+LIKELIHOOD_VARIANTS = {
+    "slopes_physical": ("station_day", {**SLOPE_LS, **PHYSICAL}),
+    "relative_speed_noise": ("steep_grades", {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01}),
+    "singer_slopes_relative_noise": ("steep_grades", {**SLOPE_LS, "filter.kind": 4,
+                                                      "sensor.speed_std_rel": 0.02}),
+    "noisy_sensors_forgetting": ("etcs_noisy_sensors", {"est.forgetting": 0.002}),
+}
+
+
+@pytest.mark.parametrize("name", LIKELIHOOD_VARIANTS)
+def test_likelihood_bank_variant_bit_identical(name):
+    scenario, overrides = LIKELIHOOD_VARIANTS[name]
+    path = ROOT / "scenarios" / "library" / f"{scenario}.toml"
+    assert assert_identical(path, {**LIKELIHOOD, **overrides}) > 100
+
+
+def test_the_likelihood_bank_moves_sigma2_and_one_ulp_shows():
+    """station_day with the bank: est.sigma2 leaves its prior (the bank ran through the stops),
+    equal in C; one ulp off in est.sigma2 is a difference."""
+    path = ROOT / "scenarios" / "library" / "station_day.toml"
+    sc, py, c = scenario_chains(path, LIKELIHOOD)
+    rows_py, rows_c = drive_chain(py, sc, None), drive_chain(c, sc, None)
+    assert py.estimator.noise.bank.estimate() != IdentifierConfig().sigma2_initial
+    assert same(rows_py, rows_c)
+    assert not same(rows_py[-1], one_ulp_off(rows_c[-1], "est.sigma2"))
+
+
 def test_slope_ls_without_a_window_and_other_methods_are_refused_by_name():
-    """The core runs est.method 0 and 2, est.physical 0 and 1; CompiledChain refuses the rest
+    """The core runs est.method 0 and 2, est.physical and est.sigma2_method 0 and 1; CompiledChain refuses the rest
     naming exactly them, and the C core itself refuses est.method 2 without est.slope_window (a
     host that hands it only the flat configuration; the native FMUs hand it the window)."""
     path = ROOT / "scenarios" / "library" / "level_run.toml"
-    for overrides in ({"est.method": 1}, {"est.method": 3}, {"est.sigma2_method": 1},
-                      {"est.method": 2, "est.physical": 1, "est.sigma2_method": 1}):
+    for overrides in ({"est.method": 1}, {"est.method": 3},
+                      {"est.method": 1, "est.physical": 1, "est.sigma2_method": 1}):
         cfg, grade, speed = scenario_setup(path, overrides)
-        with pytest.raises(ValueError, match="^the C core does not cover est.method 1 or 3 or "
-                           "est.sigma2_method 1: use open_chain"):
+        with pytest.raises(ValueError, match="^the C core does not cover est.method 1 or 3: "
+                           "use open_chain"):
             CompiledChain(cfg, grade, speed)
         assert open_chain(cfg, grade, speed).engine == "python"
         assert compiled.core_not_covered(cfg.identifier) == compiled.NOT_COVERED
-    for overrides in (SLOPE_LS, PHYSICAL, {**SLOPE_LS, **PHYSICAL}):
+    for overrides in (SLOPE_LS, PHYSICAL, LIKELIHOOD, {**SLOPE_LS, **PHYSICAL, **LIKELIHOOD}):
         cfg = scenario_setup(path, overrides)[0]
         assert compiled.core_not_covered(cfg.identifier) is None
         # the native FMUs run them too (they hand the core est.slope_window after their values)
@@ -522,13 +562,13 @@ def test_open_chain_runs_c_where_covered_and_python_elsewhere():
     assert open_chain(ChainConfig(filter=FilterConfig(kind=4)), grade).engine == "c"   # Singer
     assert open_chain(ChainConfig(identifier=IdentifierConfig(method=2)), grade).engine == "c"
     assert open_chain(ChainConfig(identifier=IdentifierConfig(physical=1)), grade).engine == "c"
+    assert open_chain(ChainConfig(identifier=IdentifierConfig(sigma2_method=1)), grade).engine == "c"
     for cfg in (ChainConfig(identifier=IdentifierConfig(method=3)),
-                ChainConfig(identifier=IdentifierConfig(method=1, physical=1)),
-                ChainConfig(identifier=IdentifierConfig(sigma2_method=1))):
+                ChainConfig(identifier=IdentifierConfig(method=1, physical=1))):
         chain = open_chain(cfg, grade)
         assert chain.engine == "python" and isinstance(chain, RailCarChain)
-    assert compiled.ENGINES["c"] == before.get("c", 0) + 5
-    assert compiled.ENGINES["python"] == before.get("python", 0) + 3
+    assert compiled.ENGINES["c"] == before.get("c", 0) + 6
+    assert compiled.ENGINES["python"] == before.get("python", 0) + 2
     assert open_estimator_chain(IdentifierConfig(), FilterConfig(), StationConfig(), grade).engine == "c"
     assert open_estimator_chain(IdentifierConfig(method=2), FilterConfig(), StationConfig(),
                                 grade).engine == "c"

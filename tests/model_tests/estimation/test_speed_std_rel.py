@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from models.fpmath import square
 from models.chain import ChainConfig, RailCarChain
 from models.estimation.coast_ekf import CoastEKF, CoastEKFConfig
 from models.compiled import CompiledChain, enabled
@@ -97,19 +98,19 @@ def test_the_filters_speed_variance_is_at_the_measured_speed():
         v_pred = filt.predicted_speed
         assert bool(filt.gate(v_pred + 4.0, filt.predicted_position)[0]) is use
     # the start takes the first measurement's variance
-    assert f.P[0][0] == (0.05 + 0.02 * 25.0) ** 2
+    assert f.P[0][0] == square(0.05 + 0.02 * 25.0)
 
 
 def test_the_likelihood_bank_and_the_coasting_ekf_take_the_measurements_variance():
-    """est.sigma2_method 1 and est.method 3 (Python only): R at each measured speed z."""
-    bank = ProcessNoiseBank(1e-4, 0.05 ** 2, variance_at=lambda z: (0.05 + 0.02 * abs(z)) ** 2)
+    """est.sigma2_method 1 and est.method 3: R at each measured speed z."""
+    bank = ProcessNoiseBank(1e-4, square(0.05), variance_at=lambda z: square(0.05 + 0.02 * abs(z)))
     bank.update(20.0)
-    assert (bank.P == (0.05 + 0.02 * 20.0) ** 2).all()
+    assert bank.P == [square(0.05 + 0.02 * 20.0)] * len(bank.q)
     cfg = CoastEKFConfig(speed_std=0.05, speed_std_rel=0.02)
     assert cfg.noise_std(20.0) == 0.05 + 0.02 * 20.0
     assert CoastEKFConfig(speed_std=0.05).noise_std(20.0) == 0.05
     ekf = CoastEKF(cfg)
     ekf.start(20.0)
-    assert ekf.P[0, 0] == (0.05 + 0.02 * 20.0) ** 2
+    assert ekf.P[0, 0] == square(0.05 + 0.02 * 20.0)
     with pytest.raises(ValueError, match="speed_std_rel"):
         CoastEKF(CoastEKFConfig(speed_std_rel=-1.0))
