@@ -357,8 +357,38 @@ def table(results: dict[str, dict], only_differing: bool = True, markdown: bool 
                              f"abs {d.absolute:.3g}  rel {d.relative:.3g}  "
                              f"{d.rows} row(s) from row {d.first_row}")
         if not only_differing and not differing:
-            lines.append("  every output of every run bit-identical")
+            lines.append(f"| {tuple_} | every one | every one | every one | 0 | 0 | 0 | 0 |"
+                         if markdown else "  every output of every run bit-identical")
     return "\n".join(lines)
+
+
+def scenario_table(tuple_: str, result: dict[str, dict], markdown: bool = False) -> str:
+    """scenario x output -> the largest difference in ulps over the four FMUs, for the outputs
+    that differ in some scenario (the others: bit-identical everywhere, said in the title)."""
+    scenarios = sorted({key.split(".", 1)[0] for key in result})
+    names = sorted(largest_per_output(result))
+    n_outputs = len({name for diffs in result.values() for name in diffs})
+    if not names:
+        return (f"{tuple_}: all {n_outputs} outputs (the time column included) bit-identical "
+                f"in every scenario, through the {len(NATIVE)} native FMUs")
+    title = (f"{tuple_}: largest difference in ulps, scenario x output (over the "
+             f"{len(NATIVE)} native FMUs); the {n_outputs - len(names)} other outputs of "
+             f"{n_outputs} (the time column included) bit-identical in every scenario")
+    cell = {}
+    for key, diffs in result.items():
+        scenario = key.split(".", 1)[0]
+        for name in names:
+            if name in diffs:
+                cell[scenario, name] = max(cell.get((scenario, name), 0.0), diffs[name].ulps)
+    if markdown:
+        rows = [f"| scenario | {' | '.join(names)} |", "|---" * (len(names) + 1) + "|"]
+        rows += [f"| {sc} | " + " | ".join(f"{cell.get((sc, n), 0):g}" for n in names) + " |"
+                 for sc in scenarios]
+    else:
+        rows = ["  " + f"{'scenario':22s}" + "".join(f"{n:>16s}" for n in names)]
+        rows += ["  " + f"{sc:22s}" + "".join(f"{cell.get((sc, n), 0):>16g}" for n in names)
+                 for sc in scenarios]
+    return "\n".join([title, *rows])
 
 
 def largest_per_output(result: dict[str, dict]) -> dict[str, float]:
@@ -405,6 +435,9 @@ def main(argv: list[str] | None = None) -> int:
             results[target.tuple] = sweep(platform, reference, cases, fmus, work / "runs")
         print(f"{len(cases)} runs ({len(cases) // len(NATIVE)} scenarios x {len(NATIVE)} native "
               "FMUs), each foreign output against the linux x86-64 binary's, every row:")
+        for tuple_, result in results.items():
+            print(scenario_table(tuple_, result, markdown=args.markdown) + "\n")
+        print("Every run that is not bit-identical, output by output:")
         print(table(results, only_differing=False, markdown=args.markdown))
         for line in missing:
             print(line)
