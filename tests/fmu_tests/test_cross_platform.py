@@ -311,6 +311,24 @@ def test_one_host_process_runs_a_batch_and_names_the_run_that_failed(sweep_input
     assert proc.returncode == 3 and f"csv_host: {runs}: no run" in proc.stderr
 
 
+def test_windows_paths_with_a_space_and_a_percent(sweep_inputs, tmp_path):
+    """The FMUs unpacked under a folder named "a b%20c": the Windows host passes the FMI 2
+    resource location percent-encoded (file:///Z:/.../a%20b%2520c/resources/), the FMI 3 one
+    as a plain Z:\\ path, the profile file by its Z:\\ path; the runs give the sweep's results
+    (within ULP_BOUNDS of the x86-64 ones)."""
+    windows = platform_or_skip(sweep_inputs, WINDOWS_X86_64)
+    names = ("RailCarNative", "RailCarNative3")
+    fmus = {n: NativeFmu.unpack(sweep_inputs.native_dir / f"{n}.fmu", tmp_path / "a b%20c" / n)
+            for n in names}
+    cases = [c for c in sweep_inputs.cases if c.fmu in names and c.scenario == "steep_grades"]
+    assert "track.grade_profile" in cases[0].parameters
+    got = cross_platform.run_platform(windows, cases, fmus, tmp_path / "runs")
+    bounds = ULP_BOUNDS[WINDOWS_X86_64.tuple]
+    for case in cases:
+        diffs = cross_platform.compare(sweep_inputs.reference[case.key], got[case.key])
+        assert all(d.ulps <= bounds.get(n, 0) for n, d in diffs.items()), case.key
+
+
 POW_SQUARE = Path(__file__).resolve().parents[1] / "fmu_cases" / "pow_square.c"
 
 
