@@ -28,7 +28,6 @@ tests/fmu_tests/test_cross_platform.py runs the same sweep and bounds the differ
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import shutil
 import subprocess

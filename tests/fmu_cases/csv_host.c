@@ -53,11 +53,12 @@
  * that call; messages of Warning level in a call that returned OK are reported too. Warnings,
  * discarded steps and errors are counted in a summary line at the end.
  *
- * Exit status (with -b: the largest of the runs'): 0 every row stepped and no step was discarded; 1 every row stepped, some steps
- * were discarded and retried (their rows have status 2); 2 the run failed (an FMU call returned
- * Error or Fatal, a retry was discarded, -d stop saw a discard, the FMU asked to terminate) and
- * OUT.csv holds the rows up to there; 3 bad arguments or input files (named with the line), a
- * library or symbol that cannot be loaded, a version mismatch, or OUT.csv cannot be written.
+ * Exit status (with -b: the largest of the runs'): 0 every row stepped and no step was
+ * discarded; 1 every row stepped, some steps were discarded and retried (their rows have
+ * status 2); 2 the run failed (an FMU call returned Error or Fatal, a retry was discarded,
+ * -d stop saw a discard, the FMU asked to terminate) and OUT.csv holds the rows up to there;
+ * 3 bad arguments or input files (named with the line), a library or symbol that cannot be
+ * loaded, a version mismatch, or OUT.csv cannot be written.
  *
  * After Error the instance is freed without fmi2Terminate/fmi3Terminate; after Fatal it is not
  * touched again. Both follow "Status Returned by Functions" (FMI 2.0 section 2.1.3, FMI 3.0

@@ -172,8 +172,8 @@ def test_windows_binary_needs_only_what_windows_ships(native_dir, name, tmp_path
 # - aarch64-linux under qemu: 76 runs (19 scenarios x 4 FMUs), 2128 output columns, all
 #   bit-identical;
 # - x86_64-windows under Wine: all bit-identical but est.mass_std, in 34 of the 76 runs (the
-#   estimator's mass_std in RailCar and RailCarEstimator alike), 1 to 4 rows of ~1,400 each,
-#   at most 3 ulps (4.4e-16 absolute, 3.8e-16 relative).
+#   estimator's mass_std in RailCar and RailCarEstimator alike), at 1 to 4 rows of a run (of
+#   170 to 5,200), by at most 3 ulps (4.4e-16 absolute, 3.8e-16 relative).
 # Why est.mass_std, and only it: it is sqrt(P[0][0]) / (g * rc_square(theta1))
 # (models/core/ident.c, rc_ident_mass_std), and rc_square is libm's pow(x, 2.0), because the
 # Python reference's x ** 2 is (models/core/rc_common.h). glibc's pow is accurate to < 1 ulp but
@@ -388,7 +388,8 @@ def run_doc_commands(block: str, cwd: Path, model: str) -> str:
         line = line.replace("RailCar.", f"{model}.")
         proc = subprocess.run(["bash", "-euo", "pipefail", "-c", line], cwd=cwd,
                               capture_output=True, text=True, timeout=300)
-        assert proc.returncode == 0 and not proc.stderr, f"{DOC.name} [{block}]: {line}\n{proc.stderr}"
+        assert proc.returncode == 0 and not proc.stderr, (
+            f"{DOC.name} [{block}]: {line}\n{proc.stderr}")
         output.append(proc.stdout)
     return "".join(output)
 
@@ -449,8 +450,8 @@ def test_a_missing_qemu_or_wine_names_its_package(monkeypatch, tmp_path):
     """No foreign check is left out silently: without qemu-aarch64 or Wine the sweep's host
     cannot be set up, and the reason (the skip's message) names the package to install."""
     real_which = shutil.which
-    monkeypatch.setattr(cross_platform.shutil, "which",
-                        lambda cmd, *a, **k: None if cmd == "qemu-aarch64" else real_which(cmd, *a, **k))
+    monkeypatch.setattr(cross_platform.shutil, "which", lambda cmd, *a, **k: (
+        None if cmd == "qemu-aarch64" else real_which(cmd, *a, **k)))
     with pytest.raises(Unavailable, match=r"qemu-aarch64 not found \(apt-get install qemu-user\)"):
         cross_platform.build_platform(LINUX_AARCH64, tmp_path)
     monkeypatch.setattr(cross_platform, "wine_command", lambda: None)
