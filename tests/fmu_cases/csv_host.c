@@ -1,13 +1,17 @@
 /* csv_host: a small FMI 2.0 / FMI 3.0 co-simulation host that replays inputs from a CSV file
  * through an FMU's binary and writes the outputs to a CSV file. No Python, no XML parser: it
- * loads the shared library with dlopen, resolves the entry points with dlsym and is told the
- * value references on its command line and in its files.
+ * loads the shared library (dlopen/dlsym; on Windows LoadLibrary/GetProcAddress) and is told the
+ * value references on its command line and in its files. The same source builds for Linux, any
+ * POSIX system and Windows (mingw-w64 or MSVC).
  *
  *   csv_host [OPTIONS] fmi2|fmi3 BINARY RESOURCE_DIR GUID PARAMS.csv INPUTS.csv OUT.csv OUTPUT...
+ *   csv_host -b RUNS.txt
  *
- *   BINARY        the FMU's shared library (binaries/linux64/X.so or binaries/x86_64-linux/X.so)
- *   RESOURCE_DIR  the extracted FMU's resources/ folder; passed to fmi2Instantiate as a file: URI,
- *                 to fmi3InstantiateCoSimulation as an absolute path ending in '/'
+ *   BINARY        the FMU's shared library (binaries/linux64/X.so or binaries/x86_64-linux/X.so,
+ *                 binaries/win64/X.dll ...)
+ *   RESOURCE_DIR  the extracted FMU's resources/ folder; passed to fmi2Instantiate as a file: URI
+ *                 (Windows: file:///C:/...), to fmi3InstantiateCoSimulation as an absolute path
+ *                 ending in '/' (Windows: '\')
  *   GUID          the guid (FMI 2) or instantiationToken (FMI 3) of its modelDescription.xml
  *   PARAMS.csv    header "vr,type,value", then one line per parameter: value reference, type
  *                 (real, integer, boolean or string) and value. A string is the rest of the line
@@ -38,6 +42,10 @@
  *   -d stop    a discarded step is an error
  *   -q         quiet: no warning lines, no summary (discards and errors are still reported)
  *   -v         loggingOn = true, and every message the FMU logs is printed
+ *   -b RUNS.txt   many runs in one process (a process start is what costs under Wine or qemu):
+ *              each line of RUNS.txt is one run's arguments, OPTIONS included, separated by tabs;
+ *              the runs go one after the other, each reported as alone, and a run that fails
+ *              is named "RUNS.txt:LINE: exit status N" and does not stop the next
  *
  * Reporting: every message goes to standard error, starting "csv_host: " and saying where: the
  * file and line (PARAMS.csv:4, INPUTS.csv:52 (t = 5)) or the call. An FMU call that returns
@@ -45,11 +53,12 @@
  * that call; messages of Warning level in a call that returned OK are reported too. Warnings,
  * discarded steps and errors are counted in a summary line at the end.
  *
- * Exit status: 0 every row stepped and no step was discarded; 1 every row stepped, some steps
- * were discarded and retried (their rows have status 2); 2 the run failed (an FMU call returned
- * Error or Fatal, a retry was discarded, -d stop saw a discard, the FMU asked to terminate) and
- * OUT.csv holds the rows up to there; 3 bad arguments or input files (named with the line), a
- * library or symbol that cannot be loaded, a version mismatch, or OUT.csv cannot be written.
+ * Exit status (with -b: the largest of the runs'): 0 every row stepped and no step was
+ * discarded; 1 every row stepped, some steps were discarded and retried (their rows have
+ * status 2); 2 the run failed (an FMU call returned Error or Fatal, a retry was discarded,
+ * -d stop saw a discard, the FMU asked to terminate) and OUT.csv holds the rows up to there;
+ * 3 bad arguments or input files (named with the line), a library or symbol that cannot be
+ * loaded, a version mismatch, or OUT.csv cannot be written.
  *
  * After Error the instance is freed without fmi2Terminate/fmi3Terminate; after Fatal it is not
  * touched again. Both follow "Status Returned by Functions" (FMI 2.0 section 2.1.3, FMI 3.0
@@ -59,10 +68,13 @@
  * different arguments" (here: other inputs, the same interval).
  *
  * Build: cc -std=c99 -O2 -Wall -Wextra -Werror -pedantic -I FMPY/c-code csv_host.c -o csv_host -ldl
- * Tested by tests/fmu_tests/test_native_csv_host.py. */
+ *        x86_64-w64-mingw32-gcc (same flags) -I FMPY/c-code csv_host.c -o csv_host.exe
+ * Tested by tests/fmu_tests/test_native_csv_host.py; built for aarch64 (run under qemu) and for
+ * Windows (run under Wine) by tests/fmu_tests/test_cross_platform.py. */
+#ifndef _WIN32
 #define _XOPEN_SOURCE 700   /* dlopen, realpath */
+#endif
 
-#include <dlfcn.h>
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
@@ -74,13 +86,24 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
+/* The one platform-dependent part: loading the library, resolving a symbol, the absolute path of
+   the resources folder. Windows: LoadLibrary/GetProcAddress, GetFullPathName; elsewhere POSIX
+   dlopen/dlsym, realpath. */
+#ifdef _WIN32
+#define WIN32_LEAN_AND_MEAN
+#include <windows.h>
+#else
+#include <dlfcn.h>
+#endif
+
 #define PROGRAM "csv_host"
 #define EXIT_DISCARDED 1
 #define EXIT_RUN_FAILED 2
 #define EXIT_BAD_INPUT 3
 
-/* dlsym's object pointer is copied into a function pointer (POSIX guarantees they have the same
-   representation; ISO C has no conversion between them): the sizes must agree. */
+/* dlsym's object pointer (GetProcAddress's FARPROC) is copied into a function pointer (POSIX
+   guarantees they have the same representation; ISO C has no conversion between them): the sizes
+   must agree. */
 typedef void (*AnyFunction)(void);
 typedef char function_pointer_size_check[sizeof(AnyFunction) == sizeof(void *) ? 1 : -1];
 
@@ -649,16 +672,52 @@ typedef struct {
     fmi3Boolean *bools3;
 } Fmu;
 
-static int resolve(Fmu *f, const char *name, AnyFunction *out) {
+#ifdef _WIN32
+/* The system's text for GetLastError(), without its line break. */
+static const char *last_error_text(void) {
+    static char text[512];
+    DWORD code = GetLastError();
+    DWORD n = FormatMessageA(FORMAT_MESSAGE_FROM_SYSTEM | FORMAT_MESSAGE_IGNORE_INSERTS, NULL,
+                             code, 0, text, (DWORD)sizeof text, NULL);
+    while (n > 0 && (text[n - 1] == '\n' || text[n - 1] == '\r' || text[n - 1] == ' '))
+        text[--n] = '\0';
+    if (n == 0) snprintf(text, sizeof text, "Windows error %lu", (unsigned long)code);
+    return text;
+}
+
+static void *library_open(const char *path) { return (void *)LoadLibraryA(path); }
+static const char *library_error(void) { return last_error_text(); }
+static void library_close(void *library) { FreeLibrary((HMODULE)library); }
+
+static int library_symbol(void *library, const char *name, AnyFunction *out) {
+    FARPROC symbol = GetProcAddress((HMODULE)library, name);
+    if (!symbol) return -1;
+    memcpy(out, &symbol, sizeof symbol);
+    return 0;
+}
+#else
+static void *library_open(const char *path) { return dlopen(path, RTLD_NOW | RTLD_LOCAL); }
+static const char *library_error(void) { return dlerror(); }
+static void library_close(void *library) { dlclose(library); }
+
+static int library_symbol(void *library, const char *name, AnyFunction *out) {
     void *symbol;
     dlerror();
-    symbol = dlsym(f->library, name);
+    symbol = dlsym(library, name);
     if (!symbol) {
         dlerror();
+        return -1;
+    }
+    memcpy(out, &symbol, sizeof symbol);
+    return 0;
+}
+#endif
+
+static int resolve(Fmu *f, const char *name, AnyFunction *out) {
+    if (library_symbol(f->library, name, out) != 0) {
         say("%s: no symbol %s", f->binary, name);
         return 1;
     }
-    memcpy(out, &symbol, sizeof symbol);
     return 0;
 }
 
@@ -669,14 +728,14 @@ static int resolve(Fmu *f, const char *name, AnyFunction *out) {
         else missing++;                                                                      \
     } while (0)
 
-/* dlopen the binary and resolve the co-simulation functions; 0, or -1 (every missing symbol
+/* Load the binary and resolve the co-simulation functions; 0, or -1 (every missing symbol
    reported). */
 static int fmu_load(Fmu *f) {
     int missing = 0;
     const char *version;
-    f->library = dlopen(f->binary, RTLD_NOW | RTLD_LOCAL);
+    f->library = library_open(f->binary);
     if (!f->library) {
-        say("%s: cannot load: %s", f->binary, dlerror());
+        say("%s: cannot load: %s", f->binary, library_error());
         return -1;
     }
     if (f->version == 2) {
@@ -731,16 +790,31 @@ static int fmu_load(Fmu *f) {
 }
 
 /* "file://" and the absolute path, percent-encoded (RFC 3986: unreserved characters and '/'
-   stay) and ending in '/'. */
+   stay) and ending in '/'. Windows: "C:\dir" becomes "file:///C:/dir/" (RFC 8089's form, the
+   drive's ':' as it is). */
 static char *file_uri(const char *absolute) {
     static const char hex[] = "0123456789ABCDEF";
     size_t n = strlen(absolute);
-    char *out = malloc(7 + 3 * n + 2), *q;
+    char *out = malloc(8 + 3 * n + 2), *q;
     const unsigned char *p;
     if (!out) return NULL;
     q = out + 7;
     memcpy(out, "file://", 7);
+#ifdef _WIN32
+    if (absolute[0] && absolute[1] == ':') {
+        *q++ = '/';
+        *q++ = absolute[0];
+        *q++ = ':';
+        absolute += 2;
+    }
+#endif
     for (p = (const unsigned char *)absolute; *p; p++) {
+#ifdef _WIN32
+        if (*p == '\\') {
+            *q++ = '/';
+            continue;
+        }
+#endif
         if ((*p >= 'a' && *p <= 'z') || (*p >= 'A' && *p <= 'Z') || (*p >= '0' && *p <= '9') ||
             *p == '-' || *p == '.' || *p == '_' || *p == '~' || *p == '/') {
             *q++ = (char)*p;
@@ -755,17 +829,44 @@ static char *file_uri(const char *absolute) {
     return out;
 }
 
-static int fmu_instantiate(Fmu *f, const char *resources, const char *guid) {
-    char *absolute = realpath(resources, NULL), *location;
-    if (!absolute) {
-        say("%s: not a folder: %s", resources, strerror(errno));
-        return -1;
+#ifdef _WIN32
+#define PATH_SEPARATOR "\\"
+/* The absolute path of an existing folder (malloc'd), or NULL with the reason reported. */
+static char *absolute_folder(const char *path) {
+    DWORD n = GetFullPathNameA(path, 0, NULL, NULL), attributes;
+    char *absolute = n ? malloc(n) : NULL;
+    if (!absolute || GetFullPathNameA(path, n, absolute, NULL) == 0) {
+        say("%s: not a folder: %s", path, absolute ? last_error_text() : "out of memory");
+        free(absolute);
+        return NULL;
     }
+    attributes = GetFileAttributesA(absolute);
+    if (attributes == INVALID_FILE_ATTRIBUTES || !(attributes & FILE_ATTRIBUTE_DIRECTORY)) {
+        say("%s: not a folder%s", path, attributes == INVALID_FILE_ATTRIBUTES ? ": not found" : "");
+        free(absolute);
+        return NULL;
+    }
+    n = (DWORD)strlen(absolute);
+    while (n > 3 && (absolute[n - 1] == '\\' || absolute[n - 1] == '/')) absolute[--n] = '\0';
+    return absolute;
+}
+#else
+#define PATH_SEPARATOR "/"
+static char *absolute_folder(const char *path) {
+    char *absolute = realpath(path, NULL);
+    if (!absolute) say("%s: not a folder: %s", path, strerror(errno));
+    return absolute;
+}
+#endif
+
+static int fmu_instantiate(Fmu *f, const char *resources, const char *guid) {
+    char *absolute = absolute_folder(resources), *location;
+    if (!absolute) return -1;
     if (f->version == 2) {
         location = file_uri(absolute);
     } else {
         location = malloc(strlen(absolute) + 2);
-        if (location) sprintf(location, "%s/", absolute);
+        if (location) sprintf(location, "%s" PATH_SEPARATOR, absolute);
     }
     free(absolute);
     if (!location) {
@@ -1257,7 +1358,8 @@ static int run(Host *h) {
     return exit_code;
 }
 
-int main(int argc, char **argv) {
+/* One run: the command line's arguments (argv[0] the program); its exit status. */
+static int run_command(int argc, char **argv) {
     Host *h = calloc(1, sizeof *h);
     int rc, instantiated;
     if (!h) {
@@ -1291,7 +1393,7 @@ int main(int argc, char **argv) {
         else f->f3.freeInstance(f->instance);
         report_call(&f->sink, h->where, call_name(f, "fmi2FreeInstance", "fmi3FreeInstance"), 0);
     }
-    if (h->fmu.library && !h->fmu.fatal) dlclose(h->fmu.library);
+    if (h->fmu.library && !h->fmu.fatal) library_close(h->fmu.library);
     if (h->out && h->out != stdout) {
         if (fclose(h->out) != 0) {
             say("%s: cannot write: %s", h->args.out_path, strerror(errno));
@@ -1318,4 +1420,55 @@ int main(int argc, char **argv) {
     free(h->fmu.bools3);
     free(h);
     return rc;
+}
+
+/* -b RUNS.txt: one run per line, its arguments separated by tabs (paths may hold spaces), each
+   run as if given on the command line; the exit status is the largest of the runs'. */
+static int run_batch(const char *path) {
+    TextFile file;
+    size_t k;
+    int worst = 0;
+    if (text_read(&file, path) != 0) return EXIT_BAD_INPUT;
+    if (file.n_lines == 0) {
+        say("%s: no run (one line per run, its arguments separated by tabs)", path);
+        text_free(&file);
+        return EXIT_BAD_INPUT;
+    }
+    for (k = 0; k < file.n_lines; k++) {
+        char *line = file.lines[k], **args, *tab;
+        int n = 2, rc;
+        for (tab = line; *tab; tab++) n += *tab == '\t';
+        args = malloc((size_t)(n + 1) * sizeof *args);
+        if (!args) {
+            say("%s:%ld: out of memory", path, file.numbers[k]);
+            text_free(&file);
+            return EXIT_BAD_INPUT;
+        }
+        args[0] = (char *)PROGRAM;
+        for (n = 1;; n++) {
+            args[n] = line;
+            tab = strchr(line, '\t');
+            if (!tab) break;
+            *tab = '\0';
+            line = tab + 1;
+        }
+        args[++n] = NULL;
+        rc = run_command(n, args);
+        free(args);
+        if (rc != 0) say("%s:%ld: exit status %d", path, file.numbers[k], rc);
+        if (rc > worst) worst = rc;
+    }
+    text_free(&file);
+    return worst;
+}
+
+int main(int argc, char **argv) {
+    if (argc >= 2 && !strcmp(argv[1], "-b")) {
+        if (argc != 3) {
+            say("-b takes one file (RUNS.txt) and nothing else");
+            return EXIT_BAD_INPUT;
+        }
+        return run_batch(argv[2]);
+    }
+    return run_command(argc, argv);
 }
