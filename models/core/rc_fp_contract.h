@@ -13,6 +13,8 @@
 #pragma STDC FP_CONTRACT OFF
 #elif defined(__GNUC__)
 #pragma GCC optimize("fp-contract=off")
+#elif defined(_MSC_VER)
+#pragma fp_contract(off)   /* MSVC before VS 2022 17.0 contracts under /arch:AVX2 (untested here) */
 #endif
 
 #endif

@@ -168,26 +168,17 @@ def test_windows_binary_needs_only_what_windows_ships(native_dir, name, tmp_path
 # units in the last place (ulps: how many doubles lie between the two values); every output not
 # listed, the time column included, must be bit-identical at every row of every library
 # scenario through all four native FMUs. Measured 2026-11-27 (`python
-# tests/fmu_cases/cross_platform.py` prints the table; the test prints it too, with -s):
-# - aarch64-linux under qemu: 76 runs (19 scenarios x 4 FMUs), 2128 output columns, all
-#   bit-identical;
-# - x86_64-windows under Wine: all bit-identical but est.mass_std, in 34 of the 76 runs (the
-#   estimator's mass_std in RailCar and RailCarEstimator alike), at 1 to 4 rows of a run (of
-#   170 to 5,200), by at most 3 ulps (4.4e-16 absolute, 3.8e-16 relative).
-# Why est.mass_std, and only it: it is sqrt(P[0][0]) / (g * rc_square(theta1))
-# (models/core/ident.c, rc_ident_mass_std), and rc_square is libm's pow(x, 2.0), because the
-# Python reference's x ** 2 is (models/core/rc_common.h). glibc's pow is accurate to < 1 ulp but
-# not correctly rounded: for about 1 in 1,200 x, pow(x, 2.0) is one ulp from x * x; the DLL
-# carries mingw-w64's own pow (-static), which gives x * x for y = 2
-# (test_the_windows_difference_is_glibc_pow_of_a_square shows both). One ulp in theta1^2, then
-# the product with g and the quotient, each rounded, give at most 3 ulps in mass_std. Nothing
-# is computed from mass_std (it is reported only), so the difference never spreads to another
-# output or to later steps. When the core stops calling pow for a square (x * x, being done in
-# parallel), the difference should vanish: the test then prints "bit-identical everywhere,
-# its bound can go" for est.mass_std.
+# tests/fmu_cases/cross_platform.py` prints the table; the test prints it too, with -s): under
+# qemu (aarch64) and under Wine (Windows x86-64), 76 runs (19 scenarios x 4 FMUs), 2128 output
+# columns, all bit-identical. Before the core stopped calling libm for results (models/fpmath.py,
+# models/core/fpmath.c: squares as x * x), est.mass_std differed under Wine in 34 of the 76 runs
+# by up to 3 ulps: it divides by theta1 squared, then computed with pow(x, 2.0), which glibc does
+# not always round as x * x and mingw-w64's pow does (test_libm_pow_of_a_square_depends_on_the_
+# library shows both). No bound is left; a platform whose results differ again gets its output
+# listed here with the measured bound and the reason.
 ULP_BOUNDS = {
     "aarch64-linux": {},
-    "x86_64-windows": {"est.mass_std": 3},
+    "x86_64-windows": {},
 }
 
 
@@ -332,11 +323,12 @@ def test_windows_paths_with_a_space_and_a_percent(sweep_inputs, tmp_path):
 POW_SQUARE = Path(__file__).resolve().parents[1] / "fmu_cases" / "pow_square.c"
 
 
-def test_the_windows_difference_is_glibc_pow_of_a_square(sweep_inputs, tmp_path):
-    """The cause of est.mass_std's ulps under Wine (ULP_BOUNDS): pow(x, 2.0) over 10^6 values
-    x = 1 / (g m), m from 10 t to 200 t: glibc's differs from x * x for some (832 measured),
-    mingw-w64's (linked -static, as in the DLL) for none; glibc on aarch64 (under qemu, when
-    it is here) as on x86-64 (832 too: the same pow, which is why aarch64 is bit-identical)."""
+def test_libm_pow_of_a_square_depends_on_the_library(sweep_inputs, tmp_path):
+    """Why the core squares by x * x (models/fpmath.py) and never calls libm's pow: pow(x, 2.0)
+    over 10^6 values x = 1 / (g m), m from 10 t to 200 t (theta1, whose square est.mass_std
+    divides by): glibc's differs from x * x for some (832 measured), mingw-w64's (linked
+    -static, as in the DLL) for none; glibc on aarch64 (under qemu, when it is here) as on
+    x86-64. While the core called pow, est.mass_std differed under Wine by up to 3 ulps."""
     windows = platform_or_skip(sweep_inputs, WINDOWS_X86_64)
     platforms = [sweep_inputs.x86, windows]
     try:
