@@ -964,10 +964,9 @@ int gc_serialize_state(const GlueStandard *standard, void *handle, const char *f
         return GLUE_STATUS_ERROR;
     }
     if (size < st->size) {
-        LOG_ERROR(g, "%s: serializedState has %llu bytes, the FMU state needs %llu (ask the "
-                     "size with %sSerializedFMU%sSize first)", function, (unsigned long long)size,
-                  (unsigned long long)st->size, standard->prefix,
-                  standard->time_variable ? "State" : "state");
+        LOG_ERROR(g, "%s: serializedState has %llu bytes, the FMU state needs %llu (its "
+                     "serialized size)", function, (unsigned long long)size,
+                  (unsigned long long)st->size);
         return GLUE_STATUS_ERROR;
     }
     memcpy(out, st->bytes, st->size);

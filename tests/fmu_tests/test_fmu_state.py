@@ -14,15 +14,24 @@ the identifier's batch, est.method 2's slope window, the plant's noise streams).
   corrupt bytes -> fmi2Error / fmi3Error with a message naming what is wrong; the instance
   goes on stepping;
 - the pointer rules: freeing NULL is ignored, a freed state is refused, states die with the
-  instance that made them; the pythonfmu FMUs declare and answer "no FMU states".
+  instance that made them; the pythonfmu FMUs declare and answer "no FMU states";
+- all of the above once more with the binary built with -fsanitize=address,undefined (both
+  glues, both backends: RailCarNative and RailCarEstimatorNative3), in a Python process that
+  preloads the sanitizer runtimes (as tests/fmu_tests/test_fmu_sanitized.py does; leak checking
+  off, the interpreter keeps memory to the end): any report aborts it.
 """
 from __future__ import annotations
 
+import json
 import math
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
 from ctypes import byref, c_void_p, create_string_buffer
 from pathlib import Path
 from xml.etree import ElementTree as ET
-import zipfile
 
 import numpy as np
 import pytest
@@ -32,6 +41,7 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
 from conftest import ERROR, OK, ROOT, LogMessage, Slave
+from fmu_src.build import native, native_fmi3, toolchain
 
 NATIVE = {  # native FMU -> (the pythonfmu twin it is built beside, FMI version)
     "RailCarNative": ("RailCar", 2),
@@ -397,3 +407,54 @@ def test_only_the_native_fmus_declare_fmu_states(built_fmus, natives, railcar):
         slave.initialize()
         assert slave.call("getFMUstate") == ERROR
         assert "fmi2GetFMUstate: not supported by RailCar (it keeps no FMU states)" in slave.log_text()
+
+
+# ---------------------------------------------------------------------------- under sanitizers
+
+def state_session(natives: dict[str, NativeFmu], name: str) -> None:
+    """Every check above on one FMU (the sanitized process runs this)."""
+    for method in (0, 2):
+        test_restoring_a_state_repeats_the_steps_bit_for_bit(natives, name, method)
+        test_serialized_state_continues_in_a_fresh_instance(natives, name, method)
+    test_rolling_back_twice_and_overwriting_a_state(natives, name)
+    test_bad_bytes_are_refused_and_the_instance_goes_on(natives, name)
+    test_state_pointer_rules(natives, name)
+
+
+@pytest.mark.parametrize("name", ["RailCarNative", "RailCarEstimatorNative3"])
+def test_state_calls_clean_under_sanitizers(natives, name, tmp_path):
+    gcc = shutil.which("gcc")
+    assert gcc, "no gcc"
+    nf = natives[name]
+    unzipdir = tmp_path / name
+    shutil.copytree(nf.unzipdir, unzipdir)
+    model = nf.md.coSimulation.modelIdentifier
+    folder = toolchain.LINUX_X86_64.fmi2_folder if nf.version == 2 else toolchain.LINUX_X86_64.tuple
+    binary = unzipdir / "binaries" / folder / f"{model}.so"
+    assert binary.is_file()
+    spec = native.RAILCAR_SPEC if nf.is_railcar() else native.ESTIMATOR_SPEC
+    sources = native.c_sources(spec) if nf.version == 2 else native_fmi3.c_sources(spec)
+    flags = [f for f in native.C_FLAGS if f not in ("-O2", "-Wl,--no-undefined")]
+    proc = subprocess.run([gcc, *flags, "-O1", "-g", "-fsanitize=address,undefined",
+                           "-fno-sanitize-recover=all", "-I", str(native.C_DIR), "-I",
+                           str(native.CORE_DIR), "-I", str(toolchain.fmi_headers()),
+                           *[str(s) for s in sources], "-o", str(binary), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert b"__asan_" in binary.read_bytes()
+    runtimes = [subprocess.run([gcc, f"-print-file-name={lib}"], capture_output=True, text=True,
+                               check=True).stdout.strip() for lib in ("libasan.so", "libubsan.so")]
+    unzipdirs = {n: str(unzipdir if n == name else other.unzipdir) for n, other in natives.items()}
+    env = dict(os.environ, LD_PRELOAD=" ".join(runtimes),
+               ASAN_OPTIONS="detect_leaks=0:abort_on_error=1",
+               PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+    proc = subprocess.run([sys.executable, __file__, json.dumps(unzipdirs), name],
+                          capture_output=True, text=True, env=env, timeout=600, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    assert proc.stdout.strip().endswith("STATE-SANITIZED-DONE"), proc.stdout[-500:]
+
+
+if __name__ == "__main__":        # the sanitized process: unzipped FMUs by name, the FMU to check
+    folders = json.loads(sys.argv[1])
+    state_session({n: NativeFmu(n, Path(p), p) for n, p in folders.items()}, sys.argv[2])
+    print("STATE-SANITIZED-DONE")
