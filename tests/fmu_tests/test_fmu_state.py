@@ -324,6 +324,24 @@ def refused(unit: Unit, data: bytes, phrase: str) -> None:
     assert any(phrase in m.message for m in new), f"expected '{phrase}' in {[m.message for m in new]}"
 
 
+def fnv1a64(data: bytes) -> int:
+    h = 0xcbf29ce484222325
+    for b in data:
+        h = ((h ^ b) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def resealed(data: bytes, model_part: bytes) -> bytes:
+    """`data` (a serialized state) with another model part, its lengths and checksum made
+    consistent: only the backend's own checks can refuse it (glue_common.c's layout)."""
+    token_len = int.from_bytes(data[28:32], sys.byteorder)
+    head = bytearray(data[:64 + token_len])
+    head[56 + token_len:64 + token_len] = len(model_part).to_bytes(8, sys.byteorder)
+    head[32:40] = (len(head) + len(model_part) + 8).to_bytes(8, sys.byteorder)
+    body = bytes(head) + model_part
+    return body + fnv1a64(body).to_bytes(8, sys.byteorder)
+
+
 @pytest.mark.parametrize("name", NATIVE)
 def test_bad_bytes_are_refused_and_the_instance_goes_on(natives, name):
     nf = natives[name]
@@ -358,6 +376,14 @@ def test_bad_bytes_are_refused_and_the_instance_goes_on(natives, name):
 
     for other, foreign_bytes in foreign.items():
         refused(unit, foreign_bytes, "belongs to another FMU")
+    # a model part cut short (every length consistent, the checksum right): the reader's own
+    # bounds refuse it wherever the cut falls
+    token_len = int.from_bytes(data[28:32], sys.byteorder)
+    model_part = data[64 + token_len:-8]
+    assert resealed(data, model_part) == data
+    for cut in [*range(0, 64, 4), *range(64, len(model_part), 997), len(model_part) - 1]:
+        refused(unit, resealed(data, model_part[:cut]), "the FMU state is corrupt or of another build")
+    refused(unit, resealed(data, model_part + b"\0" * 8), "(bytes left over)")
 
     # still the same instance: the state it had, and it steps on
     expected = run(unit, rows, BEFORE, AFTER)
