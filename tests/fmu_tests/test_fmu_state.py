@@ -373,6 +373,16 @@ def test_bad_bytes_are_refused_and_the_instance_goes_on(natives, name):
     version = bytearray(data)
     version[8] = 9
     refused(unit, bytes(version), "format version 9")
+    swapped = bytearray(data)
+    swapped[12:16] = data[15:11:-1]
+    refused(unit, bytes(swapped), "written on a machine of another byte order")
+    windows = bytearray(data)
+    windows[17] = 4                             # sizeof(long) on win64
+    refused(unit, bytes(windows), "(another platform)")
+    layout = bytearray(data[:-8])
+    layout[24] ^= 1
+    layout += fnv1a64(bytes(layout)).to_bytes(8, sys.byteorder)
+    refused(unit, bytes(layout), "written by a build of this FMU with another memory layout")
 
     for other, foreign_bytes in foreign.items():
         refused(unit, foreign_bytes, "belongs to another FMU")
