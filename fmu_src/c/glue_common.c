@@ -1,5 +1,6 @@
 /* glue_common.c -- the part of the FMI 2.0 and FMI 3.0 glues that no standard owns (see
- * glue_common.h): registry, state rules, value-reference checks, logging, resource locations.
+ * glue_common.h): registry, state rules, value-reference checks, logging, resource locations,
+ * FMU states (get/set/free, serialize/deserialize: header, checks, checksum).
  * Compile these sources with -ffp-contract=off (GCC ignores #pragma STDC FP_CONTRACT): the model
  * core is bit-identical to the Python reference only without fused multiply-adds (its own .c
  * files also turn contraction off, models/core/rc_fp_contract.h).

@@ -6,7 +6,8 @@
  *   - what both glues do the same way: the registry of live instances (a pointer that is not
  *     live is refused without being read), the state rules and their messages, value-reference
  *     checks, debug-log categories, log filtering and formatting, UTF-8 checks, resource
- *     locations, and reading the token in <resources>/../modelDescription.xml.
+ *     locations, reading the token in <resources>/../modelDescription.xml, and FMU states
+ *     (their registry, serialized form and checks; the model's part is the backend's).
  * A glue names its standard's words in a GlueStandard (they appear in its messages) and reaches
  * the host's logger through a GlueLogSink; the entry points and the calls of the backend stay in
  * the glue. One registry per shared library: a binary links one glue.

@@ -2,7 +2,8 @@
  * the variables' storage by value reference with their start values, instantiate / reset /
  * free, fmi2Get* and fmi2Set*, the flat configuration from the generated tables, the profiles
  * (fmu_src/adapter.py load_profiles) and the messages fmu_src/adapter.py logs (initialise,
- * not_initialised, guarded_step). No Python; reentrant (the state lives in native_values). */
+ * not_initialised, guarded_step). No Python; reentrant (the state lives in native_values).
+ * FMU states of these backends (NATIVE_STATE_OPS) are native_state.c's. */
 #ifndef NATIVE_COMMON_H
 #define NATIVE_COMMON_H
 
