@@ -12,7 +12,8 @@
  *     its profile buffer                       uint64 count + double[count]
  *     has an estimator                         uint32; then, if so:
  *       filter has a speed profile             uint32
- *       the identifier's batch                 uint64 rows + double[4 rows], double[rows], int[rows]
+ *       the identifier's batch                 uint64 rows + double[4 rows], double[rows],
+ *                                              int[rows]
  *       has a slope window (est.method 2)      uint32; then its struct (uint64 size + bytes,
  *                                              pointers zeroed) and v[size + 1], i[4 size],
  *                                              dts, w, c[size]

@@ -37,7 +37,6 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
 from conftest import ERROR, OK, ROOT, LogMessage, Slave
@@ -98,8 +97,9 @@ class Unit:
             self.fmu = self.slave.fmu
         else:
             def logger(_env, status, category, message):
-                self.messages.append(LogMessage(int(status), category.decode() if category else None,
-                                                message.decode(errors="replace") if message else ""))
+                text = message.decode(errors="replace") if message else ""
+                self.messages.append(LogMessage(int(status),
+                                                category.decode() if category else None, text))
             self.fmu = FMU3Slave(guid=md.guid, unzipDirectory=native_fmu.unzipdir,
                                  modelIdentifier=md.coSimulation.modelIdentifier,
                                  instanceName=instance_name)
@@ -321,7 +321,8 @@ def refused(unit: Unit, data: bytes, phrase: str) -> None:
     new = [m for m in unit.messages[before:] if m.status == ERROR]
     assert status == ERROR, f"{phrase}: status {status}"
     assert state.value is None
-    assert any(phrase in m.message for m in new), f"expected '{phrase}' in {[m.message for m in new]}"
+    assert any(phrase in m.message for m in new), \
+        f"expected '{phrase}' in {[m.message for m in new]}"
 
 
 def fnv1a64(data: bytes) -> int:
@@ -348,8 +349,11 @@ def test_bad_bytes_are_refused_and_the_instance_goes_on(natives, name):
     # another FMU's state: the other model, and the same model under the other FMI version
     # (made first: fmpy's FMI 2 logger proxy logs every instance to the latest one's logger)
     foreign = {}
-    for other in (next(n for n, (twin, v) in NATIVE.items() if v == nf.version and twin != nf.twin),
-                  next(n for n, (twin, v) in NATIVE.items() if twin == nf.twin and v != nf.version)):
+    other_model = next(n for n, (twin, v) in NATIVE.items()
+                       if v == nf.version and twin != nf.twin)
+    other_version = next(n for n, (twin, v) in NATIVE.items()
+                         if twin == nf.twin and v != nf.version)
+    for other in (other_model, other_version):
         unit, _ = started(natives[other], 0, "foreign")
         s = unit.get_state()
         foreign[other] = unit.fmu.serializeFMUState(s)
@@ -392,7 +396,8 @@ def test_bad_bytes_are_refused_and_the_instance_goes_on(natives, name):
     model_part = data[64 + token_len:-8]
     assert resealed(data, model_part) == data
     for cut in [*range(0, 64, 4), *range(64, len(model_part), 997), len(model_part) - 1]:
-        refused(unit, resealed(data, model_part[:cut]), "the FMU state is corrupt or of another build")
+        refused(unit, resealed(data, model_part[:cut]),
+                "the FMU state is corrupt or of another build")
     refused(unit, resealed(data, model_part + b"\0" * 8), "(bytes left over)")
 
     # still the same instance: the state it had, and it steps on
@@ -442,7 +447,8 @@ def test_only_the_native_fmus_declare_fmu_states(built_fmus, natives, railcar):
     with Slave(railcar, "python") as slave:
         slave.initialize()
         assert slave.call("getFMUstate") == ERROR
-        assert "fmi2GetFMUstate: not supported by RailCar (it keeps no FMU states)" in slave.log_text()
+        assert ("fmi2GetFMUstate: not supported by RailCar (it keeps no FMU states)"
+                in slave.log_text())
 
 
 # ---------------------------------------------------------------------------- under sanitizers
