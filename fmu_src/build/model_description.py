@@ -39,9 +39,13 @@ _FMI2_OPTIONS = {     # pythonfmu's defaults (FMI2_MODEL_OPTIONS), in its order
     "canHandleVariableCommunicationStepSize": "true", "canInterpolateInputs": "false",
     "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUstate": "false",
     "canSerializeFMUstate": "false"}
-_FMI3_OPTIONS = {
-    "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "false",
-    "canSerializeFMUState": "false", "providesDirectionalDerivatives": "false",
+_FMI2_NATIVE_STATE = {"canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"}
+"""FMU states: the native glue saves the whole instance (fmu_src/c/native_state.c). The pythonfmu
+FMUs keep pythonfmu's "false": their binary (fmu_src/c/pyslave.c) saves no state, and pythonfmu
+0.7's own state (Fmi2Slave._get_fmu_state) holds only the registered variables, not the chain."""
+_FMI3_OPTIONS = {     # the native FMI 3 FMUs only; FMU states as _FMI2_NATIVE_STATE
+    "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "true",
+    "canSerializeFMUState": "true", "providesDirectionalDerivatives": "false",
     "providesAdjointDerivatives": "false", "providesPerElementDependencies": "false",
     "canHandleVariableCommunicationStepSize": "true", "maxOutputDerivativeOrder": "0",
     "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
@@ -134,6 +138,7 @@ def fmi2(fmu: str, guid: str, generation_tool: str, *, needs_execution_tool: boo
         "variableNamingConvention": "structured", "description": description, "author": author})
     cosim = ET.SubElement(root, "CoSimulation", {
         "needsExecutionTool": "true" if needs_execution_tool else "false", **_FMI2_OPTIONS,
+        **({} if needs_execution_tool else _FMI2_NATIVE_STATE),     # native: the C glue
         "modelIdentifier": fmu, "canNotUseMemoryManagementFunctions": "true"})
     if source_files:
         # FMI 2.0 <SourceFiles> has no place for compiler options (FMI 3.0's

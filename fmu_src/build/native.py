@@ -62,7 +62,7 @@ BASE_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-f
 C_FLAGS = [*BASE_FLAGS, *LINUX_X86_64.flags]
 """The linux x86-64 flags (benchmarks compile with them)."""
 CONFIG_CONSTANT, CONFIG_START_TIME = -1, -2
-COMMON_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_common.c"]
+COMMON_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_common.c", "native_state.c"]
 COMMON_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_common.h"]
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 

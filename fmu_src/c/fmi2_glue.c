@@ -120,6 +120,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         goto fail;
     }
     if (!guid_matches(g, fmuGUID)) goto fail;
+    if (!(g->token = gc_copy_string(fmuGUID))) goto fail;
     if (model_instantiate(g) != fmi2OK) {
         model_free(g);
         goto fail;
@@ -256,48 +257,11 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* ------------------------------------------------------- what this FMU does not provide */
 
-/* modelDescription.xml: canGetAndSetFMUstate, canSerializeFMUstate, providesDirectional-
-   Derivative and canInterpolateInputs are false, maxOutputDerivativeOrder is 0. */
+/* modelDescription.xml: providesDirectionalDerivative and canInterpolateInputs are false,
+   maxOutputDerivativeOrder is 0. */
 static fmi2Status not_supported(fmi2Component c, const char *function, const char *why) {
     gc_not_supported(&FMI2, c, function, why);
     return fmi2Error;
-}
-
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    (void)FMUstate;
-    return not_supported(c, "fmi2GetFMUstate", "canGetAndSetFMUstate = false");
-}
-
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
-    (void)FMUstate;
-    return not_supported(c, "fmi2SetFMUstate", "canGetAndSetFMUstate = false");
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    (void)FMUstate;
-    return not_supported(c, "fmi2FreeFMUstate", "canGetAndSetFMUstate = false");
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
-    (void)FMUstate;
-    (void)size;
-    return not_supported(c, "fmi2SerializedFMUstateSize", "canSerializeFMUstate = false");
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
-                                 fmi2Byte serializedState[], size_t size) {
-    (void)FMUstate;
-    (void)serializedState;
-    (void)size;
-    return not_supported(c, "fmi2SerializeFMUstate", "canSerializeFMUstate = false");
-}
-
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
-                                   fmi2FMUstate *FMUstate) {
-    (void)serializedState;
-    (void)size;
-    (void)FMUstate;
-    return not_supported(c, "fmi2DeSerializeFMUstate", "canSerializeFMUstate = false");
 }
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
@@ -333,6 +297,40 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 
 fmi2Status fmi2CancelStep(fmi2Component c) {
     return not_supported(c, "fmi2CancelStep", "fmi2DoStep never returns fmi2Pending");
+}
+
+/* --------------------------------------------------------------------------- FMU states */
+
+/* glue_common.c's (gc_get_state ...), on the backend's GlueStateOps; a backend without them
+   (pyslave.c) answers "not supported". The native FMUs declare canGetAndSetFMUstate and
+   canSerializeFMUstate. */
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    return (fmi2Status)gc_get_state(&FMI2, c, "fmi2GetFMUstate", FMUstate);
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
+    return (fmi2Status)gc_set_state(&FMI2, c, "fmi2SetFMUstate", FMUstate);
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    return (fmi2Status)gc_free_state(&FMI2, c, "fmi2FreeFMUstate", FMUstate);
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
+    return (fmi2Status)gc_state_size(&FMI2, c, "fmi2SerializedFMUstateSize", FMUstate, size);
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
+                                 fmi2Byte serializedState[], size_t size) {
+    return (fmi2Status)gc_serialize_state(&FMI2, c, "fmi2SerializeFMUstate", FMUstate,
+                                          (unsigned char *)serializedState, size);
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
+                                   fmi2FMUstate *FMUstate) {
+    return (fmi2Status)gc_deserialize_state(&FMI2, c, "fmi2DeSerializeFMUstate",
+                                            (const unsigned char *)serializedState, size,
+                                            FMUstate);
 }
 
 /* -------------------------------------------------------------------------- stepping */

@@ -165,6 +165,11 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
         gc_free_instance(g);
         return NULL;
     }
+    if (!(g->token = gc_copy_string(instantiationToken))) {
+        LOG_ERROR(g, "fmi3InstantiateCoSimulation: out of memory");
+        gc_free_instance(g);
+        return NULL;
+    }
     if (model_instantiate(g) != fmi2OK) {
         model_free(g);
         gc_free_instance(g);
@@ -460,8 +465,6 @@ static fmi3Status not_supported(fmi3Instance instance, const char *function, con
 #define NO_EVENT_MODE "a co-simulation FMU without event mode (hasEventMode = false)"
 #define NO_ME "co-simulation only, no model exchange"
 #define NO_SE "co-simulation only, no scheduled execution"
-#define NO_STATE "canGetAndSetFMUState = false"
-#define NO_SERIAL "canSerializeFMUState = false"
 #define NO_CLOCKS "no clocks"
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
@@ -493,42 +496,36 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference
                          "providesPerElementDependencies = false");
 }
 
+/* FMU states: glue_common.c's (gc_get_state ...), as in fmi2_glue.c */
 fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
-    (void)FMUState;
-    return not_supported(instance, "fmi3GetFMUState", NO_STATE);
+    return (fmi3Status)gc_get_state(&FMI3, instance, "fmi3GetFMUState", FMUState);
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState) {
-    (void)FMUState;
-    return not_supported(instance, "fmi3SetFMUState", NO_STATE);
+    return (fmi3Status)gc_set_state(&FMI3, instance, "fmi3SetFMUState", FMUState);
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
-    (void)FMUState;
-    return not_supported(instance, "fmi3FreeFMUState", NO_STATE);
+    return (fmi3Status)gc_free_state(&FMI3, instance, "fmi3FreeFMUState", FMUState);
 }
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance, fmi3FMUState FMUState,
                                       size_t *size) {
-    (void)FMUState;
-    (void)size;
-    return not_supported(instance, "fmi3SerializedFMUStateSize", NO_SERIAL);
+    return (fmi3Status)gc_state_size(&FMI3, instance, "fmi3SerializedFMUStateSize", FMUState,
+                                     size);
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance instance, fmi3FMUState FMUState,
                                  fmi3Byte serializedState[], size_t size) {
-    (void)FMUState;
-    (void)serializedState;
-    (void)size;
-    return not_supported(instance, "fmi3SerializeFMUState", NO_SERIAL);
+    return (fmi3Status)gc_serialize_state(&FMI3, instance, "fmi3SerializeFMUState", FMUState,
+                                          (unsigned char *)serializedState, size);
 }
 
 fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte serializedState[],
                                    size_t size, fmi3FMUState *FMUState) {
-    (void)serializedState;
-    (void)size;
-    (void)FMUState;
-    return not_supported(instance, "fmi3DeserializeFMUState", NO_SERIAL);
+    return (fmi3Status)gc_deserialize_state(&FMI3, instance, "fmi3DeserializeFMUState",
+                                            (const unsigned char *)serializedState, size,
+                                            FMUState);
 }
 
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[],

@@ -13,7 +13,7 @@
  *   - fmi3EnterInitializationMode is model_setup_experiment + model_enter_initialization_mode.
  * Call rules (states, value references, statuses) are those of fmi2_glue.h, in FMI 3 terms:
  * instantiated, initialization mode, step mode (GLUE_STEP_COMPLETE), terminated, error, fatal.
- * Event mode, model exchange, scheduled execution, clocks, FMU states and derivatives are not
+ * Event mode, model exchange, scheduled execution, clocks and derivatives are not
  * provided (modelDescription.xml says so): those calls return fmi3Error with the reason.
  */
 #ifndef FMI3_GLUE_H

@@ -1,5 +1,6 @@
 /* glue_common.c -- the part of the FMI 2.0 and FMI 3.0 glues that no standard owns (see
- * glue_common.h): registry, state rules, value-reference checks, logging, resource locations.
+ * glue_common.h): registry, state rules, value-reference checks, logging, resource locations,
+ * FMU states (get/set/free, serialize/deserialize: header, checks, checksum).
  * Compile these sources with -ffp-contract=off (GCC ignores #pragma STDC FP_CONTRACT): the model
  * core is bit-identical to the Python reference only without fused multiply-adds (its own .c
  * files also turn contraction off, models/core/rc_fp_contract.h).
@@ -95,6 +96,77 @@ GlueInstance *gc_lookup(const GlueStandard *standard, const void *handle, const 
                         "(NULL, already freed, or never created); returning %sError\n",
                 standard->prefix, function, standard->handle, handle, standard->prefix);
     return g;
+}
+
+/* The live FMU states of this library, as the instances above: a state pointer is recognised by
+   its value alone. A state belongs to the instance that made it (freed with it). */
+typedef struct {
+    GlueInstance *owner;
+    unsigned char *bytes;       /* the serialized state (gc_get_state's format below) */
+    size_t size;
+} GlueFMUState;
+
+static GlueFMUState **live_states;
+static size_t live_states_count, live_states_capacity;
+
+static int state_register(GlueFMUState *st) {
+    int ok = 1;
+    REGISTRY_LOCK();
+    if (live_states_count == live_states_capacity) {
+        size_t cap = live_states_capacity ? 2 * live_states_capacity : 8;
+        GlueFMUState **grown = realloc(live_states, cap * sizeof *grown);
+        if (grown) {
+            live_states = grown;
+            live_states_capacity = cap;
+        } else {
+            ok = 0;
+        }
+    }
+    if (ok) live_states[live_states_count++] = st;
+    REGISTRY_UNLOCK();
+    return ok;
+}
+
+static void drop_live_state(size_t i) {           /* with the lock held */
+    live_states[i] = live_states[--live_states_count];
+    if (live_states_count == 0) {
+        free(live_states);
+        live_states = NULL;
+        live_states_capacity = 0;
+    }
+}
+
+/* `handle` among the live states (NULL if not); with `remove`, taken out */
+static GlueFMUState *state_find(const void *handle, int remove) {
+    GlueFMUState *found = NULL;
+    size_t i;
+    if (!handle) return NULL;
+    REGISTRY_LOCK();
+    for (i = 0; i < live_states_count; i++) {
+        if ((const void *)live_states[i] == handle) {
+            found = live_states[i];
+            if (remove) drop_live_state(i);
+            break;
+        }
+    }
+    REGISTRY_UNLOCK();
+    return found;
+}
+
+static void free_states_of(GlueInstance *g) {
+    size_t i = 0;
+    REGISTRY_LOCK();
+    while (i < live_states_count) {
+        GlueFMUState *st = live_states[i];
+        if (st->owner == g) {
+            drop_live_state(i);
+            free(st->bytes);
+            free(st);
+        } else {
+            i++;
+        }
+    }
+    REGISTRY_UNLOCK();
 }
 
 /* ------------------------------------------------------------------------------ logging */
@@ -224,6 +296,8 @@ void gc_free_instance(GlueInstance *g) {
     free(g->instance_name);
     free(g->model_name);
     free(g->resources);
+    free(g->token);
+    free_states_of(g);
     free(g);
 }
 
@@ -582,4 +656,345 @@ int gc_description_attribute(const char *resources, const char *attribute, char 
     *end = '\0';
     memmove(out, attr, (size_t)(end - attr) + 1);
     return 1;
+}
+
+/* ------------------------------------------------------------------------------ FMU states */
+
+/* The serialized FMU state, every number in the writer's byte order (checked, not converted):
+ *    0  magic "RCFMUST\0"                        8 bytes
+ *    8  format version (GC_STATE_VERSION)        uint32
+ *   12  byte-order mark 0x01020304               uint32
+ *   16  sizeof double, long, void *, int, size_t, then 3 zero bytes
+ *   24  the backend's layout fingerprint          uint32
+ *   28  token length L                            uint32
+ *   32  total length of the byte string           uint64
+ *   40  the token (L bytes, no NUL)
+ *  +0   glue: state, terminate_requested (uint32 each), time (double)
+ *  +16  model part length M                       uint64, then M bytes (the backend's)
+ *  end  FNV-1a 64 of every byte before it        uint64
+ */
+#define GC_STATE_MAGIC "RCFMUST"
+#define GC_STATE_VERSION 1u
+#define GC_STATE_BOM 0x01020304u
+#define GC_STATE_FIXED 40u                      /* bytes before the token */
+#define GC_STATE_OVERHEAD (GC_STATE_FIXED + 16u + 8u + 8u)   /* all but token and model part */
+
+static const unsigned char state_sizes[8] = {
+    (unsigned char)sizeof(double), (unsigned char)sizeof(long), (unsigned char)sizeof(void *),
+    (unsigned char)sizeof(int), (unsigned char)sizeof(size_t), 0, 0, 0
+};
+
+static uint64_t fnv1a64(const unsigned char *p, size_t n) {
+    uint64_t h = 0xcbf29ce484222325u;
+    size_t i;
+    for (i = 0; i < n; i++) {
+        h ^= p[i];
+        h *= 0x100000001b3u;
+    }
+    return h;
+}
+
+static unsigned char *put(unsigned char *out, const void *value, size_t n) {
+    memcpy(out, value, n);
+    return out + n;
+}
+
+static uint32_t get_u32(const unsigned char *p) {
+    uint32_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+static uint64_t get_u64(const unsigned char *p) {
+    uint64_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+static const char *state_token(const GlueInstance *g) {
+    return g->token ? g->token : "";
+}
+
+/* The instance's state serialized into a new allocation (*size bytes); NULL logged when out of
+   memory or too large to describe. */
+static unsigned char *serialize_instance(GlueInstance *g, const char *function, size_t *size) {
+    const char *token = state_token(g);
+    size_t token_len = strlen(token), model_len = g->state_ops->size(g), total;
+    unsigned char *bytes, *p;
+    uint32_t u32;
+    uint64_t u64;
+    double time = g->time;
+    if (token_len > UINT32_MAX || model_len > (size_t)-1 - GC_STATE_OVERHEAD - token_len) {
+        LOG_ERROR(g, "%s: the state is too large to serialize", function);
+        return NULL;
+    }
+    total = GC_STATE_OVERHEAD + token_len + model_len;
+    if (!(bytes = malloc(total))) {
+        LOG_ERROR(g, "%s: out of memory (%llu bytes for the FMU state)", function,
+                  (unsigned long long)total);
+        return NULL;
+    }
+    p = put(bytes, GC_STATE_MAGIC, 8);          /* with its NUL */
+    u32 = GC_STATE_VERSION;
+    p = put(p, &u32, 4);
+    u32 = GC_STATE_BOM;
+    p = put(p, &u32, 4);
+    p = put(p, state_sizes, 8);
+    u32 = g->state_ops->layout();
+    p = put(p, &u32, 4);
+    u32 = (uint32_t)token_len;
+    p = put(p, &u32, 4);
+    u64 = total;
+    p = put(p, &u64, 8);
+    p = put(p, token, token_len);
+    u32 = (uint32_t)g->state;
+    p = put(p, &u32, 4);
+    u32 = (uint32_t)g->terminate_requested;
+    p = put(p, &u32, 4);
+    p = put(p, &time, 8);
+    u64 = model_len;
+    p = put(p, &u64, 8);
+    g->state_ops->write(g, p);
+    p += model_len;
+    u64 = fnv1a64(bytes, (size_t)(p - bytes));
+    put(p, &u64, 8);
+    *size = total;
+    return bytes;
+}
+
+#define REFUSE_STATE(...)                                                                     \
+    do {                                                                                      \
+        LOG_ERROR(g, __VA_ARGS__);                                                            \
+        return 0;                                                                             \
+    } while (0)
+
+/* Check a serialized state against this instance (header, checksum, token, layout, then the
+   backend's part) and, with `commit`, make it the instance's state. 1, or 0 logged (nothing
+   changed). Reads nothing outside in[0..size-1]. */
+static int read_state(GlueInstance *g, const char *function, const unsigned char *in,
+                      size_t size, int commit) {
+    const char *token = state_token(g);
+    size_t token_len, model_len;
+    uint32_t u32, glue_state, terminate;
+    uint64_t total, model_len64;
+    double time;
+    const unsigned char *p;
+    if (size < 8 || memcmp(in, GC_STATE_MAGIC, 8) != 0) {
+        if (size >= 8)
+            REFUSE_STATE("%s: not an FMU state of this FMU (the bytes do not start with the "
+                         "magic '" GC_STATE_MAGIC "')", function);
+        REFUSE_STATE("%s: %llu bytes are too few for an FMU state (the header alone is %u "
+                     "bytes; truncated?)", function, (unsigned long long)size,
+                     (unsigned)GC_STATE_FIXED);
+    }
+    if (size < GC_STATE_FIXED)
+        REFUSE_STATE("%s: %llu bytes are too few for an FMU state (the header alone is %u "
+                     "bytes; truncated?)", function, (unsigned long long)size,
+                     (unsigned)GC_STATE_FIXED);
+    if ((u32 = get_u32(in + 12)) != GC_STATE_BOM)
+        REFUSE_STATE("%s: the FMU state was written on a machine of another byte order "
+                     "(byte-order mark 0x%08lx)", function, (unsigned long)u32);
+    if ((u32 = get_u32(in + 8)) != GC_STATE_VERSION)
+        REFUSE_STATE("%s: the FMU state has format version %lu; this FMU reads version %u",
+                     function, (unsigned long)u32, GC_STATE_VERSION);
+    if (memcmp(in + 16, state_sizes, sizeof state_sizes) != 0)
+        REFUSE_STATE("%s: the FMU state was written where double, long, void *, int, size_t "
+                     "have %u, %u, %u, %u, %u bytes; here they have %u, %u, %u, %u, %u (another "
+                     "platform)", function, in[16], in[17], in[18], in[19], in[20],
+                     state_sizes[0], state_sizes[1], state_sizes[2], state_sizes[3],
+                     state_sizes[4]);
+    total = get_u64(in + 32);
+    if (total != (uint64_t)size)
+        REFUSE_STATE("%s: the FMU state says it is %llu bytes long, but %llu bytes were given "
+                     "(%s)", function, (unsigned long long)total, (unsigned long long)size,
+                     total > (uint64_t)size ? "truncated" : "trailing bytes");
+    token_len = get_u32(in + 28);
+    if (size < GC_STATE_OVERHEAD || token_len > size - GC_STATE_OVERHEAD)
+        REFUSE_STATE("%s: the FMU state is corrupt (its token length %llu does not fit in its "
+                     "%llu bytes)", function, (unsigned long long)token_len,
+                     (unsigned long long)size);
+    if (get_u64(in + size - 8) != fnv1a64(in, size - 8))
+        REFUSE_STATE("%s: the FMU state is corrupt (checksum mismatch over its %llu bytes)",
+                     function, (unsigned long long)size);
+    if (token_len != strlen(token) || memcmp(in + GC_STATE_FIXED, token, token_len) != 0)
+        REFUSE_STATE("%s: the FMU state belongs to another FMU (token '%.*s'); this instance "
+                     "of %s has token '%s'", function, (int)(token_len > 200 ? 200 : token_len),
+                     (const char *)in + GC_STATE_FIXED,
+                     g->model_name ? g->model_name : "this FMU", token);
+    if ((u32 = get_u32(in + 24)) != g->state_ops->layout())
+        REFUSE_STATE("%s: the FMU state was written by a build of this FMU with another memory "
+                     "layout (fingerprint 0x%08lx, this build 0x%08lx)", function,
+                     (unsigned long)u32, (unsigned long)g->state_ops->layout());
+    p = in + GC_STATE_FIXED + token_len;
+    glue_state = get_u32(p);
+    terminate = get_u32(p + 4);
+    memcpy(&time, p + 8, sizeof time);
+    model_len64 = get_u64(p + 16);
+    if (model_len64 != (uint64_t)(size - GC_STATE_OVERHEAD - token_len))
+        REFUSE_STATE("%s: the FMU state is corrupt (its model part claims %llu bytes, %llu are "
+                     "there)", function, (unsigned long long)model_len64,
+                     (unsigned long long)(size - GC_STATE_OVERHEAD - token_len));
+    model_len = (size_t)model_len64;
+    if (glue_state != GLUE_INSTANTIATED && glue_state != GLUE_INIT_MODE &&
+        glue_state != GLUE_STEP_COMPLETE && glue_state != GLUE_TERMINATED &&
+        glue_state != GLUE_ERROR)
+        REFUSE_STATE("%s: the FMU state is corrupt (instance state %lu)", function,
+                     (unsigned long)glue_state);
+    if (!g->state_ops->read(g, function, p + 24, model_len, commit)) return 0;
+    if (commit) {
+        g->state = (GlueState)glue_state;
+        g->terminate_requested = terminate != 0;
+        g->time = time;
+    }
+    return 1;
+}
+
+/* The instance for a state call, with state support; NULL (logged) otherwise. */
+static GlueInstance *state_call(const GlueStandard *standard, void *handle,
+                                const char *function) {
+    GlueInstance *g = gc_enter(standard, handle, function, GLUE_ANY_STATE);
+    if (g && !g->state_ops) {
+        LOG_ERROR(g, "%s: not supported by %s (it keeps no FMU states)", function,
+                  g->model_name ? g->model_name : "this FMU");
+        return NULL;
+    }
+    return g;
+}
+
+/* A live state from the host's pointer (NULL logged otherwise). */
+static GlueFMUState *live_state(GlueInstance *g, const char *function, const void *handle) {
+    GlueFMUState *st = state_find(handle, 0);
+    if (!st)
+        LOG_ERROR(g, "%s: FMU state %p is not a live FMU state of this FMU (NULL, already "
+                     "freed, freed with its instance, or never made)", function, handle);
+    return st;
+}
+
+/* Store `bytes` in a new state (*state NULL) or in the live state *state. 0 logged. */
+static int keep_state(GlueInstance *g, const char *function, void **state,
+                      unsigned char *bytes, size_t size) {
+    GlueFMUState *st;
+    if (*state) {
+        if (!(st = live_state(g, function, *state))) {
+            free(bytes);
+            return 0;
+        }
+        free(st->bytes);
+    } else {
+        if (!(st = malloc(sizeof *st))) {
+            free(bytes);
+            LOG_ERROR(g, "%s: out of memory", function);
+            return 0;
+        }
+        if (!state_register(st)) {
+            free(st);
+            free(bytes);
+            LOG_ERROR(g, "%s: out of memory", function);
+            return 0;
+        }
+        *state = st;
+    }
+    st->owner = g;
+    st->bytes = bytes;
+    st->size = size;
+    return 1;
+}
+
+int gc_get_state(const GlueStandard *standard, void *handle, const char *function, void **state) {
+    GlueInstance *g = state_call(standard, handle, function);
+    unsigned char *bytes;
+    size_t size;
+    if (!g) return GLUE_STATUS_ERROR;
+    if (!state) {
+        LOG_ERROR(g, "%s: the FMUstate argument is NULL", function);
+        return GLUE_STATUS_ERROR;
+    }
+    if (*state && !live_state(g, function, *state)) return GLUE_STATUS_ERROR;
+    if (!(bytes = serialize_instance(g, function, &size))) return GLUE_STATUS_ERROR;
+    return keep_state(g, function, state, bytes, size) ? GLUE_STATUS_OK : GLUE_STATUS_ERROR;
+}
+
+int gc_set_state(const GlueStandard *standard, void *handle, const char *function, void *state) {
+    GlueInstance *g = state_call(standard, handle, function);
+    GlueFMUState *st;
+    if (!g || !(st = live_state(g, function, state))) return GLUE_STATUS_ERROR;
+    return read_state(g, function, st->bytes, st->size, 1) ? GLUE_STATUS_OK : GLUE_STATUS_ERROR;
+}
+
+int gc_free_state(const GlueStandard *standard, void *handle, const char *function,
+                  void **state) {
+    GlueInstance *g = state_call(standard, handle, function);
+    GlueFMUState *st;
+    if (!g) return GLUE_STATUS_ERROR;
+    if (!state) {
+        LOG_ERROR(g, "%s: the FMUstate argument is NULL", function);
+        return GLUE_STATUS_ERROR;
+    }
+    if (!*state) return GLUE_STATUS_OK;         /* the standard: a NULL state is ignored */
+    if (!live_state(g, function, *state)) return GLUE_STATUS_ERROR;
+    st = state_find(*state, 1);
+    if (st) {
+        free(st->bytes);
+        free(st);
+    }
+    *state = NULL;
+    return GLUE_STATUS_OK;
+}
+
+int gc_state_size(const GlueStandard *standard, void *handle, const char *function, void *state,
+                  size_t *size) {
+    GlueInstance *g = state_call(standard, handle, function);
+    GlueFMUState *st;
+    if (!g) return GLUE_STATUS_ERROR;
+    if (!size) {
+        LOG_ERROR(g, "%s: size is NULL", function);
+        return GLUE_STATUS_ERROR;
+    }
+    if (!(st = live_state(g, function, state))) return GLUE_STATUS_ERROR;
+    *size = st->size;
+    return GLUE_STATUS_OK;
+}
+
+int gc_serialize_state(const GlueStandard *standard, void *handle, const char *function,
+                       void *state, unsigned char *out, size_t size) {
+    GlueInstance *g = state_call(standard, handle, function);
+    GlueFMUState *st;
+    if (!g || !(st = live_state(g, function, state))) return GLUE_STATUS_ERROR;
+    if (!out) {
+        LOG_ERROR(g, "%s: serializedState is NULL", function);
+        return GLUE_STATUS_ERROR;
+    }
+    if (size < st->size) {
+        LOG_ERROR(g, "%s: serializedState has %llu bytes, the FMU state needs %llu (its "
+                     "serialized size)", function, (unsigned long long)size,
+                  (unsigned long long)st->size);
+        return GLUE_STATUS_ERROR;
+    }
+    memcpy(out, st->bytes, st->size);
+    return GLUE_STATUS_OK;
+}
+
+int gc_deserialize_state(const GlueStandard *standard, void *handle, const char *function,
+                         const unsigned char *in, size_t size, void **state) {
+    GlueInstance *g = state_call(standard, handle, function);
+    unsigned char *bytes;
+    if (!g) return GLUE_STATUS_ERROR;
+    if (!state) {
+        LOG_ERROR(g, "%s: the FMUstate argument is NULL", function);
+        return GLUE_STATUS_ERROR;
+    }
+    if (!in && size > 0) {
+        LOG_ERROR(g, "%s: serializedState is NULL but size = %llu", function,
+                  (unsigned long long)size);
+        return GLUE_STATUS_ERROR;
+    }
+    if (*state && !live_state(g, function, *state)) return GLUE_STATUS_ERROR;
+    if (!read_state(g, function, in ? in : (const unsigned char *)"", size, 0))
+        return GLUE_STATUS_ERROR;
+    if (!(bytes = malloc(size))) {
+        LOG_ERROR(g, "%s: out of memory", function);
+        return GLUE_STATUS_ERROR;
+    }
+    memcpy(bytes, in, size);
+    return keep_state(g, function, state, bytes, size) ? GLUE_STATUS_OK : GLUE_STATUS_ERROR;
 }

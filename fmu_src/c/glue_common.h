@@ -6,7 +6,8 @@
  *   - what both glues do the same way: the registry of live instances (a pointer that is not
  *     live is refused without being read), the state rules and their messages, value-reference
  *     checks, debug-log categories, log filtering and formatting, UTF-8 checks, resource
- *     locations, and reading the token in <resources>/../modelDescription.xml.
+ *     locations, reading the token in <resources>/../modelDescription.xml, and FMU states
+ *     (their registry, serialized form and checks; the model's part is the backend's).
  * A glue names its standard's words in a GlueStandard (they appear in its messages) and reaches
  * the host's logger through a GlueLogSink; the entry points and the calls of the backend stay in
  * the glue. One registry per shared library: a binary links one glue.
@@ -15,6 +16,7 @@
 #define GLUE_COMMON_H
 
 #include <stddef.h>
+#include <stdint.h>
 
 /* Statuses as FMI 2.0 and FMI 3.0 both number them (fmi2OK .. fmi2Fatal = fmi3OK .. fmi3Fatal;
    each glue checks its own at compile time). */
@@ -81,6 +83,7 @@ typedef struct {
 } GlueStandard;
 
 struct GlueInstance;
+struct GlueStateOps;
 /* The glue's way to the host's logger: `message` is the text as it is (not a format). */
 typedef void (*GlueLogSink)(struct GlueInstance *g, int status, const char *category,
                             const char *message);
@@ -91,6 +94,8 @@ typedef struct GlueInstance {
     char *instance_name;
     char *model_name;           /* set by the backend, for messages */
     char *resources;            /* file-system path of the FMU's resources folder */
+    char *token;                /* the GUID (FMI 2) / instantiationToken (FMI 3) it was made with;
+                                   FMU states carry it (one FMU's state is refused by another) */
     int visible;
     const GlueStandard *standard;
 
@@ -112,7 +117,27 @@ typedef struct GlueInstance {
     size_t strings_size;
 
     void *model;                /* the backend's data */
+    const struct GlueStateOps *state_ops;   /* set by the backend; NULL: no FMU states */
 } GlueInstance;
+
+/* ---- FMU states (get/set/free, serialize/deserialize) ----
+ * A backend that can save and restore its model sets GlueInstance.state_ops in model_instantiate
+ * (NULL, as pyslave.c leaves it: every state call answers "not supported"). The model's part of
+ * a state is a byte string the backend writes and reads; the glue puts around it a header (magic,
+ * format version, byte order, type sizes, the FMU's token, the backend's layout fingerprint, the
+ * total length), its own fields (state, time, terminate request) and a checksum. An FMU state in
+ * memory IS that byte string: getFMUstate serializes, setFMUstate reads it back through the same
+ * checks, so a state restored from bytes and one kept in memory take one path. */
+typedef struct GlueStateOps {
+    size_t (*size)(GlueInstance *g);                      /* bytes write() writes now */
+    void (*write)(GlueInstance *g, unsigned char *out);   /* exactly size() bytes */
+    /* Check the model's part (n bytes) and, with `commit`, make it the model's state. 0 when
+       it is refused (logged, naming `function` and what is wrong) or memory runs out: the model
+       is unchanged then. May allocate; never reads outside in[0..n-1]. */
+    int (*read)(GlueInstance *g, const char *function, const unsigned char *in, size_t n,
+                int commit);
+    uint32_t (*layout)(void);   /* fingerprint of the type sizes and offsets the bytes rely on */
+} GlueStateOps;
 
 /* ---- services of the glue to the backend ---- */
 
@@ -162,6 +187,25 @@ GlueInstance *gc_enter(const GlueStandard *standard, const void *handle, const c
 /* gc_lookup, then "<function>: not supported by <model> (<why>)" logged as an error. */
 void gc_not_supported(const GlueStandard *standard, const void *handle, const char *function,
                       const char *why);
+
+/* The FMU-state calls of both standards (FMI 2 fmi2GetFMUstate ..., FMI 3 fmi3GetFMUState ...;
+   `function` names the entry point in messages). A state pointer that is not a live state of
+   this library is refused without being read. Each returns a GLUE_STATUS_*; failures logged.
+   get: *state NULL -> a new state; non-NULL -> that state (a live one) overwritten.
+   free: *state NULL -> nothing (OK); else freed and *state set to NULL.
+   deserialize: checks the bytes (length, magic, version, byte order, sizes, token, layout,
+   checksum, the model's part) and makes a new state (*state non-NULL: that one overwritten).
+   States belong to the instance that made them: freeing the instance frees them. */
+int gc_get_state(const GlueStandard *standard, void *handle, const char *function, void **state);
+int gc_set_state(const GlueStandard *standard, void *handle, const char *function, void *state);
+int gc_free_state(const GlueStandard *standard, void *handle, const char *function,
+                  void **state);
+int gc_state_size(const GlueStandard *standard, void *handle, const char *function, void *state,
+                  size_t *size);
+int gc_serialize_state(const GlueStandard *standard, void *handle, const char *function,
+                       void *state, unsigned char *out, size_t size);
+int gc_deserialize_state(const GlueStandard *standard, void *handle, const char *function,
+                         const unsigned char *in, size_t size, void **state);
 
 /* A model call's status decides the state: a failing model is in the error (fatal) state from
    now on. gc_finish: on OK the instance moves to `next` first. Both return `status`. */

@@ -361,6 +361,7 @@ fmi2Status model_instantiate(GlueInstance *g) {
         glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
         return fmi2Error;                       /* the glue calls model_free next */
     }
+    g->state_ops = &NATIVE_STATE_OPS;
     return native_instantiate(g, NATIVE_BACKEND.md, &m->v);
 }
 

@@ -2,7 +2,8 @@
  * the variables' storage by value reference with their start values, instantiate / reset /
  * free, fmi2Get* and fmi2Set*, the flat configuration from the generated tables, the profiles
  * (fmu_src/adapter.py load_profiles) and the messages fmu_src/adapter.py logs (initialise,
- * not_initialised, guarded_step). No Python; reentrant (the state lives in native_values). */
+ * not_initialised, guarded_step). No Python; reentrant (the state lives in native_values).
+ * FMU states of these backends (NATIVE_STATE_OPS) are native_state.c's. */
 #ifndef NATIVE_COMMON_H
 #define NATIVE_COMMON_H
 
@@ -87,7 +88,20 @@ typedef struct {
     int (*outputs)(void *chain, double *out);   /* 0: no outputs yet (EstimatorChain) */
     int vr_slope_window;                        /* est.slope_window, an Integer parameter */
     void (*free_chain)(void *chain);            /* the core's free (not free() itself) */
+    /* What an FMU state (native_state.c) must rebuild in a copy of the chain: where the chain
+       keeps its configuration (whose profile pointers point into `profiles`), its owned
+       profile buffer (double *), its rc_grade_profile and rc_speed_profile (pointing into the
+       buffer) and its rc_estimator (NATIVE_CHAIN_LAYOUT(type) fills these offsets) ... */
+    size_t at_cfg, at_profiles, at_grade, at_speed, at_est;
+    int (*has_estimator)(const void *chain);    /* the rc_estimator is initialised */
+    /* ... and the chain's other pointers into itself (offsets; `link` points them again) */
+    size_t own_pointers[4];
+    int n_own_pointers;
+    void (*link)(void *chain);
 } native_chain_kind;
+#define NATIVE_CHAIN_LAYOUT(type)                                                             \
+    offsetof(type, cfg), offsetof(type, profiles), offsetof(type, grade),                    \
+    offsetof(type, speed), offsetof(type, est)
 
 /* What a backend .c defines (one per FMU binary, read-only): its variable table and its chain
    type (NULL: no chain, for the benchmarks' no-op). native_common.c implements every model_*
@@ -97,6 +111,9 @@ typedef struct {
     const native_chain_kind *kind;
 } native_backend;
 extern const native_backend NATIVE_BACKEND;
+
+/* The FMU states of every native backend (native_state.c): model_instantiate sets them. */
+extern const GlueStateOps NATIVE_STATE_OPS;
 
 typedef struct {                 /* GlueInstance.model of a native FMU */
     native_values v;

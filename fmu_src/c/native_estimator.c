@@ -20,6 +20,7 @@
  *
  * Differences from the pythonfmu FMU: a step the core cannot compute (RC_MATH) is fmi2Error.
  */
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -58,9 +59,20 @@ static void free_chain(void *chain) {
     rc_estchain_free(chain);
 }
 
+/* EstimatorChain builds its estimator at the first step */
+static int has_estimator(const void *chain) {
+    return ((const rc_estchain *)chain)->started;
+}
+
+/* no pointers into itself beyond those native_state.c rebuilds */
+static void link(void *chain) {
+    (void)chain;
+}
+
 static const native_chain_kind CHAIN = {
     sizeof(rc_estchain_config), sizeof(rc_estchain), NATIVE_PROFILE_OFFSETS(rc_estchain_config),
-    config_from_values, validate, init, outputs, NES_VR_SLOPE_WINDOW, free_chain
+    config_from_values, validate, init, outputs, NES_VR_SLOPE_WINDOW, free_chain,
+    NATIVE_CHAIN_LAYOUT(rc_estchain), has_estimator, {0, 0, 0, 0}, 0, link
 };
 
 const native_backend NATIVE_BACKEND = {&NES_MODEL, &CHAIN};

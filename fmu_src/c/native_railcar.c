@@ -23,6 +23,7 @@
  * raises ZeroDivisionError or OverflowError and guarded_step discards the step) is fmi2Error
  * here, since the chain's state is then not known to be unchanged.
  */
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -63,9 +64,24 @@ static void free_chain(void *chain) {
     rc_chain_free(chain);
 }
 
+/* the estimator exists from rc_chain_init on */
+static int has_estimator(const void *chain) {
+    (void)chain;
+    return 1;
+}
+
+/* the plant's pointers into its chain (rc_chain_init's), after an FMU state copied the chain */
+static void link(void *chain) {
+    rc_chain *c = chain;
+    c->plant.grade = &c->grade;
+    c->plant.normal = &c->streams[RC_PROCESS];
+}
+
 static const native_chain_kind CHAIN = {
     sizeof(rc_chain_config), sizeof(rc_chain), NATIVE_PROFILE_OFFSETS(rc_chain_config),
-    config_from_values, validate, init, outputs, NRC_VR_SLOPE_WINDOW, free_chain
+    config_from_values, validate, init, outputs, NRC_VR_SLOPE_WINDOW, free_chain,
+    NATIVE_CHAIN_LAYOUT(rc_chain), has_estimator,
+    {offsetof(rc_chain, plant.grade), offsetof(rc_chain, plant.normal), 0, 0}, 2, link
 };
 
 const native_backend NATIVE_BACKEND = {&NRC_MODEL, &CHAIN};

@@ -355,6 +355,8 @@ def test_native_fmi2_description_is_the_pythonfmu_one_but_for_what_says_native(b
         own = {k: root.attrib.pop(k) for k in ("guid", "generationDateAndTime", "generationTool")}
         cosim = root.find("CoSimulation")
         own["needsExecutionTool"] = cosim.attrib.pop("needsExecutionTool")
+        own["FMUstate"] = (cosim.attrib.pop("canGetAndSetFMUstate"),
+                           cosim.attrib.pop("canSerializeFMUstate"))
         own["SourceFiles"] = [f.get("name") for f in cosim.iter("File")]
         for files in cosim.findall("SourceFiles"):
             cosim.remove(files)
@@ -365,6 +367,7 @@ def test_native_fmi2_description_is_the_pythonfmu_one_but_for_what_says_native(b
     native_xml, native_own = canonical(_xml(built_fmus[name].parent / "native" / f"{native_name}.fmu"))
     assert native_xml == python_xml
     assert (python_own["needsExecutionTool"], native_own["needsExecutionTool"]) == ("true", "false")
+    assert (python_own["FMUstate"], native_own["FMUstate"]) == (("false", "false"), ("true", "true"))
     assert python_own["SourceFiles"] == [] and "native_common.c" in native_own["SourceFiles"]
     assert native_own["guid"] != python_own["guid"]
 
