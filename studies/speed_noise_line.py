@@ -54,7 +54,9 @@ is counted as "no final coast" and left out of the shares.
 
 Columns per configuration: spans (without a final coast), shares within the targets (mass,
 w0, both, both from the second span of a run on: the first coast of a run sees one span's
-data), median and worst |errors|, +-2 sigma coverages. The tables go to the terminal and, as
+data), median and worst |errors|, +-2 sigma coverages, and the median of |error| / stated
+sigma (0.674 if the sigma is the error's true spread and the error Gaussian: below, the sigma
+is overstated; above, understated). The tables go to the terminal and, as
 markdown, to out/speed_noise/table.md. Seeded: the numbers repeat.
 """
 from __future__ import annotations
@@ -392,7 +394,8 @@ def compute(configs, seeds: int = 20, spans: int = 5, ato_seeds: int = 10,
 
 HEADER = ("configuration", "spans (no final coast)", "mass err within 2 t [%]", "w0 err within 1 N/kN [%]",
           "both [%]", "both, 2nd+ span [%]", "abs mass err median / worst [t]",
-          "w0 err median / worst [N/kN]", "mass ±2σ cover [%]", "w0 ±2σ cover [%]")
+          "w0 err median / worst [N/kN]", "mass ±2σ cover [%]", "w0 ±2σ cover [%]",
+          "median err/σ mass / w0 (honest: 0.67)")
 """The table's columns (no "|" in a name: the markdown copy splits cells at it)."""
 
 
@@ -411,13 +414,15 @@ class Summary:
     w0_worst: float
     mass_cover: float
     w0_cover: float
+    mass_z_median: float           # median |error| / stated sigma [-]: 0.674 for an honest Gaussian
+    w0_z_median: float
 
 
 def summarise(scores: list[SpanScore]) -> Summary:
     ok = [s for s in scores if s.coast]
     if not ok:
         n = math.nan
-        return Summary(len(scores), len(scores), n, n, n, n, n, n, n, n, n, n)
+        return Summary(len(scores), len(scores), n, n, n, n, n, n, n, n, n, n, n, n)
     later = [s for s in ok if s.span > 0]
     mass = np.abs([s.mass_err_t for s in ok])
     w0 = np.array([s.w0_err for s in ok])
@@ -428,7 +433,9 @@ def summarise(scores: list[SpanScore]) -> Summary:
         float(np.mean([s.mass_ok and s.w0_ok for s in later])) if later else math.nan,
         float(np.median(mass)), float(mass.max()), float(np.median(w0)), float(w0.max()),
         float(np.mean([abs(s.mass_err_t) <= 2.0 * s.mass_std_t for s in ok])),
-        float(np.mean([s.w0_err <= 2.0 * s.w0_std for s in ok])))
+        float(np.mean([s.w0_err <= 2.0 * s.w0_std for s in ok])),
+        float(np.median([abs(s.mass_err_t) / s.mass_std_t for s in ok])),
+        float(np.median([s.w0_err / s.w0_std for s in ok])))
 
 
 def _pct(x: float) -> str:
@@ -451,8 +458,25 @@ def table_cells(configs, results: dict, case: str) -> list[list[str]]:
                       _pct(s.both_ok_later),
                       f"{_num(s.mass_median, '{:.2f}')} / {_num(s.mass_worst, '{:.2f}')}",
                       f"{_num(s.w0_median, '{:.2f}')} / {_num(s.w0_worst, '{:.2f}')}",
-                      _pct(s.mass_cover), _pct(s.w0_cover)])
+                      _pct(s.mass_cover), _pct(s.w0_cover),
+                      f"{_num(s.mass_z_median, '{:.2f}')} / {_num(s.w0_z_median, '{:.2f}')}"])
     return cells
+
+
+def by_scenario_cells(configs, results: dict) -> tuple[tuple, list[list[str]]]:
+    """The ATO case per scenario: "both [%] (w0 err median [N/kN])" per configuration."""
+    names = [p.stem for p in ato_paths()]
+    cells = []
+    for i, config in enumerate(configs):
+        if ("ato", i) not in results:
+            continue
+        scores = results[("ato", i)][0]
+        row = [config_label(config)]
+        for name in names:
+            s = summarise([x for x in scores if x.source.split("#")[0] == name])
+            row.append(f"{_pct(s.both_ok)} ({_num(s.w0_median, '{:.2f}')})")
+        cells.append(row)
+    return ("configuration", *names), cells
 
 
 def markdown(header: tuple, cells: list[list[str]]) -> str:
@@ -480,6 +504,9 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
         cells = table_cells(configs, results, case)
         if cells:
             parts += ["", f"## {title}", "", markdown(HEADER, cells)]
+        if cells and case == "ato":
+            parts += ["", "Per ATO scenario: both within target [%] (w0 err median [N/kN])", "",
+                      markdown(*by_scenario_cells(configs, results))]
     if seconds is not None:
         parts += ["", f"Computed in {seconds:.0f} s."]
     return "\n".join(parts) + "\n"
