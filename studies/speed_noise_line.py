@@ -3,6 +3,7 @@ of each span's final coast, per configuration (a study, not a test; issue 27).
 
     python studies/speed_noise_line.py [--seeds 20] [--spans 5] [--ato-seeds 10]
                                        [--with NAME=VALUE[,NAME=VALUE] ...] [--processes 2]
+                                       [--cruise-probability 0.7]
 
 Issue 27's target: under sensor.speed_std_rel = 1 % (Meleshin's 2 % as 2 sigma), at the start
 of each span's final coast, |est.mass - true mass| <= 2 t and |w0_est(V) - w0_true(V)| <= 1 N/kN
@@ -17,8 +18,10 @@ Cases (each a table):
         harness.run.phases.PhaseDriver (the harness's [[driver]] phases, true speed and distance):
         traction with the car's limit force to the span's cruise speed (40-80 km/h, capped so
         that traction, the final coast and the braking fit the span), a cruise (speed held) on
-        70 % of the spans, the FINAL COAST (until the braking curve of the stop), brake_to_stop at
-        the span's end (0.7 m/s^2 planned), a dwell of 25-40 s at the station where passengers
+        70 % of the spans (``--cruise-probability``) up to 15-30 % of the span before the
+        braking curve, else none: the coast starts at the cruise speed, after the traction
+        alone; then the FINAL COAST (until the braking curve of the stop; cut at 0.3 x the
+        cruise speed on a long climb), brake_to_stop at the span's end (0.7 m/s^2 planned), a dwell of 25-40 s at the station where passengers
         board and alight (car.payload drawn in 0-6 t per station, like station_day's
         mass_change_t). Per seed: the car's mass is est.mass_initial (the estimator's nominal
         car, 30 t unless a configuration sets it) times a factor drawn in 0.8-1.2, a wind drawn
@@ -57,7 +60,10 @@ w0, both, both from the second span of a run on: the first coast of a run sees o
 data), median and worst |errors|, +-2 sigma coverages, and the median of |error| / stated
 sigma (0.674 if the sigma is the error's true spread and the error Gaussian: below, the sigma
 is overstated; above, understated). The tables go to the terminal and, as
-markdown, to out/speed_noise/table.md. Seeded: the numbers repeat.
+markdown, to out/speed_noise/table.md, with a per-scenario line for the ATO case. Seeded: the
+numbers repeat. Runtime of the default (20 x 5 line spans, 10 seeds per ATO scenario, five
+configurations): ~110 s on 2 shared cores, ~85 % of it the ATO runs (the ATO is Python);
+--ato-seeds 20 and --seeds 40: ~125 s with the cores less busy.
 """
 from __future__ import annotations
 
@@ -173,9 +179,11 @@ class GeneratedLine:
     spans: tuple[PlannedSpan, ...]
 
 
-def generate_line(seed: int, n_spans: int, nominal_mass_t: float) -> GeneratedLine:
+def generate_line(seed: int, n_spans: int, nominal_mass_t: float,
+                  cruise_probability: float = CRUISE_PROBABILITY) -> GeneratedLine:
     """The line of ``seed`` (deterministic) with ``n_spans`` spans, for an estimator configured
-    with a car of ``nominal_mass_t`` [t]."""
+    with a car of ``nominal_mass_t`` [t]; a span cruises before its final coast with
+    ``cruise_probability`` (the same draws whatever it is: only the cruises change)."""
     rng = np.random.default_rng([27, seed])
     mass = nominal_mass_t * rng.uniform(1.0 - MASS_FACTOR, 1.0 + MASS_FACTOR)
     wind = rng.uniform(-WIND_MPS, WIND_MPS)
@@ -188,7 +196,7 @@ def generate_line(seed: int, n_spans: int, nominal_mass_t: float) -> GeneratedLi
         cap = math.sqrt(room / (0.5 / TRACTION_DECEL_PLAN + 0.5 / BRAKE_DECEL))
         cruise = min(rng.uniform(*CRUISE_KMH) / 3.6, cap)
         coast_from = length - coast_share * length - cruise * cruise / (2.0 * BRAKE_DECEL)
-        with_cruise = bool(rng.uniform() < CRUISE_PROBABILITY)
+        with_cruise = bool(rng.uniform() < cruise_probability)
         last = k == n_spans - 1
         new_payload = payload if last else rng.uniform(*PAYLOAD_T)
         spans.append(PlannedSpan(length, cruise, coast_from, with_cruise,
@@ -335,12 +343,13 @@ def score_spans(result, vehicle, name: str) -> list[SpanScore]:
 
 def run_job(job: tuple) -> tuple[int, str, list[SpanScore], str]:
     """(config index, case, the run's span scores, the chain's engine) of one job:
-    ("line", config index, config, seed, spans) or ("ato", config index, config, path, seed)."""
+    ("line", config index, config, seed, spans, cruise probability) or ("ato", config index,
+    config, path, seed)."""
     case, index, config = job[:3]
     if case == "line":
-        seed, n_spans = job[3:]
+        seed, n_spans, cruise_probability = job[3:]
         nominal = float(config.get("est.mass_initial", RAILCAR_PARAMETERS["est.mass_initial"].start))
-        line = generate_line(seed, n_spans, nominal)
+        line = generate_line(seed, n_spans, nominal, cruise_probability)
         with tempfile.TemporaryDirectory(prefix="speed_noise_line_") as folder:
             scenario = line_scenario(line, config, Path(folder))
             setup = scenario.setup.chain          # resolved while the profile file exists
@@ -359,7 +368,8 @@ def ato_paths() -> list[Path]:
     return sorted(LIBRARY.glob("ato_*.toml"))
 
 
-def jobs_for(configs, seeds: int, spans: int, ato_seeds: int) -> list[tuple]:
+def jobs_for(configs, seeds: int, spans: int, ato_seeds: int,
+             cruise_probability: float = CRUISE_PROBABILITY) -> list[tuple]:
     """Every job, the longest first (ato_line, then the other ATO runs, then the lines)."""
     jobs = []
     for path in sorted(ato_paths(), key=lambda p: p.stem != "ato_line"):
@@ -367,14 +377,14 @@ def jobs_for(configs, seeds: int, spans: int, ato_seeds: int) -> list[tuple]:
         for k in range(1, ato_seeds + 1):
             jobs += [("ato", i, c, path, 1000 * own + k) for i, c in enumerate(configs)]
     for seed in range(1, seeds + 1):
-        jobs += [("line", i, c, seed, spans) for i, c in enumerate(configs)]
+        jobs += [("line", i, c, seed, spans, cruise_probability) for i, c in enumerate(configs)]
     return jobs
 
 
 def compute(configs, seeds: int = 20, spans: int = 5, ato_seeds: int = 10,
-            processes: int = 2) -> dict:
+            processes: int = 2, cruise_probability: float = CRUISE_PROBABILITY) -> dict:
     """{(case, config index): (span scores, engines)} over every job."""
-    jobs = jobs_for(configs, seeds, spans, ato_seeds)
+    jobs = jobs_for(configs, seeds, spans, ato_seeds, cruise_probability)
     if processes > 1 and len(jobs) > 1:
         with Pool(processes) as pool:
             done = list(pool.imap_unordered(run_job, jobs, chunksize=1))
@@ -488,7 +498,7 @@ def markdown(header: tuple, cells: list[list[str]]) -> str:
 
 
 def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, seconds: float | None,
-           command: str = "") -> str:
+           command: str = "", cruise_probability: float = CRUISE_PROBABILITY) -> str:
     """Both tables with their titles, as markdown."""
     noise = ", ".join(f"{k} = {v:g}" for k, v in SPEED_NOISE.items())
     parts = ["# Mass and w0 at the start of each span's final coast under relative speed noise", "",
@@ -498,7 +508,8 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
     if command:
         parts += ["", f"    {command}"]
     for case, title in (("line", f"Generated line: {seeds} seeds x {spans} spans, mass ±20 %, wind ±5 m/s, "
-                                 f"grades ±20 ‰, boarding 0-6 t"),
+                                 f"grades ±20 ‰, boarding 0-6 t, a cruise before "
+                                 f"{100 * cruise_probability:.0f} % of the final coasts"),
                         ("ato", f"ATO scenarios ({', '.join(p.stem for p in ato_paths())}), "
                                 f"{ato_seeds} seeds each")):
         cells = table_cells(configs, results, case)
@@ -519,19 +530,25 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--ato-seeds", type=int, default=10, help="seeds per ATO scenario, default 10 (0: no ATO table)")
     ap.add_argument("--with", dest="configs", action="append", default=[], metavar="NAME=VALUE[,NAME=VALUE]",
                     help="a configuration (a row; repeatable); default: the five of DEFAULT_CONFIGS")
+    ap.add_argument("--cruise-probability", type=float, default=CRUISE_PROBABILITY,
+                    help=f"share of the line's spans with a cruise before the final coast (else it "
+                         f"starts at the cruise speed), default {CRUISE_PROBABILITY}")
     ap.add_argument("--processes", type=int, default=2)
     args = ap.parse_args(argv)
     if args.seeds < 0 or args.spans < 1 or args.ato_seeds < 0:
         ap.error("--seeds and --ato-seeds must be >= 0, --spans >= 1")
+    if not 0.0 <= args.cruise_probability <= 1.0:
+        ap.error(f"--cruise-probability must be in [0, 1], got {args.cruise_probability}")
     try:
         configs = [parse_config(c) for c in args.configs] or list(DEFAULT_CONFIGS)
     except ValueError as e:
         ap.error(str(e))
     t0 = time.perf_counter()
-    results = compute(configs, args.seeds, args.spans, args.ato_seeds, args.processes)
+    results = compute(configs, args.seeds, args.spans, args.ato_seeds, args.processes,
+                      args.cruise_probability)
     command = "python studies/speed_noise_line.py " + " ".join(argv if argv is not None else sys.argv[1:])
     text = report(configs, results, args.seeds, args.spans, args.ato_seeds, time.perf_counter() - t0,
-                  command.strip())
+                  command.strip(), args.cruise_probability)
     print(text)
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "table.md").write_text(text, encoding="utf-8")
