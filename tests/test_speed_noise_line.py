@@ -34,6 +34,9 @@ def test_the_generated_line_is_seeded_and_within_its_ranges():
         assert 40.0 / 3.6 - 1e-9 <= s.cruise_mps <= 80.0 / 3.6
         assert 0.0 < s.coast_from_m < s.length_m
     assert all(s.dwell_s >= 25.0 for s in line.spans[:-1]) and line.spans[-1].dwell_s == 0.0
+    cruising = snl.generate_line(7, 5, 30.0, cruise_probability=1.0)    # the same draws
+    assert all(s.cruise for s in cruising.spans) and not any(s.cruise for s in snl.generate_line(7, 5, 30.0, 0.0).spans)
+    assert [s.length_m for s in cruising.spans] == [s.length_m for s in line.spans]
 
 
 def test_every_span_is_scored_at_its_final_coast_on_the_c_core(results):
