@@ -62,8 +62,8 @@ sigma (0.674 if the sigma is the error's true spread and the error Gaussian: bel
 is overstated; above, understated). The tables go to the terminal and, as
 markdown, to out/speed_noise/table.md, with a per-scenario line for the ATO case. Seeded: the
 numbers repeat. Runtime of the default (20 x 5 line spans, 10 seeds per ATO scenario, five
-configurations): ~110 s on 2 shared cores, ~85 % of it the ATO runs (the ATO is Python);
---ato-seeds 20 and --seeds 40: ~125 s with the cores less busy.
+configurations): 45 s on 2 cores (110 s with the cores shared), ~90 % of it the ATO runs
+(the ATO is Python; the line alone, --ato-seeds 0: 10 s on one core).
 """
 from __future__ import annotations
 
