@@ -204,10 +204,11 @@ def natives(built_fmus, tmp_path_factory) -> dict[str, NativeFmu]:
 
 
 def parameters(nf: NativeFmu, method: int) -> dict:
-    """Profiles from scenarios/profiles (absolute paths), est.method 0 or 2 (slope window)."""
+    """Profiles from scenarios/profiles (absolute paths), est.method 0, or 2 (slope window) with
+    est.sigma2_method 1 (the likelihood bank's members and posterior)."""
     values = {"track.grade_profile": str(PROFILES / "steep_grades.csv"),
               "track.speed_profile": str(PROFILES / "default_speed.csv"),
-              "est.method": method, "est.slope_window": 10}
+              "est.method": method, "est.slope_window": 10, "est.sigma2_method": int(method == 2)}
     if nf.is_railcar():
         values["seed"] = 12345          # sensor and process noise on (the defaults' std > 0)
     return values
