@@ -243,6 +243,10 @@ CHAIN_CASES = [
     # uncovered options behind an earlier bad setting: Python's message
     {"est.method": 2, "car.mass": 0.0}, {"est.method": 3, "est.batch_size": 2},
     {"est.physical": 1, "est.sigma2_method": 5}, {"est.sigma2_method": 1, "seed": -1},
+    # the likelihood bank's own check (R = speed_std^2 > 0), and behind a bad filter setting
+    {"est.sigma2_method": 1, "sensor.speed_std": 0.0},
+    {"est.sigma2_method": 1, "sensor.speed_std": 0.0, "sensor.speed_std_rel": 0.01},
+    {"est.sigma2_method": 1, "sensor.speed_std": 0.0, "sensor.position_std": -1.0},
 ]
 
 # RailCarEstimator: TrackSensorConfig (no spacing), then build_estimator with dt = 1
@@ -257,6 +261,8 @@ EST_CASES = [
     {"sensor.speed_std_rel": -1.0}, {"sensor.speed_std_rel": INF}, {"sensor.speed_std_rel": NAN},
     {"car.length": -0.0}, {"car.length": INF},
     {"sensor.speed_std": 0.0}, {"sensor.position_std": -2.5}, {"filter.kind": 9},
+    {"est.sigma2_method": 1, "sensor.speed_std": 0.0},
+    {"est.sigma2_method": 1, "sensor.speed_std": 0.0, "sensor.position_std": -1.0},
     ({"filter.kind": 1}, None), ({"filter.kind": 1}, SPEED), ({"filter.kind": 3}, None),
     {"filter.kind": 4, "filter.singer_tau": -0.0},
     {"filter.kind": 4, "filter.singer_p0": 1.5},
