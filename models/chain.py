@@ -140,7 +140,7 @@ def build_estimator(id_cfg: IdentifierConfig, filt: FilterConfig, station: Stati
                     dt: float, method=None, noise=None) -> OnlineEstimator:
     """The estimator both FMUs run, sampling every dt [s] (private copies of the configs);
     ``method``, ``noise``: strategy objects instead of the configured ones (models/estimation/methods.py)."""
-    id_cfg = replace(id_cfg, dt=dt, speed_std=filt.speed_std)
+    id_cfg = replace(id_cfg, dt=dt, speed_std=filt.speed_std, speed_std_rel=filt.speed_std_rel)
     filt = replace(filt, dt=dt, gamma=id_cfg.gamma)
     return OnlineEstimator(id_cfg, filt, station, grade_profile, speed_profile, method, noise)
 

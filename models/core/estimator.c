@@ -217,6 +217,7 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
     rc_filter_config fc = *filt;
     ic.dt = dt;
     ic.speed_std = fc.speed_std;
+    ic.speed_std_rel = fc.speed_std_rel;
     fc.dt = dt;
     fc.gamma = ic.gamma;
     e->slope = NULL;

@@ -166,6 +166,8 @@ void rc_ident_reset(rc_ident *id)
     id->has_cL = 0;
     id->cL = 0.0;
     id->n_cL = 0;
+    id->speed_var = 0.0;
+    id->n_speed_var = 0;
     id->has_cov = 0;
     id->has_sigma2 = 0;
     id->has_J = 0;
@@ -252,7 +254,8 @@ static void residual_stats(rc_ident *id, double err, int contiguous, double mu)
 /* _configured_noise: (a, b) */
 static void configured_noise(const rc_ident *id, double *a, double *b)
 {
-    *a = rc_sq(id->scale) * rc_sq(id->cfg.speed_std);
+    double var = id->n_speed_var ? id->speed_var : rc_sq(id->cfg.speed_std);
+    *a = rc_sq(id->scale) * var;
     *b = rc_sq(id->scale) * rc_max(id->cfg.sigma2_initial, 1e-12);
 }
 
@@ -366,6 +369,11 @@ int rc_ident_update(rc_ident *id, double traction, double brake, double speed, d
     int st = RC_OK;
     if (id->cfg.frozen)
         return RC_OK;
+    if (id->cfg.speed_std_rel > 0.0) {
+        id->n_speed_var += 1;
+        double var = rc_sq(id->cfg.speed_std + id->cfg.speed_std_rel * fabs(speed));
+        id->speed_var += (var - id->speed_var) / (double)id->n_speed_var;
+    }
     double phi[4] = {traction - brake, -1.0, -speed, -speed * speed};                 /* (4) */
     double dtu = dt != 0.0 ? dt : id->cfg.dt;
     double y = 1000.0 * (1.0 + id->cfg.gamma) * (speed_next - speed) / (RC_G * dtu) + grade;

@@ -30,6 +30,7 @@ typedef struct {               /* models.estimation.identification.IdentifierCon
     double speed_std;          /* [m/s] */
     int frozen;                /* bool */
     double run_forgetting;     /* [0, 1) */
+    double speed_std_rel;      /* [-]: sensor.speed_std_rel (set by rc_estimator_init) */
 } rc_ident_config;
 
 typedef struct {               /* models.estimation.identification.ParameterIdentifier */
@@ -55,6 +56,7 @@ typedef struct {               /* models.estimation.identification.ParameterIden
     double c0, c1;  long n_c1;
     double window[RC_LAG];  long window_len, window_start;  double window_sum;   /* ring */
     int has_cL;  double cL;  long n_cL;
+    double speed_var;  long n_speed_var;               /* _speed_var, _n_speed_var */
     int has_cov;  double cov[16];                      /* caches */
     int has_sigma2;  double sigma2;
     int has_J;  double J[16];                          /* with forgetting */

@@ -7,11 +7,11 @@
 #include "linalg4.h"
 
 /* c: dt, batch_size, forgetting, gamma, mass_initial, mass_std_initial, A0, A1, A2, A0_std,
- * A1_std, A2_std, sigma2_initial, speed_std, frozen, run_forgetting */
+ * A1_std, A2_std, sigma2_initial, speed_std, frozen, run_forgetting, speed_std_rel */
 rc_ident *shim_new(const double *c)
 {
     rc_ident_config cfg = {c[0], (long)c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9],
-                           c[10], c[11], c[12], c[13], (int)c[14], c[15]};
+                           c[10], c[11], c[12], c[13], (int)c[14], c[15], c[16]};
     rc_ident *id = malloc(sizeof *id);
     if (!id)
         return NULL;

@@ -78,7 +78,8 @@ class CIdent:
         self.lib = lib
         c = [cfg.dt, cfg.batch_size, cfg.forgetting, cfg.gamma, cfg.mass_initial, cfg.mass_std_initial,
              cfg.A0_initial, cfg.A1_initial, cfg.A2_initial, cfg.A0_std_initial, cfg.A1_std_initial,
-             cfg.A2_std_initial, cfg.sigma2_initial, cfg.speed_std, float(cfg.frozen), cfg.run_forgetting]
+             cfg.A2_std_initial, cfg.sigma2_initial, cfg.speed_std, float(cfg.frozen), cfg.run_forgetting,
+             cfg.speed_std_rel]
         self.ptr = lib.shim_new(arr(c))
         assert self.ptr
 
@@ -250,6 +251,7 @@ CASES = {
     "gamma 0.1": dict(gamma=0.1),
     "frozen": dict(frozen=True),
     "no speed noise stated": dict(speed_std=0.0, batch_size=20, sigma2_initial=3e-5),
+    "relative speed noise": dict(speed_std=0.01, speed_std_rel=0.01),
 }
 
 
@@ -381,7 +383,7 @@ int main(void)
     for (int c = 0; c < 6; c++) {
         rc_ident_config cfg = {0.1, c == 1 ? 4 : 50, c >= 2 && c <= 3 ? 0.002 : 0.0, c == 4 ? 0.1 : 0.0,
                                30.0, 10.0, 1.0, 0.03, 0.01, 5.0, 0.1, 0.02, 1e-4, 0.05, c == 5,
-                               c == 3 ? 0.3 : 0.0};
+                               c == 3 ? 0.3 : 0.0, c == 2 ? 0.01 : 0.0};
         rc_ident id;
         if (rc_ident_init(&id, &cfg)) return 2;
         double phi[4] = {1e4, -1.0, -10.0, -100.0}, out[4];
