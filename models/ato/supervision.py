@@ -119,14 +119,16 @@ class InputSupervisor:
                                     f"filter.speed_std ({-NOISE_SIGMA * sd:.4g} m/s): the car "
                                     f"does not run backwards")
         if v > MAX_SPEED:
-            return "filter.speed", f"filter.speed = {v!r} m/s is beyond {MAX_SPEED:g} m/s (no rail car is that fast)"
+            return "filter.speed", (f"filter.speed = {v!r} m/s is beyond {MAX_SPEED:g} m/s (no rail "
+                                    f"car is that fast)")
         s, psd = x[POSITION], x[POSITION_STD]
         if s < -NOISE_SIGMA * psd:
             return "filter.position", (f"filter.position = {s!r} m is below -{NOISE_SIGMA:g} x "
                                        f"filter.position_std ({-NOISE_SIGMA * psd:.4g} m): behind "
                                        f"the departure station")
         if s > MAX_DISTANCE:
-            return "filter.position", f"filter.position = {s!r} m is beyond {MAX_DISTANCE:g} m (no line is that long)"
+            return "filter.position", (f"filter.position = {s!r} m is beyond {MAX_DISTANCE:g} m (no "
+                                       f"line is that long)")
         return None
 
     def _check_estimates(self, x):
@@ -135,10 +137,12 @@ class InputSupervisor:
         if not lo <= m <= hi:
             return "est.mass", (f"est.mass = {m!r} t is outside [{lo:.4g}, {hi:.4g}] t (a factor "
                                 f"{MASS_FACTOR:g} of car.mass = {self.mass:g} t)")
-        for i, name, bound, unit in ((A0, "est.A0", A0_MAX, "N/kN"), (A1, "est.A1", A1_MAX, "N/kN/(m/s)"),
+        for i, name, bound, unit in ((A0, "est.A0", A0_MAX, "N/kN"),
+                                     (A1, "est.A1", A1_MAX, "N/kN/(m/s)"),
                                      (A2, "est.A2", A2_MAX, "N/kN/(m/s)^2")):
             if abs(x[i]) > bound:
-                return name, f"{name} = {x[i]!r} {unit} is beyond +-{bound:g} {unit} (no resistance is that large)"
+                return name, (f"{name} = {x[i]!r} {unit} is beyond +-{bound:g} {unit} (no "
+                              f"resistance is that large)")
         if x[STATUS] not in EST_STATUS_CODES:
             return "est.status", f"est.status = {x[STATUS]:g} is not one of the estimator's codes 0..3"
         if not 0.0 <= x[SAMPLES] <= MAX_SAMPLES:
@@ -162,9 +166,9 @@ class InputSupervisor:
         if abs(advance - self._travel) > tol:
             self._restart(t, s, v, sd, psd)
             return "filter.speed vs filter.position", (
-                f"filter.position advanced {advance:.3f} m in {t - t0:.3g} s while filter.speed "
-                f"(now {v!r} m/s) accounts for {self._travel:.3f} m (tolerance {tol:.3f} m): "
-                f"the speed and the position disagree")
+                f"filter.speed and filter.position disagree: filter.position advanced "
+                f"{advance:.3f} m in {t - t0:.3g} s, filter.speed (now {v!r} m/s) accounts for "
+                f"{self._travel:.3f} m (tolerance {tol:.3f} m)")
         if t - t0 >= CONSISTENCY_WINDOW - 1e-9:
             self._restart(t, s, v, sd, psd)
         return None
