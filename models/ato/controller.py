@@ -46,8 +46,10 @@ settle_std (a quiet speed sensor) the stop is one stop as before.
 **Safety**: bad construction inputs raise ValueError naming the value (an infeasible schedule, a
 stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit the margin
 leaves nothing of, bad tuning). At run time nothing raises: an output that is missing or not
-finite gives a safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged
-(logger ``models.ato.controller`` and ``AtoController.events``). The supervisor brakes with the full brake
+finite, outside physics or inconsistent with the others (models/ato/supervision.py) gives a
+safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged (logger
+``models.ato.controller`` and ``AtoController.events``), held until the outputs have been sane
+for ``RECOVERY_TIME`` (1 s). The supervisor brakes with the full brake
 whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve read at
 filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
 full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
@@ -285,8 +287,9 @@ class AtoController:
     # ----------------------------------------------------------------- the step
     def demands(self, t: float, outputs: Mapping[str, float]) -> AtoCommand:
         """The command for the step starting at ``t`` [s] from the outputs at ``t``. Never
-        raises: a bad input (missing, not a number, not finite) gives the safe brake, with the
-        reason in ``events`` and the log (once per episode)."""
+        raises: a bad input (missing, not a number, not finite, or refused by the supervisor:
+        models/ato/supervision.py) gives the safe brake, with the reason in ``events`` and the
+        log (once per episode), until the inputs have been sane for RECOVERY_TIME."""
         try:
             t_in = t
             try:

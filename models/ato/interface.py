@@ -32,7 +32,7 @@ class AtoMode(IntEnum):
     TM = 6          # braking with the mechanical brake (along a braking curve)
     EP = 7          # relay stages of the electro-pneumatic brake (AtoCommand.ep_stage)
     HOLD = 8        # holding brake at the stop mark
-    SAFE = 9        # safe brake: an input was missing or not finite (reason logged)
+    SAFE = 9        # safe brake: an input was bad (models/ato/supervision.py; reason logged)
     OVERSPEED = 10  # the supervisor brakes: the speed is above the supervision curve
     CREEP = 11      # stopped short of the mark: creeping on
     SETTLE = 12     # standing short of the mark while the filter's distance settles
