@@ -259,6 +259,7 @@ class AtoController:
 
     def _safe(self, t, reason, key) -> AtoCommand:
         self._log(t, reason, key)
+        self.supervisor.note_command(0.0)
         return AtoCommand(0.0, self.tuning.safe_brake * self.car.brake_force_max, int(AtoMode.SAFE),
                           0.0)
 
@@ -327,6 +328,7 @@ class AtoController:
                                        f"is released"))
             cmd = self._step(t, vals)
             self._last_brake = cmd.brake
+            self.supervisor.note_command(cmd.traction)
             return cmd
         except Exception as e:      # a bug must not stop the host's loop: brake and say why
             return self._safe(math.nan, f"internal error {type(e).__name__}: {e}: safe brake",

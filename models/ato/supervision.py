@@ -26,7 +26,11 @@ traction with it). What is checked, in this order (the bounds and why):
   (filter.position_std at both ends + filter.speed_std x the window) + CONSISTENCY_SLACK. A
   speed of ~0 while the position advances (a speed input stuck or cut), or a position that
   stays put while the speed says the car moves (a position input stuck), fails it within a
-  window or two.
+  window or two;
+- response: traction commanded for RESPONSE_TIME while filter.speed stays at 0 and
+  filter.position does not move at all (``note_command`` tells the supervisor the command): the
+  inputs do not follow the car, most likely not connected (their start values are a car at
+  rest, which every other check accepts).
 
 NOISE_SIGMA is 6: a Gaussian error of 6 sigma happens once in ~1e9 samples, 3 years at 10 Hz;
 the library's runs stay far inside every bound (docs/ato.md, Input supervision, gives the
@@ -52,6 +56,7 @@ A1_MAX = 100.0              # [N/kN/(m/s)] (Rusich: 0.03; that noise: 2.0)
 A2_MAX = 10.0               # [N/kN/(m/s)^2] (Rusich: 0.01; that noise: 0.57)
 EST_STATUS_CODES = (0, 1, 2, 3)   # prior, identifying, holding, degraded (models.estimation.online)
 MAX_SAMPLES = 1e9           # est.samples: 3 years of samples at 10 Hz (2^31 - 1 is an overflow)
+RESPONSE_TIME = 3.0         # [s] a car under traction moves within a sample (0.1 s) or two
 CONSISTENCY_WINDOW = 2.0    # [s] the position-speed comparison's window
 CONSISTENCY_SLACK = 1.0     # [m] on top of the stds: the filter's corrections at a stop (its
 #                             distance catching up with the car: ~0.3 m, sd 0.3 m at the worst
@@ -63,7 +68,8 @@ SPEED, POSITION, SPEED_STD, MASS, A0, A1, A2, STATUS, SAMPLES, POSITION_STD = ra
 
 class InputSupervisor:
     """The checks of the module docstring for a car configured with ``mass`` [t]; keeps the
-    state the time and consistency checks need (the previous call, the window's start)."""
+    state the time, consistency and response checks need (the previous call, the window's
+    start, the traction commanded at rest: ``note_command`` after each command)."""
 
     def __init__(self, mass: float):
         self.mass = mass
@@ -72,6 +78,9 @@ class InputSupervisor:
         self._travel = 0.0                      # speeds integrated since the anchor [m]
         self._v_last = 0.0
         self._sd_max = 0.0                      # largest filter.speed_std in the window
+        self._pushing: tuple | None = None      # (t, s) of the first traction command at rest
+        self._dead: tuple | None = None         # (problem, s): inputs found not to follow the car
+        self._at_rest: tuple | None = None      # (t, s) of the last sane call with V = 0
 
     def check(self, t: float, x) -> tuple[str, str] | None:
         """``None`` if the inputs ``x`` (INPUTS order, finite) at time ``t`` [s] are sane, else
@@ -79,8 +88,40 @@ class InputSupervisor:
         problem = self._check_time(t)
         if self.t_last is None or t > self.t_last:
             self.t_last = t
-        return (problem or self._check_stds(x) or self._check_motion(x) or self._check_estimates(x)
-                or self._check_consistency(t, x))
+        problem = (problem or self._check_stds(x) or self._check_motion(x)
+                   or self._check_estimates(x) or self._check_consistency(t, x))
+        self._at_rest = (t, x[POSITION]) if problem is None and x[SPEED] == 0.0 else None
+        return problem or self._check_response(t, x)
+
+    def note_command(self, traction: float) -> None:
+        """The traction [N] commanded after the last call: the response check's clock runs from
+        the first traction commanded while the inputs said the car stands."""
+        if traction <= 0.0:
+            self._pushing = None
+        elif self._pushing is None and self._at_rest is not None:
+            self._pushing = self._at_rest
+
+    def _check_response(self, t: float, x):
+        """Traction at rest for RESPONSE_TIME and the inputs not moving at all: refused, and
+        refused on until they move (no other sign says they are back)."""
+        if self._dead is not None:
+            if x[SPEED] == 0.0 and x[POSITION] == self._dead[1]:
+                return self._dead[0]
+            self._dead = None
+        if self._pushing is None:
+            return None
+        t0, s0 = self._pushing
+        if x[SPEED] != 0.0 or x[POSITION] != s0:
+            self._pushing = None                 # the car responds
+            return None
+        if t - t0 >= RESPONSE_TIME - 1e-9:
+            self._pushing = None
+            problem = ("filter.speed", f"filter.speed = 0 m/s and filter.position = {s0!r} m have "
+                                       f"not moved in {t - t0:.3g} s of traction: the inputs do not "
+                                       f"follow the car (not connected?)")
+            self._dead = (problem, s0)
+            return problem
+        return None
 
     # ------------------------------------------------------------------ single values
     def _check_time(self, t: float):

@@ -3,7 +3,8 @@ found accepted silently, run through the FMU in a subprocess (one process for al
 fmpy loads the pythonfmu binary, whose Python must not share a process with pytest's copy of
 the sources; see conftest.py), and what each must give:
 
-- a bad input (outside physics, inconsistent with the others, not finite, absurd estimates):
+- a bad input (outside physics, inconsistent with the others, not finite, absurd estimates,
+  left unconnected):
   the safe brake (no traction, brake >= ato.safe_brake x car.brake_force_max, ato.mode 9) and
   a warning naming the input and its value; doStep ok or warning, never a failed step;
 - a bad step size or time (h <= 0, NaN, +-inf, > 3600 s, time going back or jumping): fmi2Discard
@@ -133,6 +134,15 @@ def _catalogue(fmu_path: str, unzipdir: str, workdir: str) -> list[dict]:
                 break
         records.append({"kind": "stuck", "case": STUCK_SPEED[0], "status": status, "found": found,
                         "log": s.log_text(), "out": [s.get(n) for n in outputs]})
+    with started(0) as s:                       # nothing connected: the inputs' start values
+        found = None
+        for k in range(60):
+            status = s.do_step(k * STEP, STEP)
+            if s.get("ato.mode") == SAFE_MODE:
+                found = k * STEP
+                break
+        records.append({"kind": "unconnected", "case": "unconnected", "status": status,
+                        "found": found, "log": s.log_text(), "out": [s.get(n) for n in outputs]})
     for case, dt, h, _ in BAD_STEPS:
         with started(3) as s:
             before = [s.get(n) for n in outputs]
@@ -197,6 +207,16 @@ def test_a_speed_stuck_at_zero_while_the_car_moves_is_found_within_3_s(records):
     traction, brake, mode = r["out"]
     assert (traction, mode) == (0.0, SAFE_MODE) and brake >= BRAKE_MAX
     assert all(w in r["log"] for w in STUCK_SPEED[1]), r["log"]
+
+
+def test_inputs_left_unconnected_are_found_after_3_s_of_traction(records):
+    """Their start values are a car at rest, which every single check accepts; the car does
+    not respond to 3 s of traction (models.ato.supervision.RESPONSE_TIME)."""
+    r = records[("unconnected", "unconnected")]
+    assert r["found"] == pytest.approx(3.0), r
+    traction, brake, mode = r["out"]
+    assert (traction, mode) == (0.0, SAFE_MODE) and brake >= BRAKE_MAX
+    assert "have not moved in 3 s of traction" in r["log"] and "not connected" in r["log"], r["log"]
 
 
 @pytest.mark.parametrize("case, words", [(c, w) for c, _, _, w in BAD_STEPS])

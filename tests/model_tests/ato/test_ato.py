@@ -518,10 +518,12 @@ def test_estimates_wait_for_min_samples_since_departure():
                 "est.A1": 0.03, "est.A2": 0.0105})
     ctrl.demands(0.0, out)
     assert not ctrl._using_estimates                     # 0 samples since departure
-    out["est.samples"] = 5099
+    # the car moves (a car that stands for 9.9 s of traction: inputs not connected)
+    out.update({"est.samples": 5099, "filter.speed": 5.0, "filter.position": 0.5 * 5.0 * 9.9,
+                "filter.speed_std": 0.05, "filter.position_std": 0.1})
     ctrl.demands(9.9, out)
     assert not ctrl._using_estimates                     # 99 < 100
-    out["est.samples"] = 5100
+    out.update({"est.samples": 5100, "filter.position": out["filter.position"] + 0.5})
     ctrl.demands(10.0, out)
     assert ctrl._using_estimates and ctrl._car_now.mass == 33.0
 

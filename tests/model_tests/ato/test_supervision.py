@@ -16,7 +16,7 @@ from models.ato.controller import MAX_GRID_NODES, AtoController
 from models.ato.interface import INPUTS, AtoMode, AtoTuning
 from models.ato.supervision import (
     A0_MAX, CONSISTENCY_SLACK, MASS_FACTOR, MAX_CALL_GAP, NOISE_SIGMA, RECOVERY_TIME,
-    InputSupervisor,
+    RESPONSE_TIME, InputSupervisor,
 )
 from models.planning.span import CarTraction, Span
 
@@ -128,6 +128,32 @@ def test_position_and_speed_must_agree():
     sup = InputSupervisor(30.0)
     for k in range(20):
         assert sup.check(k * STEP, values(moving(k, filter__position=100.0 + k + 0.1 * k))) is None
+
+
+def test_inputs_that_do_not_follow_the_car_are_refused_until_they_move():
+    """The FMU's inputs left unconnected are a car at rest (start values): the controller
+    commands traction, the inputs stay exactly at rest: after RESPONSE_TIME (3 s) the safe
+    brake, held while they do not move; a car that responds at once is never refused."""
+    rest = {n: 0.0 for n in INPUTS} | {"est.mass": 30.0}
+    ctrl = AtoController(SPAN, CAR)
+    modes = [ctrl.demands(k * STEP, rest).mode for k in range(60)]
+    k_safe = modes.index(AtoMode.SAFE)
+    assert modes[:k_safe] == [AtoMode.TG] * k_safe and k_safe * STEP == pytest.approx(RESPONSE_TIME)
+    assert set(modes[k_safe:]) == {AtoMode.SAFE}               # held: nothing says they are back
+    assert sum("have not moved in 3 s of traction" in e for _, e in ctrl.events) == 1
+    # they move (connected now): released 1 s later
+    moved = [ctrl.demands(k * STEP, rest | {"filter.speed": 0.1, "filter.speed_std": 0.01,
+                                            "filter.position": 0.01 * (k - 59),
+                                            "filter.position_std": 0.01}).mode
+             for k in range(60, 75)]
+    assert moved[:10] == [AtoMode.SAFE] * 10 and AtoMode.SAFE not in moved[11:]
+    ok = AtoController(SPAN, CAR)
+    assert ok.demands(0.0, rest).mode == AtoMode.TG
+    for k in range(1, 50):      # responds: 0.5 m/s^2 from rest
+        v = 0.05 * k
+        out = rest | {"filter.speed": v, "filter.position": 0.5 * 0.5 * (k * STEP) ** 2,
+                      "filter.speed_std": 0.01, "filter.position_std": 0.01}
+        assert ok.demands(k * STEP, out).mode != AtoMode.SAFE, ok.events
 
 
 def test_the_safe_brake_latches_until_the_inputs_are_sane_for_the_recovery_time():
