@@ -46,8 +46,10 @@ settle_std (a quiet speed sensor) the stop is one stop as before.
 **Safety**: bad construction inputs raise ValueError naming the value (an infeasible schedule, a
 stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit the margin
 leaves nothing of, bad tuning). At run time nothing raises: an output that is missing or not
-finite gives a safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged
-(logger ``models.ato.controller`` and ``AtoController.events``). The supervisor brakes with the full brake
+finite, outside physics or inconsistent with the others (models/ato/supervision.py) gives a
+safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged (logger
+``models.ato.controller`` and ``AtoController.events``), held until the outputs have been sane
+for ``RECOVERY_TIME`` (1 s). The supervisor brakes with the full brake
 whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve read at
 filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
 full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
@@ -70,6 +72,7 @@ from models.ato.interface import INPUTS, AtoCommand, AtoMode, AtoTuning
 from models.ato.motion import PlanCar
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
 from models.ato.stopping import RelayBrake, track_force
+from models.ato.supervision import RECOVERY_TIME, InputSupervisor
 from models.fpmath import square
 from models.planning.span import CarTraction, Span, check_span_for_car
 from models.plant.dynamics import acceleration_gain
@@ -77,6 +80,8 @@ from models.units import G
 
 LOG = logging.getLogger(__name__)
 
+MAX_GRID_NODES = 10_000  # the re-planner's grid: ~0.5 s to initialise, a re-plan ~0.05 s, ~8 MB
+#                          (measured alone: 0.43 s and 0.05 s; 100 km at the 10 m default)
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
@@ -94,6 +99,7 @@ class AtoController:
             raise ValueError(f"tuning must be an AtoTuning, got {type(tuning).__name__}")
         self.span, self.car, self.tuning = span, car, tuning
         check_span_for_car(span, car)          # a start on the grade, limits the brakes keep
+        self._check_grid(span, car, tuning)
         self.course = ReducedCourse(span, car, step=tuning.grid_step,
                                     limit_margin=tuning.limit_margin,
                                     v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
@@ -105,12 +111,20 @@ class AtoController:
             raise ValueError(f"span.schedule = {span.schedule:.2f} s is infeasible: the fastest "
                              f"run the controller plans (limits less {tuning.limit_margin} m/s) "
                              f"takes {t_min:.2f} s")
+        # a schedule beyond the slowest run (holding the planner's lowest speed all the way) is
+        # refused before planning: 1e20 s left the planner's solve flat at its first guess
+        t_slowest = t_min + span.stop / self.planner.v_min
+        shown = f"{span.schedule:.2f}" if span.schedule < 1e9 else f"{span.schedule:.6g}"
+        if span.schedule > t_slowest:
+            raise ValueError(f"span.schedule = {shown} s is too long: even holding "
+                             f"{self.planner.v_min:g} m/s over the span.stop = {span.stop:g} m "
+                             f"arrives within {t_slowest:.1f} s")
         self._check_ep(span, car, tuning)
         t0 = _time.perf_counter()
         plan = self.planner.plan(self.configured, 0.0, 0.0, 0.0, span.schedule, qU)
         self.replan_seconds = [_time.perf_counter() - t0]
         if plan.status == "early":
-            raise ValueError(f"span.schedule = {span.schedule:.2f} s is too long: holding "
+            raise ValueError(f"span.schedule = {shown} s is too long: holding "
                              f"{plan.hold_speed:.2f} m/s still arrives after {plan.arrival:.2f} s")
         self.plan: ReducedPlan = plan
         self.initial_plan = plan
@@ -139,6 +153,9 @@ class AtoController:
         self.aim_offset = 0.0
         self._brake_int, self._t_last = 0.0, None
         self._psd = 0.0                     # filter.position_std at this step [m]
+        self.supervisor = InputSupervisor(car.mass)
+        self._latched = False               # a bad input was seen: the safe brake holds
+        self._sane_since = None             # [s] first sane call since (the release timer)
         self._settle = None                 # None: not decided; True: stop short and settle
         self._settle_since = None
         self.settled = False                # the settle stand is over
@@ -146,6 +163,19 @@ class AtoController:
         self.first_stop = None              # (t, filter.position) of the first standstill
 
     # ----------------------------------------------------------------- construction checks
+    @staticmethod
+    def _check_grid(span: Span, car: CarTraction, tuning: AtoTuning):
+        """The re-planner's grid: at most MAX_GRID_NODES nodes (its cost is linear in them)."""
+        cells = span.stop / tuning.grid_step
+        breaks = len(span.breakpoints(car.length))
+        if cells + breaks > MAX_GRID_NODES:
+            raise ValueError(
+                f"tuning.grid_step = {tuning.grid_step:g} m puts {cells + breaks:.4g} nodes on the "
+                f"re-planner's grid to the stop mark (span.stop = {span.stop:g} m, {breaks} grade "
+                f"and limit changes); at most {MAX_GRID_NODES} (initialisation ~40 us and a "
+                f"re-plan ~5 us per node): make tuning.grid_step >= "
+                f"{span.stop / max(MAX_GRID_NODES - breaks, 1):.4g} m or the span shorter")
+
     @staticmethod
     def _check_ep(span: Span, car: CarTraction, tuning: AtoTuning):
         """The EP stage must be able to give a_ep at the stop mark on its grade."""
@@ -221,8 +251,15 @@ class AtoController:
     def _grade(self, x: float) -> float:
         return self.span.grade.average(x, self.car.length)
 
+    def _bad_input(self, t, reason, name) -> AtoCommand:
+        """A bad input: the safe brake, latched (released once the inputs have been sane for
+        RECOVERY_TIME), the reason logged once per episode of that input."""
+        self._latched, self._sane_since = True, None
+        return self._safe(t, reason, "input:" + name)
+
     def _safe(self, t, reason, key) -> AtoCommand:
         self._log(t, reason, key)
+        self.supervisor.note_command(0.0)
         return AtoCommand(0.0, self.tuning.safe_brake * self.car.brake_force_max, int(AtoMode.SAFE),
                           0.0)
 
@@ -251,8 +288,9 @@ class AtoController:
     # ----------------------------------------------------------------- the step
     def demands(self, t: float, outputs: Mapping[str, float]) -> AtoCommand:
         """The command for the step starting at ``t`` [s] from the outputs at ``t``. Never
-        raises: a bad input (missing, not a number, not finite) gives the safe brake, with the
-        reason in ``events`` and the log (once per episode)."""
+        raises: a bad input (missing, not a number, not finite, or refused by the supervisor:
+        models/ato/supervision.py) gives the safe brake, with the reason in ``events`` and the
+        log (once per episode), until the inputs have been sane for RECOVERY_TIME."""
         try:
             t_in = t
             try:
@@ -260,25 +298,37 @@ class AtoController:
             except (TypeError, ValueError):
                 t = math.nan
             if not math.isfinite(t):
-                return self._safe(t, f"time t = {t_in!r} is not a finite number: safe brake",
-                                  "input:t")
+                return self._bad_input(t, f"time t = {t_in!r} is not a finite number: safe brake",
+                                       "t")
             vals = []
             for name in INPUTS:
                 x = outputs.get(name) if hasattr(outputs, "get") else None
                 if x is None:
-                    return self._safe(t, f"{name} is missing: safe brake", "input:" + name)
+                    return self._bad_input(t, f"{name} is missing: safe brake", name)
                 try:
                     x = float(x)
                 except (TypeError, ValueError):
-                    return self._safe(t, f"{name} = {x!r} is not a number: safe brake",
-                                      "input:" + name)
+                    return self._bad_input(t, f"{name} = {x!r} is not a number: safe brake", name)
                 if not math.isfinite(x):
-                    return self._safe(t, f"{name} = {x} is not finite: safe brake",
-                                      "input:" + name)
+                    return self._bad_input(t, f"{name} = {x} is not finite: safe brake", name)
                 vals.append(x)
+            problem = self.supervisor.check(t, vals)
+            if problem is not None:
+                return self._bad_input(t, f"{problem[1]}: safe brake", problem[0])
             self._clear_inputs()
+            if self._latched:                    # sane again: hold until sane for RECOVERY_TIME
+                if self._sane_since is None:
+                    self._sane_since = t
+                if t - self._sane_since < RECOVERY_TIME - 1e-9:
+                    return self._safe(t, f"inputs sane again: the safe brake is held until they "
+                                         f"have been sane for {RECOVERY_TIME:g} s", "recovery")
+                self._latched, self._sane_since = False, None
+                self._clear("recovery")
+                self.events.append((t, f"inputs sane for {RECOVERY_TIME:g} s: the safe brake "
+                                       f"is released"))
             cmd = self._step(t, vals)
             self._last_brake = cmd.brake
+            self.supervisor.note_command(cmd.traction)
             return cmd
         except Exception as e:      # a bug must not stop the host's loop: brake and say why
             return self._safe(math.nan, f"internal error {type(e).__name__}: {e}: safe brake",

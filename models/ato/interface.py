@@ -11,6 +11,10 @@ import math
 from dataclasses import dataclass, fields
 from enum import IntEnum
 
+MAX_EP_STAGES = 32       # tuning.ep_stages: EP brakes have a handful of stages (Sidorenko 1997)
+MAX_MASS_BAND = 5.0      # tuning.mass_band: the estimator reports est.mass within a factor 5
+#                          of its start (OnlineEstimator.MASS_RANGE): a wider band admits nothing
+
 INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "est.A0",
           "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
 """The outputs the controller reads, by their FMU names."""
@@ -28,7 +32,7 @@ class AtoMode(IntEnum):
     TM = 6          # braking with the mechanical brake (along a braking curve)
     EP = 7          # relay stages of the electro-pneumatic brake (AtoCommand.ep_stage)
     HOLD = 8        # holding brake at the stop mark
-    SAFE = 9        # safe brake: an input was missing or not finite (reason logged)
+    SAFE = 9        # safe brake: an input was bad (models/ato/supervision.py; reason logged)
     OVERSPEED = 10  # the supervisor brakes: the speed is above the supervision curve
     CREEP = 11      # stopped short of the mark: creeping on
     SETTLE = 12     # standing short of the mark while the filter's distance settles
@@ -117,6 +121,10 @@ class AtoTuning:
             if f.type == "int":
                 if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                     raise ValueError(f"tuning.{f.name} must be an integer >= 1, got {v!r}")
+                if f.name == "ep_stages" and v > MAX_EP_STAGES:
+                    raise ValueError(f"tuning.ep_stages must be in [1, {MAX_EP_STAGES}], got {v!r}: "
+                                     f"the relay switches one stage per relay_dwell, and a stage "
+                                     f"of car.mech_force_max / {v} corrects next to nothing")
                 continue
             try:
                 x = float(v)
@@ -124,10 +132,13 @@ class AtoTuning:
                 raise ValueError(f"tuning.{f.name} must be a number, got {v!r}") from None
             if not math.isfinite(x) or x < 0.0:
                 raise ValueError(f"tuning.{f.name} must be finite and >= 0, got {v!r}")
-            if f.name == "mass_band" and x < 1.0:
-                raise ValueError(f"tuning.mass_band must be >= 1, got {v!r}")
+            if f.name == "mass_band" and not 1.0 <= x <= MAX_MASS_BAND:
+                raise ValueError(f"tuning.mass_band must be in [1, {MAX_MASS_BAND:g}], got {v!r} "
+                                 f"(the estimator reports est.mass within a factor 5 of its start: "
+                                 f"a wider band admits nothing more)")
             positive = ("replan_period", "grid_step", "time_tol", "approach_gain", "a_ep",
-                        "relay_stage_speed", "stand_speed", "creep_speed", "brake_share")
+                        "relay_stage_speed", "stand_speed", "creep_speed", "brake_share",
+                        "creep_accel", "safe_brake", "hold_brake")
             if f.name in positive and x == 0.0:
                 raise ValueError(f"tuning.{f.name} must be > 0, got {v!r}")
             shares = ("brake_share", "safe_brake", "hold_brake")

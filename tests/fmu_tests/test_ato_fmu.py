@@ -5,8 +5,9 @@
 - after initialisation it outputs a holding brake and the plan's predicted arrival;
 - bad parameters fail exitInitializationMode with a message naming them, and the instance can
   still be reset and initialised, or freed;
-- a NaN input gives the safe brake (ato.mode 9) with a warning, never a failed step; a doStep
-  before initialisation is refused.
+- a NaN input gives the safe brake (ato.mode 9) with a warning, never a failed step, held
+  until the inputs have been sane for 1 s; a doStep before initialisation is refused (the
+  catalogue of bad inputs, steps and parameters: test_ato_supervision.py).
 """
 from __future__ import annotations
 
@@ -137,9 +138,13 @@ def test_a_nan_input_gives_the_safe_brake_with_a_warning(ato_fmu, slave_factory,
     assert s.get("ato.mode") == AtoMode.SAFE
     assert (s.get("traction_force_demand"), s.get("brake_force_demand")) == (0.0, 45e3)
     assert "filter.speed" in s.log_text() and "[warning]" in s.log_text()
-    s.set({"filter.speed": 1.0, "filter.position": 0.5})
-    assert s.do_step(2 * STEP, STEP) == OK
-    assert s.get("ato.mode") != AtoMode.SAFE                # back to driving
+    # the safe brake latches: held until the inputs have been sane for 1 s, then driving again
+    for k in range(2, 13):
+        s.set({"filter.speed": 0.2, "filter.position": 0.01 * k, "filter.speed_std": 0.03,
+               "filter.position_std": 0.01})
+        assert s.do_step(k * STEP, STEP) == OK
+        assert (s.get("ato.mode") == AtoMode.SAFE) == (k < 12), f"step {k}: {s.get('ato.mode')}"
+    assert "the safe brake is released" in s.log_text()
 
 
 def test_do_step_before_initialisation_is_refused(ato_fmu, slave_factory):
