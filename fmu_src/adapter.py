@@ -90,8 +90,9 @@ def read_profile_text(values: dict, param: str, resources: str | None) -> tuple[
     raw = values[param]
     if not raw:
         return None
-    path = resolve_profile_path(raw, resources)
-    try:
+    path = raw
+    try:                              # the lookup too: a name the file system refuses (too long)
+        path = resolve_profile_path(raw, resources)
         return path.read_text(encoding="utf-8"), str(path)
     except OSError as e:
         raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None

@@ -232,7 +232,7 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
     ("settle_time", "s", "standing before the creep while the filter's distance settles; 0 = never a short stop"),
     ("settle_window", "m", "after the stand: standing closer than this to the aim is arrived"),
     ("creep_aim", "m", "the creep after the stand aims this far short of the mark"),
-    ("safe_brake", "1", "share of car.brake_force_max on a missing or non-finite input"),
+    ("safe_brake", "1", "share of car.brake_force_max on a bad input (missing, non-finite, outside physics or inconsistent: docs/ato.md)"),
     ("hold_brake", "1", "share of car.brake_force_max held at the stop"),
 )
 

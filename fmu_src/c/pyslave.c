@@ -610,8 +610,13 @@ fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size)
     ENTER("fmi2DoStep");
     PyObject *r = call(MODEL(g)->s.method[M_DO_STEP], Py_BuildValue("(dd)", current_time, step_size));
     if (r) {
-        int accepted = PyObject_IsTrue(r);   /* do_step -> bool; False: discarded (logged by it) */
-        status = accepted > 0 ? fmi2OK : accepted == 0 ? fmi2Discard : fmi2Error;
+        if (PyLong_Check(r) && !PyBool_Check(r)) {   /* a status (Fmi2Status): OK .. Error */
+            long s = PyLong_AsLong(r);
+            status = s >= fmi2OK && s <= fmi2Error ? (fmi2Status)s : fmi2Error;
+        } else {                             /* a bool; False: discarded (logged by do_step) */
+            int accepted = PyObject_IsTrue(r);
+            status = accepted > 0 ? fmi2OK : accepted == 0 ? fmi2Discard : fmi2Error;
+        }
         Py_DECREF(r);
     }
     LEAVE("fmi2DoStep", status);
