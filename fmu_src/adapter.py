@@ -79,8 +79,11 @@ def resolve_profile_path(path: str, resources: str | None) -> Path:
         return p
     if resources:
         candidate = Path(resources) / p
-        if candidate.is_file():
-            return candidate
+        try:
+            if candidate.is_file():
+                return candidate
+        except OSError:                  # a name the file system refuses (too long): not there
+            pass
     return Path(os.getcwd()) / p
 
 
@@ -90,9 +93,8 @@ def read_profile_text(values: dict, param: str, resources: str | None) -> tuple[
     raw = values[param]
     if not raw:
         return None
-    path = raw
-    try:                              # the lookup too: a name the file system refuses (too long)
-        path = resolve_profile_path(raw, resources)
+    path = resolve_profile_path(raw, resources)
+    try:
         return path.read_text(encoding="utf-8"), str(path)
     except OSError as e:
         raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None

@@ -259,6 +259,7 @@ def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
     ({"sensor.sample_period": 0.0}, "sensor.sample_period"),
     ({"filter.singer_p0": 0.95, "filter.kind": 4}, "filter.singer_*"),
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
+    ({"track.grade_profile": "g" * 300 + ".csv"}, "File name too long"),
     ({"track.speed_profile": "profiles/steep_grades.csv"}, "track.speed_profile"),
 ])
 def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, named):
