@@ -238,7 +238,12 @@ static void residual_stats(rc_ident *id, double err, int contiguous, double mu)
     if (id->window_len == RC_LAG) {
         id->n_cL += 1;
         double sq = id->window_sum * id->window_sum;
-        id->cL = id->has_cL ? id->cL + (sq - id->cL) / (double)id->n_cL : sq;
+        if (!id->has_cL)
+            id->cL = sq;
+        else if (id->cfg.forgetting > 0.0)             /* forgets as c0 and c1 do */
+            id->cL += mu * (sq - id->cL);
+        else
+            id->cL = id->cL + (sq - id->cL) / (double)id->n_cL;
         id->has_cL = 1;
     }
     id->c0 += mu * (err * err - id->c0);

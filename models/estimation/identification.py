@@ -329,7 +329,8 @@ class ParameterIdentifier:
     def _residual_stats(self, err: float, contiguous: bool, mu: float) -> None:
         """Running residual statistics from the standardised prediction error err: c0 and c1
         (lag-0, lag-1 autocovariance; weights mu, or 1/n for c1 without forgetting), and cL, the
-        mean square of sums of LAG consecutive residuals within a run (see sigma2)."""
+        mean square of sums of LAG consecutive residuals within a run (see sigma2; weights as
+        c1's)."""
         w = self._window
         if not contiguous:
             w.clear()
@@ -341,7 +342,12 @@ class ParameterIdentifier:
         if len(w) == self.LAG:
             self._n_cL += 1
             sq = self._window_sum * self._window_sum
-            self.cL = sq if self.cL is None else self.cL + (sq - self.cL) / self._n_cL
+            if self.cL is None:
+                self.cL = sq
+            elif self.cfg.forgetting > 0.0:   # forgets as c0 and c1 do: a mean over the whole
+                self.cL += mu * (sq - self.cL)  # history kept sigma^2 ~280x too high after a step
+            else:
+                self.cL = self.cL + (sq - self.cL) / self._n_cL
         self.c0 += mu * (err * err - self.c0)
         if contiguous and self._last_err is not None:
             self._n_c1 += 1

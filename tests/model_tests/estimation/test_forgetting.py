@@ -52,7 +52,7 @@ class Run:
                          for k in range(len(self.traction))])
 
 
-def drive(seed: int) -> Run:
+def drive(seed: int, a0_after: float = A0_AFTER) -> Run:
     """Eq. (2) with process noise: traction to 24 m/s, braking to 3 m/s, again, with a slowly
     varying force (the A's need the whole speed range to be told apart), A0 stepping from 0.89
     to A0_AFTER at STEP_AT; grade 3 sin(t / 20 s)."""
@@ -63,7 +63,7 @@ def drive(seed: int) -> Run:
         v = speed[-1]
         accelerating = (v < 24.0) if accelerating else (v < 3.0)
         force = (40e3 if accelerating else -30e3) * (0.6 + 0.4 * math.sin(0.05 * k))
-        a0 = A0_AFTER if k >= STEP_AT else TRUE_BEFORE[1]
+        a0 = a0_after if k >= STEP_AT else TRUE_BEFORE[1]
         i = 3.0 * math.sin(k * DT / 20.0)
         f, b = max(force, 0.0), max(-force, 0.0)
         th = TRUE_BEFORE
@@ -177,3 +177,33 @@ def test_covariance_is_the_weighted_least_squares_sandwich(run):
     M = a * D + b * W + a * np.outer(phi[-1], phi[-1]) + np.diag(ident.s2_prior) @ ident.J0
     Ji = np.linalg.inv(J)
     np.testing.assert_allclose(ident.covariance(), Ji @ M @ Ji, rtol=1e-6)
+
+
+# ------------------------------------------------------------------ sigma^2 under forgetting
+
+def test_the_lag_sums_behind_sigma2_forget_as_c0_and_c1_do():
+    """cL, the mean square of sums of LAG consecutive residuals (sigma2's process share), takes
+    the weights mu0 with forgetting, as c0 and c1 do; it used to keep the whole history, so after
+    a step in A0 sigma^2 stayed high for ever (the drive above, 1000 samples after the step:
+    280x the no-step run's sigma^2 before, 80x now, the rest the tracking lag's own residuals).
+    Residuals of 1 for 500 samples (sums of 50: 2500), then alternating +-1 (sums 0) for 2000:
+    with mu0 = 0.005 the first part keeps (1 - mu0)^2000 ~ 4e-5 of its weight (cL ~ 0.1); with
+    mu = 1/n it keeps its share of the history (cL ~ 2500 x 451 / 2451 ~ 460)."""
+    def fed(forgetting: float) -> float:
+        ident = ParameterIdentifier(IdentifierConfig(dt=DT, forgetting=forgetting))
+        errors = [1.0] * 500 + [(-1.0) ** k for k in range(2000)]
+        for n, e in enumerate(errors, start=1):
+            ident._residual_stats(e, True, forgetting if forgetting > 0.0 else 1.0 / n)
+        return ident.cL
+
+    assert fed(MU0) < 1.0
+    assert fed(0.0) > 100.0
+
+
+def test_sigma2_comes_back_after_a_step_with_forgetting(run):
+    """The drive's step, with forgetting: sigma^2 1000 samples after it within 100x of the same
+    drive without the step (measured 80x; 280x while cL kept the whole history)."""
+    cfg = IdentifierConfig(dt=DT, forgetting=MU0, sigma2_initial=SPEED_NOISE ** 2)
+    stepped = identify(run, cfg).sigma2()
+    flat = identify(drive(seed=3, a0_after=TRUE_BEFORE[1]), cfg).sigma2()
+    assert stepped < 100.0 * flat
