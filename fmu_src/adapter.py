@@ -112,22 +112,22 @@ def read_profile_text(values: dict, param: str, resources: str | None) -> tuple[
     if not raw:
         return None
     path = resolve_profile_path(raw, resources)
-    named = f"{param}: '{raw}' (looked for {path})"
+    cannot = f"{param}: cannot read '{raw}' (looked for {path})"
     try:
         st = os.stat(path)
         if not stat.S_ISREG(st.st_mode):
             kind = next((k for test, k in _NOT_A_FILE if test(st.st_mode)), None)
-            raise ParameterError(f"{named} is {kind}, not a regular file" if kind
-                                 else f"{named} is not a regular file")
+            raise ParameterError(f"{cannot}: it is {kind}, not a regular file" if kind
+                                 else f"{cannot}: it is not a regular file")
         if st.st_size > PROFILE_MAX_BYTES:
-            raise ParameterError(f"{named} is {st.st_size} bytes, more than the "
+            raise ParameterError(f"{cannot}: it has {st.st_size} bytes, more than the "
                                  f"{_PROFILE_MAX_TEXT} a profile may have")
         with open(path, "rb") as f:
             data = f.read(PROFILE_MAX_BYTES + 1)
     except OSError as e:
-        raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
+        raise ParameterError(f"{cannot}: {e.strerror}") from None
     if len(data) > PROFILE_MAX_BYTES:
-        raise ParameterError(f"{named} grew past the {_PROFILE_MAX_TEXT} a profile may have "
+        raise ParameterError(f"{cannot}: it grew past the {_PROFILE_MAX_TEXT} a profile may have "
                              f"while it was read")
     try:
         text = data.decode("utf-8")

@@ -784,19 +784,21 @@ static int refuse_unfit_file(msgbuf *m, const char *param, const char *shown, co
         return 0;
     }
     puts_(m, param);
-    puts_(m, ": '");
+    puts_(m, ": cannot read '");
     puts_(m, shown);
     puts_(m, "' (looked for ");
     puts_(m, where);
-    puts_(m, ") is ");
+    puts_(m, "): it ");
     if (S_ISREG(st.st_mode)) {
+        puts_(m, "has ");
         put_long(m, (long)st.st_size);
         puts_(m, " bytes, more than the " RC_PROFILE_MAX_TEXT " a profile may have");
     } else if (kind) {
+        puts_(m, "is ");
         puts_(m, kind);
         puts_(m, ", not a regular file");
     } else {
-        puts_(m, "not a regular file");
+        puts_(m, "is not a regular file");
     }
     return 1;
 }
@@ -837,11 +839,12 @@ int rc_profile_read_file(const char *path, const char *param, const char *raw,
         }
         if (len > RC_PROFILE_MAX_BYTES) {           /* it grew after stat() */
             puts_(&m, param);
-            puts_(&m, ": '");
+            puts_(&m, ": cannot read '");
             puts_(&m, raw ? raw : path);
             puts_(&m, "' (looked for ");
             puts_(&m, where);
-            puts_(&m, ") grew past the " RC_PROFILE_MAX_TEXT " a profile may have while it was read");
+            puts_(&m, "): it grew past the " RC_PROFILE_MAX_TEXT " a profile may have while it "
+                      "was read");
             goto refused;
         }
         long bad = utf8_error((const unsigned char *)data, len);

@@ -72,10 +72,10 @@ int rc_profile_parse_kind(const char *text, size_t len, const char *source, rc_p
  *     "PARAM: cannot read 'RAW' (looked for PATH): <strerror>", "PARAM: PATH: not UTF-8 text
  *     (byte offset N)", and "PARAM: " before the parser's messages. raw NULL is taken as path.
  *     The file must be a regular file of at most RC_PROFILE_MAX_BYTES, which stat() tells
- *     before it is opened: "PARAM: 'RAW' (looked for PATH) is a FIFO, not a regular file" (or
- *     a folder, a device; "is not a regular file" for any other kind), "... is N bytes, more
- *     than the 16777216 bytes (16 MiB) a profile may have" (and "... grew past the ... while it
- *     was read" if it grows after the stat()).
+ *     before it is opened: "PARAM: cannot read 'RAW' (looked for PATH): it is a FIFO, not a
+ *     regular file" (or a folder, a device; "it is not a regular file" for any other kind),
+ *     "...: it has N bytes, more than the 16777216 bytes (16 MiB) a profile may have" (and
+ *     "...: it grew past the ... while it was read" if it grows after the stat()).
  *
  * C99 stdio and stat() (glibc, mingw-w64, MSVC); in the harness's reading a folder is
  * recognised by EISDIR from the read, as on Linux, and no size is refused. */

@@ -262,7 +262,7 @@ def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
     ({"track.grade_profile": "g" * 300 + ".csv"}, "File name too long"),
     ({"track.speed_profile": "profiles/steep_grades.csv"}, "track.speed_profile"),
-    ({"track.grade_profile": "/dev/zero"}, "is a device, not a regular file"),
+    ({"track.grade_profile": "/dev/zero"}, "it is a device, not a regular file"),
 ])
 def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, named):
     status_py, text_py = _init_failure(pair["py"], parameters)
@@ -283,7 +283,8 @@ def test_a_profile_that_is_no_regular_file_is_refused_as_python_does(pair, unfit
         status_c, text_c = _init_failure(pair["c"], {param: path})
     assert opened == []
     assert status_c == status_py == ERROR
-    assert text_c == text_py.splitlines()[0] == f"{param}: '{path}' (looked for {path}) {why}"
+    assert text_c == text_py.splitlines()[0] == (
+        f"{param}: cannot read '{path}' (looked for {path}): {why}")
 
 
 @pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3}])

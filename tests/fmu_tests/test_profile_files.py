@@ -52,11 +52,12 @@ def unfit(tmp_path_factory) -> dict[str, tuple[str, str]]:
     (tmp / "folder").mkdir()
     with open(tmp / "too_big.csv", "wb") as f:
         f.truncate(PROFILE_MAX_BYTES + 1)
-    return {"fifo": (str(tmp / "fifo.csv"), "is a FIFO, not a regular file"),
-            "zero": ("/dev/zero", "is a device, not a regular file"),
-            "folder": (str(tmp / "folder"), "is a folder, not a regular file"),
+    return {"fifo": (str(tmp / "fifo.csv"), "it is a FIFO, not a regular file"),
+            "zero": ("/dev/zero", "it is a device, not a regular file"),
+            "folder": (str(tmp / "folder"), "it is a folder, not a regular file"),
             "too_big": (str(tmp / "too_big.csv"),
-                        f"is {PROFILE_MAX_BYTES + 1} bytes, more than the {BOUND_TEXT} a profile may have")}
+                        f"it has {PROFILE_MAX_BYTES + 1} bytes, more than the {BOUND_TEXT} a profile "
+                        f"may have")}
 
 
 def _refusal(fmu: FmuFile, parameters: dict, fifo: Path) -> str:
@@ -81,7 +82,7 @@ def test_railcar_and_the_estimator_refuse_it_naming_the_parameter(fmus, unfit, f
     """(the native FMUs' same words: tests/fmu_tests/test_native_fmu.py)"""
     path, why = unfit[case]
     message = _refusal(fmus[fmu], {param: path}, Path(unfit["fifo"][0]))
-    assert message == f"{param}: '{path}' (looked for {path}) {why}"
+    assert message == f"{param}: cannot read '{path}' (looked for {path}): {why}"
 
 
 @pytest.mark.parametrize("case", ["fifo", "zero", "folder", "too_big"])
@@ -89,4 +90,4 @@ def test_railcar_and_the_estimator_refuse_it_naming_the_parameter(fmus, unfit, f
 def test_the_ato_controller_refuses_it_naming_the_parameter(fmus, unfit, param, case):
     path, why = unfit[case]
     message = _refusal(fmus["AtoController"], {param: path}, Path(unfit["fifo"][0]))
-    assert message == f"{param}: '{path}' (looked for {path}) {why}"
+    assert message == f"{param}: cannot read '{path}' (looked for {path}): {why}"

@@ -456,11 +456,11 @@ def unfit_files(tmp: Path) -> dict[str, tuple[str, str]]:
     with open(tmp / "at_bound.csv", "wb") as f:       # a comment line fills it to the byte
         f.write(at_bound + b"x" * (PROFILE_MAX_BYTES - len(at_bound) - 1) + b"\n")
     t = str(tmp)
-    return {"fifo": (t + "/fifo.csv", "is a FIFO, not a regular file"),
-            "zero": ("/dev/zero", "is a device, not a regular file"),
-            "null": ("/dev/null", "is a device, not a regular file"),
-            "folder": (t + "/folder", "is a folder, not a regular file"),
-            "too_big": (t + "/too_big.csv", f"is {PROFILE_MAX_BYTES + 1} bytes, more than the "
+    return {"fifo": (t + "/fifo.csv", "it is a FIFO, not a regular file"),
+            "zero": ("/dev/zero", "it is a device, not a regular file"),
+            "null": ("/dev/null", "it is a device, not a regular file"),
+            "folder": (t + "/folder", "it is a folder, not a regular file"),
+            "too_big": (t + "/too_big.csv", f"it has {PROFILE_MAX_BYTES + 1} bytes, more than the "
                         f"16777216 bytes (16 MiB) a profile may have"),
             "at_bound": (t + "/at_bound.csv", "")}
 
@@ -476,7 +476,8 @@ def test_a_profile_parameter_names_a_regular_file_of_bounded_size(lib, tmp_path)
                 ours, theirs = c_read(lib, path, kind, param=PARAM[kind], raw=path), py_fmu(path, kind)
                 assert same(ours, theirs), (name, ours[:2], theirs[:2])
                 if says:
-                    assert ours == ("error", f"{PARAM[kind]}: '{path}' (looked for {path}) {says}")
+                    assert ours == ("error", f"{PARAM[kind]}: cannot read '{path}' "
+                                             f"(looked for {path}): {says}")
     assert opened == []
     assert c_read(lib, files["at_bound"][0], GRADE, PARAM[GRADE], files["at_bound"][0]) == \
         ("ok", [0.0, 10.0], [1.0, 2.0])
@@ -491,8 +492,8 @@ def test_a_relative_profile_names_the_file_it_looked_for(lib, tmp_path):
             ours = c_read(lib, os.getcwd() + "/fifo.csv", SPEED, param=PARAM[SPEED], raw="fifo.csv")
         assert opened == []
         assert ours == py_fmu("fifo.csv", SPEED) == (
-            "error", f"track.speed_profile: 'fifo.csv' (looked for {tmp_path}/fifo.csv) is a FIFO, "
-                     f"not a regular file")
+            "error", f"track.speed_profile: cannot read 'fifo.csv' (looked for {tmp_path}/fifo.csv): "
+                     f"it is a FIFO, not a regular file")
     finally:
         os.chdir(cwd)
 
