@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,19 +88,53 @@ def resolve_profile_path(path: str, resources: str | None) -> Path:
     return Path(os.getcwd()) / p
 
 
+# The most bytes a profile parameter's file may have (models/core/profile.h RC_PROFILE_MAX_BYTES,
+# the native FMUs' twin). A 100 km line's grade profile at 1 m resolution ("100000.0,-12.5" and
+# a line break a row) is about 1.6 MB, a tenth of it; the bound stops a wrong file (/dev/zero's
+# like, a log, a disc image) from filling the memory.
+PROFILE_MAX_BYTES = 16 * 1024 * 1024
+_PROFILE_MAX_TEXT = f"{PROFILE_MAX_BYTES} bytes (16 MiB)"
+
+# stat's kinds a profile may not be, as the C reader names them (it has no S_ISSOCK under C99:
+# a socket is "not a regular file" in both). On Windows os.stat reports a folder as S_IFDIR, a
+# device such as NUL as S_IFCHR and a pipe as S_IFIFO, so the rule holds there too.
+_NOT_A_FILE = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a device"),
+               (stat.S_ISBLK, "a device"))
+
+
 def read_profile_text(values: dict, param: str, resources: str | None) -> tuple[str, str] | None:
     """(text, path) of the profile CSV parameter ``param`` names (None: empty), found by
-    ``resolve_profile_path``; ParameterError names the parameter and the file."""
+    ``resolve_profile_path``; ParameterError names the parameter and the file. The file must be
+    a regular file of at most PROFILE_MAX_BYTES, which os.stat tells before it is opened
+    (opening a FIFO waits for a writer for ever, /dev/zero never ends); the messages are the
+    native FMUs' (models/core/profile.c rc_profile_read_file)."""
     raw = values[param]
     if not raw:
         return None
     path = resolve_profile_path(raw, resources)
+    cannot = f"{param}: cannot read '{raw}' (looked for {path})"
     try:
-        return path.read_text(encoding="utf-8"), str(path)
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            kind = next((k for test, k in _NOT_A_FILE if test(st.st_mode)), None)
+            raise ParameterError(f"{cannot}: it is {kind}, not a regular file" if kind
+                                 else f"{cannot}: it is not a regular file")
+        if st.st_size > PROFILE_MAX_BYTES:
+            raise ParameterError(f"{cannot}: it has {st.st_size} bytes, more than the "
+                                 f"{_PROFILE_MAX_TEXT} a profile may have")
+        with open(path, "rb") as f:
+            data = f.read(PROFILE_MAX_BYTES + 1)
     except OSError as e:
-        raise ParameterError(f"{param}: cannot read '{raw}' (looked for {path}): {e.strerror}") from None
+        raise ParameterError(f"{cannot}: {e.strerror}") from None
+    if len(data) > PROFILE_MAX_BYTES:
+        raise ParameterError(f"{cannot}: it grew past the {_PROFILE_MAX_TEXT} a profile may have "
+                             f"while it was read")
+    try:
+        text = data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise ParameterError(f"{param}: {path}: not UTF-8 text (byte offset {e.start})") from None
+    # the universal newlines of a file opened as text, as Path.read_text gave them before
+    return text.replace("\r\n", "\n").replace("\r", "\n"), str(path)
 
 
 def read_grade(values: dict, param: str, resources: str | None) -> GradeProfile:

@@ -18,9 +18,23 @@
 
 #include <errno.h>
 #include <limits.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+
+/* stat()'s file kinds. glibc and mingw-w64 define these four even under -std=c99 (S_ISSOCK they
+ * do not: a socket is "not a regular file" in both languages); MSVC has only the _S_IF* bits.
+ * On Windows stat() reports a folder as S_IFDIR, a device such as NUL or CON as S_IFCHR and a
+ * pipe as S_IFIFO, so the one rule (profile.h) holds there too; a file of 2 GiB or more makes a
+ * 32-bit st_size stat() fail (EOVERFLOW), which refuses it as "cannot read". */
+#if defined(_MSC_VER) && !defined(S_ISREG)
+#define S_ISREG(m) (((m) & _S_IFMT) == _S_IFREG)
+#define S_ISDIR(m) (((m) & _S_IFMT) == _S_IFDIR)
+#define S_ISCHR(m) (((m) & _S_IFMT) == _S_IFCHR)
+#define S_ISFIFO(m) (((m) & _S_IFMT) == _S_IFIFO)
+#endif
 
 /* ---- a growing message ------------------------------------------------------------------ */
 
@@ -684,8 +698,9 @@ static long utf8_error(const unsigned char *s, size_t n)
     return -1;
 }
 
-/* The whole file: 0, or errno */
-static int read_all(const char *path, char **data, size_t *len)
+/* The whole file, or its first max + 1 bytes when it has more (max SIZE_MAX: no limit): 0, or
+ * errno */
+static int read_all(const char *path, size_t max, char **data, size_t *len)
 {
     FILE *f;
     size_t cap = 4096, n = 0;
@@ -701,7 +716,7 @@ static int read_all(const char *path, char **data, size_t *len)
         fclose(f);
         return ENOMEM;
     }
-    for (;;) {
+    while (max == SIZE_MAX || n <= max) {
         if (n == cap) {
             char *b = realloc(buf, cap * 2);
             if (!b) {
@@ -712,22 +727,80 @@ static int read_all(const char *path, char **data, size_t *len)
             buf = b;
             cap *= 2;
         }
+        size_t want = cap - n;
+        if (max != SIZE_MAX && want > max + 1 - n)
+            want = max + 1 - n;
         errno = 0;
-        size_t got = fread(buf + n, 1, cap - n, f);
+        size_t got = fread(buf + n, 1, want, f);
         n += got;
         if (got == 0) {
             int e = ferror(f) ? (errno ? errno : EIO) : 0;
-            fclose(f);
             if (e) {
+                fclose(f);
                 free(buf);
                 return e;
             }
             break;
         }
     }
+    fclose(f);
     *data = buf;
     *len = n;
     return 0;
+}
+
+/* The FMU's rule for a profile parameter's file (adapter.read_profile_text): a regular file of
+ * at most RC_PROFILE_MAX_BYTES, found so by stat() BEFORE it is opened (opening a FIFO waits for
+ * a writer for ever; /dev/zero never ends). 0: read it; else the refusal is in m, or the errno
+ * of stat() is in *e. */
+static int refuse_unfit_file(msgbuf *m, const char *param, const char *shown, const char *where,
+                             int *e)
+{
+    struct stat st;
+    const char *kind = NULL;
+    errno = 0;
+    if (stat(where, &st) != 0) {
+        *e = errno ? errno : EIO;
+        return 1;
+    }
+    if (!S_ISREG(st.st_mode)) {
+#ifdef S_ISDIR
+        if (S_ISDIR(st.st_mode))
+            kind = "a folder";
+#endif
+#ifdef S_ISFIFO
+        if (S_ISFIFO(st.st_mode))
+            kind = "a FIFO";
+#endif
+#ifdef S_ISCHR
+        if (S_ISCHR(st.st_mode))
+            kind = "a device";
+#endif
+#ifdef S_ISBLK
+        if (S_ISBLK(st.st_mode))
+            kind = "a device";
+#endif
+    } else if (st.st_size <= RC_PROFILE_MAX_BYTES) {
+        return 0;
+    }
+    puts_(m, param);
+    puts_(m, ": cannot read '");
+    puts_(m, shown);
+    puts_(m, "' (looked for ");
+    puts_(m, where);
+    puts_(m, "): it ");
+    if (S_ISREG(st.st_mode)) {
+        puts_(m, "has ");
+        put_long(m, (long)st.st_size);
+        puts_(m, " bytes, more than the " RC_PROFILE_MAX_TEXT " a profile may have");
+    } else if (kind) {
+        puts_(m, "is ");
+        puts_(m, kind);
+        puts_(m, ", not a regular file");
+    } else {
+        puts_(m, "is not a regular file");
+    }
+    return 1;
 }
 
 int rc_profile_read_file(const char *path, const char *param, const char *raw,
@@ -743,7 +816,11 @@ int rc_profile_read_file(const char *path, const char *param, const char *raw,
         snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
         return RC_BAD_CONFIG;
     }
-    int e = read_all(where, &data, &len);
+    int e = 0;
+    if (param && refuse_unfit_file(&m, param, raw ? raw : path, where, &e) && !e)
+        goto refused;
+    if (!e)
+        e = read_all(where, param ? (size_t)RC_PROFILE_MAX_BYTES : SIZE_MAX, &data, &len);
     if (e == ENOMEM) {
         free(where);
         snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
@@ -758,6 +835,16 @@ int rc_profile_read_file(const char *path, const char *param, const char *raw,
             puts_(&m, where);
             puts_(&m, "): ");
             puts_(&m, strerror(e));
+            goto refused;
+        }
+        if (len > RC_PROFILE_MAX_BYTES) {           /* it grew after stat() */
+            puts_(&m, param);
+            puts_(&m, ": cannot read '");
+            puts_(&m, raw ? raw : path);
+            puts_(&m, "' (looked for ");
+            puts_(&m, where);
+            puts_(&m, "): it grew past the " RC_PROFILE_MAX_TEXT " a profile may have while it "
+                      "was read");
             goto refused;
         }
         long bad = utf8_error((const unsigned char *)data, len);

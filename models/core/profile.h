@@ -71,8 +71,20 @@ int rc_profile_parse_kind(const char *text, size_t len, const char *source, rc_p
  *     "track.speed_profile", raw the parameter's value, path the file it resolved it to):
  *     "PARAM: cannot read 'RAW' (looked for PATH): <strerror>", "PARAM: PATH: not UTF-8 text
  *     (byte offset N)", and "PARAM: " before the parser's messages. raw NULL is taken as path.
+ *     The file must be a regular file of at most RC_PROFILE_MAX_BYTES, which stat() tells
+ *     before it is opened: "PARAM: cannot read 'RAW' (looked for PATH): it is a FIFO, not a
+ *     regular file" (or a folder, a device; "it is not a regular file" for any other kind),
+ *     "...: it has N bytes, more than the 16777216 bytes (16 MiB) a profile may have" (and
+ *     "...: it grew past the ... while it was read" if it grows after the stat()).
  *
- * Uses only C99 stdio (a folder is recognised by EISDIR from the read, as on Linux). */
+ * C99 stdio and stat() (glibc, mingw-w64, MSVC); in the harness's reading a folder is
+ * recognised by EISDIR from the read, as on Linux, and no size is refused. */
+/* The most bytes a profile parameter's file may have. A 100 km line's grade profile at 1 m
+ * resolution ("100000.0,-12.5" and a line break a row) is about 1.6 MB, a tenth of it; what
+ * the bound stops is a wrong file (/dev/zero's like, a log, a disc image) filling the memory. */
+#define RC_PROFILE_MAX_BYTES 16777216L
+#define RC_PROFILE_MAX_TEXT "16777216 bytes (16 MiB)"
+
 int rc_profile_read_file(const char *path, const char *param, const char *raw,
                          rc_profile_kind kind, rc_profile *out);
 

@@ -19,6 +19,7 @@ from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
 from fmu_src.build import native, toolchain
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
+from test_profile_files import fifo_released, unfit  # noqa: F401 (unfit: a fixture)
 
 LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
 
@@ -261,6 +262,7 @@ def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
     ({"track.grade_profile": "g" * 300 + ".csv"}, "File name too long"),
     ({"track.speed_profile": "profiles/steep_grades.csv"}, "track.speed_profile"),
+    ({"track.grade_profile": "/dev/zero"}, "it is a device, not a regular file"),
 ])
 def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, named):
     status_py, text_py = _init_failure(pair["py"], parameters)
@@ -268,6 +270,21 @@ def test_bad_parameter_is_an_error_naming_it_as_python_does(pair, parameters, na
     assert status_c == status_py == ERROR
     assert named in text_c
     assert text_c == text_py.splitlines()[0]
+
+
+@pytest.mark.parametrize("case", ["fifo", "zero", "folder", "too_big"])
+@pytest.mark.parametrize("param", ["track.grade_profile", "track.speed_profile"])
+def test_a_profile_that_is_no_regular_file_is_refused_as_python_does(pair, unfit, param, case):
+    """A FIFO, a device, a folder, a file over the 16 MiB bound: refused before it is opened (a
+    FIFO's opening would wait for ever: fifo_released lets such a reader go, and fails it)."""
+    path, why = unfit[case]
+    with fifo_released(Path(unfit["fifo"][0])) as opened:
+        status_py, text_py = _init_failure(pair["py"], {param: path})
+        status_c, text_c = _init_failure(pair["c"], {param: path})
+    assert opened == []
+    assert status_c == status_py == ERROR
+    assert text_c == text_py.splitlines()[0] == (
+        f"{param}: cannot read '{path}' (looked for {path}): {why}")
 
 
 @pytest.mark.parametrize("option", [{"est.method": 1}, {"est.method": 3}])

@@ -16,12 +16,14 @@ import re
 import shutil
 import struct
 import subprocess
+import threading
 import unicodedata
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
-from fmu_src.adapter import ParameterError, load_profiles
+from fmu_src.adapter import PROFILE_MAX_BYTES, ParameterError, load_profiles
 from harness.textio import read_text
 from models.plant.track import GradeProfile, ProfileError, SpeedProfile, parse_profile_csv
 
@@ -418,6 +420,84 @@ def test_files_are_read_as_the_harness_and_the_fmu_read_them(lib, tmp_path):
         os.chdir(cwd)
 
 
+@contextmanager
+def fifo_released(fifo: Path):
+    """While inside, a reader that opens ``fifo`` is let go at once (a writer opens it and closes
+    it: the reader sees an empty file), so a reader that opens it hangs no test; the list it
+    yields gets True when that had to happen (the check before opening has failed)."""
+    stop, opened = threading.Event(), []
+
+    def release():
+        while not stop.wait(0.02):
+            try:
+                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)   # ENXIO while no one reads
+            except OSError:
+                continue
+            opened.append(True)
+            os.close(fd)
+
+    thread = threading.Thread(target=release, daemon=True)
+    thread.start()
+    try:
+        yield opened
+    finally:
+        stop.set()
+        thread.join()
+
+
+def unfit_files(tmp: Path) -> dict[str, tuple[str, str]]:
+    """name -> (path, a piece of the FMU's refusal): files a profile parameter may not name,
+    and one exactly at the size bound, which it may. The big ones are sparse: no byte written."""
+    os.mkfifo(tmp / "fifo.csv")
+    (tmp / "folder").mkdir()
+    with open(tmp / "too_big.csv", "wb") as f:
+        f.truncate(PROFILE_MAX_BYTES + 1)
+    at_bound = (GH + "0,1\n10,2\n#").encode()
+    with open(tmp / "at_bound.csv", "wb") as f:       # a comment line fills it to the byte
+        f.write(at_bound + b"x" * (PROFILE_MAX_BYTES - len(at_bound) - 1) + b"\n")
+    t = str(tmp)
+    return {"fifo": (t + "/fifo.csv", "it is a FIFO, not a regular file"),
+            "zero": ("/dev/zero", "it is a device, not a regular file"),
+            "null": ("/dev/null", "it is a device, not a regular file"),
+            "folder": (t + "/folder", "it is a folder, not a regular file"),
+            "too_big": (t + "/too_big.csv", f"it has {PROFILE_MAX_BYTES + 1} bytes, more than the "
+                        f"16777216 bytes (16 MiB) a profile may have"),
+            "at_bound": (t + "/at_bound.csv", "")}
+
+
+def test_a_profile_parameter_names_a_regular_file_of_bounded_size(lib, tmp_path):
+    """A FIFO (whose opening would wait for ever), a device (/dev/zero never ends), a folder
+    and a file over PROFILE_MAX_BYTES are refused before they are opened, naming the parameter,
+    the file and why, the same words in C and Python; a file at the bound is read."""
+    files = unfit_files(tmp_path)
+    with fifo_released(tmp_path / "fifo.csv") as opened:
+        for name, (path, says) in files.items():
+            for kind in (GRADE, SPEED):
+                ours, theirs = c_read(lib, path, kind, param=PARAM[kind], raw=path), py_fmu(path, kind)
+                assert same(ours, theirs), (name, ours[:2], theirs[:2])
+                if says:
+                    assert ours == ("error", f"{PARAM[kind]}: cannot read '{path}' "
+                                             f"(looked for {path}): {says}")
+    assert opened == []
+    assert c_read(lib, files["at_bound"][0], GRADE, PARAM[GRADE], files["at_bound"][0]) == \
+        ("ok", [0.0, 10.0], [1.0, 2.0])
+
+
+def test_a_relative_profile_names_the_file_it_looked_for(lib, tmp_path):
+    cwd = os.getcwd()
+    try:
+        os.chdir(tmp_path)
+        os.mkfifo("fifo.csv")
+        with fifo_released(tmp_path / "fifo.csv") as opened:
+            ours = c_read(lib, os.getcwd() + "/fifo.csv", SPEED, param=PARAM[SPEED], raw="fifo.csv")
+        assert opened == []
+        assert ours == py_fmu("fifo.csv", SPEED) == (
+            "error", f"track.speed_profile: cannot read 'fifo.csv' (looked for {tmp_path}/fifo.csv): "
+                     f"it is a FIFO, not a regular file")
+    finally:
+        os.chdir(cwd)
+
+
 # ---- sanitizers ---------------------------------------------------------------------------------
 
 def test_the_catalogue_runs_clean_under_address_and_undefined_behaviour_sanitizers(tmp_path):
@@ -435,9 +515,14 @@ def test_the_catalogue_runs_clean_under_address_and_undefined_behaviour_sanitize
     for path, kind in file_cases(tmp_path / "files"):
         jobs.append((2 + kind, path.encode(), py_harness(path, kind)))
         jobs.append((4 + kind, path.encode(), py_fmu(path, kind)))
+    (tmp_path / "unfit").mkdir()
+    for path, _ in unfit_files(tmp_path / "unfit").values():
+        jobs.append((4 + GRADE, path.encode(), py_fmu(path, GRADE)))
     stdin = b"".join(struct.pack("<iq", op, len(data)) + data for op, data, _ in jobs)
-    proc = subprocess.run([str(exe)], input=stdin, capture_output=True,
-                          env={"ASAN_OPTIONS": "detect_leaks=1:abort_on_error=1"})
+    with fifo_released(tmp_path / "unfit" / "fifo.csv") as opened:
+        proc = subprocess.run([str(exe)], input=stdin, capture_output=True, timeout=120,
+                              env={"ASAN_OPTIONS": "detect_leaks=1:abort_on_error=1"})
+    assert opened == []
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")
     out, at = proc.stdout, 0
     for op, data, theirs in jobs:
