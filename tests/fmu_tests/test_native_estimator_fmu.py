@@ -345,6 +345,7 @@ def _init_failure(fmu: FmuFile, parameters: dict) -> tuple[int, str]:
     ({"filter.singer_p0": 0.95, "filter.kind": 4}, "filter.singer_*"),
     ({"track.station_dwell": -2.0}, "track.station_dwell"),
     ({"track.grade_profile": "no/such/file.csv"}, "track.grade_profile"),
+    ({"track.grade_profile": "/dev/zero"}, "it is a device, not a regular file"),
     ({"track.speed_profile": "profiles/steep_grades.csv"}, "track.speed_profile"),
     ({"track.grade_profile": "profiles/default_speed.csv"}, "track.grade_profile"),
 ])
