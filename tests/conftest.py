@@ -21,6 +21,8 @@ import pythonfmu  # noqa: F401  (must be imported before any FMU is loaded)
 import os
 import subprocess
 import sys
+import threading
+from contextlib import contextmanager
 from ctypes import byref
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -326,3 +328,30 @@ def slave_factory():
     yield make
     for s in reversed(created):
         s.close()
+
+
+# ------------------------------------------------------------------------ profile files
+
+@contextmanager
+def fifo_released(fifo: Path):
+    """While inside, a reader that opens ``fifo`` is let go at once (a writer opens and closes
+    it: the reader sees an empty file), so an FMU that opens it hangs no test; the list yielded
+    gets True each time that had to happen (the check before opening failed)."""
+    stop, opened = threading.Event(), []
+
+    def release():
+        while not stop.wait(0.02):
+            try:
+                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)   # ENXIO while no one reads
+            except OSError:
+                continue
+            opened.append(True)
+            os.close(fd)
+
+    thread = threading.Thread(target=release, daemon=True)
+    thread.start()
+    try:
+        yield opened
+    finally:
+        stop.set()
+        thread.join()

@@ -15,11 +15,11 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.validation import validate_fmu
 
-from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
+from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave, fifo_released
 from fmu_src.build import native, toolchain
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
-from test_profile_files import fifo_released, unfit  # noqa: F401 (unfit: a fixture)
+from test_profile_files import unfit  # noqa: F401 (a fixture)
 
 LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
 

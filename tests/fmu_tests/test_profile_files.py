@@ -8,40 +8,15 @@ this module's ``unfit`` files and ``fifo_released``).
 from __future__ import annotations
 
 import os
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from conftest import ERROR, OK, FmuFile, Slave
+from conftest import ERROR, OK, FmuFile, Slave, fifo_released
 from fmu_src.adapter import PROFILE_MAX_BYTES
 
 BOUND_TEXT = "16777216 bytes (16 MiB)"
 
 
-@contextmanager
-def fifo_released(fifo: Path):
-    """While inside, a reader that opens ``fifo`` is let go at once (a writer opens and closes
-    it: the reader sees an empty file), so an FMU that opens it hangs no test; the list yielded
-    gets True each time that had to happen (the check before opening failed)."""
-    stop, opened = threading.Event(), []
-
-    def release():
-        while not stop.wait(0.02):
-            try:
-                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)   # ENXIO while no one reads
-            except OSError:
-                continue
-            opened.append(True)
-            os.close(fd)
-
-    thread = threading.Thread(target=release, daemon=True)
-    thread.start()
-    try:
-        yield opened
-    finally:
-        stop.set()
-        thread.join()
 
 
 @pytest.fixture(scope="module")

@@ -16,13 +16,12 @@ import re
 import shutil
 import struct
 import subprocess
-import threading
 import unicodedata
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
+from conftest import fifo_released
 from fmu_src.adapter import PROFILE_MAX_BYTES, ParameterError, load_profiles
 from harness.textio import read_text
 from models.plant.track import GradeProfile, ProfileError, SpeedProfile, parse_profile_csv
@@ -420,29 +419,6 @@ def test_files_are_read_as_the_harness_and_the_fmu_read_them(lib, tmp_path):
         os.chdir(cwd)
 
 
-@contextmanager
-def fifo_released(fifo: Path):
-    """While inside, a reader that opens ``fifo`` is let go at once (a writer opens it and closes
-    it: the reader sees an empty file), so a reader that opens it hangs no test; the list it
-    yields gets True when that had to happen (the check before opening has failed)."""
-    stop, opened = threading.Event(), []
-
-    def release():
-        while not stop.wait(0.02):
-            try:
-                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)   # ENXIO while no one reads
-            except OSError:
-                continue
-            opened.append(True)
-            os.close(fd)
-
-    thread = threading.Thread(target=release, daemon=True)
-    thread.start()
-    try:
-        yield opened
-    finally:
-        stop.set()
-        thread.join()
 
 
 def unfit_files(tmp: Path) -> dict[str, tuple[str, str]]:
