@@ -50,7 +50,7 @@ def ensure_built(dist: Path = DIST, force: bool = False, quiet: bool = False,
 
 # ------------------------------------------------------------------------------ which kind runs
 
-COVERED_VALUES = {"est.method": (0, 2), "est.sigma2_method": (0, 1)}
+COVERED_VALUES = {"est.method": (0, 2)}
 """The values of the estimator options the native FMUs run (models.compiled.NOT_COVERED names the
 rest): a refusal names the options set outside them."""
 

@@ -309,10 +309,14 @@ class Difference:
 
 
 def compare(reference: dict, got: dict) -> dict[str, Difference]:
-    """output -> Difference, for every output of one run (the time column included)."""
+    """output -> Difference, for every output of one run (the time column included). The two
+    runs must hold the same outputs over the same rows: a foreign run that lost a column or a
+    row is a failure, not a difference of the rows both have."""
+    assert set(got) == set(reference), f"outputs differ: {sorted(set(got) ^ set(reference))}"
     out = {}
     for name, ref in reference.items():
         value = got[name]
+        assert np.shape(value) == np.shape(ref), f"{name}: {np.shape(value)} rows, not {np.shape(ref)}"
         ulps = ulp_distance(ref, value)
         differing = np.flatnonzero(ulps > 0)
         with np.errstate(invalid="ignore", divide="ignore"):

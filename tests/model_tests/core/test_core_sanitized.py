@@ -294,15 +294,21 @@ def test_the_unmutated_copy_gives_python_s_outputs(pristine, option_runs, tmp_pa
         assert not differences(rows, run.expected), run.name
 
 
-@pytest.mark.parametrize("mutation", MUTATIONS)
-def test_a_one_ulp_mutation_changes_the_outputs(mutation, pristine, runs, tmp_path):
-    """The mutation must fail the comparison (in at least one of the scenarios)."""
-    exe = build_mutant(pristine, tmp_path, MUTATIONS[mutation])
+def changed_rows(exe, runs, tmp_path) -> dict[str, int]:
+    """MUTATION_SCENARIOS' runs through ``exe``: scenario -> rows that differ from Python's."""
     changed = {}
     for name in MUTATION_SCENARIOS:
         status, stderr, rows = run_driver(exe, runs[name], tmp_path)
         assert status == 0 and stderr == "", stderr
         changed[name] = len(differences(rows, runs[name].expected))
+    return changed
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+def test_a_one_ulp_mutation_changes_the_outputs(mutation, pristine, runs, tmp_path):
+    """The mutation must fail the comparison (in at least one of the scenarios)."""
+    exe = build_mutant(pristine, tmp_path, MUTATIONS[mutation])
+    changed = changed_rows(exe, runs, tmp_path)
     assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
 
 
@@ -310,11 +316,7 @@ def test_a_one_ulp_mutation_changes_the_outputs(mutation, pristine, runs, tmp_pa
 def test_a_one_ulp_mutation_of_slope_ls_changes_the_outputs(mutation, pristine, slope_runs, tmp_path):
     """est.method 2's code: the mutation must fail the comparison on an est.method 2 run."""
     exe = build_mutant(pristine, tmp_path, SLOPE_MUTATIONS[mutation])
-    changed = {}
-    for name in MUTATION_SCENARIOS:
-        status, stderr, rows = run_driver(exe, slope_runs[name], tmp_path)
-        assert status == 0 and stderr == "", stderr
-        changed[name] = len(differences(rows, slope_runs[name].expected))
+    changed = changed_rows(exe, slope_runs, tmp_path)
     assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
 
 
@@ -324,9 +326,5 @@ def test_a_one_ulp_mutation_of_the_projection_changes_the_outputs(mutation, pris
     """est.physical's code: the mutation must fail the comparison on an est.physical 1 run."""
     exe = build_mutant(pristine, tmp_path, PHYSICAL_MUTATIONS[mutation])
     runs = option_runs["slope_ls_physical"]
-    changed = {}
-    for name in MUTATION_SCENARIOS:
-        status, stderr, rows = run_driver(exe, runs[name], tmp_path)
-        assert status == 0 and stderr == "", stderr
-        changed[name] = len(differences(rows, runs[name].expected))
+    changed = changed_rows(exe, runs, tmp_path)
     assert any(changed.values()), f"{mutation}: {MUTATION_SCENARIOS} equal Python's outputs bit for bit"
