@@ -7,6 +7,8 @@
 #include <stdio.h>
 
 #define SEED_MAX 2147483647L            /* 2 ** 31 - 1: the FMU's seed is an fmi2Integer */
+#define MAX_BATCH_SIZE 100000L          /* identification.MAX_BATCH_SIZE */
+#define MAX_SLOPE_WINDOW 1000L          /* identification.MAX_SLOPE_WINDOW */
 
 /* The message (a printf format) into err; RC_BAD_CONFIG */
 static rc_status refuse(rc_error *err, const char *fmt, ...)
@@ -112,6 +114,34 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
             return refuse_value(err, finite[k], "must be finite", fv[k]);
     if (c->gamma < 0)
         return refuse_value(err, "est.gamma", "must be >= 0", c->gamma);
+    /* identification.PRIOR_BOUNDS: the priors a run stays alive with (why: there) */
+    static const struct {
+        const char *name, *rule;
+        double low, high;
+    } bounds[] = {
+        {"est.mass_initial", "must be in [1, 1000] t", 1.0, 1000.0},
+        {"est.mass_std_initial", "must be in [1e-6, 1e4] t", 1e-6, 1e4},
+        {"est.A0_initial", "must be in [-20, 20] N/kN", -20.0, 20.0},
+        {"est.A1_initial", "must be in [-2, 2] N/kN/(m/s)", -2.0, 2.0},
+        {"est.A2_initial", "must be in [-0.2, 0.2] N/kN/(m/s)^2", -0.2, 0.2},
+        {"est.A0_std_initial", "must be in [1e-9, 1e4] N/kN", 1e-9, 1e4},
+        {"est.A1_std_initial", "must be in [1e-9, 1e4] N/kN/(m/s)", 1e-9, 1e4},
+        {"est.A2_std_initial", "must be in [1e-9, 1e4] N/kN/(m/s)^2", 1e-9, 1e4},
+        {"est.sigma2_initial", "must be in [1e-20, 1] (m/s)^2 per sample", 1e-20, 1.0},
+        {"est.gamma", "must be in [0, 1]", 0.0, 1.0},
+    };
+    const double bv[] = {c->mass_initial, c->mass_std_initial, c->A0_initial, c->A1_initial,
+                         c->A2_initial, c->A0_std_initial, c->A1_std_initial, c->A2_std_initial,
+                         c->sigma2_initial, c->gamma};
+    for (size_t k = 0; k < sizeof bv / sizeof bv[0]; k++)
+        if (!(bounds[k].low <= bv[k] && bv[k] <= bounds[k].high))
+            return refuse_value(err, bounds[k].name, bounds[k].rule, bv[k]);
+    if (c->batch_size > MAX_BATCH_SIZE)
+        return refuse(err, "est.batch_size must be <= %ld (the first batch is held in memory "
+                           "until solved), got %ld", MAX_BATCH_SIZE, c->batch_size);
+    if (slope_window > MAX_SLOPE_WINDOW)
+        return refuse(err, "est.slope_window must be <= %ld, got %ld", MAX_SLOPE_WINDOW,
+                      slope_window);
     return RC_OK;
 }
 

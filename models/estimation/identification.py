@@ -117,6 +117,29 @@ METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on Sidorenko's sl
 """est.method values and their short names (models/estimation/methods.py has a class for each)."""
 
 
+PRIOR_BOUNDS = (
+    ("mass_initial", 1.0, 1000.0, "[1, 1000] t"),
+    ("mass_std_initial", 1e-6, 1e4, "[1e-6, 1e4] t"),
+    ("A0_initial", -20.0, 20.0, "[-20, 20] N/kN"),
+    ("A1_initial", -2.0, 2.0, "[-2, 2] N/kN/(m/s)"),
+    ("A2_initial", -0.2, 0.2, "[-0.2, 0.2] N/kN/(m/s)^2"),
+    ("A0_std_initial", 1e-9, 1e4, "[1e-9, 1e4] N/kN"),
+    ("A1_std_initial", 1e-9, 1e4, "[1e-9, 1e4] N/kN/(m/s)"),
+    ("A2_std_initial", 1e-9, 1e4, "[1e-9, 1e4] N/kN/(m/s)^2"),
+    ("sigma2_initial", 1e-20, 1.0, "[1e-20, 1] (m/s)^2 per sample"),
+    ("gamma", 0.0, 1.0, "[0, 1]"),
+)
+"""(IdentifierConfig field, lowest, highest, the rule as the refusal states it): the priors a run
+stays alive with. Beyond them the arithmetic leaves the doubles (est.sigma2_initial = 1e300 or
+est.mass_std_initial = 1e-300 overflowed the prior's weight and the filter then refused every
+measurement, stuck at 0 m/s while the car ran at 17 m/s) or the prior is no car's (a mass of
+1e4 t for a 39 t car: the filter 10 m/s off; A's of 1e4 N/kN: 962 m/s). At each bound,
+station_day keeps every output finite and the filter on the car
+(tests/model_tests/estimation/test_prior_bounds.py); C twin: models/core/validate.c."""
+MAX_BATCH_SIZE = 100000    # est.batch_size: rows held until the first solve (3.2 MB in C)
+MAX_SLOPE_WINDOW = 1000    # est.slope_window: samples per slope fit (100 s at 0.1 s)
+
+
 def check_method(method) -> int:
     """est.method as an int; ValueError naming the values it may take."""
     if int(method) not in METHODS:
@@ -191,6 +214,15 @@ class IdentifierConfig:
                 raise ValueError(f"est.{name} must be finite, got {v}")
         if self.gamma < 0:
             raise ValueError(f"est.gamma must be >= 0, got {self.gamma}")
+        for name, low, high, rule in PRIOR_BOUNDS:
+            v = getattr(self, name)
+            if not low <= v <= high:
+                raise ValueError(f"est.{name} must be in {rule}, got {v}")
+        if int(self.batch_size) > MAX_BATCH_SIZE:
+            raise ValueError(f"est.batch_size must be <= {MAX_BATCH_SIZE} (the first batch is held "
+                             f"in memory until solved), got {self.batch_size}")
+        if int(self.slope_window) > MAX_SLOPE_WINDOW:
+            raise ValueError(f"est.slope_window must be <= {MAX_SLOPE_WINDOW}, got {self.slope_window}")
 
 
 class ParameterIdentifier:

@@ -422,6 +422,11 @@ def _param_cases():
          ("mass-negative", RC, {"car.mass": -3.0}, ["car.mass"]),
          ("batch-size-2", RC, {"est.batch_size": 2}, ["est.batch_size"]),
          ("estimator-batch-size-2", EST, {"est.batch_size": 2}, ["est.batch_size"]),
+         # issue 29: accepted, then the filter refused every measurement / failed at doStep
+         ("sigma2-initial-1e300", RC, {"est.sigma2_initial": 1e300}, ["est.sigma2_initial", "1e+300"]),
+         ("estimator-mass-std-1e-300", EST, {"est.mass_std_initial": 1e-300},
+          ["est.mass_std_initial", "1e-300"]),
+         ("batch-size-2-31", RC, {"est.batch_size": 2 ** 31 - 1}, ["est.batch_size", "<= 100000"]),
          ("missing-grade-profile", RC, {"track.grade_profile": "no/such/grade.csv"},
           ["track.grade_profile", "no/such/grade.csv"]),
          ("estimator-missing-speed-profile", EST, {"track.speed_profile": "nowhere.csv"},

@@ -202,6 +202,20 @@ CHAIN_CASES = [
     {"est.A0_initial": NAN}, {"est.A1_initial": INF}, {"est.A2_initial": -INF},
     {"est.A0_initial": -5.0}, {"est.gamma": NAN}, {"est.gamma": -1e-9}, {"est.gamma": -0.0},
     {"sensor.speed_std": NAN}, {"sensor.speed_std": INF},   # named est.speed_std by Python
+    # identification.PRIOR_BOUNDS and the sizes: each bound's both sides
+    {"est.sigma2_initial": 1e300}, {"est.sigma2_initial": 1.0000000000000002}, {"est.sigma2_initial": 1.0},
+    {"est.sigma2_initial": 1e-20}, {"est.sigma2_initial": 9.9e-21},
+    {"est.mass_std_initial": 1e-300}, {"est.mass_std_initial": 1e-6}, {"est.mass_std_initial": 1.0001e4},
+    {"est.mass_initial": 0.999}, {"est.mass_initial": 1000.0}, {"est.mass_initial": 1000.5},
+    {"est.A0_initial": 20.0}, {"est.A0_initial": -20.000001}, {"est.A1_initial": 2.5},
+    {"est.A1_initial": -2.0}, {"est.A2_initial": 0.2}, {"est.A2_initial": -0.3},
+    {"est.A0_std_initial": 1e300}, {"est.A0_std_initial": 1e4}, {"est.A1_std_initial": 1e-10},
+    {"est.A2_std_initial": 2e4}, {"est.A2_std_initial": 1e-9},
+    {"est.gamma": 1.0}, {"est.gamma": 1.5},
+    {"est.batch_size": 100000}, {"est.batch_size": 100001}, {"est.batch_size": 2 ** 31 - 1},
+    {"est.slope_window": 1000}, {"est.slope_window": 1001, "est.method": 2},
+    {"est.slope_window": 2 ** 31 - 1},
+    {"est.A0_initial": 50.0, "est.batch_size": 10 ** 6},    # the first bound in Python's order
     {"est.batch_size": 3, "est.method": 9},
     {"est.forgetting": 2.0, "est.run_forgetting": 2.0},
     # FilterConfig.validate (length = car.length)
@@ -257,6 +271,8 @@ EST_CASES = [
     {"est.slope_window": 0}, {"est.forgetting": 1.0}, {"est.run_forgetting": -0.5},
     {"est.mass_initial": -1.0}, {"est.sigma2_initial": INF}, {"est.A2_initial": NAN},
     {"est.gamma": -2.0}, {"sensor.speed_std": NAN},
+    {"est.sigma2_initial": 1e300}, {"est.mass_std_initial": 1e-300}, {"est.batch_size": 2 ** 31 - 1},
+    {"est.A1_initial": -3.0}, {"est.slope_window": 5000},
     {"sensor.position_std_rel": -1.0}, {"car.length": -1.0}, {"car.length": NAN},
     {"sensor.speed_std_rel": -1.0}, {"sensor.speed_std_rel": INF}, {"sensor.speed_std_rel": NAN},
     {"car.length": -0.0}, {"car.length": INF},
