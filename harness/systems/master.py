@@ -15,6 +15,10 @@ inputs set from the outputs at t, then the outputs are transferred. The calls ar
 5. each step k: per component the pending values set, fmi2DoStep(t_k, t_k+1 - t_k), the outputs
    read; every connection carried; a row recorded.
 
+A profile packed in the .ssp (a String parameter "resources/profiles/...") is unpacked next to
+the FMUs and its absolute path is what the FMU gets (harness.systems.ssp_read.unpack_files), so
+the run does not depend on the working directory.
+
 Time is counted in integer nanoseconds as libcosim does (step_ns = the step in ns, truncated):
 t_k = (start_ns + k step_ns) / 1e9, so doStep gets the same doubles. Values in a set call go
 Real, Integer, Boolean, String. Value references are looked up by name in each modelDescription.
@@ -38,7 +42,7 @@ from typing import Sequence
 import numpy as np
 
 from harness.systems.ssp import LoadedSystem, SspError, TYPES, split_name, ssp_type, unit_of
-from harness.systems.ssp_read import read_ssp
+from harness.systems.ssp_read import read_ssp, unpack_files
 
 __all__ = ["MasterError", "Result", "run_system", "time_grid", "plan_reads", "default_outputs",
            "report_failure"]
@@ -320,9 +324,11 @@ def run_system(system: LoadedSystem | str | Path, stop_time: float | None = None
     tmp = Path(tempfile.mkdtemp(prefix="railcar-ssp-", dir=None if unzip_root is None else str(unzip_root)))
     run = None
     try:
-        run = _Run(system, _extract(system, tmp), outputs)
+        dirs = _extract(system, tmp)
+        system = unpack_files(system, tmp / "files")       # profiles: the FMUs get absolute paths
+        run = _Run(system, dirs, outputs)
         run.instantiate()
-        _initialise(run, spec)
+        _initialise(run, run.system.spec)
         run.record()
         for k in range(n):
             t, h = float(grid[k]), float(grid[k + 1] - grid[k])

@@ -6,6 +6,11 @@ ssv:ParameterSet), ssd:Connections without transformations, and the step as the
 osp:FixedStepAlgorithm annotation. Anything else that would change the numbers (a parameter
 mapping, a transformation, a sub-system, another algorithm) is refused rather than ignored.
 Every error is an SspError naming the file, the element and the variable.
+
+A String parameter whose value is a path below resources/profiles/ names a file packed in the
+package (harness.systems.ssp.PackedFile): it must be there, a file, and the path plain (no "..",
+not absolute). ``unpack_files`` writes those files out and gives the system with each such value
+the unpacked copy's absolute path, which is what the masters hand the FMUs.
 """
 from __future__ import annotations
 
@@ -13,10 +18,10 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from harness.systems.ssp import (NS, OSP_ANNOTATION, SSD_NAME, TYPES, Component, Connection, LoadedSystem, SspError,
+from harness.systems.ssp import (NS, OSP_ANNOTATION, PACKED_DIR, SSD_NAME, TYPES, packed_member, Component, Connection, LoadedSystem, SspError,
                   SystemSpec, check_system, find_variable, read_model_description_of, ssp_type, unit_of)
 
-__all__ = ["read_ssp"]
+__all__ = ["read_ssp", "unpack_files"]
 
 
 def _parse(data: bytes, where: str):
@@ -163,6 +168,8 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                                        f"'{unit_of(v) or '-'}'")
                     if pname in params:
                         raise SspError(f"{swhere}: parameter '{pname}' is bound twice")
+                    if typ == "String" and text.startswith("resources/"):
+                        _check_packed(text, names, z, f"{swhere}: parameter '{pname}'")
                     params[pname] = text
                 if b.find("ssd:ParameterMapping", NS) is not None:
                     raise SspError(f"{cwhere}: ssd:ParameterMapping is not supported")
@@ -190,6 +197,38 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
     spec = check_system(SystemSpec(name, components, connections, step, start, stop,
                                    system.get("description", "")), models, ssd_where)
     return LoadedSystem(path, spec, models)
+
+
+def _check_packed(member: str, names: set, z: zipfile.ZipFile, where: str) -> None:
+    """A parameter that names a file in the package: a plain path below PACKED_DIR to a file
+    that is there."""
+    parts = member.split("/")
+    if not packed_member(member) or any(p in ("", ".", "..") for p in parts) or "\\" in member:
+        raise SspError(f"{where}: '{member}': a packed file is a plain path below {PACKED_DIR}")
+    if member not in names or z.getinfo(member).is_dir():
+        raise SspError(f"{where}: '{member}' is not a file in the package")
+
+
+def unpack_files(system: LoadedSystem, folder: str | Path) -> LoadedSystem:
+    """Write every packed file the parameters name below ``folder`` (at its path in the package:
+    ``folder``/resources/profiles/...) and return the system with those values the copies'
+    absolute paths. Each master calls it before it instantiates the FMUs."""
+    folder = Path(folder).resolve()
+    components = []
+    with zipfile.ZipFile(system.path) as z:
+        for c in system.spec.components:
+            params = dict(c.parameters)
+            for name, value in c.parameters.items():
+                if packed_member(value):
+                    target = folder / value
+                    if not target.is_file():
+                        target.parent.mkdir(parents=True, exist_ok=True)
+                        target.write_bytes(z.read(value))
+                    params[name] = str(target)
+            components.append(Component(c.name, c.fmu, params))
+    s = system.spec
+    return LoadedSystem(system.path, SystemSpec(s.name, tuple(components), s.connections, s.step, s.start,
+                                                s.stop, s.description), system.models)
 
 
 def _check_connectors(el, md, cname: str, where: str) -> set[str]:
