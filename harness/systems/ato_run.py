@@ -11,7 +11,8 @@ schedule, stop error, energy, speed-limit margin and interventions, the numbers
 - the span, the configured car and the tuning as the AtoController FMU builds them from its
   parameters (fmu_src.adapter.open_ato, the profiles read from the package);
 - the demands the car applied from each row on: in the Jacobi scheme the ATO's outputs recorded
-  at row r are the car's inputs over [t_r, t_r+1] (the master's module text);
+  at row r are the car's inputs over [t_r, t_r+1] (the master's module text); when the ATO steps
+  before the car (a step order), those recorded at row r + 1;
 - departure at the start time (the ATO's first step); arrived: the last row holds the stop
   (ato.mode 8) with the car at rest, the harness's rule.
 """
@@ -93,9 +94,15 @@ def system_ato_metrics(system: LoadedSystem, result) -> list:
     sig = {n.split(".", 1)[1]: np.asarray(result.signals[n]) for n in metric_outputs(system)}
     if "car.total_mass" in sig:
         truth = replace(truth, mass=float(sig["car.total_mass"][0]))
-    speed, modes = sig["car.speed"], sig["ato.mode"]
+    order = system.spec.step_order
+    ahead = bool(order) and order.index(ato_name) < order.index(car_name)
+
+    def applied(recorded):           # the value applied from each row on (the module's text)
+        return np.append(recorded[1:], recorded[-1]) if ahead else recorded
+    speed, modes = sig["car.speed"], applied(sig["ato.mode"])
     last = len(result.time) - 1
-    arrived = int(modes[last]) == int(AtoMode.HOLD) and float(speed[last]) == 0.0
+    arrived = int(sig["ato.mode"][last]) == int(AtoMode.HOLD) and float(speed[last]) == 0.0
     return [span_metrics(0, ctrl.span, range(0, last + 1), result.time, speed, sig["car.position"],
-                         sig["traction_force_demand"], sig["brake_force_demand"], truth, ctrl.car,
-                         float(result.time[0]), [int(m) for m in modes], arrived, system.spec.step)]
+                         applied(sig["traction_force_demand"]), applied(sig["brake_force_demand"]),
+                         truth, ctrl.car, float(result.time[0]), [int(m) for m in modes], arrived,
+                         system.spec.step)]

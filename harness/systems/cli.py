@@ -49,7 +49,7 @@ __all__ = ["load_system", "build", "build_system", "file_parameters", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 DIST = ROOT / "dist"
-KEYS = {"name", "description", "step_s", "start_s", "stop_s", "components", "connections"}
+KEYS = {"name", "description", "step_s", "start_s", "stop_s", "components", "connections", "step_order"}
 PROG = "python -m harness system"
 _TABLE_HEADER = re.compile(r"""\s*\[{1,2}[\w\s."'-]+\]{1,2}\s*(#.*)?$""")     # [a.b] or [[a]], not ["x", "y"],
 
@@ -184,8 +184,13 @@ def _load(path: Path, dist: Path) -> tuple[SystemSpec, TomlWhere]:
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
             raise SspError(f"{where.key(key)}: must be a number of seconds, got {value!r}")
         numbers[key] = value
+    order = data.get("step_order", [])
+    if not (isinstance(order, list) and all(isinstance(x, str) for x in order)):
+        raise SspError(f"{where.key('step_order')}: expected a list of component names (Gauss-Seidel, "
+                       f"our master only), got {order!r}")
     spec = SystemSpec(str(data["name"]), components, connections, numbers["step_s"],
-                      numbers["start_s"] or 0.0, numbers["stop_s"], str(data.get("description", "")))
+                      numbers["start_s"] or 0.0, numbers["stop_s"], str(data.get("description", "")),
+                      tuple(order))
     return spec, where
 
 
@@ -208,9 +213,11 @@ def _pack_profiles(params: dict, base: Path) -> dict:
     return out
 
 
-def build(source: str | Path, out: str | Path, dist: str | Path = DIST, fmu: str = "auto") -> Path:
+def build(source: str | Path, out: str | Path, dist: str | Path = DIST, fmu: str = "auto",
+          jacobi: bool = False) -> Path:
     """Write the .ssp of a system description or of a span scenario (told apart by [components]:
-    harness.systems.scenario_system.is_scenario); ``fmu`` chooses a scenario's RailCar FMU."""
+    harness.systems.scenario_system.is_scenario); ``fmu`` chooses a scenario's RailCar FMU,
+    ``jacobi`` builds it without a step order (libcosim runs it; the demand one step late)."""
     from harness.systems.scenario_system import is_scenario, system_from_scenario
     source = Path(source)
     try:
@@ -219,7 +226,7 @@ def build(source: str | Path, out: str | Path, dist: str | Path = DIST, fmu: str
         raise SspError(f"{source}: not valid TOML: {e}") from None
     if not is_scenario(data):
         return build_system(source, out, dist)
-    spec = system_from_scenario(source, dist, fmu)
+    spec = system_from_scenario(source, dist, fmu, jacobi)
     return write_ssp(spec, out, Where(source))
 
 
@@ -246,6 +253,9 @@ def main(argv=None, prog: str = PROG) -> int:
     b.add_argument("--dist", default=str(DIST), help="folder the FMU paths are relative to (default dist/)")
     b.add_argument("--fmu", choices=("auto", "native", "python"), default="auto",
                    help="a span scenario's RailCar FMU (as python -m harness run --fmu; default auto)")
+    b.add_argument("--jacobi", action="store_true",
+                   help="a span scenario's system stepped Jacobi, as libcosim steps: the ATO's demand "
+                        "reaches the car one step late (default: the ATO steps first, as in python -m harness run)")
     r = sub.add_parser("run", help="run an .ssp and print the last values (or write them all: --csv)")
     r.add_argument("ssp")
     r.add_argument("--master", choices=("ours", "libcosim"), default="ours")
@@ -255,7 +265,7 @@ def main(argv=None, prog: str = PROG) -> int:
     args = p.parse_args(argv)
     try:
         if args.command == "build":
-            print(build(args.description, args.out, args.dist, args.fmu))
+            print(build(args.description, args.out, args.dist, args.fmu, args.jacobi))
             return 0
         from harness.systems.ato_run import metric_outputs, system_ato_metrics
         from harness.systems.ssp_read import read_ssp

@@ -98,6 +98,10 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
     if outputs is None:
         outputs = [o for o in default_outputs(system) if ssp_type(system.variable(o)) in ("Real", "Integer")]
     outputs = check_outputs(system, outputs)
+    if spec.step_order:
+        raise SspError(f"{system.path}: the system steps its components in an order "
+                       f"({' then '.join(spec.step_order)}, Gauss-Seidel); libcosim steps them all at "
+                       f"once (Jacobi): run it with our master, or build it with --jacobi")
     for c in spec.components:
         if not system.models[c.name].fmiVersion.startswith("2"):
             raise SspError(f"{system.path}: component '{c.name}' is an FMI {system.models[c.name].fmiVersion} "

@@ -29,8 +29,11 @@ shifting filter.position until the estimator has seen the station (est.station_s
 master cannot do that through FMI 2 (a parameter cannot change after initialisation); it needs
 an AtoController that takes the whole line (docs/systems.md, "A line").
 
-The one difference from ``python -m harness run``: the Jacobi master applies the ATO's demand one
-communication step after the outputs it was computed from (docs/systems.md).
+The system steps Gauss-Seidel, the ATO first (SystemSpec.step_order ("ato", "car")): the demand
+the ATO computes from the car's outputs at t is applied over [t, t + h], as ``python -m harness
+run`` applies it, so our master reproduces the harness's run of the scenario. ``jacobi=True``
+(``--jacobi``) builds it for libcosim too, at the price of the Jacobi scheme's one-step (h)
+actuator delay (docs/systems.md).
 """
 from __future__ import annotations
 
@@ -90,7 +93,8 @@ def _fields_as_parameters(obj, prefix: str, ato_md, where: str) -> dict:
     return out
 
 
-def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto") -> SystemSpec:
+def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
+                         jacobi: bool = False) -> SystemSpec:
     """The RailCar <-> AtoController system of the span scenario at ``path`` (the module's text);
     FMUs from ``dist``; ``fmu``: auto, native or python, the RailCar FMU (harness.run.fmus.choose).
     SspError (or the scenario's own InputError) names the file and the key."""
@@ -149,4 +153,5 @@ def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto") 
     return SystemSpec(_system_name(scenario.name), (Component("car", choice.path, params),
                                                     Component("ato", ato_path, ato)),
                       tuple(connections), scenario.step_s, 0.0, scenario.duration_s,
-                      scenario.purpose or f"RailCar <-> AtoController: {path.name}")
+                      scenario.purpose or f"RailCar <-> AtoController: {path.name}",
+                      () if jacobi else ("ato", "car"))

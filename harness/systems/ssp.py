@@ -30,22 +30,25 @@ import io
 import math
 import re
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping, Sequence
 from xml.etree import ElementTree as ET
 
 from harness.textio import InputError, did_you_mean
 
-__all__ = ["SSD_NAME", "PACKED_DIR", "PackedFile", "packed_member", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
+__all__ = ["ORDER_ANNOTATION", "SSD_NAME", "PACKED_DIR", "PackedFile", "packed_member", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
            "write_ssp", "ssp_type", "unit_of", "split_name"]
 
 SSD_NAME = "SystemStructure.ssd"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
       "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
-      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations"}
+      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+      "rc": "https://github.com/railcar-fmu/ssp"}
 OSP_ANNOTATION = "com.opensimulationplatform"
+ORDER_ANNOTATION = "org.railcar-fmu.master"       # our master's Gauss-Seidel step order
+NS_RC = "https://github.com/railcar-fmu/ssp"
 TYPES = ("Real", "Integer", "Boolean", "String")
 PACKED_DIR = "resources/profiles/"                      # where a packed file lives in the .ssp
 NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")       # no dot: "Component.variable" splits at the first
@@ -116,6 +119,8 @@ class SystemSpec:
     start: float = 0.0
     stop: float | None = None
     description: str = ""
+    step_order: tuple[str, ...] = ()  # () Jacobi (libcosim's); else Gauss-Seidel in this order
+
 
 
 @dataclass
@@ -320,8 +325,13 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Pa
         if conn.end in driven:
             raise SspError(f"{what}: {conn.end} is already driven by {driven[conn.end].start}")
         driven[conn.end] = conn
+    order = tuple(spec.step_order)
+    if order and sorted(order) != sorted(c.name for c in components):
+        raise SspError(f"{where.system('step_order')} {list(order)}: name every component once "
+                       f"({', '.join(c.name for c in components)})")
     return SystemSpec(spec.name, tuple(components), tuple(spec.connections), float(spec.step),
-                      float(spec.start), None if spec.stop is None else float(spec.stop), spec.description)
+                      float(spec.start), None if spec.stop is None else float(spec.stop), spec.description,
+                      order)
 
 
 # ------------------------------------------------------------------------------- writing
@@ -412,9 +422,13 @@ def _ssd(spec: SystemSpec, models: Mapping[str, object], sources: Mapping[str, s
     exp = ET.SubElement(root, "ssd:DefaultExperiment", startTime=repr(spec.start))
     if spec.stop is not None:
         exp.set("stopTime", repr(spec.stop))
-    ann = ET.SubElement(ET.SubElement(exp, "ssd:Annotations"), "ssc:Annotation", type=OSP_ANNOTATION)
+    annotations = ET.SubElement(exp, "ssd:Annotations")
+    ann = ET.SubElement(annotations, "ssc:Annotation", type=OSP_ANNOTATION)
     ET.SubElement(ET.SubElement(ann, "osp:Algorithm"), "osp:FixedStepAlgorithm",
                   baseStepSize=repr(spec.step))
+    if spec.step_order:          # our master only: libcosim has no such algorithm
+        rc = ET.SubElement(annotations, "ssc:Annotation", type=ORDER_ANNOTATION)
+        ET.SubElement(rc, "rc:StepOrder", {"xmlns:rc": NS["rc"], "components": " ".join(spec.step_order)})
     return _xml(root)
 
 
@@ -478,8 +492,7 @@ def _pack_files(spec: SystemSpec, where: Where) -> tuple[SystemSpec, dict[str, b
                 packed[member] = data
             params[name] = member
         components.append(Component(c.name, c.fmu, params))
-    return SystemSpec(spec.name, tuple(components), spec.connections, spec.step, spec.start, spec.stop,
-                      spec.description), packed
+    return replace(spec, components=tuple(components)), packed
 
 
 def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) -> Path:

@@ -15,10 +15,11 @@ the unpacked copy's absolute path, which is what the masters hand the FMUs.
 from __future__ import annotations
 
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from harness.systems.ssp import (NS, OSP_ANNOTATION, PACKED_DIR, SSD_NAME, TYPES, packed_member, Component, Connection, LoadedSystem, SspError,
+from harness.systems.ssp import (NS, ORDER_ANNOTATION, OSP_ANNOTATION, PACKED_DIR, SSD_NAME, TYPES, packed_member, Component, Connection, LoadedSystem, SspError,
                   SystemSpec, check_system, find_variable, read_model_description_of, ssp_type, unit_of)
 
 __all__ = ["read_ssp", "unpack_files"]
@@ -74,6 +75,15 @@ def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
             raise SspError(f"{where}: parameter '{name}' has no value")
         out.append((name, _local(typed[0].tag), value, typed[0].get("unit", "")))
     return out
+
+
+def _step_order(root, where: str) -> tuple[str, ...]:
+    """Our master's Gauss-Seidel step order (an ORDER_ANNOTATION), () if none: Jacobi."""
+    orders = root.findall(f"ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation[@type='{ORDER_ANNOTATION}']"
+                          f"/rc:StepOrder", NS)
+    if len(orders) > 1:
+        raise SspError(f"{where}: ssd:DefaultExperiment: {len(orders)} step orders; one is supported")
+    return tuple(orders[0].get("components", "").split()) if orders else ()
 
 
 def _step(root, where: str) -> tuple[float | None, float, float | None]:
@@ -189,13 +199,14 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                 raise SspError(f"{cw}: <{_local(c[0].tag)}> is not supported (no transformations)")
             connections.append(Connection(f"{ends[0][0]}.{ends[0][1]}", f"{ends[1][0]}.{ends[1][1]}"))
         file_step, start, stop = _step(root, ssd_where)
+        order = _step_order(root, ssd_where)
     if step is None:
         step = file_step
     if step is None:
         raise SspError(f"{ssd_where}: no step size (ssd:DefaultExperiment's osp:FixedStepAlgorithm "
                        f"baseStepSize); pass one")
     spec = check_system(SystemSpec(name, components, connections, step, start, stop,
-                                   system.get("description", "")), models, ssd_where)
+                                   system.get("description", ""), order), models, ssd_where)
     return LoadedSystem(path, spec, models)
 
 
@@ -226,9 +237,7 @@ def unpack_files(system: LoadedSystem, folder: str | Path) -> LoadedSystem:
                         target.write_bytes(z.read(value))
                     params[name] = str(target)
             components.append(Component(c.name, c.fmu, params))
-    s = system.spec
-    return LoadedSystem(system.path, SystemSpec(s.name, tuple(components), s.connections, s.step, s.start,
-                                                s.stop, s.description), system.models)
+    return LoadedSystem(system.path, replace(system.spec, components=tuple(components)), system.models)
 
 
 def _check_connectors(el, md, cname: str, where: str) -> set[str]:
