@@ -16,7 +16,8 @@ that nothing drives). ``write_ssp`` packs it as an SSP 1.0 archive that our own 
 What libcosim 0.11 (the libcosimpy 0.0.6 build) reads decides the details (docs/systems.md): the
 namespace prefixes must be literally ``ssd:``, ``ssc:``, ``ssv:`` (it looks up prefixed tag
 names), the step is the ``osp:FixedStepAlgorithm baseStepSize`` annotation of
-``ssd:DefaultExperiment`` (SSP 1.0 itself has no step size), and a parameter set is taken from an
+``ssd:DefaultExperiment`` (SSP 1.0 itself has no step size; a second annotation of ours,
+ORDER_ANNOTATION, holds a Gauss-Seidel step order that only our master runs), and a parameter set is taken from an
 ``.ssv`` file named relative to the .ssd, or inline. libcosim only warns about a parameter it
 cannot apply and silently drops nothing else it does not know; ``read_ssp`` refuses all of it:
 an unknown component or variable, a type or unit that does not match the FMU, an output bound as
@@ -45,10 +46,9 @@ NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
       "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
       "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
-      "rc": "https://github.com/railcar-fmu/ssp"}
+      "rc": "urn:railcar-fmu:ssp"}                       # our own annotation's elements
 OSP_ANNOTATION = "com.opensimulationplatform"
 ORDER_ANNOTATION = "org.railcar-fmu.master"       # our master's Gauss-Seidel step order
-NS_RC = "https://github.com/railcar-fmu/ssp"
 TYPES = ("Real", "Integer", "Boolean", "String")
 PACKED_DIR = "resources/profiles/"                      # where a packed file lives in the .ssp
 NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")       # no dot: "Component.variable" splits at the first

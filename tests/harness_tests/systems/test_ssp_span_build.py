@@ -215,3 +215,16 @@ def test_a_wind_that_changes_is_refused_and_a_constant_one_is_a_start_value(dist
     steady = own_scenario(tmp_path, extra="\n[[wind]]\ntime_s = 0.0\nspeed_mps = 2.0\n")
     car = read_ssp(build(steady, tmp_path / "y.ssp", dist)).spec.components[0]
     assert car.parameters["wind_speed"] == 2.0
+
+
+def test_a_description_s_step_order_is_written_read_and_checked(dist, tmp_path):
+    text = (ROOT / "scenarios" / "systems" / "ato_span.toml").read_text()
+    path = tmp_path / "ordered.toml"
+    text = text.replace('../profiles/', f'{ROOT / "scenarios" / "profiles"}/')
+    path.write_text(text.replace('stop_s = 50.0', 'stop_s = 50.0\nstep_order = ["ato", "car"]'))
+    assert read_ssp(build(path, tmp_path / "o.ssp", dist)).spec.step_order == ("ato", "car")
+    path.write_text(text.replace('stop_s = 50.0', 'stop_s = 50.0\nstep_order = ["ato", "cat"]'))
+    line = [i for i, s in enumerate(path.read_text().splitlines(), 1) if s.startswith("step_order")][0]
+    with pytest.raises(SspError) as e:
+        build(path, tmp_path / "p.ssp", dist)
+    assert str(e.value) == f"{path}: line {line}: step_order ['ato', 'cat']: name every component once (car, ato)"
