@@ -78,12 +78,17 @@ def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
 
 
 def _step_order(root, where: str) -> tuple[str, ...]:
-    """Our master's Gauss-Seidel step order (an ORDER_ANNOTATION), () if none: Jacobi."""
-    orders = root.findall(f"ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation[@type='{ORDER_ANNOTATION}']"
-                          f"/rc:StepOrder", NS)
-    if len(orders) > 1:
-        raise SspError(f"{where}: ssd:DefaultExperiment: {len(orders)} step orders; one is supported")
-    return tuple(orders[0].get("components", "").split()) if orders else ()
+    """Our master's Gauss-Seidel step order (an ORDER_ANNOTATION), () if none: Jacobi. An
+    annotation of that type without one rc:StepOrder (another namespace, say) is refused, never
+    taken for Jacobi."""
+    notes = root.findall(f"ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation[@type='{ORDER_ANNOTATION}']", NS)
+    if not notes:
+        return ()
+    orders = [o for n in notes for o in n]
+    if len(notes) > 1 or len(orders) != 1 or orders[0].tag != _tag("rc", "StepOrder"):
+        raise SspError(f"{where}: ssd:DefaultExperiment: the {ORDER_ANNOTATION} annotation must hold one "
+                       f"<rc:StepOrder components=\"...\"> (xmlns:rc=\"{NS['rc']}\")")
+    return tuple(_attr(orders[0], "components", f"{where}: ssd:DefaultExperiment").split())
 
 
 def _step(root, where: str) -> tuple[float | None, float, float | None]:

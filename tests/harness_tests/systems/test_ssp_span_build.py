@@ -177,17 +177,30 @@ def test_a_description_s_bad_profile_is_refused_naming_the_line_and_parameter(di
                                                                         " (packed into the .ssp)"))
 
 
-def test_a_packed_path_outside_the_package_is_refused_when_read(nominal, tmp_path):
-    ssp, *_ = nominal
-    bad = tmp_path / "bad.ssp"
-    with zipfile.ZipFile(ssp) as z, zipfile.ZipFile(bad, "w") as out:
+def rewritten(ssp: Path, out: Path, member: str, old: bytes, new: bytes) -> Path:
+    """A copy of the package ``ssp`` with ``old`` replaced by ``new`` in ``member``."""
+    with zipfile.ZipFile(ssp) as z, zipfile.ZipFile(out, "w") as copy:
         for item in z.infolist():
             data = z.read(item)
-            if item.filename == "resources/car.ssv":
-                data = data.replace(b"resources/profiles/ato_span_grade.csv", b"resources/profiles/../car.ssv")
-            out.writestr(item, data)
+            if item.filename == member:
+                assert old in data
+                data = data.replace(old, new)
+            copy.writestr(item, data)
+    return out
+
+
+def test_a_packed_path_outside_the_package_is_refused_when_read(nominal, tmp_path):
+    bad = rewritten(nominal[0], tmp_path / "bad.ssp", "resources/car.ssv",
+                    b"resources/profiles/ato_span_grade.csv", b"resources/profiles/../car.ssv")
     with pytest.raises(SspError, match=r"parameter 'track.grade_profile': 'resources/profiles/\.\./car\.ssv': "
                                        r"a packed file is a plain path below resources/profiles/"):
+        read_ssp(bad)
+
+
+def test_a_step_order_not_understood_is_refused_not_taken_for_jacobi(nominal, tmp_path):
+    bad = rewritten(nominal[0], tmp_path / "bad.ssp", "SystemStructure.ssd",
+                    b'xmlns:rc="urn:railcar-fmu:ssp"', b'xmlns:rc="urn:another"')
+    with pytest.raises(SspError, match="the org.railcar-fmu.master annotation must hold one <rc:StepOrder"):
         read_ssp(bad)
 
 
