@@ -1,5 +1,5 @@
-"""System descriptions (scenarios/systems/*.toml) -> SSP packages, and the command
-``python -m harness system`` (harness/__main__.py hands its arguments to ``main`` here).
+"""System descriptions (scenarios/systems/*.toml) and span scenarios -> SSP packages, and the
+command ``python -m harness system`` (harness/__main__.py hands its arguments to ``main`` here).
 
 A description names the components' FMUs (relative to the FMU folder, default dist/), their
 start values, and the connections by "Component.variable":
@@ -11,13 +11,23 @@ start values, and the connections by "Component.variable":
 
     [components.car]
     fmu = "native/RailCarNative.fmu"
-    parameters = {"car.mass" = 36.0, seed = 11}
+    parameters = {"car.mass" = 36.0, seed = 11, "track.grade_profile" = "../profiles/demo_grade.csv"}
+
+A profile parameter (every String parameter of our FMUs names a profile file) is a path relative
+to the description, checked when the package is built (a missing file or one that is not a regular
+file is refused naming the parameter and the path) and packed into it
+(harness.systems.ssp.PackedFile). A span scenario (scenarios/library/ato_nominal.toml) builds
+its RailCar <-> AtoController system with nothing repeated (harness.systems.scenario_system).
 
 Command line (docs/systems.md):
 
     python -m harness system build scenarios/systems/ato_span.toml out/ato_span.ssp
+    python -m harness system build scenarios/library/ato_nominal.toml out/ato_nominal.ssp [--fmu auto|native|python]
     python -m harness system run out/ato_span.ssp [--master ours|libcosim] [--stop S] [--csv F]
         [--output Component.variable ...]
+
+``run`` prints the last values and, for a system with an AtoController driving the car, the ATO
+metrics (harness.systems.ato_run).
 
 Every error in a description, also one found against the FMUs while building (an unknown
 variable, a unit mismatch), names the TOML file, the line where it can and the key
@@ -32,14 +42,14 @@ import sys
 import tomllib
 from pathlib import Path
 
-from harness.systems.ssp import Component, Connection, SspError, SystemSpec, Where, write_ssp
-from harness.textio import read_text
+from harness.systems.ssp import Component, Connection, PackedFile, SspError, SystemSpec, Where, write_ssp
+from harness.textio import InputError, read_text
 
-__all__ = ["load_system", "build_system", "main"]
+__all__ = ["load_system", "build", "build_system", "file_parameters", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 DIST = ROOT / "dist"
-KEYS = {"name", "description", "step_s", "start_s", "stop_s", "components", "connections"}
+KEYS = {"name", "description", "step_s", "start_s", "stop_s", "components", "connections", "step_order"}
 PROG = "python -m harness system"
 _TABLE_HEADER = re.compile(r"""\s*\[{1,2}[\w\s."'-]+\]{1,2}\s*(#.*)?$""")     # [a.b] or [[a]], not ["x", "y"],
 
@@ -156,7 +166,8 @@ def _load(path: Path, dist: Path) -> tuple[SystemSpec, TomlWhere]:
         if not isinstance(table["fmu"], str):
             raise SspError(f"{where.component(name)}: 'fmu' must be a file name (relative to --dist)")
         fmu = Path(table["fmu"])
-        components.append(Component(name, fmu if fmu.is_absolute() else dist / fmu, dict(params)))
+        components.append(Component(name, fmu if fmu.is_absolute() else dist / fmu,
+                                    _pack_profiles(params, path.parent)))
     pairs = data.get("connections", [])
     if not isinstance(pairs, list):
         raise SspError(f"{where.key('connections')}: expected a list of [\"Component.output\", \"Component.input\"]")
@@ -173,9 +184,50 @@ def _load(path: Path, dist: Path) -> tuple[SystemSpec, TomlWhere]:
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
             raise SspError(f"{where.key(key)}: must be a number of seconds, got {value!r}")
         numbers[key] = value
+    order = data.get("step_order", [])
+    if not (isinstance(order, list) and all(isinstance(x, str) for x in order)):
+        raise SspError(f"{where.key('step_order')}: expected a list of component names (Gauss-Seidel, "
+                       f"our master only), got {order!r}")
     spec = SystemSpec(str(data["name"]), components, connections, numbers["step_s"],
-                      numbers["start_s"] or 0.0, numbers["stop_s"], str(data.get("description", "")))
+                      numbers["start_s"] or 0.0, numbers["stop_s"], str(data.get("description", "")),
+                      tuple(order))
     return spec, where
+
+
+def file_parameters() -> frozenset[str]:
+    """The parameters that name a file: every String parameter of our FMUs (fmu_src.variables)."""
+    from fmu_src.variables import VARIABLES
+    return frozenset(v.name for v in VARIABLES if v.type == "String" and v.causality == "parameter")
+
+
+def _pack_profiles(params: dict, base: Path) -> dict:
+    """The parameters with each non-empty profile path (relative to ``base``, the description's
+    folder) a PackedFile, checked and packed when the package is written."""
+    names = file_parameters()
+    out = {}
+    for name, value in params.items():
+        if name in names and isinstance(value, str) and value:
+            p = Path(value)
+            value = PackedFile(p if p.is_absolute() else base / p)
+        out[name] = value
+    return out
+
+
+def build(source: str | Path, out: str | Path, dist: str | Path = DIST, fmu: str = "auto",
+          jacobi: bool = False) -> Path:
+    """Write the .ssp of a system description or of a span scenario (told apart by [components]:
+    harness.systems.scenario_system.is_scenario); ``fmu`` chooses a scenario's RailCar FMU,
+    ``jacobi`` builds it without a step order (libcosim runs it; the demand one step late)."""
+    from harness.systems.scenario_system import is_scenario, system_from_scenario
+    source = Path(source)
+    try:
+        data = tomllib.loads(read_text(source, SspError))
+    except tomllib.TOMLDecodeError as e:
+        raise SspError(f"{source}: not valid TOML: {e}") from None
+    if not is_scenario(data):
+        return build_system(source, out, dist)
+    spec = system_from_scenario(source, dist, fmu, jacobi)
+    return write_ssp(spec, out, Where(source))
 
 
 def build_system(description: str | Path, out: str | Path, dist: str | Path = DIST) -> Path:
@@ -195,10 +247,15 @@ def main(argv=None, prog: str = PROG) -> int:
     p = argparse.ArgumentParser(prog=prog,
                                 description="Build an SSP system from a description, or run one.")
     sub = p.add_subparsers(dest="command", required=True)
-    b = sub.add_parser("build", help="description (.toml) -> .ssp")
-    b.add_argument("description")
+    b = sub.add_parser("build", help="system description or span scenario (.toml) -> .ssp")
+    b.add_argument("description", help="a system description (scenarios/systems/) or a span scenario")
     b.add_argument("out")
     b.add_argument("--dist", default=str(DIST), help="folder the FMU paths are relative to (default dist/)")
+    b.add_argument("--fmu", choices=("auto", "native", "python"), default="auto",
+                   help="a span scenario's RailCar FMU (as python -m harness run --fmu; default auto)")
+    b.add_argument("--jacobi", action="store_true",
+                   help="a span scenario's system stepped Jacobi, as libcosim steps: the ATO's demand "
+                        "reaches the car one step late (default: the ATO steps first, as in python -m harness run)")
     r = sub.add_parser("run", help="run an .ssp and print the last values (or write them all: --csv)")
     r.add_argument("ssp")
     r.add_argument("--master", choices=("ours", "libcosim"), default="ours")
@@ -208,15 +265,24 @@ def main(argv=None, prog: str = PROG) -> int:
     args = p.parse_args(argv)
     try:
         if args.command == "build":
-            print(build_system(args.description, args.out, args.dist))
+            print(build(args.description, args.out, args.dist, args.fmu, args.jacobi))
             return 0
+        from harness.systems.ato_run import metric_outputs, system_ato_metrics
+        from harness.systems.ssp_read import read_ssp
+        system = read_ssp(args.ssp)
+        extra = metric_outputs(system)
+        outputs = None if args.output is None else list(dict.fromkeys(args.output + extra))
         if args.master == "libcosim":                # in a child process: libcosim aborts its
             from harness.systems.libcosim import run_libcosim       # process when an FMU fails initialisation
-            result = run_libcosim(args.ssp, stop_time=args.stop, outputs=args.output, isolated=True)
+            result = run_libcosim(system, stop_time=args.stop, outputs=outputs, isolated=True)
         else:
-            result = run_system(args.ssp, stop_time=args.stop, outputs=args.output)
+            result = run_system(system, stop_time=args.stop, outputs=outputs)
+        metrics = system_ato_metrics(system, result) if extra else None
     except (SspError, MasterError) as e:
         return report_failure(e)
+    except InputError as e:                          # a scenario's ScenarioError, a build's choice
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except ImportError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -226,10 +292,15 @@ def main(argv=None, prog: str = PROG) -> int:
         except OSError as e:
             print(f"error: --csv {args.csv}: cannot write: {e.strerror or e}", file=sys.stderr)
             return 2
-    width = max(len(n) for n in result.signals) if result.signals else 0
+    shown = result.signals if args.output is None else {n: result.signals[n] for n in args.output}
+    width = max(len(n) for n in shown) if shown else 0
     print(f"{result.master}: {len(result.time) - 1} steps to t = {float(result.time[-1])!r} s")
-    for name, values in result.signals.items():
+    for name, values in shown.items():
         print(f"  {name:<{width}}  {values[-1].item()!r} {result.units.get(name, '')}".rstrip())
+    if metrics is not None:
+        from harness.metrics.ato import format_ato
+        print("ATO (harness.metrics.ato; truth from the car, demands as applied):")
+        print(format_ato(metrics))
     return 0
 
 

@@ -10,10 +10,17 @@ a parameter it cannot set, and aborts the whole process when an FMU fails initia
 check parameters with our master first, or pass ``isolated=True``: the run then happens in a child
 process, and an abort there is a MasterError here). libcosim 0.11 runs FMI 2.0 FMUs only.
 
+libcosim hands a String parameter to the FMU as written, so a profile packed in the .ssp
+("resources/profiles/...", relative to the .ssd) reaches the FMU as that relative path, which our
+FMUs look up in their own resources/ and then in the working directory: the run therefore
+happens with the working directory a temporary folder the packed files are unpacked into
+(harness.systems.ssp_read.unpack_files), and restored after.
+
 libcosimpy is an optional (test) dependency, imported only when a run is asked for.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -28,8 +35,8 @@ import numpy as np
 
 from harness.systems.master import (MasterError, Result, check_outputs, default_outputs, report_failure, steps_for,
                      time_grid, to_ns)
-from harness.systems.ssp import LoadedSystem, SspError, split_name, ssp_type, unit_of
-from harness.systems.ssp_read import read_ssp
+from harness.systems.ssp import LoadedSystem, SspError, packed_member, split_name, ssp_type, unit_of
+from harness.systems.ssp_read import read_ssp, unpack_files
 
 __all__ = ["LibcosimMissing", "run_libcosim"]
 
@@ -91,6 +98,10 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
     if outputs is None:
         outputs = [o for o in default_outputs(system) if ssp_type(system.variable(o)) in ("Real", "Integer")]
     outputs = check_outputs(system, outputs)
+    if spec.step_order:
+        raise SspError(f"{system.path}: the system steps its components in an order "
+                       f"({' then '.join(spec.step_order)}, Gauss-Seidel); libcosim steps them all at "
+                       f"once (Jacobi): run it with our master, or build it with --jacobi")
     for c in spec.components:
         if not system.models[c.name].fmiVersion.startswith("2"):
             raise SspError(f"{system.path}: component '{c.name}' is an FMI {system.models[c.name].fmiVersion} "
@@ -109,9 +120,33 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
             import pythonfmu  # noqa: F401
         except ImportError:
             pass
+    with _packed_files_here(system):
+        return _run(system, n, outputs, CosimExecution, CosimObserver, CosimVariableType, internal)
+
+
+@contextlib.contextmanager
+def _packed_files_here(system: LoadedSystem):
+    """The working directory a temporary folder holding the package's packed files at their paths
+    in the package (the module's text says why), for the time of the run."""
+    if not any(packed_member(v) for c in system.spec.components for v in c.parameters.values()):
+        yield
+        return
+    was = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="railcar-libcosim-files-") as folder:
+        unpack_files(system, folder)
+        os.chdir(folder)
+        try:
+            yield
+        finally:
+            os.chdir(was)
+
+
+def _run(system: LoadedSystem, n: int, outputs: list[str], CosimExecution, CosimObserver,
+         CosimVariableType, internal) -> Result:
+    spec = system.spec
     step_ns = to_ns(spec.step)
     try:
-        execution = CosimExecution.CosimExecution.from_ssp_file(str(system.path), step_ns)
+        execution = CosimExecution.CosimExecution.from_ssp_file(str(Path(system.path).resolve()), step_ns)
     except AssertionError:
         raise MasterError(f"{system.path}: libcosim could not load the system: "
                           f"{internal.get_last_error_message()}") from None

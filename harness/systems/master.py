@@ -15,6 +15,17 @@ inputs set from the outputs at t, then the outputs are transferred. The calls ar
 5. each step k: per component the pending values set, fmi2DoStep(t_k, t_k+1 - t_k), the outputs
    read; every connection carried; a row recorded.
 
+A system with a step order (SystemSpec.step_order, the ORDER_ANNOTATION of the .ssd) steps
+Gauss-Seidel instead, in that order, each component's outputs carried as soon as it has stepped:
+RailCar <-> AtoController with the order (ato, car) applies the demand the ATO computed from the
+outputs at t over [t, t + h], as ``python -m harness run`` does, with no one-step delay.
+libcosim has no such algorithm (harness.systems.libcosim refuses such a system). Initialisation
+is the same in both.
+
+A profile packed in the .ssp (a String parameter "resources/profiles/...") is unpacked next to
+the FMUs and its absolute path is what the FMU gets (harness.systems.ssp_read.unpack_files), so
+the run does not depend on the working directory.
+
 Time is counted in integer nanoseconds as libcosim does (step_ns = the step in ns, truncated):
 t_k = (start_ns + k step_ns) / 1e9, so doStep gets the same doubles. Values in a set call go
 Real, Integer, Boolean, String. Value references are looked up by name in each modelDescription.
@@ -38,7 +49,7 @@ from typing import Sequence
 import numpy as np
 
 from harness.systems.ssp import LoadedSystem, SspError, TYPES, split_name, ssp_type, unit_of
-from harness.systems.ssp_read import read_ssp
+from harness.systems.ssp_read import read_ssp, unpack_files
 
 __all__ = ["MasterError", "Result", "run_system", "time_grid", "plan_reads", "default_outputs",
            "report_failure"]
@@ -271,10 +282,12 @@ class _Run:
             self._guard(comp, "set", inst.set, dict(pending))
             pending.clear()
 
-    def transfer(self) -> None:
+    def transfer(self, source: str | None = None) -> None:
+        """Carry every connection (or those from component ``source``) into the pending values."""
         for conn in self.system.spec.connections:
             (sc, sv), (ec, ev) = split_name(conn.start), split_name(conn.end)
-            self.pending[ec][ev] = self.values[sc][sv]
+            if source is None or sc == source:
+                self.pending[ec][ev] = self.values[sc][sv]
 
     def record(self) -> None:
         row = []
@@ -320,18 +333,24 @@ def run_system(system: LoadedSystem | str | Path, stop_time: float | None = None
     tmp = Path(tempfile.mkdtemp(prefix="railcar-ssp-", dir=None if unzip_root is None else str(unzip_root)))
     run = None
     try:
-        run = _Run(system, _extract(system, tmp), outputs)
+        dirs = _extract(system, tmp)
+        system = unpack_files(system, tmp / "files")       # profiles: the FMUs get absolute paths
+        run = _Run(system, dirs, outputs)
         run.instantiate()
-        _initialise(run, spec)
+        _initialise(run, run.system.spec)
+        order = spec.step_order or tuple(run.instances)
         run.record()
         for k in range(n):
             t, h = float(grid[k]), float(grid[k + 1] - grid[k])
             run.t = t
-            for comp, inst in run.instances.items():
+            for comp in order:
                 run.flush(comp)
-                run._guard(comp, "doStep", inst.do_step, t, h)
+                run._guard(comp, "doStep", run.instances[comp].do_step, t, h)
                 run.read(comp)
-            run.transfer()
+                if spec.step_order:          # Gauss-Seidel: the next component sees it now
+                    run.transfer(comp)
+            if not spec.step_order:
+                run.transfer()
             run.record()
     finally:
         if run is not None:

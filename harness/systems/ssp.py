@@ -9,11 +9,15 @@ that nothing drives). ``write_ssp`` packs it as an SSP 1.0 archive that our own 
                                of the FMU, with type and unit), connections, units, the step
     resources/<Name>.fmu       each component's FMU (its own file name)
     resources/<Name>.ssv       each component's parameter set, bound by ssd:ParameterBinding
+    resources/profiles/<file>  each profile file a parameter names (a ``PackedFile`` value): the
+                               SSV holds this path, relative to the .ssd as SSP resolves a
+                               relative URI; the masters hand the FMU the unpacked copy
 
 What libcosim 0.11 (the libcosimpy 0.0.6 build) reads decides the details (docs/systems.md): the
 namespace prefixes must be literally ``ssd:``, ``ssc:``, ``ssv:`` (it looks up prefixed tag
 names), the step is the ``osp:FixedStepAlgorithm baseStepSize`` annotation of
-``ssd:DefaultExperiment`` (SSP 1.0 itself has no step size), and a parameter set is taken from an
+``ssd:DefaultExperiment`` (SSP 1.0 itself has no step size; a second annotation of ours,
+ORDER_ANNOTATION, holds a Gauss-Seidel step order that only our master runs), and a parameter set is taken from an
 ``.ssv`` file named relative to the .ssd, or inline. libcosim only warns about a parameter it
 cannot apply and silently drops nothing else it does not know; ``read_ssp`` refuses all of it:
 an unknown component or variable, a type or unit that does not match the FMU, an output bound as
@@ -27,23 +31,26 @@ import io
 import math
 import re
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping, Sequence
 from xml.etree import ElementTree as ET
 
 from harness.textio import InputError, did_you_mean
 
-__all__ = ["SSD_NAME", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
+__all__ = ["ORDER_ANNOTATION", "SSD_NAME", "PACKED_DIR", "PackedFile", "packed_member", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
            "write_ssp", "ssp_type", "unit_of", "split_name"]
 
 SSD_NAME = "SystemStructure.ssd"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
       "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
-      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations"}
+      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+      "rc": "urn:railcar-fmu:ssp"}                       # our own annotation's elements
 OSP_ANNOTATION = "com.opensimulationplatform"
+ORDER_ANNOTATION = "org.railcar-fmu.master"       # our master's Gauss-Seidel step order
 TYPES = ("Real", "Integer", "Boolean", "String")
+PACKED_DIR = "resources/profiles/"                      # where a packed file lives in the .ssp
 NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")       # no dot: "Component.variable" splits at the first
 INT32 = (-2**31, 2**31 - 1)
 
@@ -53,6 +60,37 @@ class SspError(InputError):
 
 
 # --------------------------------------------------------------------------------- the model
+
+@dataclass(frozen=True)
+class PackedFile:
+    """The value of a String parameter that names a file (a profile) to pack into the .ssp:
+    ``source``, a file checked when the package is written, or ``data`` made at build (a limits
+    CSV) under the file name ``name``. ``parameter`` names the key it came from, for errors
+    (default: the parameter's own name). In the package the parameter's value is the member's
+    path, PACKED_DIR + a file name (``packed_member``)."""
+    source: Path | None = None
+    data: bytes | None = None
+    name: str = ""
+    parameter: str = ""
+
+    def __post_init__(self):
+        if (self.source is None) == (self.data is None):
+            raise ValueError("PackedFile: give source or data, one of them")
+        if self.data is not None and not self.name:
+            raise ValueError("PackedFile: data needs a file name")
+
+    @property
+    def file_name(self) -> str:
+        return self.name or Path(self.source).name
+
+    def __str__(self):
+        return str(self.source) if self.source is not None else f"<{self.name}, made at build>"
+
+
+def packed_member(value) -> bool:
+    """Whether a String parameter's value names a file packed in the .ssp (PACKED_DIR...)."""
+    return isinstance(value, str) and value.startswith(PACKED_DIR)
+
 
 @dataclass(frozen=True)
 class Component:
@@ -81,6 +119,8 @@ class SystemSpec:
     start: float = 0.0
     stop: float | None = None
     description: str = ""
+    step_order: tuple[str, ...] = ()  # () Jacobi (libcosim's); else Gauss-Seidel in this order
+
 
 
 @dataclass
@@ -256,6 +296,11 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Pa
             typ = ssp_type(v)
             if typ not in TYPES:
                 raise SspError(f"{what}: type {v.type} is not supported")
+            if isinstance(value, PackedFile):
+                if typ != "String":
+                    raise SspError(f"{what}: a file to pack, but '{name}' is a {typ}, not a String")
+                params[name] = value
+                continue
             params[name] = _typed(value, typ, f"{what} ({typ})")
         components.append(Component(c.name, c.fmu, params))
     driven: dict[str, Connection] = {}
@@ -280,8 +325,13 @@ def check_system(spec: SystemSpec, models: Mapping[str, object], where: str | Pa
         if conn.end in driven:
             raise SspError(f"{what}: {conn.end} is already driven by {driven[conn.end].start}")
         driven[conn.end] = conn
+    order = tuple(spec.step_order)
+    if order and sorted(order) != sorted(c.name for c in components):
+        raise SspError(f"{where.system('step_order')} {list(order)}: name every component once "
+                       f"({', '.join(c.name for c in components)})")
     return SystemSpec(spec.name, tuple(components), tuple(spec.connections), float(spec.step),
-                      float(spec.start), None if spec.stop is None else float(spec.stop), spec.description)
+                      float(spec.start), None if spec.stop is None else float(spec.stop), spec.description,
+                      order)
 
 
 # ------------------------------------------------------------------------------- writing
@@ -372,9 +422,13 @@ def _ssd(spec: SystemSpec, models: Mapping[str, object], sources: Mapping[str, s
     exp = ET.SubElement(root, "ssd:DefaultExperiment", startTime=repr(spec.start))
     if spec.stop is not None:
         exp.set("stopTime", repr(spec.stop))
-    ann = ET.SubElement(ET.SubElement(exp, "ssd:Annotations"), "ssc:Annotation", type=OSP_ANNOTATION)
+    annotations = ET.SubElement(exp, "ssd:Annotations")
+    ann = ET.SubElement(annotations, "ssc:Annotation", type=OSP_ANNOTATION)
     ET.SubElement(ET.SubElement(ann, "osp:Algorithm"), "osp:FixedStepAlgorithm",
                   baseStepSize=repr(spec.step))
+    if spec.step_order:          # our master only: libcosim has no such algorithm
+        rc = ET.SubElement(annotations, "ssc:Annotation", type=ORDER_ANNOTATION)
+        ET.SubElement(rc, "rc:StepOrder", {"xmlns:rc": NS["rc"], "components": " ".join(spec.step_order)})
     return _xml(root)
 
 
@@ -386,6 +440,59 @@ def read_model_description_of(data_or_path, where: str):
         return read_model_description(src, validate=False)
     except Exception as e:
         raise SspError(f"{where}: not a readable FMU ({type(e).__name__}: {e})") from None
+
+
+def read_packed_source(f: PackedFile, what: str) -> bytes:
+    """The bytes of a file to pack, checked as the FMUs check a profile (fmu_src.adapter.
+    read_profile_text): a regular file of at most PROFILE_MAX_BYTES; SspError naming ``what``
+    (the parameter) and the path."""
+    import os
+    import stat
+    from fmu_src.adapter import PROFILE_MAX_BYTES
+    path = Path(f.source)
+    cannot = f"{what}: profile file {path}"
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+            raise SspError(f"{cannot}: it is {kind}; a profile is a regular file (packed into the .ssp)")
+        if st.st_size > PROFILE_MAX_BYTES:
+            raise SspError(f"{cannot}: {st.st_size} bytes, more than the {PROFILE_MAX_BYTES} a profile may have")
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise SspError(f"{cannot}: not found") from None
+    except OSError as e:
+        raise SspError(f"{cannot}: cannot read: {e.strerror or e}") from None
+
+
+def _pack_files(spec: SystemSpec, where: Where) -> tuple[SystemSpec, dict[str, bytes]]:
+    """Every PackedFile value read (checked) and given its member name; the spec with those
+    names as the values, and member -> bytes. One file named by several parameters (the car's and
+    the ATO's grade) is packed once; two different files of one name get _2, _3, ... ."""
+    packed: dict[str, bytes] = {}
+    by_source: dict[object, str] = {}
+    components = []
+    for c in spec.components:
+        params = {}
+        for name, value in c.parameters.items():
+            if not isinstance(value, PackedFile):
+                params[name] = value
+                continue
+            what = where.parameter(c.name, value.parameter or name)
+            data = value.data if value.data is not None else read_packed_source(value, what)
+            key = Path(value.source).resolve() if value.source is not None else ("data", data, value.file_name)
+            member = by_source.get(key)
+            if member is None:
+                stem, suffix = Path(value.file_name).stem, Path(value.file_name).suffix
+                member, k = PACKED_DIR + value.file_name, 1
+                while member in packed and packed[member] != data:
+                    k += 1
+                    member = f"{PACKED_DIR}{stem}_{k}{suffix}"
+                by_source[key] = member
+                packed[member] = data
+            params[name] = member
+        components.append(Component(c.name, c.fmu, params))
+    return replace(spec, components=tuple(components)), packed
 
 
 def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) -> Path:
@@ -405,6 +512,7 @@ def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) ->
                            f"{fmu.name} (an .ssp holds one file of a name)")
         used[source], sources[c.name] = fmu, source
     spec = check_system(spec, models, where)
+    spec, packed = _pack_files(spec, where)
     tmp = path.with_name(path.name + ".part")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -415,6 +523,8 @@ def write_ssp(spec: SystemSpec, path: str | Path, where: Where | None = None) ->
             for c in spec.components:
                 if c.parameters:
                     z.writestr(f"resources/{c.name}.ssv", _ssv(c, models[c.name]))
+            for member, data in packed.items():
+                z.writestr(member, data)
         tmp.replace(path)
     except OSError as e:
         tmp.unlink(missing_ok=True)

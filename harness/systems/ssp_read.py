@@ -6,17 +6,23 @@ ssv:ParameterSet), ssd:Connections without transformations, and the step as the
 osp:FixedStepAlgorithm annotation. Anything else that would change the numbers (a parameter
 mapping, a transformation, a sub-system, another algorithm) is refused rather than ignored.
 Every error is an SspError naming the file, the element and the variable.
+
+A String parameter whose value is a path below resources/profiles/ names a file packed in the
+package (harness.systems.ssp.PackedFile): it must be there, a file, and the path plain (no "..",
+not absolute). ``unpack_files`` writes those files out and gives the system with each such value
+the unpacked copy's absolute path, which is what the masters hand the FMUs.
 """
 from __future__ import annotations
 
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from harness.systems.ssp import (NS, OSP_ANNOTATION, SSD_NAME, TYPES, Component, Connection, LoadedSystem, SspError,
+from harness.systems.ssp import (NS, ORDER_ANNOTATION, OSP_ANNOTATION, PACKED_DIR, SSD_NAME, TYPES, packed_member, Component, Connection, LoadedSystem, SspError,
                   SystemSpec, check_system, find_variable, read_model_description_of, ssp_type, unit_of)
 
-__all__ = ["read_ssp"]
+__all__ = ["read_ssp", "unpack_files"]
 
 
 def _parse(data: bytes, where: str):
@@ -69,6 +75,20 @@ def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
             raise SspError(f"{where}: parameter '{name}' has no value")
         out.append((name, _local(typed[0].tag), value, typed[0].get("unit", "")))
     return out
+
+
+def _step_order(root, where: str) -> tuple[str, ...]:
+    """Our master's Gauss-Seidel step order (an ORDER_ANNOTATION), () if none: Jacobi. An
+    annotation of that type without one rc:StepOrder (another namespace, say) is refused, never
+    taken for Jacobi."""
+    notes = root.findall(f"ssd:DefaultExperiment/ssd:Annotations/ssc:Annotation[@type='{ORDER_ANNOTATION}']", NS)
+    if not notes:
+        return ()
+    orders = [o for n in notes for o in n]
+    if len(notes) > 1 or len(orders) != 1 or orders[0].tag != _tag("rc", "StepOrder"):
+        raise SspError(f"{where}: ssd:DefaultExperiment: the {ORDER_ANNOTATION} annotation must hold one "
+                       f"<rc:StepOrder components=\"...\"> (xmlns:rc=\"{NS['rc']}\")")
+    return tuple(_attr(orders[0], "components", f"{where}: ssd:DefaultExperiment").split())
 
 
 def _step(root, where: str) -> tuple[float | None, float, float | None]:
@@ -163,6 +183,8 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                                        f"'{unit_of(v) or '-'}'")
                     if pname in params:
                         raise SspError(f"{swhere}: parameter '{pname}' is bound twice")
+                    if typ == "String" and text.startswith("resources/"):
+                        _check_packed(text, names, z, f"{swhere}: parameter '{pname}'")
                     params[pname] = text
                 if b.find("ssd:ParameterMapping", NS) is not None:
                     raise SspError(f"{cwhere}: ssd:ParameterMapping is not supported")
@@ -182,14 +204,45 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                 raise SspError(f"{cw}: <{_local(c[0].tag)}> is not supported (no transformations)")
             connections.append(Connection(f"{ends[0][0]}.{ends[0][1]}", f"{ends[1][0]}.{ends[1][1]}"))
         file_step, start, stop = _step(root, ssd_where)
+        order = _step_order(root, ssd_where)
     if step is None:
         step = file_step
     if step is None:
         raise SspError(f"{ssd_where}: no step size (ssd:DefaultExperiment's osp:FixedStepAlgorithm "
                        f"baseStepSize); pass one")
     spec = check_system(SystemSpec(name, components, connections, step, start, stop,
-                                   system.get("description", "")), models, ssd_where)
+                                   system.get("description", ""), order), models, ssd_where)
     return LoadedSystem(path, spec, models)
+
+
+def _check_packed(member: str, names: set, z: zipfile.ZipFile, where: str) -> None:
+    """A parameter that names a file in the package: a plain path below PACKED_DIR to a file
+    that is there."""
+    parts = member.split("/")
+    if not packed_member(member) or any(p in ("", ".", "..") for p in parts) or "\\" in member:
+        raise SspError(f"{where}: '{member}': a packed file is a plain path below {PACKED_DIR}")
+    if member not in names or z.getinfo(member).is_dir():
+        raise SspError(f"{where}: '{member}' is not a file in the package")
+
+
+def unpack_files(system: LoadedSystem, folder: str | Path) -> LoadedSystem:
+    """Write every packed file the parameters name below ``folder`` (at its path in the package:
+    ``folder``/resources/profiles/...) and return the system with those values the copies'
+    absolute paths. Each master calls it before it instantiates the FMUs."""
+    folder = Path(folder).resolve()
+    components = []
+    with zipfile.ZipFile(system.path) as z:
+        for c in system.spec.components:
+            params = dict(c.parameters)
+            for name, value in c.parameters.items():
+                if packed_member(value):
+                    target = folder / value
+                    if not target.is_file():
+                        target.parent.mkdir(parents=True, exist_ok=True)
+                        target.write_bytes(z.read(value))
+                    params[name] = str(target)
+            components.append(Component(c.name, c.fmu, params))
+    return LoadedSystem(system.path, replace(system.spec, components=tuple(components)), system.models)
 
 
 def _check_connectors(el, md, cname: str, where: str) -> set[str]:

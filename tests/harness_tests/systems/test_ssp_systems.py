@@ -6,10 +6,12 @@ naming the TOML file, the line and the key, also when the error is found against
 building (never the .ssp being written)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from conftest import ROOT
-from harness.systems.ssp import SspError
+from harness.systems.ssp import PackedFile, SspError
 from harness.systems.ssp_read import read_ssp
 from harness.systems.cli import build_system, load_system, main
 from test_ssp_master import ato_system, plant_estimator
@@ -22,16 +24,34 @@ def dist(built_fmus):
     return built_fmus["RailCar"].parent
 
 
+def files_as_sources(components) -> list:
+    """The components with each profile as the file it is: a description's PackedFile (relative
+    to the description) and a test system's "profiles/x.csv" (the FMU's bundled copy of
+    scenarios/profiles/x.csv) both as the resolved path of the source file."""
+    out = []
+    for c in components:
+        params = {}
+        for name, value in c.parameters.items():
+            if isinstance(value, PackedFile):
+                value = ("file", Path(value.source).resolve())
+            elif isinstance(value, str) and value.startswith("profiles/"):
+                value = ("file", (ROOT / "scenarios" / value).resolve())
+            params[name] = value
+        out.append((c.name, c.fmu, params))
+    return out
+
+
 def test_descriptions_are_the_tested_systems(dist):
     pe = load_system(SYSTEMS / "plant_estimator.toml", dist)
     want = plant_estimator(dist / "native" / "RailCarNative.fmu",
                            dist / "native" / "RailCarEstimatorNative.fmu")
-    assert (pe.name, pe.step, pe.stop, pe.components, pe.connections) == \
-        (want.name, want.step, want.stop, want.components, want.connections)
+    assert (pe.name, pe.step, pe.stop, files_as_sources(pe.components), pe.connections) == \
+        (want.name, want.step, want.stop, files_as_sources(want.components), want.connections)
+    assert isinstance(pe.components[0].parameters["track.grade_profile"], PackedFile)
     ato = load_system(SYSTEMS / "ato_span.toml", dist)
     want = ato_system(dist / "native" / "RailCarNative.fmu", dist / "AtoController.fmu")
-    assert (ato.name, ato.step, ato.stop, ato.components, ato.connections) == \
-        (want.name, want.step, want.stop, want.components, want.connections)
+    assert (ato.name, ato.step, ato.stop, files_as_sources(ato.components), ato.connections) == \
+        (want.name, want.step, want.stop, files_as_sources(want.components), want.connections)
 
 
 def test_command_line_builds_and_runs(dist, tmp_path, capsys):
@@ -58,6 +78,7 @@ def test_building_without_the_fmus_says_how_to_build_them(tmp_path, capsys):
 def test_command_line_failed_run_exits_1(dist, tmp_path, capsys):
     text = (SYSTEMS / "plant_estimator.toml").read_text().replace("traction_force_demand = 30e3",
                                                                   "traction_force_demand = -1.0")
+    text = text.replace('"../profiles/', f'"{ROOT / "scenarios" / "profiles"}/')     # the copy is elsewhere
     (tmp_path / "bad.toml").write_text(text)
     ssp = tmp_path / "bad.ssp"
     assert main(["build", str(tmp_path / "bad.toml"), str(ssp), "--dist", str(dist)]) == 0

@@ -1,0 +1,157 @@
+"""A span scenario (harness/run/span_scenario.py) as an FMU system: RailCar <-> AtoController.
+
+``system_from_scenario`` turns a scenario with one ``[span]`` into the SystemSpec that
+``python -m harness system build SCENARIO.toml OUT.ssp`` writes, nothing repeated by hand:
+
+- the car (RailCar: the native FMU when the C core covers the scenario's parameters, as
+  ``python -m harness run`` chooses, harness.run.fmus.choose) with every ``[parameters]`` value of
+  the scenario: the true car, the estimator's prior (est.*), the seed, the track;
+- the AtoController with the span (span.stop, span.length, span.schedule), the configured car
+  (every CarTraction field of ``[ato.car]`` as car.<field>) and the tuning (every AtoTuning field
+  of ``[ato]`` as ato.<field>), each written out, defaults too, so the FMU's own defaults do not
+  decide them;
+- the speed limits as a CSV ``distance_m,speed_limit_mps`` made at build (limit_kmh converted to
+  m/s as the harness converts them, models.units.kmh_to_mps; written with repr, so the FMU reads
+  back the same doubles), packed into the .ssp;
+- every profile (track.grade_profile, track.speed_profile; the ATO's span.grade_profile is the
+  car's grade file, as the harness's span is) checked at build and packed into the .ssp
+  (harness.systems.ssp.PackedFile): the masters hand the FMUs the unpacked copy, whatever the
+  working directory;
+- a constant wind as the start value of the car's wind_speed input;
+- step_s and duration_s as the system's step and stop time.
+
+What a system cannot be, refused at build with the reason: a scenario without a span (its
+driving script is the harness's, not an FMU), a wind that changes during the run (no FMU gives
+it), and a line of several spans. The AtoController FMU runs one span per instance; the harness
+runs a line (harness.run.span_scenario.AtoDriver) by switching controllers at each station after
+a holding brake of dwell_s, boarding passengers through the car's car.payload input, and
+shifting filter.position until the estimator has seen the station (est.station_stops). A
+master cannot do that through FMI 2 (a parameter cannot change after initialisation); it needs
+an AtoController that takes the whole line (docs/systems.md, "A line").
+
+The system steps Gauss-Seidel, the ATO first (SystemSpec.step_order ("ato", "car")): the demand
+the ATO computes from the car's outputs at t is applied over [t, t + h], as ``python -m harness
+run`` applies it, so our master reproduces the harness's run of the scenario. ``jacobi=True``
+(``--jacobi``) builds it for libcosim too, at the price of the Jacobi scheme's one-step (h)
+actuator delay (docs/systems.md).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import fields
+from pathlib import Path
+
+from harness.systems.ssp import Component, Connection, PackedFile, SspError, SystemSpec
+from harness.textio import InputError
+
+__all__ = ["ATO_FEED", "DEMANDS", "system_from_scenario", "limits_csv", "is_scenario"]
+
+ATO_FEED = ("filter.speed", "filter.position", "filter.speed_std", "filter.position_std",
+            "est.mass", "est.A0", "est.A1", "est.A2", "est.status", "est.samples")
+"""The car's outputs the ATO reads (inputs of the same names)."""
+DEMANDS = ("traction_force_demand", "brake_force_demand")
+"""The ATO's outputs the car applies."""
+ATO_FMU = "AtoController.fmu"
+
+
+def is_scenario(data: dict) -> bool:
+    """Whether parsed TOML is a scenario (harness/run/scenario.py) rather than a system
+    description (harness/systems/cli.py): a description has [components]."""
+    return "components" not in data
+
+
+def limits_csv(distances, speeds_mps) -> bytes:
+    """The span's speed limits as the AtoController's span.speed_limit_profile reads them: the
+    header distance_m,speed_limit_mps and one row per limit, the doubles written exactly (repr)."""
+    rows = ["# speed limits [m/s] from each distance [m]: made by python -m harness system build",
+            "distance_m,speed_limit_mps"]
+    rows += [f"{float(d)!r},{float(v)!r}" for d, v in zip(distances, speeds_mps)]
+    return ("\n".join(rows) + "\n").encode("utf-8")
+
+
+def _system_name(name: str) -> str:
+    """A scenario's name as a system name (letters, digits and _)."""
+    out = re.sub(r"[^A-Za-z0-9_]", "_", name) or "scenario"
+    return out if not out[0].isdigit() else f"_{out}"
+
+
+def _fields_as_parameters(obj, prefix: str, ato_md, where: str) -> dict:
+    """Every field of dataclass ``obj`` as the AtoController parameter ``prefix``.field; a field the
+    FMU has no parameter for is refused unless it keeps its default."""
+    names = {v.name for v in ato_md.modelVariables if v.causality == "parameter"}
+    default = type(obj)()
+    out = {}
+    for f in fields(obj):
+        if not f.init:
+            continue
+        value = getattr(obj, f.name)
+        if f"{prefix}.{f.name}" in names:
+            out[f"{prefix}.{f.name}"] = value
+        elif value != getattr(default, f.name):
+            raise SspError(f"{where}.{f.name} = {value!r}: the AtoController FMU has no parameter "
+                           f"{prefix}.{f.name}, so a system cannot set it")
+    return out
+
+
+def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
+                         jacobi: bool = False) -> SystemSpec:
+    """The RailCar <-> AtoController system of the span scenario at ``path`` (the module's text);
+    FMUs from ``dist``; ``fmu``: auto, native or python, the RailCar FMU (harness.run.fmus.choose).
+    SspError (or the scenario's own InputError) names the file and the key."""
+    from fmu_src.variables import RAILCAR
+    from harness.run.fmus import choose
+    from harness.run.scenario import PATH_PARAMETERS, load_scenario
+    from harness.systems.ssp import read_model_description_of
+
+    path, dist = Path(path), Path(dist)
+    scenario = load_scenario(path)
+    if scenario.ato is None:
+        raise SspError(f"{path}: not a span scenario: a system is the car and the AtoController FMU, "
+                       f"built from a [span] scenario; a [[driver]] script or [driver_table] is "
+                       f"the harness's driver (python -m harness run {path})")
+    setup = scenario.ato_setup()
+    if len(setup.spans) > 1:
+        raise SspError(f"{path}: span: a line of {len(setup.spans)} spans with dwells cannot be a "
+                       f"system yet: the AtoController FMU runs one span per instance, and the "
+                       f"harness runs a line by switching controllers at each station after dwell_s "
+                       f"standing, boarding boarding_t through car.payload (harness.run.span_scenario."
+                       f"AtoDriver), which FMI 2 does not let a master do (parameters are fixed after "
+                       f"initialisation); run it with python -m harness run {path} (docs/systems.md, "
+                       f"'A line')")
+    changing = [w for w in scenario.wind if w.time_s > 0.0]
+    if changing:
+        raise SspError(f"{path}: wind: the wind changes at t = {changing[0].time_s:g} s; in a system "
+                       f"the car's wind_speed input holds its start value all run (no FMU gives a "
+                       f"wind over time): give one [[wind]] from time_s = 0, or run it with "
+                       f"python -m harness run")
+    span = setup.spans[0].span
+    params = dict(scenario.parameters)
+    for name in PATH_PARAMETERS:
+        if params.get(name):
+            params[name] = PackedFile(Path(params[name]), parameter=name)
+    if scenario.wind:
+        params["wind_speed"] = scenario.wind_at(0.0)
+    try:
+        choice = choose(fmu, RAILCAR, dist, [(scenario.name, scenario.parameters)])
+    except InputError as e:
+        raise SspError(str(e)) from None
+    ato_path = dist / ATO_FMU
+    if not ato_path.is_file():
+        raise SspError(f"{ato_path}: the AtoController FMU is missing (build the FMUs with: python "
+                       f"build.py; --dist names another folder)")
+    ato_md = read_model_description_of(ato_path, str(ato_path))
+    grade = scenario.parameters.get("track.grade_profile", "")
+    ato = {"span.stop": span.stop, "span.length": span.length, "span.schedule": span.schedule,
+           "span.grade_profile": PackedFile(Path(grade), parameter="track.grade_profile") if grade else "",
+           "span.speed_limit_profile": PackedFile(data=limits_csv(span.limit_distances, span.limit_speeds),
+                                                  name=f"{_system_name(scenario.name)}_limits.csv",
+                                                  parameter="span.limit_kmh"),
+           **_fields_as_parameters(setup.car, "car", ato_md, f"{path}: ato.car"),
+           **_fields_as_parameters(setup.tuning, "ato", ato_md, f"{path}: ato")}
+    connections = ([Connection(f"car.{v}", f"ato.{v}") for v in ATO_FEED]
+                   + [Connection(f"ato.{v}", f"car.{v}") for v in DEMANDS])
+    return SystemSpec(_system_name(scenario.name), (Component("car", choice.path, params),
+                                                    Component("ato", ato_path, ato)),
+                      tuple(connections), scenario.step_s, 0.0, scenario.duration_s,
+                      scenario.purpose or f"RailCar <-> AtoController: {path.name}",
+                      () if jacobi else ("ato", "car"))
