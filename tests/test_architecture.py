@@ -34,7 +34,7 @@ ALLOWED = {
     "harness.metrics": {"models*", "fmu_src*", "harness", "harness.run"},
     "harness.reports": {"models*", "fmu_src*", "harness", "harness.run", "harness.metrics"},
     "harness.sweep": {"models*", "fmu_src*", "harness", "harness.run", "harness.metrics", "harness.reports"},
-    "harness.systems": {"models*", "fmu_src*", "harness"},
+    "harness.systems": {"models*", "fmu_src*", "harness", "harness.run", "harness.metrics"},
     "harness.cli": {"models*", "fmu_src*", "harness*"},
     "studies": {"models*", "fmu_src*", "harness*", "studies"},
     "benchmarks": {"models*", "fmu_src*", "harness*", "benchmarks"},
