@@ -120,13 +120,13 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
         double low, high;
     } bounds[] = {
         {"est.mass_initial", "must be in [1, 1000] t", 1.0, 1000.0},
-        {"est.mass_std_initial", "must be in [1e-6, 1e4] t", 1e-6, 1e4},
+        {"est.mass_std_initial", "must be in [1e-6, 1e8] t", 1e-6, 1e8},
         {"est.A0_initial", "must be in [-20, 20] N/kN", -20.0, 20.0},
         {"est.A1_initial", "must be in [-2, 2] N/kN/(m/s)", -2.0, 2.0},
         {"est.A2_initial", "must be in [-0.2, 0.2] N/kN/(m/s)^2", -0.2, 0.2},
-        {"est.A0_std_initial", "must be in [1e-9, 1e4] N/kN", 1e-9, 1e4},
-        {"est.A1_std_initial", "must be in [1e-9, 1e4] N/kN/(m/s)", 1e-9, 1e4},
-        {"est.A2_std_initial", "must be in [1e-9, 1e4] N/kN/(m/s)^2", 1e-9, 1e4},
+        {"est.A0_std_initial", "must be in [1e-9, 1e8] N/kN", 1e-9, 1e8},
+        {"est.A1_std_initial", "must be in [1e-9, 1e8] N/kN/(m/s)", 1e-9, 1e8},
+        {"est.A2_std_initial", "must be in [1e-9, 1e8] N/kN/(m/s)^2", 1e-9, 1e8},
         {"est.sigma2_initial", "must be in [1e-20, 1] (m/s)^2 per sample", 1e-20, 1.0},
         {"est.gamma", "must be in [0, 1]", 0.0, 1.0},
     };

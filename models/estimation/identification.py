@@ -119,13 +119,13 @@ METHODS = {0: "paper LS", 1: "LS + filter-error refit", 2: "LS on Sidorenko's sl
 
 PRIOR_BOUNDS = (
     ("mass_initial", 1.0, 1000.0, "[1, 1000] t"),
-    ("mass_std_initial", 1e-6, 1e4, "[1e-6, 1e4] t"),
+    ("mass_std_initial", 1e-6, 1e8, "[1e-6, 1e8] t"),
     ("A0_initial", -20.0, 20.0, "[-20, 20] N/kN"),
     ("A1_initial", -2.0, 2.0, "[-2, 2] N/kN/(m/s)"),
     ("A2_initial", -0.2, 0.2, "[-0.2, 0.2] N/kN/(m/s)^2"),
-    ("A0_std_initial", 1e-9, 1e4, "[1e-9, 1e4] N/kN"),
-    ("A1_std_initial", 1e-9, 1e4, "[1e-9, 1e4] N/kN/(m/s)"),
-    ("A2_std_initial", 1e-9, 1e4, "[1e-9, 1e4] N/kN/(m/s)^2"),
+    ("A0_std_initial", 1e-9, 1e8, "[1e-9, 1e8] N/kN"),
+    ("A1_std_initial", 1e-9, 1e8, "[1e-9, 1e8] N/kN/(m/s)"),
+    ("A2_std_initial", 1e-9, 1e8, "[1e-9, 1e8] N/kN/(m/s)^2"),
     ("sigma2_initial", 1e-20, 1.0, "[1e-20, 1] (m/s)^2 per sample"),
     ("gamma", 0.0, 1.0, "[0, 1]"),
 )
