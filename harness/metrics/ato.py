@@ -35,6 +35,8 @@ INTERVENTIONS = (int(AtoMode.SAFE), int(AtoMode.OVERSPEED))
 """Modes that are safety interventions: the safe brake (bad input) and the supervisor's brake."""
 
 J_PER_KWH = 3.6e6
+ARRIVAL_BOUND_S = 2.5  # [s] the ATO's target |arrival error| (Meleshin 2011, Sidorenko 1997)
+STOP_BOUND_M = 0.3     # [m] the ATO's target |stop error| (Sidorenko 1997)
 
 
 def step_work(v0: float, v1: float, s0: float, s1: float, traction: float, brake: float,
@@ -76,6 +78,12 @@ class SpanMetrics:
     margin_mps: float           # [m/s] min V_lim(s) - V
     interventions: int          # [steps]
     arrived: bool               # the controller declared the stop and the car stands
+
+    @property
+    def on_target(self) -> bool:
+        """Arrived, within +-ARRIVAL_BOUND_S of the schedule and +-STOP_BOUND_M of the mark."""
+        return (self.arrived and abs(self.arrival_error_s) <= ARRIVAL_BOUND_S
+                and abs(self.stop_error_m) <= STOP_BOUND_M)
 
 
 def span_metrics(k: int, span: Span, rows: range, time, speed, position, traction, brake,

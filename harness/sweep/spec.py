@@ -90,6 +90,7 @@ class Sweep:
     blocks: dict             # block name -> tuple of names ("grid", "zip", "lhs", "seeds")
     runs: tuple              # RunSpec, by run id
     fingerprint: str         # changes when the runs, the fixed values or the base scenario change
+    span: bool = False       # the base is a span scenario (the ATO drives): rows carry the ATO's metrics
 
     @property
     def grid_axes(self) -> tuple:
@@ -418,7 +419,8 @@ def sweep_from_dict(raw: dict, path: Path) -> Sweep:
         except ScenarioError as e:
             runs.append(RunSpec(run_id, ordered, None, f"invalid scenario: {e}"))
     return Sweep(name=name, purpose=purpose, path=path, base_path=base_path, axes=axes, blocks=blocks,
-                 runs=tuple(runs), fingerprint=_fingerprint(base, base_text, base_path, fixed, runs))
+                 runs=tuple(runs), fingerprint=_fingerprint(base, base_text, base_path, fixed, runs),
+                 span="span" in base)
 
 
 def _fingerprint(base: dict, base_text: str, base_path: Path, fixed: dict, runs: list[RunSpec]) -> str:
