@@ -30,6 +30,7 @@ car's, unless ``[ato.car]`` (a disturbance) or est.mass_initial says otherwise.
 from __future__ import annotations
 
 import math
+import os
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -219,14 +220,16 @@ def profile_file(value: str, base_dir: Path | None) -> Path:
 def read_profile(name: str, path: Path, key: str, error=None):
     """Parse a track profile file as the FMU does (models.plant.track), so that a bad one is reported
     before the FMU runs, naming the file and the line; returns the GradeProfile / SpeedProfile."""
+    from fmu_src.adapter import PROFILE_MAX_BYTES
     from models.plant.track import GradeProfile, SpeedProfile
     error = error or ScenarioError
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise error(f"{key}: file not found: {path}")
     cls = GradeProfile if name == "track.grade_profile" else SpeedProfile
     try:
-        # the FMU reads the file itself (models.plant.track skips a BOM, as read_text does)
-        return cls.from_csv_text(read_text(path, InputError, reader="the FMU"), str(path))
+        # the FMU reads the file itself (models.plant.track skips a BOM, as read_text does), and
+        # only a regular file of at most its PROFILE_MAX_BYTES: a FIFO is refused here, unopened
+        return cls.from_csv_text(read_text(path, InputError, reader="the FMU", limit=PROFILE_MAX_BYTES), str(path))
     except ValueError as e:             # InputError, models.plant.track.ProfileError
         raise error(f"{key}: {e}") from None
 

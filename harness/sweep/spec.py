@@ -44,6 +44,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import re
 import tomllib
 from dataclasses import dataclass
@@ -54,7 +55,7 @@ import numpy as np
 from harness.run.scenario import RAILCAR_PARAMETERS as PARAMETERS
 from harness.run.scenario import (PATH_PARAMETERS, SEED_MAX, Scenario, ScenarioError, check_integer, parse_parameters,
                        read_toml, scenario_from_dict)
-from harness.textio import decode_text, did_you_mean
+from harness.textio import InputError, decode_text, did_you_mean, read_bytes
 
 SCENARIO_FIELDS = {"step_s": "s", "duration_s": "s", "stop_after_last_phase": ""}
 WIND_KEYS = {"time_s": "s", "speed_mps": "m/s"}
@@ -243,8 +244,8 @@ def load_sweep(path: str | Path) -> Sweep:
 
 def _file_digest(path: str) -> str:
     try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
+        return hashlib.sha256(read_bytes(path)).hexdigest()
+    except InputError:          # not a regular file, too large, unreadable
         return "unreadable"
 
 
@@ -255,8 +256,11 @@ def _read_base(raw: dict, path: Path) -> tuple[Path, str, dict]:
     base_path = Path(raw["scenario"])
     if not base_path.is_absolute():
         base_path = path.parent / base_path
+    where = f"{path}: scenario: {base_path}"
     try:
-        base_text = decode_text(base_path.read_bytes(), f"{path}: scenario: {base_path}", SweepError)
+        os.stat(base_path)
+        # a regular file of bounded size, checked before it is opened (a FIFO would block)
+        base_text = decode_text(read_bytes(base_path, SweepError, where=where), where, SweepError)
         base = tomllib.loads(base_text)
     except OSError as e:
         raise SweepError(f"{path}: scenario: cannot read {base_path}: {e.strerror}") from None
