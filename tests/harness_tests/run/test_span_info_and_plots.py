@@ -124,3 +124,19 @@ def test_the_csv_of_a_headwind_run_carries_the_wind(tmp_path):
     rows = list(csv.reader(path.open(encoding="utf-8")))
     j = rows[0].index("wind_speed [m/s]")
     assert {float(row[j]) for row in rows[1:]} == {5.0}
+
+
+def test_harness_run_with_plots_none_writes_no_png(built_fmus, tmp_path, capsys):
+    """The command line: ``--plots none`` reaches the report (no PNG, the report and its table
+    written, the line says so); the default draws them (test_harness_ato.py)."""
+    out = tmp_path / "out"
+    dist = Path(built_fmus["RailCar"]).parent
+    assert main(["run", str(LIBRARY / "ato_nominal.toml"), "--out", str(out), "--dist", str(dist),
+                 "--fmu", "native", "--plots", "none"]) == 0
+    text = capsys.readouterr().out
+    assert "(no plots: --plots none; data ato_nominal_result.csv)" in text
+    assert sorted(p.name for p in out.iterdir()) == ["ato_nominal_result.csv", "summary.md"]
+    assert "| span | schedule [s] |" in (out / "summary.md").read_text(encoding="utf-8")
+    with pytest.raises(SystemExit) as e:          # argparse refuses another choice itself
+        main(["run", str(LIBRARY / "ato_nominal.toml"), "--plots", "some"])
+    assert e.value.code == 2
