@@ -25,10 +25,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 ATO_COLUMNS = (("ato.span", "-"), ("ato.dwell", "-"), ("ato.mode", "-"), ("ato.planned_speed", "m/s"),
-               ("ato.ep_stage", "-"), ("ato.traction_force_demand", "N"), ("ato.brake_force_demand", "N"))
+               ("ato.ep_stage", "-"))
 """A span scenario's ATO call at each row (harness.run.span_scenario.AtoStep): the span (1, 2, ..),
 1 while standing at a station between spans, the mode (models.ato.interface.AtoMode), the planned
-speed, the EP brake stages and the demands it gave; nan on a row without a call (the last)."""
+speed and the EP brake stages; nan on a row without a call (the last). The demands it gave are
+the loop's (traction_force_demand, brake_force_demand): not repeated."""
 
 
 def ato_columns(steps, rows: int) -> dict[str, np.ndarray]:
@@ -36,8 +37,7 @@ def ato_columns(steps, rows: int) -> dict[str, np.ndarray]:
     out = {n: np.full(rows, np.nan) for n, _ in ATO_COLUMNS}
     for j, st in enumerate(steps[:rows]):
         c = st.command
-        for (n, _), x in zip(ATO_COLUMNS, (st.span + 1, float(st.dwell), c.mode, c.planned_speed, c.ep_stage,
-                                           c.traction, c.brake)):
+        for (n, _), x in zip(ATO_COLUMNS, (st.span + 1, float(st.dwell), c.mode, c.planned_speed, c.ep_stage)):
             out[n][j] = x
     return out
 

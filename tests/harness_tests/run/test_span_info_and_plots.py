@@ -110,10 +110,10 @@ def test_the_result_csv_holds_the_atos_calls_the_demands_and_the_wind(nominal_ru
     k = len(steps)
     assert np.array_equal(data[:k, col["ato.mode"]], [s.command.mode for s in steps])
     assert np.array_equal(data[:k, col["ato.planned_speed"]], [s.command.planned_speed for s in steps])
-    assert np.array_equal(data[:k, col["ato.traction_force_demand"]], [s.command.traction for s in steps])
-    assert set(data[:k, col["ato.span"]]) == {1.0}
-    # the ATO's demands are the ones the loop applied
-    assert np.array_equal(data[:k, col["ato.brake_force_demand"]], data[:k, col["brake_force_demand"]])
+    assert set(data[:k, col["ato.span"]]) == {1.0} and set(data[:k, col["ato.dwell"]]) == {0.0}
+    # the demands applied are the ATO's own
+    assert np.array_equal(data[:k, col["traction_force_demand"]], [s.command.traction for s in steps])
+    assert np.array_equal(data[:k, col["brake_force_demand"]], [s.command.brake for s in steps])
     assert all(math.isnan(x) for x in data[k:, col["ato.mode"]])        # rows without a call
 
 
