@@ -14,7 +14,9 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from harness.run.scenario import load_scenario
+import pytest
+
+from harness.run.scenario import ScenarioError, load_scenario
 from harness.run.span_scenario import PLANT_CAR_FIELDS
 from models.planning.span import CarTraction
 
@@ -77,8 +79,6 @@ def test_a_copy_with_another_plant_configures_the_ato_for_it(tmp_path):
 
 
 def test_a_plant_the_ato_cannot_be_configured_for_names_the_parameter(tmp_path):
-    import pytest
-    from harness.run.scenario import ScenarioError
     with pytest.raises(ScenarioError) as e:
         scenario(tmp_path, '"car.traction_force_max" = 1.0\n')   # cannot start the span: infeasible
     assert "own_line.toml" in str(e.value) and "span" in str(e.value)

@@ -17,7 +17,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 from harness.metrics.ato import SpanMetrics, ato_metrics
 from harness.sweep.results import read_results
