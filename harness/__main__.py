@@ -1,6 +1,7 @@
 """Command line of the validation harness.
 
-    python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--dist DIR] [--rebuild] [--fmu KIND]
+    python -m harness run SCENARIO.toml [--out DIR] [--log LOG.csv] [--plots all|none] [--dist DIR] [--rebuild] [--fmu KIND]
+    python -m harness span-info SCENARIO.toml    (per span: the fastest feasible run, the schedule's margin, its energy)
     python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]    (LOG.params beside it: the run's parameters)
     python -m harness regress [--update] [--variants] [NAME ...]    (a NAME may be a pattern: 'ato_*')
     python -m harness report [--out DIR] [NAME ...]
@@ -98,12 +99,13 @@ def cmd_run(args) -> int:
     if not metrics.A_covariance_full:
         print("  (resistance band from the A's stds alone: this FMU outputs no est.cov_*)")
     fmu = f"{choice.kind} {short_path(choice.path)} (--fmu {choice.asked}: {choice.why})"
-    files = write_report(result, metrics, out, fmu=fmu)
+    files = write_report(result, metrics, out, fmu=fmu, plots=args.plots)
     if args.log:
         from harness.run.replay import write_log
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         print(f"log for replay: {write_log(Path(args.log), result)}")
-    print(f"report: {files[1]} (with {', '.join(p.name for p in files[2:])}; data {files[0].name})")
+    figures = f"with {', '.join(p.name for p in files[2:])}" if files[2:] else "no plots: --plots none"
+    print(f"report: {files[1]} ({figures}; data {files[0].name})")
     return EXIT_OK
 
 
@@ -257,6 +259,25 @@ def cmd_plan(args) -> int:
     return EXIT_OK
 
 
+def cmd_span_info(args) -> int:
+    """Per span of a span scenario, before any run: the fastest run the ATO's planner makes for the
+    configured car, the schedule's margin over it and the energies (harness.metrics.ato.span_info).
+    A schedule the ATO refuses is shown with the reason, and the exit code is 1."""
+    from harness.metrics.ato import format_span_info, span_info
+    scenario = load_scenario(args.scenario, check_ato=False)
+    setup = scenario.ato_setup()
+    if setup is None:
+        raise InputError(f"{args.scenario}: not a span scenario (no [span] or [[span]]): nothing for the ATO to plan")
+    car = setup.car
+    given = f"; [ato.car] gives {', '.join(setup.car_given)}" if setup.car_given else ""
+    print(f"'{scenario.name}': the ATO configured for a car of {car.mass:g} t, A0 {car.A0:g} N/kN, "
+          f"{car.traction_force_max / 1e3:g} kN / {car.traction_power_max / 1e3:g} kW{given}; "
+          f"planning limits V_lim - {setup.tuning.limit_margin:g} m/s")
+    infos = span_info(setup)
+    print(format_span_info(infos))
+    return EXIT_RUN_FAILED if any(i.problem for i in infos) else EXIT_OK
+
+
 def cmd_list(args) -> int:
     """The scenarios (default and library), the sweep and the system files, one line each: name and purpose."""
     import tomllib
@@ -308,6 +329,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", help="report folder (default: out/<scenario name>)")
     _fmu_options(p)
     p.add_argument("--log", help="also write the run's measurements as a replayable log CSV")
+    p.add_argument("--plots", choices=("all", "none"), default="all",
+                   help="all (default): draw the report's PNGs; none: the result CSV and summary.md alone "
+                        "(the figures take most of a span run's time)")
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("replay", help="run RailCarEstimator on a logged CSV (time, forces, measured speed and distance)")
     p.add_argument("log", help="log CSV, header 'time [s],traction_force [N],brake_force [N],sensor.speed [m/s],sensor.position [m]'")
@@ -338,6 +362,10 @@ def main(argv=None) -> int:
     p.add_argument("scenario", help="scenario TOML file (its phases and RailCar parameters)")
     p.add_argument("--out", required=True, help="CSV file to write (distance_m,speed_mps)")
     p.set_defaults(func=cmd_plan)
+    p = sub.add_parser("span-info", help="per span of a span scenario: the fastest run the ATO plans, the "
+                       "schedule's margin over it, the energy of the minimum-time run (no FMU runs)")
+    p.add_argument("scenario", help="span scenario TOML file ([span] or [[span]])")
+    p.set_defaults(func=cmd_span_info)
     p = sub.add_parser("sweep", help="run a parameter sweep (TOML) on dask worker processes: results.csv, summary, plots")
     p.add_argument("sweep", help="sweep TOML file (base scenario + grid / zip / lhs / seeds)")
     p.add_argument("--out", help="results folder (default: out/sweeps/<sweep name>)")

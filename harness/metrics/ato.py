@@ -16,6 +16,11 @@ loop applied (result.inputs), with the ATO's calls (harness.run.span_scenario.At
 
 studies/ato_closed_loop.py uses ``step_work``, ``energy_kwh``, ``standstill_time`` and
 ``INTERVENTIONS`` from here: one copy of each.
+
+Before a run, ``span_info`` says per span what the ATO's planner can do for the configured car
+(``python -m harness span-info``): the fastest run it plans (the schedule it accepts must be no
+shorter), the schedule's margin over it, and the energy of that minimum-time run and of the
+schedule's own plan (the planner's works with the same rule as ``energy_kwh``).
 """
 from __future__ import annotations
 
@@ -30,6 +35,8 @@ INTERVENTIONS = (int(AtoMode.SAFE), int(AtoMode.OVERSPEED))
 """Modes that are safety interventions: the safe brake (bad input) and the supervisor's brake."""
 
 J_PER_KWH = 3.6e6
+ARRIVAL_BOUND_S = 2.5  # [s] the ATO's target |arrival error| (Meleshin 2011, Sidorenko 1997)
+STOP_BOUND_M = 0.3     # [m] the ATO's target |stop error| (Sidorenko 1997)
 
 
 def step_work(v0: float, v1: float, s0: float, s1: float, traction: float, brake: float,
@@ -71,6 +78,12 @@ class SpanMetrics:
     margin_mps: float           # [m/s] min V_lim(s) - V
     interventions: int          # [steps]
     arrived: bool               # the controller declared the stop and the car stands
+
+    @property
+    def on_target(self) -> bool:
+        """Arrived, within +-ARRIVAL_BOUND_S of the schedule and +-STOP_BOUND_M of the mark."""
+        return (self.arrived and abs(self.arrival_error_s) <= ARRIVAL_BOUND_S
+                and abs(self.stop_error_m) <= STOP_BOUND_M)
 
 
 def span_metrics(k: int, span: Span, rows: range, time, speed, position, traction, brake,
@@ -154,3 +167,77 @@ def markdown_ato(metrics: list[SpanMetrics]) -> list[str]:
     """The same table in markdown."""
     return (["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)] +
             ["| " + " | ".join(b) + " |" for b in rows_text(metrics)])
+
+
+# ------------------------------------------------------------------------------ before a run
+
+@dataclass(frozen=True)
+class SpanInfo:
+    """What the ATO's planner makes of one span for the configured car, before any run."""
+    span: int                          # 0-based
+    stop_m: float                      # [m] the stop mark
+    schedule_s: float                  # [s]
+    fastest_s: float                   # [s] the planner's minimum-time run (limits less limit_margin)
+    margin_pct: float                  # [%] schedule / fastest - 1 (< 0: infeasible, refused)
+    min_time_energy_kwh: float         # [kWh] of the minimum-time run: traction / eta_f - eta x regen
+    min_time_traction_kwh: float       # [kWh] its traction work / eta_f alone
+    schedule_energy_kwh: float         # [kWh] of the plan for the schedule (nan: none, infeasible)
+    problem: str = ""                  # why the ATO refuses the span ('' : it accepts it)
+
+
+def span_info(setup) -> list[SpanInfo]:
+    """Every span of ``setup`` (harness.run.span_scenario.AtoSetup) as the ATO's planner sees it
+    for ``setup.car`` and ``setup.tuning``: the course, planner and planning car are made as
+    models.ato.controller.AtoController makes them (a test holds them equal), so that a span
+    whose schedule the controller refuses is still described. A span the car cannot run at all
+    (a climb it stalls on, a limit its brakes cannot keep) has nan times and its ``problem``."""
+    from models.ato.controller import AtoController
+    from models.ato.motion import PlanCar
+    from models.ato.planner import ReducedCourse, ReducedPlanner
+    from models.planning.span import check_span_for_car
+    car, tuning = setup.car, setup.tuning
+    out = []
+    for k, ls in enumerate(setup.spans):
+        span = ls.span
+        nan = math.nan
+        try:
+            check_span_for_car(span, car)
+            course = ReducedCourse(span, car, step=tuning.grid_step, limit_margin=tuning.limit_margin,
+                                   v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
+            planner = ReducedPlanner(course, tol=tuning.time_tol)
+            plan_car = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
+            qU = planner.envelope(plan_car)
+            fastest = planner.min_time(plan_car, qU)
+            fast = planner.plan(plan_car, 0.0, 0.0, 0.0, fastest, qU)
+        except ValueError as e:
+            out.append(SpanInfo(k, span.stop, span.schedule, nan, nan, nan, nan, nan, str(e)))
+            continue
+        problem, scheduled = "", nan
+        try:
+            scheduled = AtoController(span, car, tuning).initial_plan.energy_kwh
+        except ValueError as e:          # the schedule: too short, too long
+            problem = str(e)
+        out.append(SpanInfo(k, span.stop, span.schedule, fastest, 100.0 * (span.schedule / fastest - 1.0),
+                            fast.energy_kwh, fast.traction_kwh, scheduled, problem))
+    return out
+
+
+INFO_HEADER = ("span", "stop [m]", "schedule [s]", "fastest [s]", "margin [%]", "min-time energy [kWh]",
+               "min-time traction [kWh]", "scheduled energy [kWh]")
+
+
+def format_span_info(infos: list[SpanInfo]) -> str:
+    """A fixed-width table, one line per span (units in the header), each refused span's reason
+    below it."""
+    def num(x: float, fmt: str) -> str:
+        return "n/a" if math.isnan(x) else format(x, fmt)
+    body = [(str(i.span + 1), f"{i.stop_m:.1f}", f"{i.schedule_s:.1f}", num(i.fastest_s, ".2f"),
+             num(i.margin_pct, "+.1f"), num(i.min_time_energy_kwh, ".3f"), num(i.min_time_traction_kwh, ".3f"),
+             num(i.schedule_energy_kwh, ".3f")) for i in infos]
+    widths = [max(len(h), *(len(b[j]) for b in body)) if body else len(h) for j, h in enumerate(INFO_HEADER)]
+    lines = ["  ".join(h.rjust(w) for h, w in zip(INFO_HEADER, widths))]
+    for i, b in zip(infos, body):
+        lines.append("  ".join(c.rjust(w) for c, w in zip(b, widths)))
+        if i.problem:
+            lines.append(f"      span {i.span + 1}: the ATO refuses it: {i.problem}")
+    return "\n".join(lines)

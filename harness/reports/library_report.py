@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.metrics.ato import ARRIVAL_BOUND_S, STOP_BOUND_M   # the ATO's targets: one copy
 from harness.metrics.estimation import RunSummary
 
 MASS_BOUND_PCT = 1.0
 RMSE_RATIO_BOUND = 0.6
 NOISE_LIMIT = 0.05     # [m/s] the targets apply up to this speed noise
-ARRIVAL_BOUND_S = 2.5  # [s] the ATO's |arrival error| (Meleshin 2011, Sidorenko 1997)
-STOP_BOUND_M = 0.3     # [m] the ATO's |stop error| (Sidorenko 1997)
 
 
 @dataclass

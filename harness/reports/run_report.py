@@ -24,14 +24,48 @@ A_NAMES = (("A0", "N/kN"), ("A1", "N/kN/(m/s)"), ("A2", "N/kN/(m/s)²"))
 ROOT = Path(__file__).resolve().parents[2]
 
 
+ATO_COLUMNS = (("ato.span", "-"), ("ato.dwell", "-"), ("ato.mode", "-"), ("ato.planned_speed", "m/s"),
+               ("ato.ep_stage", "-"))
+"""A span scenario's ATO call at each row (harness.run.span_scenario.AtoStep): the span (1, 2, ..),
+1 while standing at a station between spans, the mode (models.ato.interface.AtoMode), the planned
+speed and the EP brake stages; nan on a row without a call (the last). The demands it gave are
+the loop's (traction_force_demand, brake_force_demand): not repeated."""
+
+
+def ato_columns(steps, rows: int) -> dict[str, np.ndarray]:
+    """The ATO_COLUMNS over ``rows`` result rows from the ATO's calls ``steps`` (call j at row j)."""
+    out = {n: np.full(rows, np.nan) for n, _ in ATO_COLUMNS}
+    for j, st in enumerate(steps[:rows]):
+        c = st.command
+        for (n, _), x in zip(ATO_COLUMNS, (st.span + 1, float(st.dwell), c.mode, c.planned_speed, c.ep_stage)):
+            out[n][j] = x
+    return out
+
+
+def result_columns(result) -> list[tuple[str, str, np.ndarray]]:
+    """(name, unit, values over result.time) of every column of the result CSV after the time: the
+    recorded outputs, the loop's inputs as applied over each step (harness.run.result.INPUT_UNITS:
+    the demands, the wind, the payload; held over [t_k, t_k+1], the last repeated) and for a span
+    scenario the ATO's calls (ATO_COLUMNS)."""
+    from harness.run.result import INPUT_UNITS
+    cols = [(n, result.units.get(n) or "-", result.signals[n]) for n in result.signals]
+    cols += [(n, INPUT_UNITS.get(n, "-"), u) for n, u in result.inputs.items()
+             if n not in result.signals and len(u) == len(result.time)]
+    if result.driver_steps is not None:
+        ato = ato_columns(result.driver_steps, len(result.time))
+        cols += [(n, unit, ato[n]) for n, unit in ATO_COLUMNS]
+    return cols
+
+
 def write_result_csv(result, path: Path) -> Path:
-    """All signals over time; header cells are 'name [unit]' (time first)."""
-    names = list(result.signals)
+    """Every column of ``result_columns`` over time; header cells are 'name [unit]' (time first),
+    values by repr (they read back bit for bit)."""
+    cols = result_columns(result)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["time [s]"] + [f"{n} [{result.units.get(n) or '-'}]" for n in names])
-        cols = np.column_stack([result.time] + [result.signals[n] for n in names])
-        for row in cols:
+        w.writerow(["time [s]"] + [f"{n} [{unit}]" for n, unit, _ in cols])
+        table = np.column_stack([result.time] + [c for _, _, c in cols])
+        for row in table:
             w.writerow([repr(float(x)) for x in row])
     return path
 
@@ -238,21 +272,34 @@ def plot_resistance_vs_time(result, true_A: tuple, out_dir: Path) -> Path:
                  f"{result.scenario.name}: resistance coefficients vs time", out_dir / "resistance_vs_time.png")
 
 
-def write_report(result, metrics, out_dir: Path, fmu: str = "") -> list[Path]:
+PLOTS = ("all", "none")
+"""``harness run --plots``: every figure (default), or none (the CSV and summary.md alone: the
+figures take most of a span run's time)."""
+
+
+def write_report(result, metrics, out_dir: Path, fmu: str = "", plots: str = "all") -> list[Path]:
     """Everything for one run into ``out_dir``, drawn from ``metrics`` (harness.metrics.run.
-    RunMetrics, computed once); returns the files written. ``fmu``: which FMU ran (a line of
-    summary.md; default: the kind the result records). A span scenario's ato.png and ATO
-    table come first."""
+    RunMetrics, computed once); returns the files written: the result CSV, summary.md, then the
+    figures. ``fmu``: which FMU ran (a line of summary.md; default: the kind the result
+    records). A span scenario's ato.png and ATO table come first. ``plots`` (PLOTS): "none"
+    draws nothing; summary.md then holds the tables alone."""
+    if plots not in PLOTS:
+        raise ValueError(f"plots: expected one of {', '.join(PLOTS)}, got {plots!r}")
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_result_csv(result, out_dir / f"{result.scenario.name}_result.csv")
     figs, ato_md = [], None
     if metrics.ato is not None:
-        from harness.reports.ato_report import write_ato_report
-        png, ato_md = write_ato_report(result, metrics.ato, out_dir)
-        figs.append(png)
-    figs += plot_run(result, out_dir) + [
-        plot_resistance(result, metrics.true_A, out_dir, metrics.A_covariance, metrics.A_covariance_full),
-        plot_resistance_vs_time(result, metrics.true_A, out_dir)]
+        from harness.metrics.ato import markdown_ato
+        if plots == "all":
+            from harness.reports.ato_report import write_ato_report
+            png, ato_md = write_ato_report(result, metrics.ato, out_dir)
+            figs.append(png)
+        else:
+            ato_md = markdown_ato(metrics.ato)
+    if plots == "all":
+        figs += plot_run(result, out_dir) + [
+            plot_resistance(result, metrics.true_A, out_dir, metrics.A_covariance, metrics.A_covariance_full),
+            plot_resistance_vs_time(result, metrics.true_A, out_dir)]
     md = write_summary_md(metrics.summary, result.scenario, out_dir / "summary.md", figs,
                           fmu or getattr(result, "fmu", ""), result, ato_md, metrics.driver_log)
     return [csv_path, md, *figs]

@@ -16,6 +16,12 @@ if TYPE_CHECKING:
     from harness.run.scenario import Scenario, ScenarioSetup
 
 
+INPUT_UNITS = {"traction_force_demand": "N", "brake_force_demand": "N", "wind_speed": "m/s",
+               "car.payload": "t"}
+"""The unit of each of the loop's inputs (harness.run.phases.INPUTS: the demands applied, the wind
+(headwind > 0), the passengers boarded so far)."""
+
+
 @dataclass
 class RunResult:
     """Recorded outputs of one run: ``signals[name]`` is an array over ``time`` [s].

@@ -24,10 +24,13 @@ schedule, and the run's step and duration. Every error names the file, the key a
 
 Instead of a driving script, a ``[span]`` table (or ``[[span]]`` tables: a line) makes the ATO
 (models.ato.controller.AtoController) the driver; ``[ato]`` tunes it (harness/run/span_scenario.py, docs/ato.md).
+The ATO is configured for the plant's car (car.* above) and the estimator's prior mass is that
+car's, unless ``[ato.car]`` (a disturbance) or est.mass_initial says otherwise.
 """
 from __future__ import annotations
 
 import math
+import os
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -38,7 +41,7 @@ from typing import TYPE_CHECKING
 from fmu_src.variables import RAILCAR, variables_for
 
 from harness.run.phases import DriverPhase, PhaseDriver, TimeTable, parse_phase, parse_time_table
-from harness.run.span_scenario import AtoDriver, AtoSetup, parse_ato
+from harness.run.span_scenario import PRIOR_MASS, AtoDriver, AtoSetup, parse_ato
 from harness.textio import InputError, did_you_mean, read_text
 
 if TYPE_CHECKING:       # fmu_src.adapter imports pythonfmu: loaded when a setup is resolved, not before
@@ -217,14 +220,16 @@ def profile_file(value: str, base_dir: Path | None) -> Path:
 def read_profile(name: str, path: Path, key: str, error=None):
     """Parse a track profile file as the FMU does (models.plant.track), so that a bad one is reported
     before the FMU runs, naming the file and the line; returns the GradeProfile / SpeedProfile."""
+    from fmu_src.adapter import PROFILE_MAX_BYTES
     from models.plant.track import GradeProfile, SpeedProfile
     error = error or ScenarioError
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise error(f"{key}: file not found: {path}")
     cls = GradeProfile if name == "track.grade_profile" else SpeedProfile
     try:
-        # the FMU reads the file itself (models.plant.track skips a BOM, as read_text does)
-        return cls.from_csv_text(read_text(path, InputError, reader="the FMU"), str(path))
+        # the FMU reads the file itself (models.plant.track skips a BOM, as read_text does), and
+        # only a regular file of at most its PROFILE_MAX_BYTES: a FIFO is refused here, unopened
+        return cls.from_csv_text(read_text(path, InputError, reader="the FMU", limit=PROFILE_MAX_BYTES), str(path))
     except ValueError as e:             # InputError, models.plant.track.ProfileError
         raise error(f"{key}: {e}") from None
 
@@ -269,7 +274,7 @@ def resolve_setup(parameters: dict, where: str, ato: AtoSetup | None = None, err
     configuration is made as RailCar makes it at initialisation (fmu_src.adapter.chain_config)
     and checked by the models' validate() in the order RailCarChain meets them
     (models.compiled.validate). ``ato``: a span scenario's ATO, moved onto the grade the
-    parameters name. ``error`` (default ScenarioError) names ``where`` and the parameter."""
+    parameters name, its configured car following their car.* where [ato.car] is silent. ``error`` (default ScenarioError) names ``where`` and the parameter."""
     from fmu_src.adapter import ChainSetup, chain_config
     from models.compiled import validate
     from models.plant.track import GradeProfile
@@ -292,6 +297,11 @@ def resolve_setup(parameters: dict, where: str, ato: AtoSetup | None = None, err
         raise error(f"{where}.\"{name}\"{note}: {e}") from None
     if ato is not None and v["track.grade_profile"] != ato.grade_profile:
         ato = ato.with_grade(grade, v["track.grade_profile"])
+    if ato is not None:         # the configured car follows the plant where [ato.car] is silent
+        try:
+            ato = ato.with_plant(v)
+        except ValueError as e:
+            raise error(f"{where}: the ATO's configured car: {e}") from None
     return ScenarioSetup(v, ChainSetup(config, grade, speed), ato)
 
 
@@ -339,8 +349,11 @@ def _time_table(raw, where: str, base_dir: Path | None) -> TimeTable:
     return parse_time_table(raw, where, base_dir, ScenarioError)
 
 
-def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) -> Scenario:
+def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None,
+                       check_ato: bool = True) -> Scenario:
     """Build and validate a Scenario from parsed TOML; ``source`` names the file in errors.
+    ``check_ato`` False: a span scenario's spans are not checked by building the ATO on them
+    (span-info describes the spans the ATO would refuse); such a scenario is not for running.
 
     The RailCar parameters are checked with the FMU's own rules (``check_fmu_parameters``), so that
     a scenario the FMU would refuse to initialise is invalid input here, before any FMU runs."""
@@ -386,7 +399,11 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     if not isinstance(stop_after, bool):
         raise ScenarioError(f"{source}: stop_after_last_phase must be true or false")
     setup = resolve_setup(params, f"{source}: parameters")
-    ato = _ato(data, source, setup) if "span" in data else None
+    ato = _ato(data, source, setup, check_ato) if "span" in data else None
+    if ato is not None and PRIOR_MASS not in params and setup.values[PRIOR_MASS] != ato.car.mass:
+        # the estimator's prior mass is the configured car's (harness/run/span_scenario.py)
+        params = {**params, PRIOR_MASS: ato.car.mass}
+        setup = resolve_setup(params, f"{source}: parameters")
     default_duration = ato.default_duration_s if ato is not None else 200.0
     duration = _number(data.get("duration_s", default_duration), f"{source}: duration_s")
     if duration < step:
@@ -403,12 +420,12 @@ def scenario_from_dict(data: dict, source: str, base_dir: Path | None = None) ->
     return scenario
 
 
-def _ato(data: dict, source: str, setup: ScenarioSetup) -> AtoSetup:
+def _ato(data: dict, source: str, setup: ScenarioSetup, check: bool = True) -> AtoSetup:
     """The ATO of a span scenario (harness.run.span_scenario.parse_ato): the span's grade is the
     RailCar parameter track.grade_profile, as the resolved setup read it (one source)."""
     v = setup.values
     return parse_ato(data, source, setup.chain.grade, float(v["track.station_dwell"]), ScenarioError,
-                     v["track.grade_profile"])
+                     v["track.grade_profile"], plant=v, check=check)
 
 
 def read_toml(path: Path, error=None) -> dict:
@@ -422,7 +439,7 @@ def read_toml(path: Path, error=None) -> dict:
         raise error(f"{path}: not valid TOML: {e}") from None
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file."""
+def load_scenario(path: str | Path, check_ato: bool = True) -> Scenario:
+    """Read and validate a scenario TOML file (``check_ato``: see scenario_from_dict)."""
     path = Path(path)
-    return scenario_from_dict(read_toml(path), str(path), path.parent)
+    return scenario_from_dict(read_toml(path), str(path), path.parent, check_ato)

@@ -17,10 +17,23 @@ the RailCar FMU and on the models chain alike:
     [ato]                      # optional: models.ato.controller.AtoTuning fields by name
     replan_period = 2.0
     [ato.car]                  # optional: the car the ATO is configured with (CarTraction
-    mass = 30.0                # fields); default CarTraction() = the RailCar FMU's defaults
+    mass = 30.0                # fields), where it differs from the plant's (a disturbance)
 
-Disturbances are the plant's own parameters and wind (car.mass, car.A0, car.adhesion_factor,
-sensor.speed_std, [[wind]]): the ATO does not see them, it sees the estimator's outputs.
+**The configured car** (the car the ATO plans with, ``AtoSetup.car``) is the plant's car unless
+the scenario says otherwise: each CarTraction field that is a RailCar parameter (``PLANT_CAR_FIELDS``:
+mass, A0, A1, A2, gamma, length, traction_force_max, traction_power_max, brake_force_max,
+adhesion_mass_fraction, adhesion_factor) takes the value ``car.<field>`` has in [parameters] (else
+the FMU's default), and a field given in [ato.car] wins. The other fields (regen_*, mech_force_max,
+eta_f, eta) are CarTraction's defaults unless [ato.car] gives them. The estimator's prior mass
+``est.mass_initial``, when [parameters] does not set it, is the configured car's mass (the prior
+coefficients est.A0_initial .. est.A2_initial keep the FMU's defaults: a deliberately rough prior
+with wide standard deviations, not a car). So a user who changes the plant drives that car.
+
+A *disturbance* (the true car differs from the one the ATO is configured for) is said explicitly:
+the plant's value in [parameters], the configured one in [ato.car], e.g. ato_mass_plus20:
+``"car.mass" = 36.0`` and ``[ato.car] mass = 30.0``. Wind and sensor noise ([[wind]],
+sensor.*) are never part of the configured car: the ATO does not see them, it sees the
+estimator's outputs.
 
 **A line** is one continuous run over several spans, each with its own stop mark, limits and
 schedule, standing ``dwell_s`` at each intermediate station (passengers boarding ``boarding_t``
@@ -48,11 +61,27 @@ from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 from models.units import kmh_to_mps
 
+from fmu_src.variables import RAILCAR, variables_for
 from harness.run.phases import Demands
 
 SPAN_KEYS = ("stop_m", "schedule_s", "length_m", "limit_kmh", "limit_mps", "dwell_s", "boarding_t")
 LINE_ONLY = ("dwell_s", "boarding_t")     # the station before a span of a line, not the first
 END_MARGIN_S = 60.0    # [s] default duration_s: the schedules and dwells plus this
+PRIOR_MASS = "est.mass_initial"     # the estimator's prior mass: the configured car's unless set
+
+_RAILCAR_NAMES = frozenset(v.name for v in variables_for(RAILCAR) if v.causality == "parameter")
+PLANT_CAR_FIELDS = tuple(f.name for f in fields(CarTraction) if f.init and f"car.{f.name}" in _RAILCAR_NAMES)
+"""The CarTraction fields that are RailCar parameters (``car.<field>``, same unit): the configured
+car takes the plant's value of each unless [ato.car] gives it (module docstring)."""
+
+
+def configured_car(plant: Mapping[str, float] | None, given: Mapping[str, float]) -> CarTraction:
+    """The car the ATO is configured with: the [ato.car] values ``given`` (CarTraction fields), and
+    for each PLANT_CAR_FIELDS field not given the plant's ``car.<field>`` from ``plant`` (every
+    RailCar parameter by name; None: CarTraction's defaults). ValueError from CarTraction."""
+    from_plant = {} if plant is None else {
+        f: float(plant[f"car.{f}"]) for f in PLANT_CAR_FIELDS if f not in given and f"car.{f}" in plant}
+    return CarTraction(**{**from_plant, **given})
 
 
 @dataclass(frozen=True)
@@ -71,6 +100,7 @@ class AtoSetup:
     tuning: AtoTuning
     car: CarTraction
     grade_profile: str = ""      # the track.grade_profile value the spans' grade was read from
+    car_given: tuple[str, ...] = ()   # the CarTraction fields [ato.car] set (the others follow the plant)
 
     def controllers(self) -> list[AtoController]:
         return [AtoController(s.span, self.car, self.tuning) for s in self.spans]
@@ -81,6 +111,14 @@ class AtoSetup:
                                            s.span.limit_distances, s.span.limit_speeds))
                       for s in self.spans)
         return replace(self, spans=spans, grade_profile=grade_profile)
+
+    def with_plant(self, plant: Mapping[str, float]) -> "AtoSetup":
+        """The same ATO configured for the plant ``plant`` (every RailCar parameter by name): the
+        fields [ato.car] did not give follow its car.* (``configured_car``); self if unchanged."""
+        kept = [f.name for f in fields(CarTraction)
+                if f.init and (f.name in self.car_given or f.name not in PLANT_CAR_FIELDS)]
+        car = configured_car(plant, {name: getattr(self.car, name) for name in kept})
+        return self if car == self.car else replace(self, car=car)
 
     @property
     def scheduled_s(self) -> float:
@@ -184,10 +222,14 @@ def _typed_fields(cls, raw: dict, where: str, error, skip=()) -> dict:
 
 
 def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float, error,
-              grade_profile: str = "") -> AtoSetup:
+              grade_profile: str = "", plant: Mapping[str, float] | None = None,
+              check: bool = True) -> AtoSetup:
     """The [span] / [[span]] and [ato] tables of a scenario -> AtoSetup. Every controller is
     built once here, so that an infeasible schedule, a limit the brakes cannot keep or bad
-    tuning (AtoController's ValueError) is invalid input naming the file and the span."""
+    tuning (AtoController's ValueError) is invalid input naming the file and the span.
+    ``plant``: every RailCar parameter by name (the scenario's, else the default): the configured
+    car follows it where [ato.car] is silent (``configured_car``); None: CarTraction's defaults.
+    ``check`` False builds no controller (``harness span-info`` describes a span the ATO refuses)."""
     raw_ato = data.get("ato", {})
     if not isinstance(raw_ato, dict):
         raise error(f"{source}: ato: expected a table [ato], got {raw_ato!r}")
@@ -200,10 +242,13 @@ def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float
     raw_car = raw_ato.get("car", {})
     if not isinstance(raw_car, dict):
         raise error(f"{source}: ato.car: expected a table [ato.car], got {raw_car!r}")
+    given = _typed_fields(CarTraction, raw_car, f"{source}: ato.car", error)
     try:
-        car = CarTraction(**_typed_fields(CarTraction, raw_car, f"{source}: ato.car", error))
+        car = configured_car(plant, given)
     except ValueError as e:      # "car.<field> must ..."
-        raise error(f"{source}: ato.car: {e}") from None
+        followed = [f for f in PLANT_CAR_FIELDS if f not in given]
+        raise error(f"{source}: ato.car: {e} (the configured car: [ato.car] and, for "
+                    f"{', '.join(followed) or 'no field'}, the plant's car.* parameters)") from None
     raw = data["span"]
     line = isinstance(raw, list)
     tables = raw if line else [raw]
@@ -217,11 +262,12 @@ def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float
             raise error(f"{where}.dwell_s: {s.dwell_s} s is shorter than track.station_dwell = "
                         f"{station_dwell} s: the plant and the estimator would not see a station")
         try:
-            AtoController(s.span, car, tuning)
+            if check:
+                AtoController(s.span, car, tuning)
         except ValueError as e:
             raise error(f"{where}: the ATO cannot run this span: {e}") from None
         spans.append(s)
-    return AtoSetup(tuple(spans), tuning, car, grade_profile)
+    return AtoSetup(tuple(spans), tuning, car, grade_profile, tuple(given))
 
 
 # ------------------------------------------------------------------------------ the driver

@@ -37,7 +37,7 @@ from typing import Callable
 
 from harness.run.runner import FmuRunner, RunError
 from harness.sweep.spec import RunSpec, Sweep
-from harness.sweep.table import TEXT_STATUS_FAILED, TEXT_STATUS_OK, calibration, flatten_summary
+from harness.sweep.table import TEXT_STATUS_FAILED, TEXT_STATUS_OK, calibration, flatten_summary, run_ato_row
 
 _LEAKED: list = []            # instances after fmi2Fatal: FMI allows no further call (pythonfmu segfaults)
 _WORKER_FMUS: dict = {}       # per process: FMU path -> ReusableRunner (one extraction, one live instance)
@@ -184,6 +184,7 @@ def execute_run(fmu_path: str, guid: str | None, spec: RunSpec, extract_root: st
         try:
             row.update(flatten_summary(summarise(result)))
             row.update(calibration(result))
+            row.update(run_ato_row(result))        # a span scenario's: the ATO's metrics
             row.update(status=TEXT_STATUS_OK, error="")
         except Exception as e:
             row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"metrics: {type(e).__name__}: {e}"))

@@ -1,6 +1,7 @@
 """A sweep's plots (PNG, through harness.reports.plotting): the metrics that vary over the ok runs,
 a few per figure, grouped by what they say about the run (``PLOT_GROUPS``: the mass estimate, the
-running resistance, the filter's accuracy, the filter's calibration; any other varying metric in
+running resistance, the filter's accuracy, the filter's calibration, the ATO (a span scenario's
+sweep); any other varying metric in
 ``other`` figures, so that none is dropped silently):
 
 - ``GROUP_vs_NAME.png``: each metric of the group against a swept value (one dot per run; for a
@@ -23,7 +24,7 @@ import numpy as np
 
 from harness.reports.plotting import display_unit, pyplot, save_figure
 from harness.sweep.spec import Sweep
-from harness.sweep.table import CALIBRATION_COLUMNS, Column, Table, finite_values, metric_columns
+from harness.sweep.table import ATO_SWEEP_COLUMNS, CALIBRATION_COLUMNS, Column, Table, finite_values, metric_columns
 
 PANELS_PER_FIGURE = 6
 TITLE_PT, LABEL_PT, TICK_PT, SUPTITLE_PT = 11, 10, 9, 13      # [pt]; at DPI the PNG is ~1300 px wide
@@ -43,10 +44,13 @@ PLOT_GROUPS = (
       "position_rmse_sensor", "position_rmse_filter", "position_rmse_oracle")),
     ("filter_calibration", "filter calibration",
      ("speed_nees", "position_nees", "speed_within_2sigma_pct", "position_within_2sigma_pct")),
+    ("ato", "the ATO over the run's spans",
+     ("ato_arrival_error_s.max_abs", "ato_stop_error_m.max_abs", "ato_energy_kwh", "ato_margin_mps",
+      "ato_interventions", "ato_on_target")),
 )
 # Not plotted: counts (their percentages are), the truth (set by the sweep, not estimated)
 NOT_PLOTTED = {"moving_samples", "speed_within_2sigma", "position_within_2sigma", "mass_stops_covered",
-               "duration_s", "stops", "mass_true_t", "A0_true", "A1_true", "A2_true"}
+               "duration_s", "stops", "mass_true_t", "A0_true", "A1_true", "A2_true", "ato_spans", "ato_arrived"}
 PANEL_TITLES = {
     "mass_error_pct": "mass error at the end",
     "mass_errors_at_stops_pct.max_abs": "largest |mass error| at a stop",
@@ -64,6 +68,10 @@ PANEL_TITLES = {
     "speed_nees": "speed NEES (dashed: 1, honest)", "position_nees": "distance NEES (dashed: 1, honest)",
     "speed_within_2sigma_pct": "speed truth within 2 sigma (dashed: 95.4)",
     "position_within_2sigma_pct": "distance truth within 2 sigma (dashed: 95.4)",
+    "ato_arrival_error_s.max_abs": "worst |arrival error| of a span",
+    "ato_stop_error_m.max_abs": "worst |stop error| of a span",
+    "ato_energy_kwh": "energy from the network", "ato_margin_mps": "least margin to the speed limit",
+    "ato_interventions": "safety interventions", "ato_on_target": "spans within +-2.5 s and +-0.3 m",
 }
 # What an honest estimator gives (a dashed line in the panel): NEES 1, 95.4 % of Gaussian errors within 2 sigma
 HONEST_VALUES = {"speed_nees": 1.0, "position_nees": 1.0, "speed_within_2sigma_pct": 95.4,
@@ -83,7 +91,7 @@ def _label(column: Column) -> str:
 def _varying_metrics(table: Table) -> list[Column]:
     """Numeric metric columns, other than NOT_PLOTTED, that vary over the ok runs."""
     ok = table.ok_rows()
-    keys = {c.key for c in metric_columns()} | {c.key for c in CALIBRATION_COLUMNS}
+    keys = {c.key for c in metric_columns()} | {c.key for c in CALIBRATION_COLUMNS} | {c.key for c in ATO_SWEEP_COLUMNS}
     out = []
     for c in table.columns:
         if c.kind == "str" or c.key not in keys or c.key in NOT_PLOTTED:

@@ -44,6 +44,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import re
 import tomllib
 from dataclasses import dataclass
@@ -54,7 +55,7 @@ import numpy as np
 from harness.run.scenario import RAILCAR_PARAMETERS as PARAMETERS
 from harness.run.scenario import (PATH_PARAMETERS, SEED_MAX, Scenario, ScenarioError, check_integer, parse_parameters,
                        read_toml, scenario_from_dict)
-from harness.textio import decode_text, did_you_mean
+from harness.textio import InputError, decode_text, did_you_mean, read_bytes
 
 SCENARIO_FIELDS = {"step_s": "s", "duration_s": "s", "stop_after_last_phase": ""}
 WIND_KEYS = {"time_s": "s", "speed_mps": "m/s"}
@@ -90,6 +91,7 @@ class Sweep:
     blocks: dict             # block name -> tuple of names ("grid", "zip", "lhs", "seeds")
     runs: tuple              # RunSpec, by run id
     fingerprint: str         # changes when the runs, the fixed values or the base scenario change
+    span: bool = False       # the base is a span scenario (the ATO drives): rows carry the ATO's metrics
 
     @property
     def grid_axes(self) -> tuple:
@@ -242,8 +244,8 @@ def load_sweep(path: str | Path) -> Sweep:
 
 def _file_digest(path: str) -> str:
     try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
+        return hashlib.sha256(read_bytes(path)).hexdigest()
+    except InputError:          # not a regular file, too large, unreadable
         return "unreadable"
 
 
@@ -254,8 +256,11 @@ def _read_base(raw: dict, path: Path) -> tuple[Path, str, dict]:
     base_path = Path(raw["scenario"])
     if not base_path.is_absolute():
         base_path = path.parent / base_path
+    where = f"{path}: scenario: {base_path}"
     try:
-        base_text = decode_text(base_path.read_bytes(), f"{path}: scenario: {base_path}", SweepError)
+        os.stat(base_path)
+        # a regular file of bounded size, checked before it is opened (a FIFO would block)
+        base_text = decode_text(read_bytes(base_path, SweepError, where=where), where, SweepError)
         base = tomllib.loads(base_text)
     except OSError as e:
         raise SweepError(f"{path}: scenario: cannot read {base_path}: {e.strerror}") from None
@@ -418,7 +423,8 @@ def sweep_from_dict(raw: dict, path: Path) -> Sweep:
         except ScenarioError as e:
             runs.append(RunSpec(run_id, ordered, None, f"invalid scenario: {e}"))
     return Sweep(name=name, purpose=purpose, path=path, base_path=base_path, axes=axes, blocks=blocks,
-                 runs=tuple(runs), fingerprint=_fingerprint(base, base_text, base_path, fixed, runs))
+                 runs=tuple(runs), fingerprint=_fingerprint(base, base_text, base_path, fixed, runs),
+                 span="span" in base)
 
 
 def _fingerprint(base: dict, base_text: str, base_path: Path, fixed: dict, runs: list[RunSpec]) -> str:

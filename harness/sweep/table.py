@@ -3,8 +3,10 @@ and the summary over the rows. Pure computing: the files are read and written by
 harness/sweep/results.py.
 
 A row holds the run id, status ("ok" or "failed") and error message, the wall time, the swept
-values (and the seed), the flattened ``RunSummary`` of harness.metrics.estimation, the calibration counts
-and, last, ``fmu``: which FMU kind ran it. List-valued metrics of ``RunSummary`` become two
+values (and the seed), the flattened ``RunSummary`` of harness.metrics.estimation, the calibration counts,
+for a sweep of a span scenario the ATO's metrics over the run's spans (``ATO_SWEEP_COLUMNS``:
+arrival and stop errors, energy, margin to the limit, interventions; the summary gives the share
+of spans within +-2.5 s and +-0.3 m and the worst) and, last, ``fmu``: which FMU kind ran it. List-valued metrics of ``RunSummary`` become two
 columns: ``NAME.max_abs`` (largest absolute value; nan when the list is empty or holds a nan)
 and ``NAME.list`` (the values, ';'-joined reprs). Tuples of A coefficients become ``A0_true`` ...
 In the CSV, floats are written by repr (they read back bit for bit) and units stand in the
@@ -50,6 +52,18 @@ CALIBRATION_COLUMNS = (
     Column("position_within_2sigma_pct", "%", "float"),
 )
 FMU_COLUMN = Column("fmu", "", "str")          # which FMU ran the row: native, python ('' none ran)
+ATO_SWEEP_COLUMNS = (      # a span scenario's run (harness.metrics.ato.SpanMetrics over its spans)
+    Column("ato_spans", "-", "int"),                   # spans the ATO drove
+    Column("ato_arrived", "-", "int"),                 # ... of them the car stands at the mark
+    Column("ato_on_target", "-", "int"),               # ... arrived within +-2.5 s and +-0.3 m
+    Column("ato_arrival_error_s.max_abs", "s", "float"),
+    Column("ato_arrival_error_s.list", "s", "str"),    # per span: true arrival - departure - schedule
+    Column("ato_stop_error_m.max_abs", "m", "float"),
+    Column("ato_stop_error_m.list", "m", "str"),       # per span: true position at rest - stop mark
+    Column("ato_energy_kwh", "kWh", "float"),          # over the spans, from the network
+    Column("ato_margin_mps", "m/s", "float"),          # min over the spans of V_lim(s) - V (> 0: under it)
+    Column("ato_interventions", "-", "int"),           # safe brake or supervisor's brake, steps
+)
 
 
 def _metric_unit(name: str) -> str:
@@ -85,13 +99,43 @@ def metric_columns() -> list[Column]:
     return cols
 
 
+def is_span_sweep(sweep: Sweep) -> bool:
+    """The base scenario is a span scenario: the ATO drives every run."""
+    return sweep.span
+
+
 def sweep_columns(sweep: Sweep) -> list[Column]:
+    """The run id, status, error, wall time, the swept values and the seed, the metrics, the
+    calibration, for a span scenario's sweep the ATO's (ATO_SWEEP_COLUMNS), and ``fmu``."""
     cols = [Column("run_id", "", "int"), Column("status", "", "str"), Column("error", "", "str"),
             Column("wall_time", "s", "float")]
     cols += [Column(n, name_unit(n) or ("-" if name_kind(n) != "str" else ""), name_kind(n)) for n in sweep.axes]
     if "seed" not in sweep.axes:
         cols.append(Column("seed", "-", "int"))
-    return cols + metric_columns() + list(CALIBRATION_COLUMNS) + [FMU_COLUMN]
+    ato = list(ATO_SWEEP_COLUMNS) if is_span_sweep(sweep) else []
+    return cols + metric_columns() + list(CALIBRATION_COLUMNS) + ato + [FMU_COLUMN]
+
+
+def ato_row(spans) -> dict:
+    """A run's ATO metrics (harness.metrics.ato.SpanMetrics, one per span driven) as the
+    ATO_SWEEP_COLUMNS: counts and sums over the spans, the worst |error|, each span's errors."""
+    arrival = [m.arrival_error_s for m in spans]
+    stop = [m.stop_error_m for m in spans]
+    return {"ato_spans": len(spans), "ato_arrived": sum(m.arrived for m in spans),
+            "ato_on_target": sum(m.on_target for m in spans),
+            "ato_arrival_error_s.max_abs": _max_abs(arrival), "ato_arrival_error_s.list": _joined(arrival),
+            "ato_stop_error_m.max_abs": _max_abs(stop), "ato_stop_error_m.list": _joined(stop),
+            "ato_energy_kwh": float(sum(m.energy_kwh for m in spans)),
+            "ato_margin_mps": min((m.margin_mps for m in spans), default=float("nan")),
+            "ato_interventions": int(sum(m.interventions for m in spans))}
+
+
+def run_ato_row(result) -> dict:
+    """``ato_row`` of a span scenario's run (its RunResult with the ATO's calls); {} otherwise."""
+    if result.driver_steps is None or result.scenario.ato is None:
+        return {}
+    from harness.metrics.ato import ato_metrics
+    return ato_row(ato_metrics(result.scenario, result, result.driver_steps))
 
 
 def _max_abs(xs) -> float:
@@ -264,12 +308,79 @@ def format_sweep_summary(sweep: Sweep, o: SweepOutcome) -> str:
                   f"    mass at the arrival at each stop    {_pct(c['mass_pct'])} of {c['stops']} stops",
                   f"    filter speed (moving samples)       {_pct(c['speed_pct'])} of {c['moving_samples']} samples",
                   f"    filter distance (moving samples)    {_pct(c['position_pct'])} of {c['moving_samples']} samples"]
+        ato = ato_outcome(t)
+        if ato is not None:
+            lines += format_ato_outcome(ato)
     if failed:
         lines += ["", "  failures (by message):"]
         for msg, n in Counter(r.get("error") or "?" for r in failed).most_common(5):
             ids = [str(r["run_id"]) for r in failed if (r.get("error") or "?") == msg][:5]
             lines.append(f"    {n} x (runs {', '.join(ids)}{', ...' if n > 5 else ''}): {msg[:300]}")
     return "\n".join(lines)
+
+
+def _split_list(text) -> list[float]:
+    """A ``.list`` cell back to its numbers ('' -> [])."""
+    return [float(x) for x in text.split(";")] if isinstance(text, str) and text else []
+
+
+def ato_outcome(table: Table) -> dict | None:
+    """The ATO over every span of the ok runs of a span sweep (None if no row has ATO columns):
+    spans, the share arrived within +-ARRIVAL_BOUND_S / +-STOP_BOUND_M / both (and arrived), the
+    worst |arrival error| and |stop error| and their runs, the smallest margin to V_lim, the
+    interventions and the spans not arrived."""
+    ok = [r for r in table.ok_rows() if r.get("ato_spans") is not None]
+    if not ok:
+        return None
+    from harness.metrics.ato import ARRIVAL_BOUND_S, STOP_BOUND_M
+    arrival = [(x, r["run_id"]) for r in ok for x in _split_list(r.get("ato_arrival_error_s.list"))]
+    stop = [(x, r["run_id"]) for r in ok for x in _split_list(r.get("ato_stop_error_m.list"))]
+    spans = sum(r["ato_spans"] for r in ok)
+    nan = float("nan")
+
+    def worst(pairs):
+        finite = [(abs(x), i) for x, i in pairs if not math.isnan(x)]
+        if len(finite) < len(pairs):           # a car that never came to rest: its run is the worst
+            return nan, next(i for x, i in pairs if math.isnan(x))
+        return max(finite) if finite else (nan, None)
+    return {"runs": len(ok), "spans": spans,
+            "arrival_within": sum(abs(x) <= ARRIVAL_BOUND_S for x, _ in arrival),
+            "stop_within": sum(abs(x) <= STOP_BOUND_M for x, _ in stop),
+            "on_target": sum(r.get("ato_on_target") or 0 for r in ok),
+            "arrived": sum(r.get("ato_arrived") or 0 for r in ok),
+            "worst_arrival": worst(arrival), "worst_stop": worst(stop),
+            "min_margin": min(finite_values(r.get("ato_margin_mps") for r in ok), default=nan),
+            "interventions": sum(r.get("ato_interventions") or 0 for r in ok),
+            "energy": finite_values(r.get("ato_energy_kwh") for r in ok)}
+
+
+def format_ato_outcome(a: dict) -> list[str]:
+    """The summary's ATO lines (``ato_outcome``)."""
+    from harness.metrics.ato import ARRIVAL_BOUND_S, STOP_BOUND_M
+    n = a["spans"]
+
+    def share(k: int) -> str:
+        return f"{k} of {n} spans ({100.0 * k / n:.1f} %)" if n else "n/a"
+
+    def worst(pair, unit: str) -> str:
+        x, run = pair
+        return "n/a" if run is None else (f"never came to rest (run {run})" if math.isnan(x)
+                                          else f"{x:.3g} {unit} (run {run})")
+    e = a["energy"]
+    lines = ["", f"  ATO over the spans of the {a['runs']} ok runs (targets: |arrival error| <= {ARRIVAL_BOUND_S} s, "
+                 f"|stop error| <= {STOP_BOUND_M} m)",
+             f"    arrival within +-{ARRIVAL_BOUND_S} s     {share(a['arrival_within'])}",
+             f"    stop within +-{STOP_BOUND_M} m        {share(a['stop_within'])}",
+             f"    arrived, both within       {share(a['on_target'])}",
+             f"    worst |arrival error|      {worst(a['worst_arrival'], 's')}",
+             f"    worst |stop error|         {worst(a['worst_stop'], 'm')}",
+             f"    least margin to V_lim      " + ("n/a" if math.isnan(a["min_margin"]) else f"{a['min_margin']:.3g} m/s"),
+             f"    safety interventions       {a['interventions']} steps",
+             f"    not arrived                {n - a['arrived']} spans"]
+    if e:
+        lines.append(f"    energy per run             min {min(e):.4g}, median {float(np.median(e)):.4g}, "
+                     f"max {max(e):.4g} kWh")
+    return lines
 
 
 def _pct(x: float) -> str:
