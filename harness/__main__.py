@@ -354,7 +354,7 @@ def main(argv=None) -> int:
     p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     _fmu_options(p)
     p.set_defaults(func=cmd_filters)
-    sub.add_parser("system", help="build an SSP system (RailCar + AtoController, ...) from scenarios/systems/NAME.toml, "
+    sub.add_parser("system", help="build an SSP system (RailCar + AtoController, ...) from scenarios/systems/NAME.toml or a span scenario, "
                    "or run an .ssp in our master or libcosim (python -m harness system -h)")
     p = sub.add_parser("list", help="the scenarios, sweeps and systems that come with the harness, one line each")
     p.set_defaults(func=cmd_list)
