@@ -105,7 +105,10 @@ class ReducedPlan:
     qU: the envelope U^2 on the course's nodes [m^2/s^2]; arrival [s]: t at the stop mark;
     energy [kWh] as models.planning.trajectory.Plan (traction / eta_f - eta regen); status "ok", "late"
     (even the fastest policy arrives after the target: the fastest is returned) or "early"
-    (even the slowest holding speed tried arrives before it); trials: forward runs made."""
+    (even the slowest holding speed tried arrives before it); trials: forward runs made;
+    policy: "energy" (Meleshin's structure, the module docstring) or "capped" (the fallback
+    where that structure cannot meet the schedule: full traction up to a speed cap V_c, held,
+    no coasts; regen_speed = hold_speed = the cap, coasts empty)."""
     hold_speed: float
     regen_speed: float
     coasts: tuple
@@ -120,6 +123,7 @@ class ReducedPlan:
     regen_kwh: float
     status: str
     trials: int
+    policy: str = "energy"
 
     def speed_at(self, x: float) -> float:
         """The planned speed [m/s] at distance x (linear between nodes)."""
@@ -147,6 +151,7 @@ class ReducedPlanner:
         self.v_min = v_min
         self._last_vc = None
         self._vc_slope = None
+        self._last_cap = None         # the last capped plan's cap [m/s] (its solve's start)
         self._coast_hints: dict = {}
         self.coast_runs = 0          # coasts simulated by the coast-point searches (a cost count)
 
@@ -374,12 +379,30 @@ class ReducedPlanner:
             k_lo = len(tr.s) - 1
         return tr, tuple(coasts), v_c, vr
 
+    def _capped_run(self, car, s0, q0, t0, v_cap, qU, fall):
+        """The capped policy from (s0, q0, t0): full traction up to the cap v_cap [m/s] (inf: no
+        cap), the cap held (traction or brake), everything under U, no coasts. Its arrival is
+        continuous and non-increasing in v_cap (the speed is, at every s), and at v_cap = inf
+        it is the fastest run (min_time). Returns the trace; raises _Stall."""
+        qc = v_cap * v_cap
+        tr = Trace(s0, q0, t0)
+        self._cruise(car, tr, qc, qc, qU, fall, math.inf)
+        return tr
+
     # ----------------------------------------------------------------- the plan
     def plan(self, car: PlanCar, s0: float, v0: float, t0: float, arrival: float,
              qU: list | None = None) -> ReducedPlan:
         """The policy from (s0, v0, t0) arriving at ``arrival`` [s] (see the class docstring).
         ``qU``: the envelope for ``car`` if already computed. Raises ValueError if the envelope
-        cannot be built for this car (ReducedPlanner.envelope)."""
+        cannot be built for this car (ReducedPlanner.envelope).
+
+        First Meleshin's structure, solved for V_c. Its arrival is neither continuous nor
+        monotone in V_c where limit zones cut the span (a coast point jumps to another root of
+        its co-state condition, a coast starts in a lower zone, a cruise meets another braking
+        curve first), so some schedules lie in its gaps. Where it misses the schedule by more
+        than ``tol``, the capped policy (_capped_run) is solved for its cap instead: its arrival
+        is continuous and monotone from the fastest run (cap inf, min_time) to the slowest (cap
+        v_min), so every schedule between them is met within ``tol``."""
         c = self.c
         qU = self.envelope(car) if qU is None else qU
         fall = self._stretches(qU)
@@ -402,16 +425,75 @@ class ReducedPlanner:
         guess = min(max(guess, self.v_min), v_hi)
         (best, e), _, _, self._vc_slope = _solve(trial, guess, 0.03 * guess, self._vc_slope,
                                                  self.v_min, v_hi, 1e-4, self.tol, False)
-        status = "ok"
-        if e > self.tol and best >= v_hi - 1e-9:
-            status = "late"
-        elif e < -self.tol and best <= self.v_min + 1e-9:
-            status = "early"
-        if runs.get(best) is None:
-            raise ValueError(f"no holding speed runs the rest of the span from s = {s0:.1f} m, "
-                             f"V = {v0:.2f} m/s: the car would stall")
-        trace, coasts, v_c, vr = runs[best]
-        self._last_vc = v_c
+        if abs(e) <= self.tol and runs.get(best) is not None:
+            trace, coasts, v_c, vr = runs[best]
+            self._last_vc = v_c
+            return self._plan_of(car, trace, v_c, vr, coasts, qU, "ok", len(runs), "energy")
+        return self._plan_capped(car, s0, q0, t0, arrival, qU, fall, len(runs))
+
+    def _plan_capped(self, car, s0, q0, t0, arrival, qU, fall, trials) -> ReducedPlan:
+        """The capped policy whose arrival is ``arrival`` within ``tol``: Illinois false position
+        on the cap between v_min and inf (no cap), from the last capped re-plan's cap. Status
+        "late" (the fastest run returned) or "early" (the cap v_min returned) where the
+        schedule lies outside that range."""
+        runs = {}
+
+        def trial(v_cap):
+            if v_cap not in runs:
+                try:
+                    tr = self._capped_run(car, s0, q0, t0, v_cap, qU, fall)
+                    runs[v_cap] = (tr, tr.t[-1] - arrival)
+                except _Stall:
+                    runs[v_cap] = (None, math.inf)
+            return runs[v_cap][1]
+
+        def result(v_cap, status):
+            tr = runs[v_cap][0]
+            if tr is None:
+                raise ValueError(f"no holding speed runs the rest of the span from s = {s0:.1f} m, "
+                                 f"V = {math.sqrt(q0):.2f} m/s: the car would stall")
+            return self._plan_of(car, tr, v_cap, v_cap, (), qU, status, trials + len(runs),
+                                 "capped")
+
+        # above the envelope's top speed and the starting speed the cap is never reached
+        v_top = max(math.sqrt(max(qU)), math.sqrt(q0))
+        e_fast = trial(math.inf)
+        if e_fast >= -self.tol:
+            return result(math.inf, "ok" if e_fast <= self.tol else "late")
+        e_slow = trial(self.v_min)
+        if e_slow <= self.tol:
+            return result(self.v_min, "ok" if e_slow >= -self.tol else "early")
+        # bracket: f(lo) > 0 (late) > f(hi); the cap v_top runs as the cap inf does
+        lo, f_lo, hi, f_hi = self.v_min, e_slow, v_top, e_fast
+        runs[v_top] = runs[math.inf]
+        hint = self._last_cap
+        side = 0
+        x = hint if hint is not None and lo < hint < hi else None
+        for _ in range(100):
+            if x is None:
+                if math.isfinite(f_lo):
+                    x = lo + (hi - lo) * f_lo / (f_lo - f_hi)
+                    x = min(max(x, lo + 0.01 * (hi - lo)), hi - 0.01 * (hi - lo))
+                else:
+                    x = 0.5 * (lo + hi)
+            f = trial(x)
+            if abs(f) <= self.tol or hi - lo <= 1e-9:
+                break
+            if f > 0.0:
+                lo, f_lo = x, f
+                if side == 1:
+                    f_hi *= 0.5           # Illinois: the stale end's value halved
+                side = 1
+            else:
+                hi, f_hi = x, f
+                if side == -1 and math.isfinite(f_lo):
+                    f_lo *= 0.5
+                side = -1
+            x = None
+        self._last_cap = x
+        return result(x, "ok" if abs(runs[x][1]) <= self.tol else "late")
+
+    def _plan_of(self, car, trace, v_c, vr, coasts, qU, status, trials, policy) -> ReducedPlan:
         wF, wR = sum(trace.wF), sum(trace.wR)
         traction = wF / car.eta_f / 3.6e6
         regen = car.eta * wR / 3.6e6
@@ -419,15 +501,13 @@ class ReducedPlanner:
                            v=tuple(math.sqrt(q) if q > 0 else 0.0 for q in trace.q),
                            t=tuple(trace.t), mode=tuple(int(m) for m in trace.mode), qU=tuple(qU),
                            arrival=trace.t[-1], energy_kwh=traction - regen, traction_kwh=traction,
-                           regen_kwh=regen, status=status, trials=len(runs))
+                           regen_kwh=regen, status=status, trials=trials, policy=policy)
 
     def min_time(self, car: PlanCar, qU: list | None = None) -> float:
-        """Running time [s] of the fastest run from rest: full traction capped by U."""
+        """Running time [s] of the fastest run from rest: full traction capped by U (the capped
+        policy without a cap, the run plan() returns for this schedule)."""
         qU = self.envelope(car) if qU is None else qU
-        fall = self._stretches(qU)
-        tr = Trace(0.0, 0.0, 0.0)
-        self._cruise(car, tr, math.inf, math.inf, qU, fall, math.inf)
-        return tr.t[-1]
+        return self._capped_run(car, 0.0, 0.0, 0.0, math.inf, qU, self._stretches(qU)).t[-1]
 
 
 def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ftol: float,
