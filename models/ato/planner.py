@@ -380,10 +380,9 @@ class ReducedPlanner:
         return tr, tuple(coasts), v_c, vr
 
     def _capped_run(self, car, s0, q0, t0, v_cap, qU, fall):
-        """The capped policy from (s0, q0, t0): full traction up to the cap v_cap [m/s] (inf: no
-        cap), the cap held (traction or brake), everything under U, no coasts. Its arrival is
-        continuous and non-increasing in v_cap (the speed is, at every s), and at v_cap = inf
-        it is the fastest run (min_time). Returns the trace; raises _Stall."""
+        """The capped policy from (s0, q0, t0): full traction up to the cap v_cap [m/s], the cap held (traction or brake), everything under U, no coasts. Its arrival is
+        continuous and non-increasing in v_cap (the speed is, at every s), and with a cap above
+        every speed of the envelope it is the fastest run (min_time). Returns the trace; raises _Stall."""
         qc = v_cap * v_cap
         tr = Trace(s0, q0, t0)
         self._cruise(car, tr, qc, qc, qU, fall, math.inf)
@@ -433,9 +432,9 @@ class ReducedPlanner:
 
     def _plan_capped(self, car, s0, q0, t0, arrival, qU, fall, trials) -> ReducedPlan:
         """The capped policy whose arrival is ``arrival`` within ``tol``: Illinois false position
-        on the cap between v_min and inf (no cap), from the last capped re-plan's cap. Status
-        "late" (the fastest run returned) or "early" (the cap v_min returned) where the
-        schedule lies outside that range."""
+        on the cap between v_min and a cap never reached (the fastest run), first trying the last
+        capped re-plan's cap. Status "late" (the fastest run returned) or "early" (the cap v_min
+        returned) where the schedule lies outside that range."""
         runs = {}
 
         def trial(v_cap):
@@ -455,20 +454,21 @@ class ReducedPlanner:
             return self._plan_of(car, tr, v_cap, v_cap, (), qU, status, trials + len(runs),
                                  "capped")
 
-        # above the envelope's top speed and the starting speed the cap is never reached
+        # "no cap": a cap above every speed of the run (the envelope's top, the start), as in
+        # min_time; a finite one, for the controller tracks the hold speed
         v_top = max(math.sqrt(max(qU)), math.sqrt(q0))
-        e_fast = trial(math.inf)
+        v_free = 4.0 * v_top
+        e_fast = trial(v_free)
         if e_fast >= -self.tol:
-            return result(math.inf, "ok" if e_fast <= self.tol else "late")
+            return result(v_free, "ok" if e_fast <= self.tol else "late")
         e_slow = trial(self.v_min)
         if e_slow <= self.tol:
             return result(self.v_min, "ok" if e_slow >= -self.tol else "early")
-        # bracket: f(lo) > 0 (late) > f(hi); the cap v_top runs as the cap inf does
-        lo, f_lo, hi, f_hi = self.v_min, e_slow, v_top, e_fast
-        runs[v_top] = runs[math.inf]
+        lo, f_lo, hi, f_hi = self.v_min, e_slow, v_free, e_fast     # f(lo) > 0 > f(hi)
         hint = self._last_cap
         side = 0
         x = hint if hint is not None and lo < hint < hi else None
+        best = v_free
         for _ in range(100):
             if x is None:
                 if math.isfinite(f_lo):
@@ -477,6 +477,8 @@ class ReducedPlanner:
                 else:
                     x = 0.5 * (lo + hi)
             f = trial(x)
+            if abs(f) < abs(runs[best][1]):
+                best = x
             if abs(f) <= self.tol or hi - lo <= 1e-9:
                 break
             if f > 0.0:
@@ -490,8 +492,9 @@ class ReducedPlanner:
                     f_lo *= 0.5
                 side = -1
             x = None
-        self._last_cap = x
-        return result(x, "ok" if abs(runs[x][1]) <= self.tol else "late")
+        self._last_cap = best
+        e = runs[best][1]
+        return result(best, "ok" if abs(e) <= self.tol else ("late" if e > 0.0 else "early"))
 
     def _plan_of(self, car, trace, v_c, vr, coasts, qU, status, trials, policy) -> ReducedPlan:
         wF, wR = sum(trace.wF), sum(trace.wR)
@@ -504,10 +507,12 @@ class ReducedPlanner:
                            regen_kwh=regen, status=status, trials=trials, policy=policy)
 
     def min_time(self, car: PlanCar, qU: list | None = None) -> float:
-        """Running time [s] of the fastest run from rest: full traction capped by U (the capped
-        policy without a cap, the run plan() returns for this schedule)."""
+        """Running time [s] of the fastest run from rest: full traction capped by U, the capped
+        policy with a cap above the envelope (never reached): the run plan() returns for this
+        schedule, computed by the same code."""
         qU = self.envelope(car) if qU is None else qU
-        return self._capped_run(car, 0.0, 0.0, 0.0, math.inf, qU, self._stretches(qU)).t[-1]
+        v_free = 4.0 * math.sqrt(max(qU))
+        return self._capped_run(car, 0.0, 0.0, 0.0, v_free, qU, self._stretches(qU)).t[-1]
 
 
 def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ftol: float,
