@@ -380,13 +380,18 @@ class ReducedPlanner:
         return tr, tuple(coasts), v_c, vr
 
     def _capped_run(self, car, s0, q0, t0, v_cap, qU, fall):
-        """The capped policy from (s0, q0, t0): full traction up to the cap v_cap [m/s], the cap held (traction or brake), everything under U, no coasts. Its arrival is
-        continuous and non-increasing in v_cap (the speed is, at every s), and with a cap above
-        every speed of the envelope it is the fastest run (min_time). Returns the trace; raises _Stall."""
+        """The capped policy from (s0, q0, t0): the cruise policy of Meleshin's structure for
+        V_c = v_cap [m/s] (full traction up to V_c, held by traction; above it coasting, held at
+        V_r by the brake), everything under U, but no coasts before the braking curves. Its
+        arrival is continuous and non-increasing in v_cap (the speed is, at every s: the force
+        law rises with V_c at every speed), and with a cap above every speed of the envelope
+        it is the fastest run (min_time). Returns (trace, V_r); raises _Stall."""
         qc = v_cap * v_cap
+        vr = car.hold_regen_speed(v_cap)
+        qr = vr * vr if math.isfinite(vr) else math.inf
         tr = Trace(s0, q0, t0)
-        self._cruise(car, tr, qc, qc, qU, fall, math.inf)
-        return tr
+        self._cruise(car, tr, qc, qr, qU, fall, math.inf)
+        return tr, vr
 
     # ----------------------------------------------------------------- the plan
     def plan(self, car: PlanCar, s0: float, v0: float, t0: float, arrival: float,
@@ -440,18 +445,18 @@ class ReducedPlanner:
         def trial(v_cap):
             if v_cap not in runs:
                 try:
-                    tr = self._capped_run(car, s0, q0, t0, v_cap, qU, fall)
-                    runs[v_cap] = (tr, tr.t[-1] - arrival)
+                    tr, vr = self._capped_run(car, s0, q0, t0, v_cap, qU, fall)
+                    runs[v_cap] = (tr, tr.t[-1] - arrival, vr)
                 except _Stall:
-                    runs[v_cap] = (None, math.inf)
+                    runs[v_cap] = (None, math.inf, math.inf)
             return runs[v_cap][1]
 
         def result(v_cap, status):
-            tr = runs[v_cap][0]
+            tr, _, vr = runs[v_cap]
             if tr is None:
                 raise ValueError(f"no holding speed runs the rest of the span from s = {s0:.1f} m, "
                                  f"V = {math.sqrt(q0):.2f} m/s: the car would stall")
-            return self._plan_of(car, tr, v_cap, v_cap, (), qU, status, trials + len(runs),
+            return self._plan_of(car, tr, v_cap, vr, (), qU, status, trials + len(runs),
                                  "capped")
 
         # "no cap": a cap above every speed of the run (the envelope's top, the start), as in
@@ -512,7 +517,7 @@ class ReducedPlanner:
         schedule, computed by the same code."""
         qU = self.envelope(car) if qU is None else qU
         v_free = 4.0 * math.sqrt(max(qU))
-        return self._capped_run(car, 0.0, 0.0, 0.0, v_free, qU, self._stretches(qU)).t[-1]
+        return self._capped_run(car, 0.0, 0.0, 0.0, v_free, qU, self._stretches(qU))[0].t[-1]
 
 
 def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ftol: float,

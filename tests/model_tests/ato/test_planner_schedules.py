@@ -116,11 +116,11 @@ def test_the_capped_policys_arrival_falls_continuously_with_its_cap():
     fall = planner._stretches(qU)
     v_top = math.sqrt(max(qU))
     caps = [2.0 + 0.05 * k for k in range(int((v_top - 2.0) / 0.05) + 1)]
-    arrivals = [planner._capped_run(car, 0.0, 0.0, 0.0, v, qU, fall).t[-1] for v in caps]
+    arrivals = [planner._capped_run(car, 0.0, 0.0, 0.0, v, qU, fall)[0].t[-1] for v in caps]
     steps = [b - a for a, b in zip(arrivals, arrivals[1:])]
     assert max(steps) <= 1e-9
     jumps = [(v, d) for v, d in zip(caps, steps) if -d > 2.0 * ISSUE_SPAN.stop * 0.05 / (v * v)]
     assert jumps == []
     assert arrivals[0] - arrivals[-1] > 300.0          # the family spans the schedules
-    free = planner._capped_run(car, 0.0, 0.0, 0.0, 4.0 * v_top, qU, fall).t[-1]
+    free = planner._capped_run(car, 0.0, 0.0, 0.0, 4.0 * v_top, qU, fall)[0].t[-1]
     assert free == planner.min_time(car, qU)
