@@ -427,8 +427,12 @@ class ReducedPlanner:
 
         guess = self._last_vc if self._last_vc is not None else 0.8 * v_top
         guess = min(max(guess, self.v_min), v_hi)
+        # max_flat 8: arrival(V_c) is flat where the run coasts from s0 for every V_c in a stretch
+        # (mid-run, on the coast to the stop: measured 14-30 m/s wide); the step doubling from
+        # 3 % of V_c crosses 2^8 times that before giving up
         (best, e), _, _, self._vc_slope = _solve(trial, guess, 0.03 * guess, self._vc_slope,
-                                                 self.v_min, v_hi, 1e-4, self.tol, False)
+                                                 self.v_min, v_hi, 1e-4, self.tol, False,
+                                                 max_flat=8)
         if abs(e) <= self.tol and runs.get(best) is not None:
             trace, coasts, v_c, vr = runs[best]
             self._last_vc = v_c
@@ -521,12 +525,13 @@ class ReducedPlanner:
 
 
 def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ftol: float,
-           rising: bool, upper=None):
+           rising: bool, upper=None, max_flat: int = 2):
     """A root of the monotone f on [lo, hi] (``rising`` or falling; f may be -inf on the low
     side of a rising f), from x0: Newton steps with ``slope`` (the last solve's, else a first
     step ``dx``), secant steps (a step doubling while the slope is unknown) until the root is
     bracketed, then Illinois false position (bisection next to -inf) to ``xtol`` or
-    |f| <= ``ftol``; it gives up where f is the same at three points running (no lever).
+    |f| <= ``ftol``; it gives up where f is the same at ``max_flat`` + 1 points running (no
+    lever; the step doubles on each, so a larger ``max_flat`` crosses a wider flat stretch).
     ``upper``: a known (x, f) on the far side of the root (not evaluated).
 
     Returns (x, f(x)) of the best evaluated point, the bracket (lo point, hi point) as (x, f)
@@ -595,7 +600,7 @@ def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ft
         if ny == y:                        # f does not depend on x here: no lever
             flat += 1
             slope = None
-            if flat >= 2:
+            if flat >= max_flat:
                 break
         elif math.isfinite(y) and math.isfinite(ny):
             slope = (ny - y) / (nx - x)
