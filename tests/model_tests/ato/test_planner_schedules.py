@@ -59,7 +59,7 @@ def test_every_schedule_from_the_fastest_to_30_percent_above_is_planned_for():
     controller accepts its schedule and its departure plan arrives within 0.1 s of it with
     status "ok". Before the fix 282 of these 1200 plans missed (91 of them at the fastest run,
     the worst by 52 s). The fallback policy is counted, not bounded: what it is used for is
-    reported (measured ~24 % of the plans), but both policies must meet the schedule."""
+    reported (measured 13 % of the plans), but both policies must meet the schedule."""
     rng = random.Random(29)
     misses, policies = [], {"energy": 0, "capped": 0}
     for k in range(N_SPANS):
