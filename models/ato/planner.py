@@ -15,6 +15,9 @@ regulator needs, in plain scalar Python:
 - what it leaves out against synthesize(): the choice of one long coast through a lower-limit
   zone instead of a coast into it (synthesize tries every such choice), the jump of p at state
   constraints (synthesize leaves it out too);
+- a fallback where that structure cannot meet the schedule (ReducedPlanner.plan says why):
+  the same cruise without the coasts, solved for V_c, whose arrival falls continuously from
+  the slowest run to the fastest (min_time), so that every schedule in between is planned for;
 - its own final braking curve: the service brake (``brake_share`` of the regenerative brake, so
   that the tracking controller keeps a reserve) down to ``v_relay`` (7 km/h: where Meleshin's
   electric brake fades), then the constant deceleration ``a_ep`` of the electro-pneumatic
@@ -403,10 +406,12 @@ class ReducedPlanner:
         First Meleshin's structure, solved for V_c. Its arrival is neither continuous nor
         monotone in V_c where limit zones cut the span (a coast point jumps to another root of
         its co-state condition, a coast starts in a lower zone, a cruise meets another braking
-        curve first), so some schedules lie in its gaps. Where it misses the schedule by more
-        than ``tol``, the capped policy (_capped_run) is solved for its cap instead: its arrival
-        is continuous and monotone from the fastest run (cap inf, min_time) to the slowest (cap
-        v_min), so every schedule between them is met within ``tol``."""
+        curve first), so some schedules lie in its gaps; it is also flat over stretches of V_c
+        (a run that coasts from s0 whatever V_c), which the solve crosses. Where it misses the
+        schedule by more than ``tol``, the capped policy (_capped_run: the cruise without the
+        coasts) is solved for V_c instead: its arrival is continuous and monotone from the
+        fastest run (V_c above the envelope: min_time) to the slowest (V_c = v_min), so every
+        schedule between them is met within ``tol``."""
         c = self.c
         qU = self.envelope(car) if qU is None else qU
         fall = self._stretches(qU)
