@@ -1,4 +1,4 @@
-# Over 600 lines as one unit: the re-planner's two policies and their solves, which a C port is to mirror line by line.
+# Over 600 lines as one unit: the re-planner's two policies and their solves, for a C port to mirror.
 """The ATO's fast re-planner: Meleshin's (2011) energy-efficient structure for the rest of a span,
 solved for the holding speed V_c in milliseconds, from any state (s, V, t) and for any mass and
 resistance (models/ato/controller.py calls it every few seconds with the estimator's values).
