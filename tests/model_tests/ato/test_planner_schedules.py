@@ -92,8 +92,8 @@ def test_the_issues_span_follows_each_schedule(schedule):
 
 
 def test_the_fastest_run_reported_is_the_run_planned_for_it():
-    """A schedule equal to the fastest run the controller reports plans to that run: the same
-    arrival (the capped policy without a cap, the code min_time runs) and no coast."""
+    """A schedule equal to the fastest run the controller reports plans to that run (within
+    0.1 s), one 0.1 s shorter is refused, and the controller reports the planner's min_time."""
     t_min = fastest_run(ISSUE_SPAN)
     plan = AtoController(ISSUE_SPAN.with_schedule(t_min), CAR).initial_plan
     assert plan.status == "ok"
@@ -106,7 +106,7 @@ def test_the_fastest_run_reported_is_the_run_planned_for_it():
 
 def test_the_capped_policys_arrival_falls_continuously_with_its_cap():
     """The fallback's premise: on the issue's span the capped policy's arrival never rises as
-    the cap rises (5 cm/s steps from 2 m/s to the envelope's top), moves per step by at most
+    its V_c (the cap on traction) rises (5 cm/s steps from 2 m/s to the envelope's top), moves per step by at most
     twice what holding the cap over the whole span would (stop dV / V^2: no jump, so the
     solve's false position always converges), and a cap above the envelope gives the fastest
     run exactly."""
