@@ -1,3 +1,4 @@
+# Over 600 lines as one unit: the re-planner's two policies and their solves, for a C port to mirror.
 """The ATO's fast re-planner: Meleshin's (2011) energy-efficient structure for the rest of a span,
 solved for the holding speed V_c in milliseconds, from any state (s, V, t) and for any mass and
 resistance (models/ato/controller.py calls it every few seconds with the estimator's values).
@@ -15,6 +16,9 @@ regulator needs, in plain scalar Python:
 - what it leaves out against synthesize(): the choice of one long coast through a lower-limit
   zone instead of a coast into it (synthesize tries every such choice), the jump of p at state
   constraints (synthesize leaves it out too);
+- a fallback where that structure cannot meet the schedule (ReducedPlanner.plan says why):
+  the same cruise without the coasts, solved for V_c, whose arrival falls continuously from
+  the slowest run to the fastest (min_time), so that every schedule in between is planned for;
 - its own final braking curve: the service brake (``brake_share`` of the regenerative brake, so
   that the tracking controller keeps a reserve) down to ``v_relay`` (7 km/h: where Meleshin's
   electric brake fades), then the constant deceleration ``a_ep`` of the electro-pneumatic
@@ -105,7 +109,10 @@ class ReducedPlan:
     qU: the envelope U^2 on the course's nodes [m^2/s^2]; arrival [s]: t at the stop mark;
     energy [kWh] as models.planning.trajectory.Plan (traction / eta_f - eta regen); status "ok", "late"
     (even the fastest policy arrives after the target: the fastest is returned) or "early"
-    (even the slowest holding speed tried arrives before it); trials: forward runs made."""
+    (even the slowest holding speed tried arrives before it); trials: forward runs made;
+    policy: "energy" (Meleshin's structure, the module docstring) or "capped" (the fallback
+    where that structure cannot meet the schedule: full traction up to a speed cap V_c, held,
+    no coasts; regen_speed = hold_speed = the cap, coasts empty)."""
     hold_speed: float
     regen_speed: float
     coasts: tuple
@@ -120,6 +127,7 @@ class ReducedPlan:
     regen_kwh: float
     status: str
     trials: int
+    policy: str = "energy"
 
     def speed_at(self, x: float) -> float:
         """The planned speed [m/s] at distance x (linear between nodes)."""
@@ -147,6 +155,7 @@ class ReducedPlanner:
         self.v_min = v_min
         self._last_vc = None
         self._vc_slope = None
+        self._last_cap = None         # the last capped plan's cap [m/s] (its solve's start)
         self._coast_hints: dict = {}
         self.coast_runs = 0          # coasts simulated by the coast-point searches (a cost count)
 
@@ -374,12 +383,36 @@ class ReducedPlanner:
             k_lo = len(tr.s) - 1
         return tr, tuple(coasts), v_c, vr
 
+    def _capped_run(self, car, s0, q0, t0, v_cap, qU, fall):
+        """The capped policy from (s0, q0, t0): the cruise policy of Meleshin's structure for
+        V_c = v_cap [m/s] (full traction up to V_c, held by traction; above it coasting, held at
+        V_r by the brake), everything under U, but no coasts before the braking curves. Its
+        arrival is continuous and non-increasing in v_cap (the speed is, at every s: the force
+        law rises with V_c at every speed), and with a cap above every speed of the envelope
+        it is the fastest run (min_time). Returns (trace, V_r); raises _Stall."""
+        qc = v_cap * v_cap
+        vr = car.hold_regen_speed(v_cap)
+        qr = vr * vr if math.isfinite(vr) else math.inf
+        tr = Trace(s0, q0, t0)
+        self._cruise(car, tr, qc, qr, qU, fall, math.inf)
+        return tr, vr
+
     # ----------------------------------------------------------------- the plan
     def plan(self, car: PlanCar, s0: float, v0: float, t0: float, arrival: float,
              qU: list | None = None) -> ReducedPlan:
         """The policy from (s0, v0, t0) arriving at ``arrival`` [s] (see the class docstring).
         ``qU``: the envelope for ``car`` if already computed. Raises ValueError if the envelope
-        cannot be built for this car (ReducedPlanner.envelope)."""
+        cannot be built for this car (ReducedPlanner.envelope).
+
+        First Meleshin's structure, solved for V_c. Its arrival is neither continuous nor
+        monotone in V_c where limit zones cut the span (a coast point jumps to another root of
+        its co-state condition, a coast starts in a lower zone, a cruise meets another braking
+        curve first), so some schedules lie in its gaps; it is also flat over stretches of V_c
+        (a run that coasts from s0 whatever V_c), which the solve crosses. Where it misses the
+        schedule by more than ``tol``, the capped policy (_capped_run: the cruise without the
+        coasts) is solved for V_c instead: its arrival is continuous and monotone from the
+        fastest run (V_c above the envelope: min_time) to the slowest (V_c = v_min), so every
+        schedule between them is met within ``tol``."""
         c = self.c
         qU = self.envelope(car) if qU is None else qU
         fall = self._stretches(qU)
@@ -400,18 +433,85 @@ class ReducedPlanner:
 
         guess = self._last_vc if self._last_vc is not None else 0.8 * v_top
         guess = min(max(guess, self.v_min), v_hi)
+        # max_flat 8: arrival(V_c) is flat where the run coasts from s0 for every V_c in a stretch
+        # (mid-run, on the coast to the stop: measured 14-30 m/s wide); the step doubling from
+        # 3 % of V_c crosses 2^8 times that before giving up
         (best, e), _, _, self._vc_slope = _solve(trial, guess, 0.03 * guess, self._vc_slope,
-                                                 self.v_min, v_hi, 1e-4, self.tol, False)
-        status = "ok"
-        if e > self.tol and best >= v_hi - 1e-9:
-            status = "late"
-        elif e < -self.tol and best <= self.v_min + 1e-9:
-            status = "early"
-        if runs.get(best) is None:
-            raise ValueError(f"no holding speed runs the rest of the span from s = {s0:.1f} m, "
-                             f"V = {v0:.2f} m/s: the car would stall")
-        trace, coasts, v_c, vr = runs[best]
-        self._last_vc = v_c
+                                                 self.v_min, v_hi, 1e-4, self.tol, False,
+                                                 max_flat=8)
+        if abs(e) <= self.tol and runs.get(best) is not None:
+            trace, coasts, v_c, vr = runs[best]
+            self._last_vc = v_c
+            return self._plan_of(car, trace, v_c, vr, coasts, qU, "ok", len(runs), "energy")
+        return self._plan_capped(car, s0, q0, t0, arrival, qU, fall, len(runs))
+
+    def _plan_capped(self, car, s0, q0, t0, arrival, qU, fall, trials) -> ReducedPlan:
+        """The capped policy whose arrival is ``arrival`` within ``tol``: Illinois false position
+        on the cap between v_min and a cap never reached (the fastest run), first trying the last
+        capped re-plan's cap. Status "late" (the fastest run returned) or "early" (the cap v_min
+        returned) where the schedule lies outside that range."""
+        runs = {}
+
+        def trial(v_cap):
+            if v_cap not in runs:
+                try:
+                    tr, vr = self._capped_run(car, s0, q0, t0, v_cap, qU, fall)
+                    runs[v_cap] = (tr, tr.t[-1] - arrival, vr)
+                except _Stall:
+                    runs[v_cap] = (None, math.inf, math.inf)
+            return runs[v_cap][1]
+
+        def result(v_cap, status):
+            tr, _, vr = runs[v_cap]
+            if tr is None:
+                raise ValueError(f"no holding speed runs the rest of the span from s = {s0:.1f} m, "
+                                 f"V = {math.sqrt(q0):.2f} m/s: the car would stall")
+            return self._plan_of(car, tr, v_cap, vr, (), qU, status, trials + len(runs),
+                                 "capped")
+
+        # "no cap": a cap above every speed of the run (the envelope's top, the start), as in
+        # min_time; a finite one, for the controller tracks the hold speed
+        v_top = max(math.sqrt(max(qU)), math.sqrt(q0))
+        v_free = 4.0 * v_top
+        e_fast = trial(v_free)
+        if e_fast >= -self.tol:
+            return result(v_free, "ok" if e_fast <= self.tol else "late")
+        e_slow = trial(self.v_min)
+        if e_slow <= self.tol:
+            return result(self.v_min, "ok" if e_slow >= -self.tol else "early")
+        lo, f_lo, hi, f_hi = self.v_min, e_slow, v_free, e_fast     # f(lo) > 0 > f(hi)
+        hint = self._last_cap
+        side = 0
+        x = hint if hint is not None and lo < hint < hi else None
+        best = v_free
+        for _ in range(100):
+            if x is None:
+                if math.isfinite(f_lo):
+                    x = lo + (hi - lo) * f_lo / (f_lo - f_hi)
+                    x = min(max(x, lo + 0.01 * (hi - lo)), hi - 0.01 * (hi - lo))
+                else:
+                    x = 0.5 * (lo + hi)
+            f = trial(x)
+            if abs(f) < abs(runs[best][1]):
+                best = x
+            if abs(f) <= self.tol or hi - lo <= 1e-9:
+                break
+            if f > 0.0:
+                lo, f_lo = x, f
+                if side == 1:
+                    f_hi *= 0.5           # Illinois: the stale end's value halved
+                side = 1
+            else:
+                hi, f_hi = x, f
+                if side == -1 and math.isfinite(f_lo):
+                    f_lo *= 0.5
+                side = -1
+            x = None
+        self._last_cap = best
+        e = runs[best][1]
+        return result(best, "ok" if abs(e) <= self.tol else ("late" if e > 0.0 else "early"))
+
+    def _plan_of(self, car, trace, v_c, vr, coasts, qU, status, trials, policy) -> ReducedPlan:
         wF, wR = sum(trace.wF), sum(trace.wR)
         traction = wF / car.eta_f / 3.6e6
         regen = car.eta * wR / 3.6e6
@@ -419,24 +519,25 @@ class ReducedPlanner:
                            v=tuple(math.sqrt(q) if q > 0 else 0.0 for q in trace.q),
                            t=tuple(trace.t), mode=tuple(int(m) for m in trace.mode), qU=tuple(qU),
                            arrival=trace.t[-1], energy_kwh=traction - regen, traction_kwh=traction,
-                           regen_kwh=regen, status=status, trials=len(runs))
+                           regen_kwh=regen, status=status, trials=trials, policy=policy)
 
     def min_time(self, car: PlanCar, qU: list | None = None) -> float:
-        """Running time [s] of the fastest run from rest: full traction capped by U."""
+        """Running time [s] of the fastest run from rest: full traction capped by U, the capped
+        policy with a cap above the envelope (never reached): the run plan() returns for this
+        schedule, computed by the same code."""
         qU = self.envelope(car) if qU is None else qU
-        fall = self._stretches(qU)
-        tr = Trace(0.0, 0.0, 0.0)
-        self._cruise(car, tr, math.inf, math.inf, qU, fall, math.inf)
-        return tr.t[-1]
+        v_free = 4.0 * math.sqrt(max(qU))
+        return self._capped_run(car, 0.0, 0.0, 0.0, v_free, qU, self._stretches(qU))[0].t[-1]
 
 
 def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ftol: float,
-           rising: bool, upper=None):
+           rising: bool, upper=None, max_flat: int = 2):
     """A root of the monotone f on [lo, hi] (``rising`` or falling; f may be -inf on the low
     side of a rising f), from x0: Newton steps with ``slope`` (the last solve's, else a first
     step ``dx``), secant steps (a step doubling while the slope is unknown) until the root is
     bracketed, then Illinois false position (bisection next to -inf) to ``xtol`` or
-    |f| <= ``ftol``; it gives up where f is the same at three points running (no lever).
+    |f| <= ``ftol``; it gives up where f is the same at ``max_flat`` + 1 points running (no
+    lever; the step doubles on each, so a larger ``max_flat`` crosses a wider flat stretch).
     ``upper``: a known (x, f) on the far side of the root (not evaluated).
 
     Returns (x, f(x)) of the best evaluated point, the bracket (lo point, hi point) as (x, f)
@@ -505,7 +606,7 @@ def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ft
         if ny == y:                        # f does not depend on x here: no lever
             flat += 1
             slope = None
-            if flat >= 2:
+            if flat >= max_flat:
                 break
         elif math.isfinite(y) and math.isfinite(ny):
             slope = (ny - y) / (nx - x)
