@@ -86,6 +86,95 @@ EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degr
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
 
+def ep_deceleration(car: CarTraction, tuning: AtoTuning, grade: float) -> float:
+    """The EP stage's programmed deceleration [m/s^2] for a stop mark on ``grade`` [permille]:
+    tuning.a_ep, lowered where a car (1 + mass_reserve) heavier than configured would need more
+    than all but one of the ep_stages for it (a descent takes the relay's reserve: at -30
+    permille a 25 % heavier car needed all six stages for 1 m/s^2, and one more stage for a
+    speed error was not there, so the stop ran 0.44 m past). At least half of tuning.a_ep."""
+    m = car.mass * (1.0 + tuning.mass_reserve)                       # [t]
+    n = tuning.ep_stages
+    spare = max(n - 1, 1) / n
+    force = spare * car.mech_force_max + m * G * (car.A0 + grade)     # [N] net retarding
+    a = force / (1000.0 * m * (1.0 + car.gamma))
+    return min(tuning.a_ep, max(a, 0.5 * tuning.a_ep))
+
+
+def resistance_margins(a0: float, a1: float, a2: float, v_lo: float, v_hi: float):
+    """What the re-planner needs of a resistance w0(V) = a0 + a1 V + a2 V^2 [N/kN]: its slope at
+    v_lo and at v_hi [m/s] (rising: V_r and the co-state equation divide by it) and its mean
+    over [0, v_hi] (positive where the car cruises). Each must be > 0."""
+    return (a1 + 2.0 * a2 * v_lo, a1 + 2.0 * a2 * v_hi,
+            a0 + 0.5 * v_hi * (a1 + 0.5 * a2 * v_hi))
+
+
+def _w0_variance(stated, v: float) -> float:
+    """[1 V V^2] C [1 V V^2]^T: the variance of w0(V) [(N/kN)^2] from the stated stds and
+    covariances (est.A0_std, est.A1_std, est.A2_std, est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2)."""
+    s0, s1, s2, c01, c02, c12 = stated
+    v2 = v * v
+    var = (s0 * s0 + v2 * s1 * s1 + v2 * v2 * s2 * s2
+           + 2.0 * (v * c01 + v2 * c02 + v * v2 * c12))
+    return var if var > 0.0 else 0.0
+
+
+def blend_estimates(configured, estimated, stated, ramp: float, config_mass_std: float,
+                    config_resistance_std: float, gate: float, speeds, mass_band: float):
+    """The car the regulator plans with: est.* and the configured car weighed by their
+    uncertainties, continuous in every input (no switching between sources: a drifting
+    estimate moves the plan's car a little, it never flips it).
+
+    configured, estimated: (mass [t], A0, A1, A2); stated: (est.mass_std, est.A0_std,
+    est.A1_std, est.A2_std, est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2); ramp in [0, 1] (the
+    estimates' share grows with the samples since departure); config_mass_std [t] and
+    config_resistance_std [N/kN]: the configured car's own uncertainty; speeds [m/s]: where the
+    resistance is compared (the first and last bound the re-planner's speeds).
+
+    - the weights are the inverse-variance ones: w_m = c^2 / (c^2 + est.mass_std^2), w_r the
+      same with the variance of w0(V) from the stated covariance, averaged over ``speeds``;
+    - a consistency gate multiplies both: d = the largest |w0_est(V) - w0_cfg(V)| over
+      sqrt(var_est(V) + c_r^2); weight 1 up to gate - 1 sigmas, 0 from gate on, linear
+      between. The mass has no gate of its own (a car far heavier than configured with a
+      small est.mass_std is what identification is for); a resistance that is inconsistent
+      with its own stated uncertainty says the joint fit is confounded (speed noise), and
+      the mass comes from the same fit;
+    - w_r is then lowered so that the blended resistance keeps at least half of each of the
+      configured car's resistance_margins (the re-planner needs them positive), and the
+      blended mass is kept within [m_cfg / mass_band, m_cfg x mass_band].
+
+    A negative stated std gives no weight. Returns (mass, A0, A1, A2, w_m, w_r, gate factor,
+    d). Pure and scalar."""
+    m_c, a0_c, a1_c, a2_c = configured
+    m_e, a0_e, a1_e, a2_e = estimated
+    sd_m = stated[0]
+    res = stated[1:]
+    if ramp <= 0.0 or sd_m < 0.0 or res[0] < 0.0 or res[1] < 0.0 or res[2] < 0.0:
+        return m_c, a0_c, a1_c, a2_c, 0.0, 0.0, 0.0, math.inf
+    var_c = config_resistance_std * config_resistance_std
+    var_sum, d = 0.0, 0.0
+    for v in speeds:
+        var = _w0_variance(res, v)
+        var_sum += var
+        dw = (a0_e - a0_c) + v * ((a1_e - a1_c) + v * (a2_e - a2_c))
+        dv = abs(dw) / math.sqrt(var + var_c)
+        d = dv if dv > d else d
+    var_e = var_sum / len(speeds)
+    g = min(max(gate - d, 0.0), 1.0)
+    w_r = ramp * g * var_c / (var_c + var_e)
+    mc2 = config_mass_std * config_mass_std
+    w_m = ramp * g * mc2 / (mc2 + sd_m * sd_m)
+    v_lo, v_hi = speeds[0], speeds[-1]
+    for f_c, f_e in zip(resistance_margins(a0_c, a1_c, a2_c, v_lo, v_hi),
+                        resistance_margins(a0_e, a1_e, a2_e, v_lo, v_hi)):
+        if f_c > 0.0 and f_e < 0.5 * f_c:
+            w_max = 0.5 * f_c / (f_c - f_e)
+            w_r = w_max if w_max < w_r else w_r
+    mass = m_c + w_m * (m_e - m_c)
+    mass = min(max(mass, m_c / mass_band), m_c * mass_band)
+    return (mass, a0_c + w_r * (a0_e - a0_c), a1_c + w_r * (a1_e - a1_c),
+            a2_c + w_r * (a2_e - a2_c), w_m, w_r, g, d)
+
+
 class AtoController:
     """The ATO for one span (module docstring). ``finished``: the car stands at the stop mark."""
 
@@ -100,9 +189,10 @@ class AtoController:
         self.span, self.car, self.tuning = span, car, tuning
         check_span_for_car(span, car)          # a start on the grade, limits the brakes keep
         self._check_grid(span, car, tuning)
+        self.a_ep = ep_deceleration(car, tuning, span.grade.average(span.stop, car.length))
         self.course = ReducedCourse(span, car, step=tuning.grid_step,
                                     limit_margin=tuning.limit_margin,
-                                    v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
+                                    v_relay=car.regen_fade_speed, a_ep=self.a_ep)
         self.planner = ReducedPlanner(self.course, tol=tuning.time_tol)
         self.configured = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
         qU = self.planner.envelope(self.configured)
@@ -129,7 +219,7 @@ class AtoController:
         self.plan: ReducedPlan = plan
         self.initial_plan = plan
         stage_force = car.mech_force_max / tuning.ep_stages
-        self.relay = RelayBrake(span.stop, tuning.a_ep, stage_force, tuning.ep_stages,
+        self.relay = RelayBrake(span.stop, self.a_ep, stage_force, tuning.ep_stages,
                                 tuning.relay_hysteresis, tuning.relay_stage_speed,
                                 tuning.relay_dwell, tuning.creep_speed, tuning.creep_accel,
                                 tuning.stop_window)
@@ -147,8 +237,9 @@ class AtoController:
         self._last_status = "ok"
         self._last_brake = 0.0
         self._stand_since = None
-        self._usable_since = None
-        self._rejected = False
+        self.weights = (0.0, 0.0)           # blend_estimates' weights of est.mass, est.A0..A2
+        v_lo, v_hi = self.course.v_relay, max(span.limit_speeds)
+        self._blend_speeds = (v_lo, 0.5 * (v_lo + v_hi), v_hi)
         self.replans = 0
         self.aim_offset = 0.0
         self._brake_int, self._t_last = 0.0, None
@@ -264,25 +355,13 @@ class AtoController:
                           0.0)
 
     def _estimates_usable(self, est) -> str | None:
-        """Why est.* cannot be used now, or None."""
-        mass, a0, a1, a2, status, samples = est
+        """Why est.* cannot be used at all now, or None (then blend_estimates weighs them)."""
+        status, samples = est[4], est[5]
         if int(status) not in EST_USABLE:
             return f"est.status = {int(status)}"
         if samples - self._samples0 < self.tuning.min_samples:
             return (f"est.samples = {int(samples)}: {int(samples - self._samples0)} since departure "
                     f"< {self.tuning.min_samples}")
-        m0, band = self.car.mass, self.tuning.mass_band
-        if not m0 / band <= mass <= m0 * band:
-            return f"est.mass = {mass:.2f} t outside [{m0 / band:.4g}, {m0 * band:.4g}] t"
-        # what the re-planner needs: a resistance force rising with speed (W' > 0: V_r and the
-        # co-state equation divide by it) and positive where the car cruises; a slightly
-        # negative A0 (the LS trades it against A1, A2 when the data are at speed) is harmless
-        v_lo, v_hi = self.course.v_relay, max(self.span.limit_speeds)
-        if not (a1 + 2.0 * a2 * v_lo > 0.0 and a1 + 2.0 * a2 * v_hi > 0.0
-                and a0 + 0.5 * v_hi * (a1 + 0.5 * a2 * v_hi) > 0.0):
-            return (f"est.A0..A2 = {a0:.4g}, {a1:.4g}, {a2:.4g} give a resistance that is not "
-                    f"rising on [{v_lo:.2f}, {v_hi:.2f}] m/s or not positive at "
-                    f"{0.5 * v_hi:.2f} m/s")
         return None
 
     # ----------------------------------------------------------------- the step
@@ -334,39 +413,50 @@ class AtoController:
             return self._safe(math.nan, f"internal error {type(e).__name__}: {e}: safe brake",
                               "internal")
 
-    def _params(self, t: float, est) -> PlanCar:
-        """The car to plan and feed forward with: est.* when usable (after a rejection, only
-        once they have been usable for replan_period again: no flapping), else configured."""
-        why = self._estimates_usable(est) if self.tuning.use_estimates else "use_estimates off"
-        if why is None:
-            if self._usable_since is None:
-                self._usable_since = t
-            settled = (not self._rejected or
-                       t - self._usable_since >= self.tuning.replan_period - 1e-9)
-            if settled:
-                key = tuple(est[:4])
-                if key != self._last_key:
-                    self._car_now = PlanCar(self.car, *key, self.tuning.brake_share,
-                                            brake_mass=max(key[0], self.car.mass))
-                    self._last_key = key
-                if not self._using_estimates:
-                    self._clear("estimates")
-                    self._using_estimates = True
-                    self._last_replan = -math.inf          # re-plan now with the estimates
-                    self.events.append((t, "est.* usable: planning with the identified values"))
-        else:
-            self._usable_since = None
+    def _params(self, t: float, est, stated) -> PlanCar:
+        """The car to plan and feed forward with: blend_estimates of est.* and the configured
+        car, weighted by est.*'s stated uncertainty (none while est.* is not usable at all)."""
+        tn = self.tuning
+        why = self._estimates_usable(est) if tn.use_estimates else "use_estimates off"
+        if why is not None:
+            w_m = w_r = 0.0
+            key = None
             if self._using_estimates:
-                self._rejected = True
                 self._log(t, f"estimates not usable ({why}): configured values", "estimates")
-                self._using_estimates = False
-                self._car_now = self.configured
+        else:
+            c = self.configured
+            ramp = min(max((est[5] - self._samples0 - tn.min_samples) / tn.min_samples, 0.0), 1.0)
+            b = blend_estimates((c.mass, c.A0, c.A1, c.A2), tuple(est[:4]), stated, ramp,
+                                tn.config_mass_std * c.mass, tn.config_resistance_std,
+                                tn.est_gate, self._blend_speeds, tn.mass_band)
+            key, w_m, w_r = b[:4], b[4], b[5]
+            if b[6] < 1.0 and ramp > 0.0:
+                self._log(t, f"est.A0..A2 lie {b[7]:.1f} stated sigmas from the configured "
+                             f"resistance: weight x {b[6]:.2f}", "estimates")
+            elif b[6] >= 1.0:
+                self._clear("estimates")
+        using = w_m > 0.0 or w_r > 0.0
+        if using and not self._using_estimates:
+            self._last_replan = -math.inf              # re-plan now with the estimates
+            self.events.append((t, "est.* usable: planning with the identified values weighed "
+                                   "against the configured car"))
+        self._using_estimates = using
+        self.weights = (w_m, w_r)
+        if key is None or not using:
+            self._car_now = self.configured
+        elif key != self._last_key:
+            self._car_now = PlanCar(self.car, *key, tn.brake_share,
+                                    brake_mass=max(key[0], self.car.mass))
+        self._last_key = key if using else None
         return self._car_now
 
     def _replan(self, tau: float, s: float, v: float, car: PlanCar):
         t0 = _time.perf_counter()
         try:
-            plan = self.planner.plan(car, s, v, tau, self.span.schedule)
+            # aim time_reserve of the remaining time early: a model error that shows only late
+            # (on the last coast) then still finds time to absorb it
+            reserve = self.tuning.time_reserve * max(self.span.schedule - tau, 0.0)
+            plan = self.planner.plan(car, s, v, tau, self.span.schedule - reserve)
         except ValueError as e:
             self.events.append((tau, f"re-plan failed ({e}): the last plan is kept"))
             return
@@ -385,11 +475,12 @@ class AtoController:
         v, s, sd = max(vals[0], 0.0), vals[1], vals[2]
         est = vals[3:9]
         self._psd = max(vals[9], 0.0)
+        stated = vals[10:17]
         if self.t_departure is None:
             self.t_departure = t
             self._samples0 = est[5]   # est.samples runs on over station stops: count from here
         tau = t - self.t_departure
-        car = self._params(t, est)
+        car = self._params(t, est, stated)
         tn = self.tuning
         if self.phase == HOLD:
             return self._hold()
@@ -455,7 +546,7 @@ class AtoController:
         if self._settle and not self.settled:
             self.aim_offset = min(tn.settle_sigma * self._psd, tn.settle_aim_max)
         else:
-            t_ep = self.course.v_relay / tn.a_ep
+            t_ep = self.course.v_relay / self.a_ep
             self.aim_offset = min(tn.aim_sigma * sd * t_ep, tn.aim_max)
         self.relay.stop = self.span.stop - self.aim_offset
 
@@ -470,7 +561,7 @@ class AtoController:
             self.events.append((t, f"filter.position_std {self._psd:.3f} m at the "
                                                   f"EP stage: one stop, no settling"))
         if not (self._settle and not self.settled):
-            t_ep = self.course.v_relay / tn.a_ep
+            t_ep = self.course.v_relay / self.a_ep
             self.aim_offset = min(self.aim_offset, tn.aim_sigma * sd * t_ep, tn.aim_max)
             self.relay.stop = self.span.stop - self.aim_offset
 

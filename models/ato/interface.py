@@ -16,8 +16,11 @@ MAX_MASS_BAND = 5.0      # tuning.mass_band: the estimator reports est.mass with
 #                          of its start (OnlineEstimator.MASS_RANGE): a wider band admits nothing
 
 INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "est.A0",
-          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
-"""The outputs the controller reads, by their FMU names."""
+          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std",
+          "est.mass_std", "est.A0_std", "est.A1_std", "est.A2_std", "est.cov_A0_A1",
+          "est.cov_A0_A2", "est.cov_A1_A2")
+"""The outputs the controller reads, by their FMU names (the last seven: the estimates' stated
+uncertainty, which the regulator weighs them by: models/ato/controller.py blend_estimates)."""
 
 
 class AtoMode(IntEnum):
@@ -110,6 +113,18 @@ class AtoTuning:
     safe_brake: float = 1.0           # share of car.brake_force_max on a bad input
     hold_brake: float = 0.5           # share of car.brake_force_max held at the stop (at least
     #                                   the last EP stage)
+    # the regulator's blend of est.* and the configured car (controller.blend_estimates)
+    config_mass_std: float = 0.1      # the configured car.mass's own uncertainty, a share of it
+    #                                   (a metro car's load: 24-44 t around 30 t is ~+-2 sigma)
+    config_resistance_std: float = 1.0  # [N/kN] the configured resistance's own uncertainty
+    #                                   (a 5 m/s headwind adds 1.4 N/kN at 40 km/h, A0 +50 % 0.45)
+    est_gate: float = 3.0             # est.* further from the configured car than this many
+    #                                   combined sigmas get no weight, nearer than est_gate - 1
+    #                                   full weight, linear between (stated stds that are 5x too
+    #                                   small under speed noise put them 5-7 sigma away)
+    time_reserve: float = 0.03        # re-plans aim this share of the remaining running time
+    #                                   early (3 s of a 100 s span, 0 at the mark): room for a
+    #                                   model error that shows only on the last coast
 
     def __post_init__(self):
         for f in fields(self):
@@ -138,9 +153,16 @@ class AtoTuning:
                                  f"a wider band admits nothing more)")
             positive = ("replan_period", "grid_step", "time_tol", "approach_gain", "a_ep",
                         "relay_stage_speed", "stand_speed", "creep_speed", "brake_share",
-                        "creep_accel", "safe_brake", "hold_brake")
+                        "creep_accel", "safe_brake", "hold_brake", "config_mass_std",
+                        "config_resistance_std")
             if f.name in positive and x == 0.0:
                 raise ValueError(f"tuning.{f.name} must be > 0, got {v!r}")
+            if f.name == "est_gate" and x < 1.0:
+                raise ValueError(f"tuning.est_gate must be >= 1, got {v!r} (full weight "
+                                 f"ends est_gate - 1 sigmas from the configured car)")
+            if f.name == "time_reserve" and x > 0.2:
+                raise ValueError(f"tuning.time_reserve must be in [0, 0.2], got {v!r} (a share "
+                                 f"of the remaining running time planned early)")
             shares = ("brake_share", "safe_brake", "hold_brake")
             if f.name in shares and x > 1.0:
                 raise ValueError(f"tuning.{f.name} must be in (0, 1], got {v!r}")
