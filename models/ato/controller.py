@@ -68,7 +68,7 @@ import time as _time
 from typing import Mapping
 
 # the host's side (inputs, command, modes, tuning) is models/ato/interface.py; also importable from here
-from models.ato.interface import INPUTS, AtoCommand, AtoMode, AtoTuning
+from models.ato.interface import INPUTS, STATED_INPUTS, AtoCommand, AtoMode, AtoTuning
 from models.ato.motion import PlanCar
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
 from models.ato.stopping import RelayBrake, track_force
@@ -82,6 +82,8 @@ LOG = logging.getLogger(__name__)
 
 MAX_GRID_NODES = 10_000  # the re-planner's grid: ~0.5 s to initialise, a re-plan ~0.05 s, ~8 MB
 #                          (measured alone: 0.43 s and 0.05 s; 100 km at the 10 m default)
+GATE_RATE = 0.2         # [1/s] the blend's gate factor moves at most this much per second (0 to
+#                         1 in 5 s: the plan's mass moves ~0.2 t per 0.1 s step at most)
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
@@ -119,7 +121,8 @@ def _w0_variance(stated, v: float) -> float:
 
 
 def blend_estimates(configured, estimated, stated, ramp: float, config_mass_std: float,
-                    config_resistance_std: float, gate: float, speeds, mass_band: float):
+                    config_resistance_std: float, gate: float, speeds, mass_band: float,
+                    gate_prev: float = 0.0, gate_step: float = math.inf):
     """The car the regulator plans with: est.* and the configured car weighed by their
     uncertainties, continuous in every input (no switching between sources: a drifting
     estimate moves the plan's car a little, it never flips it).
@@ -137,7 +140,9 @@ def blend_estimates(configured, estimated, stated, ramp: float, config_mass_std:
       between. The mass has no gate of its own (a car far heavier than configured with a
       small est.mass_std is what identification is for); a resistance that is inconsistent
       with its own stated uncertainty says the joint fit is confounded (speed noise), and
-      the mass comes from the same fit;
+      the mass comes from the same fit. The gate factor moves at most ``gate_step`` from
+      ``gate_prev`` (the controller's last one): estimates that wander across the gate every
+      step (speed noise) would otherwise move the plan's mass by tonnes per step;
     - w_r is then lowered so that the blended resistance keeps at least half of each of the
       configured car's resistance_margins (the re-planner needs them positive), and the
       blended mass is kept within [m_cfg / mass_band, m_cfg x mass_band].
@@ -160,6 +165,7 @@ def blend_estimates(configured, estimated, stated, ramp: float, config_mass_std:
         d = dv if dv > d else d
     var_e = var_sum / len(speeds)
     g = min(max(gate - d, 0.0), 1.0)
+    g = min(max(g, gate_prev - gate_step), gate_prev + gate_step)
     w_r = ramp * g * var_c / (var_c + var_e)
     mc2 = config_mass_std * config_mass_std
     w_m = ramp * g * mc2 / (mc2 + sd_m * sd_m)
@@ -238,6 +244,8 @@ class AtoController:
         self._last_brake = 0.0
         self._stand_since = None
         self.weights = (0.0, 0.0)           # blend_estimates' weights of est.mass, est.A0..A2
+        self._gate, self._t_gate = 0.0, None  # its gate factor (rate-limited) and when set [s]
+        self._used = False                  # est.* have had weight in this span
         v_lo, v_hi = self.course.v_relay, max(span.limit_speeds)
         self._blend_speeds = (v_lo, 0.5 * (v_lo + v_hi), v_hi)
         self.replans = 0
@@ -309,6 +317,11 @@ class AtoController:
     def using_estimates(self) -> bool:
         """True while the plan and the feed-forward use est.* (else the configured car)."""
         return self._using_estimates
+
+    @property
+    def plan_car(self) -> PlanCar:
+        """The car the plan and the feed-forward use now (blend_estimates' result)."""
+        return self._car_now
 
     @property
     def finished(self) -> bool:
@@ -391,6 +404,13 @@ class AtoController:
                 if not math.isfinite(x):
                     return self._bad_input(t, f"{name} = {x} is not finite: safe brake", name)
                 vals.append(x)
+            for name, prior in STATED_INPUTS:      # optional: the prior where absent or bad
+                x = outputs.get(name) if hasattr(outputs, "get") else None
+                try:
+                    x = float(x) if x is not None else prior
+                except (TypeError, ValueError):
+                    x = prior
+                vals.append(x if math.isfinite(x) else prior)
             problem = self.supervisor.check(t, vals)
             if problem is not None:
                 return self._bad_input(t, f"{problem[1]}: safe brake", problem[0])
@@ -426,17 +446,21 @@ class AtoController:
         else:
             c = self.configured
             ramp = min(max((est[5] - self._samples0 - tn.min_samples) / tn.min_samples, 0.0), 1.0)
+            dt = t - self._t_gate if self._t_gate is not None else 0.0
             b = blend_estimates((c.mass, c.A0, c.A1, c.A2), tuple(est[:4]), stated, ramp,
                                 tn.config_mass_std * c.mass, tn.config_resistance_std,
-                                tn.est_gate, self._blend_speeds, tn.mass_band)
+                                tn.est_gate, self._blend_speeds, tn.mass_band,
+                                self._gate, GATE_RATE * dt)
             key, w_m, w_r = b[:4], b[4], b[5]
-            if b[6] < 1.0 and ramp > 0.0:
+            self._gate, self._t_gate = b[6], t
+            if b[6] <= 0.0 and ramp > 0.0:       # logged once until the gate opens fully
                 self._log(t, f"est.A0..A2 lie {b[7]:.1f} stated sigmas from the configured "
-                             f"resistance: weight x {b[6]:.2f}", "estimates")
+                             f"resistance: no weight for est.*", "estimates")
             elif b[6] >= 1.0:
                 self._clear("estimates")
         using = w_m > 0.0 or w_r > 0.0
-        if using and not self._using_estimates:
+        if using and not self._using_estimates and not self._used:
+            self._used = True
             self._last_replan = -math.inf              # re-plan now with the estimates
             self.events.append((t, "est.* usable: planning with the identified values weighed "
                                    "against the configured car"))

@@ -16,11 +16,16 @@ MAX_MASS_BAND = 5.0      # tuning.mass_band: the estimator reports est.mass with
 #                          of its start (OnlineEstimator.MASS_RANGE): a wider band admits nothing
 
 INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "est.A0",
-          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std",
-          "est.mass_std", "est.A0_std", "est.A1_std", "est.A2_std", "est.cov_A0_A1",
-          "est.cov_A0_A2", "est.cov_A1_A2")
-"""The outputs the controller reads, by their FMU names (the last seven: the estimates' stated
-uncertainty, which the regulator weighs them by: models/ato/controller.py blend_estimates)."""
+          "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
+"""The outputs the controller reads, by their FMU names."""
+
+STATED_INPUTS = (("est.mass_std", 10.0), ("est.A0_std", 5.0), ("est.A1_std", 0.1),
+                 ("est.A2_std", 0.02), ("est.cov_A0_A1", 0.0), ("est.cov_A0_A2", 0.0),
+                 ("est.cov_A1_A2", 0.0))
+"""The estimates' stated uncertainty, which the regulator weighs them by (models/ato/controller.py
+blend_estimates), with the value used where a host does not give one (or gives one that is
+not finite): the estimator's prior (fmu_src/variables.py est.*_std_initial), which gives
+est.* little weight. Optional: a host that passes only INPUTS runs as before this was read."""
 
 
 class AtoMode(IntEnum):
@@ -122,8 +127,8 @@ class AtoTuning:
     #                                   combined sigmas get no weight, nearer than est_gate - 1
     #                                   full weight, linear between (stated stds that are 5x too
     #                                   small under speed noise put them 5-7 sigma away)
-    time_reserve: float = 0.03        # re-plans aim this share of the remaining running time
-    #                                   early (3 s of a 100 s span, 0 at the mark): room for a
+    time_reserve: float = 0.01        # re-plans aim this share of the remaining running time
+    #                                   early (1 s of a 100 s span, 0 at the mark): room for a
     #                                   model error that shows only on the last coast
 
     def __post_init__(self):
