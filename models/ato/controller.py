@@ -477,9 +477,11 @@ class AtoController:
     def _replan(self, tau: float, s: float, v: float, car: PlanCar):
         t0 = _time.perf_counter()
         try:
-            # aim time_reserve of the remaining time early: a model error that shows only late
-            # (on the last coast) then still finds time to absorb it
-            reserve = self.tuning.time_reserve * max(self.span.schedule - tau, 0.0)
+            # aim time_reserve of the remaining time early while the estimates and the
+            # configured car disagree (the gate closed: one of them is wrong, and the error
+            # may show only late, on the last coast); none where they agree
+            reserve = (self.tuning.time_reserve * (1.0 - self._gate)
+                       * max(self.span.schedule - tau, 0.0))
             plan = self.planner.plan(car, s, v, tau, self.span.schedule - reserve)
         except ValueError as e:
             self.events.append((tau, f"re-plan failed ({e}): the last plan is kept"))

