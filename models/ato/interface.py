@@ -25,7 +25,10 @@ STATED_INPUTS = (("est.mass_std", 10.0), ("est.A0_std", 5.0), ("est.A1_std", 0.1
 """The estimates' stated uncertainty, which the regulator weighs them by (models/ato/controller.py
 blend_estimates), with the value used where a host does not give one (or gives one that is
 not finite): the estimator's prior (fmu_src/variables.py est.*_std_initial), which gives
-est.* little weight. Optional: a host that passes only INPUTS runs as before this was read."""
+est.* little weight. Optional: a host that passes only INPUTS still runs (with that prior)."""
+
+ALL_INPUTS = INPUTS + tuple(name for name, _ in STATED_INPUTS)
+"""Everything the controller reads: what a host should pass (the AtoController FMU's inputs)."""
 
 
 class AtoMode(IntEnum):
