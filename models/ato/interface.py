@@ -130,10 +130,11 @@ class AtoTuning:
     #                                   combined sigmas get no weight, nearer than est_gate - 1
     #                                   full weight, linear between (stated stds that are 5x too
     #                                   small under speed noise put them 5-7 sigma away)
-    time_reserve: float = 0.03        # re-plans aim this share of the remaining running time
-    #                                   early (3 s of a 100 s span, 0 at the mark) x (1 - the
-    #                                   blend's gate factor): while est.* and the configured car
-    #                                   disagree, room for a model error that shows only late
+    time_reserve: float = 0.03        # re-plans aim time_reserve x (remaining time)^2 /
+    #                                   schedule early (3 s of a 100 s span at departure, 0.75 s
+    #                                   half-way, 0 at the mark) x (1 - the blend's gate
+    #                                   factor): while est.* and the configured car disagree,
+    #                                   room for a model error that shows only late
 
     def __post_init__(self):
         for f in fields(self):
