@@ -204,7 +204,7 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
     ("grid_step", "m", "re-planner's distance grid"),
     ("time_tol", "s", "re-plan's running-time tolerance"),
     ("min_samples", None, "est.samples needed before est.* are used"),
-    ("mass_band", "1", "est.mass is used within [car.mass / this, car.mass x this]"),
+    ("mass_band", "1", "the planned mass (est.mass blended with car.mass) is kept within [car.mass / this, car.mass x this]"),
     ("limit_margin", "m/s", "planned speeds stay this far below the speed limit"),
     ("k_sigma", "1", "supervisor: filter.speed + k_sigma x filter.speed_std must stay under the supervision curve"),
     ("gap_sigma", "1", "and this many filter.speed_std more (filter.speed jumps under speed noise)"),

@@ -13,23 +13,26 @@ est.mass, est.A0..A2, est.status, est.samples (the identification).
 
 **Running-time regulator** (Meleshin 2011, ch. 4, uses a fuzzy regulator with predictive traction
 calculation; ours is its model-predictive form). Every ``replan_period`` seconds the rest of
-the span is re-planned from the filter's speed and position, with the identified mass and
-resistance when est.status says they are usable (else the configured ones), by
-models/ato/planner.py: Meleshin's maximum-principle structure solved for the holding speed V_c
-that arrives on schedule (milliseconds; the full synthesis takes seconds). Between re-plans the
+the span is re-planned from the filter's speed and position, with the car of
+``blend_estimates`` (the identified and the configured mass and resistance weighed by their
+uncertainties, continuous: no switching between sources; the estimates' stated uncertainty,
+STATED_INPUTS, is read where the host gives it), by models/ato/planner.py: Meleshin's
+maximum-principle structure solved for the holding speed V_c that arrives on schedule
+(milliseconds; the full synthesis takes seconds), aiming ``time_reserve`` x (time left)^2 /
+schedule early while the estimates and the configured car disagree. Between re-plans the
 controller executes the plan's *policy*, not its timetable: full traction below V_c, holding
 V_c by traction, coasting on a descent up to V_r and holding V_r by the regenerative brake,
 coasting from each planned coast point, following the envelope U(s) (limits less a margin and
 the braking curves) where the car reaches it. With ``replan=False`` and
 ``use_estimates=False`` the same policy is planned once from the configured coefficients: the
-fixed plan the regulator is measured against. Estimates are used once est.status is 1 or 2,
-est.samples has grown by min_samples since departure (it runs on over station stops, where
-the mass identification restarts), est.mass is within mass_band of the configured mass and the
-resistance rises with speed; braking curves are planned for the heavier of the identified and
-the configured mass (an identified mass that is too low must not make them late).
+fixed plan the regulator is measured against. Estimates get weight once est.status is 1 or 2
+and est.samples has grown by min_samples since departure (it runs on over station stops, where
+the mass identification restarts); braking curves are planned for the heavier of the blended
+and the configured mass (an identified mass that is too low must not make them late).
 
 **Targeted stopping**: models/ato/stopping.py (the braking curve, then the relay stages of the
-electro-pneumatic brake below 7 km/h, then the holding brake). From the start of the final
+electro-pneumatic brake below 7 km/h, then the holding brake), at ``ep_deceleration``: a_ep,
+lowered on a descent so that a (1 + mass_reserve) heavier car keeps one stage spare. From the start of the final
 braking curve the whole curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP
 stage's duration) short of the mark: where the filter is uncertain, a stop errs to the short
 side. Under speed-sensor noise the filter's position lags the car by more than it claims (the

@@ -69,7 +69,7 @@ class AtoTuning:
     grid_step: float = 10.0           # [m] re-planner's grid (0.4 % energy of synthesize's)
     time_tol: float = 0.05            # [s] re-plan's running-time tolerance (1/50 of 2.5 s)
     min_samples: int = 100            # est.samples before est.* are used (10 s at 0.1 s)
-    mass_band: float = 1.6            # est.mass used within [car.mass / this, car.mass x this]
+    mass_band: float = 1.6            # the blended mass kept in [car.mass / this, car.mass x this]
     #                                   (the library's cars: 24 t empty to 44 t crush-loaded)
     limit_margin: float = 0.5         # [m/s] planned speeds stay this far below V_lim
     #                                   (1.8 km/h, about Meleshin's (2011) 2 % speed error at

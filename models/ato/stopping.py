@@ -26,7 +26,9 @@ Our reading, in three parts:
 3. at rest within ``stop_window`` of the aim point (the mark, or short of it by
    models/ato/controller.py's aim offset where the filter is uncertain): the holding brake. A car that
    stops short of that window creeps on (a small traction at most ``creep_speed``), which
-   Sidorenko does not describe: without it a car stopped 0.5 m short would stay there.
+   Sidorenko does not describe: without it a car stopped 0.5 m short would stay there. The
+   creep is a PI on the speed (the feed-forward's mass may be wrong: on an ascent a heavier
+   car crept at a third of creep_speed with the proportional term alone).
 
 Units: s [m], V [m/s], force [N], mass [t].
 """
