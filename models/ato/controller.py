@@ -31,35 +31,28 @@ the mass identification restarts); braking curves are planned for the heavier of
 and the configured mass (an identified mass that is too low must not make them late).
 
 **Targeted stopping**: models/ato/stopping.py (the braking curve, then the relay stages of the
-electro-pneumatic brake below 7 km/h, then the holding brake), at ``ep_deceleration``: a_ep,
-lowered on a descent so that a (1 + mass_reserve) heavier car keeps one stage spare. From the start of the final
-braking curve the whole curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP
-stage's duration) short of the mark: where the filter is uncertain, a stop errs to the short
-side. Under speed-sensor noise the filter's position lags the car by more than it claims (the
-identified mass comes out low, so the filter's model brakes the car harder than the brake
-does: at 0.444 m/s speed noise est.mass is ~8 % low and the lag at the stop 0.34 m on average,
-sd 0.32 m, while filter.position_std says 0.19 m). So where filter.position_std exceeds
+electro-pneumatic brake below 7 km/h at ``ep_deceleration``, then the holding brake). The whole
+final braking curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP stage's
+duration) short of the mark. Under speed-sensor noise the filter's position lags the car by
+more than it claims (at 0.444 m/s noise est.mass is ~8 % low and the lag at the stop 0.34 m on
+average, sd 0.32 m, while filter.position_std says 0.19 m). So where filter.position_std exceeds
 ``settle_std`` when the final braking curve starts, the stop is in two parts: a short stop
 ``settle_sigma`` x filter.position_std short (at most ``settle_aim_max``), ``settle_time``
-standing with the holding brake (mode SETTLE) while the filter's distance catches up with the
-car (its model holds at rest, and the distance sensor keeps averaging), then a creep on to the
-mark within ``settle_window``. It costs ~11 s at the stop; with filter.position_std below
-settle_std (a quiet speed sensor) the stop is one stop as before.
+standing (mode SETTLE) while the filter's distance catches up with the car, then a creep on to
+the mark within ``settle_window`` (~11 s in all); else one stop.
 
 **Safety**: bad construction inputs raise ValueError naming the value (an infeasible schedule, a
-stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit the margin
-leaves nothing of, bad tuning). At run time nothing raises: an output that is missing or not
-finite, outside physics or inconsistent with the others (models/ato/supervision.py) gives a
-safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged (logger
+stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit
+the margin leaves nothing of, bad tuning). At run time nothing raises: an output that is missing
+or not finite, outside physics or inconsistent with the others (models/ato/supervision.py) gives
+a safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged (logger
 ``models.ato.controller`` and ``AtoController.events``), held until the outputs have been sane
-for ``RECOVERY_TIME`` (1 s). The supervisor brakes with the full brake
-whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve read at
-filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
-full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
-the stop mark; the controller itself keeps filter.speed + k_sigma filter.speed_std a
-``supervisor_gap`` + ``gap_sigma`` filter.speed_std below that curve, so a noisy filter slows the car rather than waking the
-supervisor. (A filter that is wrong by more than k_sigma of its own stds, as the lagging one
-above, can still take the car past the line: the controller cannot see that error.)
+for ``RECOVERY_TIME`` (1 s). The supervisor brakes with the full brake whenever filter.speed +
+k_sigma filter.speed_std exceeds the supervision curve read at filter.position + k_sigma
+filter.position_std: V_lim(s) and the full-brake curves (``mass_reserve`` more mass) to every
+lower limit ahead and to 1 m past the stop mark; the controller keeps a ``supervisor_gap`` +
+``gap_sigma`` filter.speed_std below it. (A filter wrong by more than k_sigma of its own stds, as
+the lagging one above, can still take the car past the line: the controller cannot see that.)
 
 Units: s [m], V [m/s], t [s], force [N], mass [t], grade [permille].
 """
@@ -72,9 +65,9 @@ from typing import Mapping
 
 # the host's side (inputs, command, modes, tuning) is models/ato/interface.py; also importable from here
 from models.ato.interface import INPUTS, STATED_INPUTS, AtoCommand, AtoMode, AtoTuning
-from models.ato.motion import PlanCar
+from models.ato.motion import PlanCar, blend_estimates
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
-from models.ato.stopping import RelayBrake, track_force
+from models.ato.stopping import RelayBrake, ep_deceleration, track_force
 from models.ato.supervision import RECOVERY_TIME, InputSupervisor
 from models.fpmath import square
 from models.planning.span import CarTraction, Span, check_span_for_car
@@ -85,103 +78,9 @@ LOG = logging.getLogger(__name__)
 
 MAX_GRID_NODES = 10_000  # the re-planner's grid: ~0.5 s to initialise, a re-plan ~0.05 s, ~8 MB
 #                          (measured alone: 0.43 s and 0.05 s; 100 km at the 10 m default)
-GATE_RATE = 0.2         # [1/s] the blend's gate factor moves at most this much per second (0 to
-#                         1 in 5 s: the plan's mass moves ~0.2 t per 0.1 s step at most)
+GATE_RATE = 0.2         # [1/s] the blend's gate factor moves at most this fast (0 to 1 in 5 s)
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
-
-
-def ep_deceleration(car: CarTraction, tuning: AtoTuning, grade: float) -> float:
-    """The EP stage's programmed deceleration [m/s^2] for a stop mark on ``grade`` [permille]:
-    tuning.a_ep, lowered where a car (1 + mass_reserve) heavier than configured would need more
-    than all but one of the ep_stages for it (a descent takes the relay's reserve: at -30
-    permille a 25 % heavier car needed all six stages for 1 m/s^2, and one more stage for a
-    speed error was not there, so the stop ran 0.44 m past). At least half of tuning.a_ep."""
-    m = car.mass * (1.0 + tuning.mass_reserve)                       # [t]
-    n = tuning.ep_stages
-    spare = max(n - 1, 1) / n
-    force = spare * car.mech_force_max + m * G * (car.A0 + grade)     # [N] net retarding
-    a = force / (1000.0 * m * (1.0 + car.gamma))
-    return min(tuning.a_ep, max(a, 0.5 * tuning.a_ep))
-
-
-def resistance_margins(a0: float, a1: float, a2: float, v_lo: float, v_hi: float):
-    """What the re-planner needs of a resistance w0(V) = a0 + a1 V + a2 V^2 [N/kN]: its slope at
-    v_lo and at v_hi [m/s] (rising: V_r and the co-state equation divide by it) and its mean
-    over [0, v_hi] (positive where the car cruises). Each must be > 0."""
-    return (a1 + 2.0 * a2 * v_lo, a1 + 2.0 * a2 * v_hi,
-            a0 + 0.5 * v_hi * (a1 + 0.5 * a2 * v_hi))
-
-
-def _w0_variance(stated, v: float) -> float:
-    """[1 V V^2] C [1 V V^2]^T: the variance of w0(V) [(N/kN)^2] from the stated stds and
-    covariances (est.A0_std, est.A1_std, est.A2_std, est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2)."""
-    s0, s1, s2, c01, c02, c12 = stated
-    v2 = v * v
-    var = (s0 * s0 + v2 * s1 * s1 + v2 * v2 * s2 * s2
-           + 2.0 * (v * c01 + v2 * c02 + v * v2 * c12))
-    return var if var > 0.0 else 0.0
-
-
-def blend_estimates(configured, estimated, stated, ramp: float, config_mass_std: float,
-                    config_resistance_std: float, gate: float, speeds, mass_band: float,
-                    gate_prev: float = 0.0, gate_step: float = math.inf):
-    """The car the regulator plans with: est.* and the configured car weighed by their
-    uncertainties, continuous in every input (no switching between sources: a drifting
-    estimate moves the plan's car a little, it never flips it).
-
-    configured, estimated: (mass [t], A0, A1, A2); stated: (est.mass_std, est.A0_std,
-    est.A1_std, est.A2_std, est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2); ramp in [0, 1] (the
-    estimates' share grows with the samples since departure); config_mass_std [t] and
-    config_resistance_std [N/kN]: the configured car's own uncertainty; speeds [m/s]: where the
-    resistance is compared (the first and last bound the re-planner's speeds).
-
-    - the weights are the inverse-variance ones: w_m = c^2 / (c^2 + est.mass_std^2), w_r the
-      same with the variance of w0(V) from the stated covariance, averaged over ``speeds``;
-    - a consistency gate multiplies both: d = the largest |w0_est(V) - w0_cfg(V)| over
-      sqrt(var_est(V) + c_r^2); weight 1 up to gate - 1 sigmas, 0 from gate on, linear
-      between. The mass has no gate of its own (a car far heavier than configured with a
-      small est.mass_std is what identification is for); a resistance that is inconsistent
-      with its own stated uncertainty says the joint fit is confounded (speed noise), and
-      the mass comes from the same fit. The gate factor moves at most ``gate_step`` from
-      ``gate_prev`` (the controller's last one): estimates that wander across the gate every
-      step (speed noise) would otherwise move the plan's mass by tonnes per step;
-    - w_r is then lowered so that the blended resistance keeps at least half of each of the
-      configured car's resistance_margins (the re-planner needs them positive), and the
-      blended mass is kept within [m_cfg / mass_band, m_cfg x mass_band].
-
-    A negative stated std gives no weight. Returns (mass, A0, A1, A2, w_m, w_r, gate factor,
-    d). Pure and scalar."""
-    m_c, a0_c, a1_c, a2_c = configured
-    m_e, a0_e, a1_e, a2_e = estimated
-    sd_m = stated[0]
-    res = stated[1:]
-    if ramp <= 0.0 or sd_m < 0.0 or res[0] < 0.0 or res[1] < 0.0 or res[2] < 0.0:
-        return m_c, a0_c, a1_c, a2_c, 0.0, 0.0, 0.0, math.inf
-    var_c = config_resistance_std * config_resistance_std
-    var_sum, d = 0.0, 0.0
-    for v in speeds:
-        var = _w0_variance(res, v)
-        var_sum += var
-        dw = (a0_e - a0_c) + v * ((a1_e - a1_c) + v * (a2_e - a2_c))
-        dv = abs(dw) / math.sqrt(var + var_c)
-        d = dv if dv > d else d
-    var_e = var_sum / len(speeds)
-    g = min(max(gate - d, 0.0), 1.0)
-    g = min(max(g, gate_prev - gate_step), gate_prev + gate_step)
-    w_r = ramp * g * var_c / (var_c + var_e)
-    mc2 = config_mass_std * config_mass_std
-    w_m = ramp * g * mc2 / (mc2 + sd_m * sd_m)
-    v_lo, v_hi = speeds[0], speeds[-1]
-    for f_c, f_e in zip(resistance_margins(a0_c, a1_c, a2_c, v_lo, v_hi),
-                        resistance_margins(a0_e, a1_e, a2_e, v_lo, v_hi)):
-        if f_c > 0.0 and f_e < 0.5 * f_c:
-            w_max = 0.5 * f_c / (f_c - f_e)
-            w_r = w_max if w_max < w_r else w_r
-    mass = m_c + w_m * (m_e - m_c)
-    mass = min(max(mass, m_c / mass_band), m_c * mass_band)
-    return (mass, a0_c + w_r * (a0_e - a0_c), a1_c + w_r * (a1_e - a1_c),
-            a2_c + w_r * (a2_e - a2_c), w_m, w_r, g, d)
 
 
 class AtoController:
@@ -372,9 +271,9 @@ class AtoController:
 
     def _estimates_usable(self, est) -> str | None:
         """Why est.* cannot be used at all now, or None (then blend_estimates weighs them)."""
-        status, samples = est[4], est[5]
-        if int(status) not in EST_USABLE:
-            return f"est.status = {int(status)}"
+        if int(est[4]) not in EST_USABLE:
+            return f"est.status = {int(est[4])}"
+        samples = est[5]
         if samples - self._samples0 < self.tuning.min_samples:
             return (f"est.samples = {int(samples)}: {int(samples - self._samples0)} since departure "
                     f"< {self.tuning.min_samples}")
@@ -480,12 +379,9 @@ class AtoController:
     def _replan(self, tau: float, s: float, v: float, car: PlanCar):
         t0 = _time.perf_counter()
         try:
-            # aim time_reserve of the remaining time early while the estimates and the
-            # configured car disagree (the gate closed: one of them is wrong, and the error
-            # may show only late, on the last coast); none where they agree
-            # (a share of the remaining time that shrinks with it: time_reserve x schedule at
-            # departure, a fifth of that with a fifth of the time left; a reserve still 1 s
-            # at the final braking curve cost 3.5 % energy for an early arrival)
+            # while est.* and the configured car disagree (one is wrong: the error may show
+            # only on the last coast) aim time_reserve x left^2 / schedule early (a quarter
+            # half-way: still ~1 s at the final braking curve cost 3.5 % energy)
             left = max(self.span.schedule - tau, 0.0)
             reserve = (self.tuning.time_reserve * (1.0 - self._gate)
                        * left * left / self.span.schedule)

@@ -36,7 +36,10 @@ from __future__ import annotations
 
 import math
 
+from models.ato.interface import AtoTuning
 from models.ato.motion import PlanCar
+from models.planning.span import CarTraction
+from models.units import G
 
 A_PROG_MIN = 0.3   # the programmed deceleration is at least this share of a_ep (a slower entry
 #                    creeps on instead of taking tens of seconds)
@@ -116,3 +119,17 @@ class RelayBrake:
             return max(f, 0.0), 0.0, -1, v_p
         self._t_creep = None
         return 0.0, self.stage * self.stage_force, self.stage, v_p
+
+
+def ep_deceleration(car: CarTraction, tuning: AtoTuning, grade: float) -> float:
+    """The EP stage's programmed deceleration [m/s^2] for a stop mark on ``grade`` [permille]:
+    tuning.a_ep, lowered where a car (1 + mass_reserve) heavier than configured would need more
+    than all but one of the ep_stages for it (a descent takes the relay's reserve: at -30
+    permille a 25 % heavier car needed all six stages for 1 m/s^2, and one more stage for a
+    speed error was not there, so the stop ran 0.44 m past). At least half of tuning.a_ep."""
+    m = car.mass * (1.0 + tuning.mass_reserve)                       # [t]
+    n = tuning.ep_stages
+    spare = max(n - 1, 1) / n
+    force = spare * car.mech_force_max + m * G * (car.A0 + grade)     # [N] net retarding
+    a = force / (1000.0 * m * (1.0 + car.gamma))
+    return min(tuning.a_ep, max(a, 0.5 * tuning.a_ep))

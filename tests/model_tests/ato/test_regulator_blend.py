@@ -11,7 +11,7 @@ import math
 
 import pytest
 
-from models.ato.controller import blend_estimates, resistance_margins
+from models.ato.motion import blend_estimates, resistance_margins
 from models.planning.span import CarTraction
 
 from closed_loop_line import DISTURBED, line_span, run_span

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from models.ato.controller import AtoController, ep_deceleration
+from models.ato.controller import AtoController
 from models.ato.interface import AtoTuning
+from models.ato.stopping import ep_deceleration
 from models.planning.span import CarTraction
 from models.units import G
 
