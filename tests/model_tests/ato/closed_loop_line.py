@@ -25,11 +25,13 @@ HEADWIND = 4.0                # [m/s]
 DISTURBED = {"sensor.speed_std": 0.01, "sensor.speed_std_rel": 0.02, "car.mass": 1.15 * CAR.mass}
 
 
-def line_span(grades: tuple, values: tuple, stop: float, limit_kmh: float, schedule: float) -> Span:
-    """A span to ``stop`` [m] (50 m more of track), one limit; the schedule [s] given (the tests
-    give 6-8 % above the fastest run the controller plans, measured once)."""
+def line_span(grades: tuple, values: tuple, stop: float, limits_kmh: tuple, schedule: float) -> Span:
+    """A span to ``stop`` [m] (50 m more of track), the grades [permille] from each distance
+    [m] on, the limits ((distance [m], km/h), ..) from each distance on, the schedule [s] given
+    (the tests give 6-8 % above the fastest run the controller planned before issue 29)."""
     grade = GradeProfile(tuple(float(x) for x in grades), tuple(float(x) for x in values))
-    return Span(stop + 50.0, schedule, stop, grade, (0.0,), (kmh_to_mps(limit_kmh),))
+    return Span(stop + 50.0, schedule, stop, grade, tuple(float(d) for d, _ in limits_kmh),
+                tuple(kmh_to_mps(v) for _, v in limits_kmh))
 
 
 def run_span(span: Span, seed: int, overrides: dict, wind: float = HEADWIND,
