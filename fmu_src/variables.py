@@ -204,7 +204,7 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
     ("grid_step", "m", "re-planner's distance grid"),
     ("time_tol", "s", "re-plan's running-time tolerance"),
     ("min_samples", None, "est.samples needed before est.* are used"),
-    ("mass_band", "1", "est.mass is used within [car.mass / this, car.mass x this]"),
+    ("mass_band", "1", "the planned mass (est.mass blended with car.mass) is kept within [car.mass / this, car.mass x this]"),
     ("limit_margin", "m/s", "planned speeds stay this far below the speed limit"),
     ("k_sigma", "1", "supervisor: filter.speed + k_sigma x filter.speed_std must stay under the supervision curve"),
     ("gap_sigma", "1", "and this many filter.speed_std more (filter.speed jumps under speed noise)"),
@@ -234,6 +234,12 @@ _TUNING_ROWS = (   # AtoTuning field, unit, description
     ("creep_aim", "m", "the creep after the stand aims this far short of the mark"),
     ("safe_brake", "1", "share of car.brake_force_max on a bad input (missing, non-finite, outside physics or inconsistent: docs/ato.md)"),
     ("hold_brake", "1", "share of car.brake_force_max held at the stop"),
+)
+_TUNING_ROWS_APPENDED = (   # AtoTuning fields added later: after the outputs (value references stay)
+    ("config_mass_std", "1", "the configured car.mass's own uncertainty, a share of it: est.mass gets the weight ato.config_mass_std^2 / (that + est.mass_std^2)"),
+    ("config_resistance_std", "N/kN", "the configured resistance's own uncertainty: est.A0..A2 get the weight of its variance against w0's stated variance"),
+    ("est_gate", "1", "est.* further than this many combined sigmas from the configured resistance get no weight, nearer than ato.est_gate - 1 full weight"),
+    ("time_reserve", "1", "re-plans aim this share of the remaining running time early while est.* and the configured car disagree"),
 )
 
 
@@ -276,9 +282,21 @@ def _ato_rows() -> tuple[Var, ...]:
         Var("ato.ep_stage", "output", "Integer", None, 0, "electro-pneumatic brake stages on (mode 7)", A, initial="calculated"),
         Var("ato.finished", "output", "Boolean", None, False, "the car stands at the stop mark", A, initial="calculated"),
         Var("ato.replans", "output", "Integer", None, 0, "re-plans so far", A, initial="calculated"),
-        Var("ato.using_estimates", "output", "Boolean", None, False, "the plan uses est.* (else the configured car.*)", A, initial="calculated"),
+        Var("ato.using_estimates", "output", "Boolean", None, False, "est.* have weight in the plan now (models.ato.controller.blend_estimates; else the configured car.*)", A, initial="calculated"),
         Var("ato.predicted_arrival", "output", "Real", "s", 0.0, "when the current plan stands at the stop mark", A, initial="calculated"),
     ]
+    from models.ato.interface import STATED_INPUTS
+    units = {"est.mass_std": "t", "est.A0_std": "N/kN", "est.A1_std": "N/kN/(m/s)",
+             "est.A2_std": "N/kN/(m/s)2", "est.cov_A0_A1": "(N/kN)2/(m/s)",
+             "est.cov_A0_A2": "(N/kN)2/(m/s)2", "est.cov_A1_A2": "(N/kN)2/(m/s)3"}
+    for name, prior in STATED_INPUTS:   # appended: the stated uncertainty the regulator weighs est.* by
+        rows.append(Var(name, "input", "Real", units[name], prior,
+                        f"the estimator's {name} (the regulator weighs est.* by it; the start value is "
+                        f"the estimator's prior, which gives est.* little weight)", A))
+    for f, u, d in _TUNING_ROWS_APPENDED:
+        t = typed[hints[f]]
+        rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
+                        min=0.0 if t == "Real" else None))
     return tuple(rows)
 
 

@@ -55,7 +55,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Mapping
 
 from models.ato.controller import AtoController
-from models.ato.interface import INPUTS as ATO_INPUTS
+from models.ato.interface import ALL_INPUTS as ATO_INPUTS
 from models.ato.interface import AtoCommand, AtoMode, AtoTuning
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile

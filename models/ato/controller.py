@@ -13,50 +13,46 @@ est.mass, est.A0..A2, est.status, est.samples (the identification).
 
 **Running-time regulator** (Meleshin 2011, ch. 4, uses a fuzzy regulator with predictive traction
 calculation; ours is its model-predictive form). Every ``replan_period`` seconds the rest of
-the span is re-planned from the filter's speed and position, with the identified mass and
-resistance when est.status says they are usable (else the configured ones), by
-models/ato/planner.py: Meleshin's maximum-principle structure solved for the holding speed V_c
-that arrives on schedule (milliseconds; the full synthesis takes seconds). Between re-plans the
+the span is re-planned from the filter's speed and position, with the car of
+``blend_estimates`` (the identified and the configured mass and resistance weighed by their
+uncertainties, continuous: no switching between sources; the estimates' stated uncertainty,
+STATED_INPUTS, is read where the host gives it), by models/ato/planner.py: Meleshin's
+maximum-principle structure solved for the holding speed V_c that arrives on schedule
+(milliseconds; the full synthesis takes seconds), aiming ``time_reserve`` x (time left)^2 /
+schedule early while the estimates and the configured car disagree. Between re-plans the
 controller executes the plan's *policy*, not its timetable: full traction below V_c, holding
 V_c by traction, coasting on a descent up to V_r and holding V_r by the regenerative brake,
 coasting from each planned coast point, following the envelope U(s) (limits less a margin and
 the braking curves) where the car reaches it. With ``replan=False`` and
 ``use_estimates=False`` the same policy is planned once from the configured coefficients: the
-fixed plan the regulator is measured against. Estimates are used once est.status is 1 or 2,
-est.samples has grown by min_samples since departure (it runs on over station stops, where
-the mass identification restarts), est.mass is within mass_band of the configured mass and the
-resistance rises with speed; braking curves are planned for the heavier of the identified and
-the configured mass (an identified mass that is too low must not make them late).
+fixed plan the regulator is measured against. Estimates get weight once est.status is 1 or 2
+and est.samples has grown by min_samples since departure (it runs on over station stops, where
+the mass identification restarts); braking curves are planned for the heavier of the blended
+and the configured mass (an identified mass that is too low must not make them late).
 
 **Targeted stopping**: models/ato/stopping.py (the braking curve, then the relay stages of the
-electro-pneumatic brake below 7 km/h, then the holding brake). From the start of the final
-braking curve the whole curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP
-stage's duration) short of the mark: where the filter is uncertain, a stop errs to the short
-side. Under speed-sensor noise the filter's position lags the car by more than it claims (the
-identified mass comes out low, so the filter's model brakes the car harder than the brake
-does: at 0.444 m/s speed noise est.mass is ~8 % low and the lag at the stop 0.34 m on average,
-sd 0.32 m, while filter.position_std says 0.19 m). So where filter.position_std exceeds
+electro-pneumatic brake below 7 km/h at ``ep_deceleration``, then the holding brake). The whole
+final braking curve ends at an aim point ``aim_sigma`` x filter.speed_std x (the EP stage's
+duration) short of the mark. Under speed-sensor noise the filter's position lags the car by
+more than it claims (at 0.444 m/s noise est.mass is ~8 % low and the lag at the stop 0.34 m on
+average, sd 0.32 m, while filter.position_std says 0.19 m). So where filter.position_std exceeds
 ``settle_std`` when the final braking curve starts, the stop is in two parts: a short stop
 ``settle_sigma`` x filter.position_std short (at most ``settle_aim_max``), ``settle_time``
-standing with the holding brake (mode SETTLE) while the filter's distance catches up with the
-car (its model holds at rest, and the distance sensor keeps averaging), then a creep on to the
-mark within ``settle_window``. It costs ~11 s at the stop; with filter.position_std below
-settle_std (a quiet speed sensor) the stop is one stop as before.
+standing (mode SETTLE) while the filter's distance catches up with the car, then a creep on to
+the mark within ``settle_window`` (~11 s in all); else one stop.
 
 **Safety**: bad construction inputs raise ValueError naming the value (an infeasible schedule, a
-stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit the margin
-leaves nothing of, bad tuning). At run time nothing raises: an output that is missing or not
-finite, outside physics or inconsistent with the others (models/ato/supervision.py) gives a
-safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged (logger
+stop mark beyond the span (models.planning.span.Span), a limit the brakes cannot keep, a limit
+the margin leaves nothing of, bad tuning). At run time nothing raises: an output that is missing
+or not finite, outside physics or inconsistent with the others (models/ato/supervision.py) gives
+a safe brake (``car.brake_force_max`` x ``safe_brake``) with the reason logged (logger
 ``models.ato.controller`` and ``AtoController.events``), held until the outputs have been sane
-for ``RECOVERY_TIME`` (1 s). The supervisor brakes with the full brake
-whenever filter.speed + k_sigma filter.speed_std exceeds the supervision curve read at
-filter.position + k_sigma filter.position_std (where the car may be): V_lim(s) and the
-full-brake curves (with ``mass_reserve`` more mass) to every lower limit ahead and to 1 m past
-the stop mark; the controller itself keeps filter.speed + k_sigma filter.speed_std a
-``supervisor_gap`` + ``gap_sigma`` filter.speed_std below that curve, so a noisy filter slows the car rather than waking the
-supervisor. (A filter that is wrong by more than k_sigma of its own stds, as the lagging one
-above, can still take the car past the line: the controller cannot see that error.)
+for ``RECOVERY_TIME`` (1 s). The supervisor brakes with the full brake whenever filter.speed +
+k_sigma filter.speed_std exceeds the supervision curve read at filter.position + k_sigma
+filter.position_std: V_lim(s) and the full-brake curves (``mass_reserve`` more mass) to every
+lower limit ahead and to 1 m past the stop mark; the controller keeps a ``supervisor_gap`` +
+``gap_sigma`` filter.speed_std below it. (A filter wrong by more than k_sigma of its own stds, as
+the lagging one above, can still take the car past the line: the controller cannot see that.)
 
 Units: s [m], V [m/s], t [s], force [N], mass [t], grade [permille].
 """
@@ -68,10 +64,10 @@ import time as _time
 from typing import Mapping
 
 # the host's side (inputs, command, modes, tuning) is models/ato/interface.py; also importable from here
-from models.ato.interface import INPUTS, AtoCommand, AtoMode, AtoTuning
-from models.ato.motion import PlanCar
+from models.ato.interface import INPUTS, STATED_INPUTS, AtoCommand, AtoMode, AtoTuning
+from models.ato.motion import PlanCar, blend_estimates
 from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
-from models.ato.stopping import RelayBrake, track_force
+from models.ato.stopping import RelayBrake, ep_deceleration, track_force
 from models.ato.supervision import RECOVERY_TIME, InputSupervisor
 from models.fpmath import square
 from models.planning.span import CarTraction, Span, check_span_for_car
@@ -82,6 +78,7 @@ LOG = logging.getLogger(__name__)
 
 MAX_GRID_NODES = 10_000  # the re-planner's grid: ~0.5 s to initialise, a re-plan ~0.05 s, ~8 MB
 #                          (measured alone: 0.43 s and 0.05 s; 100 km at the 10 m default)
+GATE_RATE = 0.2         # [1/s] the blend's gate factor moves at most this fast (0 to 1 in 5 s)
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
@@ -100,9 +97,10 @@ class AtoController:
         self.span, self.car, self.tuning = span, car, tuning
         check_span_for_car(span, car)          # a start on the grade, limits the brakes keep
         self._check_grid(span, car, tuning)
+        self.a_ep = ep_deceleration(car, tuning, span.grade.average(span.stop, car.length))
         self.course = ReducedCourse(span, car, step=tuning.grid_step,
                                     limit_margin=tuning.limit_margin,
-                                    v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
+                                    v_relay=car.regen_fade_speed, a_ep=self.a_ep)
         self.planner = ReducedPlanner(self.course, tol=tuning.time_tol)
         self.configured = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
         qU = self.planner.envelope(self.configured)
@@ -129,7 +127,7 @@ class AtoController:
         self.plan: ReducedPlan = plan
         self.initial_plan = plan
         stage_force = car.mech_force_max / tuning.ep_stages
-        self.relay = RelayBrake(span.stop, tuning.a_ep, stage_force, tuning.ep_stages,
+        self.relay = RelayBrake(span.stop, self.a_ep, stage_force, tuning.ep_stages,
                                 tuning.relay_hysteresis, tuning.relay_stage_speed,
                                 tuning.relay_dwell, tuning.creep_speed, tuning.creep_accel,
                                 tuning.stop_window)
@@ -147,8 +145,11 @@ class AtoController:
         self._last_status = "ok"
         self._last_brake = 0.0
         self._stand_since = None
-        self._usable_since = None
-        self._rejected = False
+        self.weights = (0.0, 0.0)           # blend_estimates' weights of est.mass, est.A0..A2
+        self._gate, self._t_gate = 0.0, None  # its gate factor (rate-limited) and when set [s]
+        self._used = False                  # est.* have had weight in this span
+        v_lo, v_hi = self.course.v_relay, max(span.limit_speeds)
+        self._blend_speeds = (v_lo, 0.5 * (v_lo + v_hi), v_hi)
         self.replans = 0
         self.aim_offset = 0.0
         self._brake_int, self._t_last = 0.0, None
@@ -220,6 +221,11 @@ class AtoController:
         return self._using_estimates
 
     @property
+    def plan_car(self) -> PlanCar:
+        """The car the plan and the feed-forward use now (blend_estimates' result)."""
+        return self._car_now
+
+    @property
     def finished(self) -> bool:
         """True once the car stands within tuning.stop_window of the stop mark (or past it)."""
         return self.phase == HOLD
@@ -264,25 +270,13 @@ class AtoController:
                           0.0)
 
     def _estimates_usable(self, est) -> str | None:
-        """Why est.* cannot be used now, or None."""
-        mass, a0, a1, a2, status, samples = est
-        if int(status) not in EST_USABLE:
-            return f"est.status = {int(status)}"
+        """Why est.* cannot be used at all now, or None (then blend_estimates weighs them)."""
+        if int(est[4]) not in EST_USABLE:
+            return f"est.status = {int(est[4])}"
+        samples = est[5]
         if samples - self._samples0 < self.tuning.min_samples:
             return (f"est.samples = {int(samples)}: {int(samples - self._samples0)} since departure "
                     f"< {self.tuning.min_samples}")
-        m0, band = self.car.mass, self.tuning.mass_band
-        if not m0 / band <= mass <= m0 * band:
-            return f"est.mass = {mass:.2f} t outside [{m0 / band:.4g}, {m0 * band:.4g}] t"
-        # what the re-planner needs: a resistance force rising with speed (W' > 0: V_r and the
-        # co-state equation divide by it) and positive where the car cruises; a slightly
-        # negative A0 (the LS trades it against A1, A2 when the data are at speed) is harmless
-        v_lo, v_hi = self.course.v_relay, max(self.span.limit_speeds)
-        if not (a1 + 2.0 * a2 * v_lo > 0.0 and a1 + 2.0 * a2 * v_hi > 0.0
-                and a0 + 0.5 * v_hi * (a1 + 0.5 * a2 * v_hi) > 0.0):
-            return (f"est.A0..A2 = {a0:.4g}, {a1:.4g}, {a2:.4g} give a resistance that is not "
-                    f"rising on [{v_lo:.2f}, {v_hi:.2f}] m/s or not positive at "
-                    f"{0.5 * v_hi:.2f} m/s")
         return None
 
     # ----------------------------------------------------------------- the step
@@ -312,6 +306,13 @@ class AtoController:
                 if not math.isfinite(x):
                     return self._bad_input(t, f"{name} = {x} is not finite: safe brake", name)
                 vals.append(x)
+            for name, prior in STATED_INPUTS:      # optional: the prior where absent or bad
+                x = outputs.get(name) if hasattr(outputs, "get") else None
+                try:
+                    x = float(x) if x is not None else prior
+                except (TypeError, ValueError):
+                    x = prior
+                vals.append(x if math.isfinite(x) else prior)
             problem = self.supervisor.check(t, vals)
             if problem is not None:
                 return self._bad_input(t, f"{problem[1]}: safe brake", problem[0])
@@ -334,39 +335,57 @@ class AtoController:
             return self._safe(math.nan, f"internal error {type(e).__name__}: {e}: safe brake",
                               "internal")
 
-    def _params(self, t: float, est) -> PlanCar:
-        """The car to plan and feed forward with: est.* when usable (after a rejection, only
-        once they have been usable for replan_period again: no flapping), else configured."""
-        why = self._estimates_usable(est) if self.tuning.use_estimates else "use_estimates off"
-        if why is None:
-            if self._usable_since is None:
-                self._usable_since = t
-            settled = (not self._rejected or
-                       t - self._usable_since >= self.tuning.replan_period - 1e-9)
-            if settled:
-                key = tuple(est[:4])
-                if key != self._last_key:
-                    self._car_now = PlanCar(self.car, *key, self.tuning.brake_share,
-                                            brake_mass=max(key[0], self.car.mass))
-                    self._last_key = key
-                if not self._using_estimates:
-                    self._clear("estimates")
-                    self._using_estimates = True
-                    self._last_replan = -math.inf          # re-plan now with the estimates
-                    self.events.append((t, "est.* usable: planning with the identified values"))
-        else:
-            self._usable_since = None
+    def _params(self, t: float, est, stated) -> PlanCar:
+        """The car to plan and feed forward with: blend_estimates of est.* and the configured
+        car, weighted by est.*'s stated uncertainty (none while est.* is not usable at all)."""
+        tn = self.tuning
+        why = self._estimates_usable(est) if tn.use_estimates else "use_estimates off"
+        if why is not None:
+            w_m = w_r = 0.0
+            key = None
             if self._using_estimates:
-                self._rejected = True
                 self._log(t, f"estimates not usable ({why}): configured values", "estimates")
-                self._using_estimates = False
-                self._car_now = self.configured
+        else:
+            c = self.configured
+            ramp = min(max((est[5] - self._samples0 - tn.min_samples) / tn.min_samples, 0.0), 1.0)
+            dt = t - self._t_gate if self._t_gate is not None else 0.0
+            b = blend_estimates((c.mass, c.A0, c.A1, c.A2), tuple(est[:4]), stated, ramp,
+                                tn.config_mass_std * c.mass, tn.config_resistance_std,
+                                tn.est_gate, self._blend_speeds, tn.mass_band,
+                                self._gate, GATE_RATE * dt)
+            key, w_m, w_r = b[:4], b[4], b[5]
+            self._gate, self._t_gate = b[6], t
+            if b[6] <= 0.0 and ramp > 0.0:       # logged once until the gate opens fully
+                self._log(t, f"est.A0..A2 lie {b[7]:.1f} stated sigmas from the configured "
+                             f"resistance: no weight for est.*", "estimates")
+            elif b[6] >= 1.0:
+                self._clear("estimates")
+        using = w_m > 0.0 or w_r > 0.0
+        if using and not self._using_estimates and not self._used:
+            self._used = True
+            self._last_replan = -math.inf              # re-plan now with the estimates
+            self.events.append((t, "est.* usable: planning with the identified values weighed "
+                                   "against the configured car"))
+        self._using_estimates = using
+        self.weights = (w_m, w_r)
+        if key is None or not using:
+            self._car_now = self.configured
+        elif key != self._last_key:
+            self._car_now = PlanCar(self.car, *key, tn.brake_share,
+                                    brake_mass=max(key[0], self.car.mass))
+        self._last_key = key if using else None
         return self._car_now
 
     def _replan(self, tau: float, s: float, v: float, car: PlanCar):
         t0 = _time.perf_counter()
         try:
-            plan = self.planner.plan(car, s, v, tau, self.span.schedule)
+            # while est.* and the configured car disagree (one is wrong: the error may show
+            # only on the last coast) aim time_reserve x left^2 / schedule early (a quarter
+            # half-way: still ~1 s at the final braking curve cost 3.5 % energy)
+            left = max(self.span.schedule - tau, 0.0)
+            reserve = (self.tuning.time_reserve * (1.0 - self._gate)
+                       * left * left / self.span.schedule)
+            plan = self.planner.plan(car, s, v, tau, self.span.schedule - reserve)
         except ValueError as e:
             self.events.append((tau, f"re-plan failed ({e}): the last plan is kept"))
             return
@@ -385,11 +404,12 @@ class AtoController:
         v, s, sd = max(vals[0], 0.0), vals[1], vals[2]
         est = vals[3:9]
         self._psd = max(vals[9], 0.0)
+        stated = vals[10:17]
         if self.t_departure is None:
             self.t_departure = t
             self._samples0 = est[5]   # est.samples runs on over station stops: count from here
         tau = t - self.t_departure
-        car = self._params(t, est)
+        car = self._params(t, est, stated)
         tn = self.tuning
         if self.phase == HOLD:
             return self._hold()
@@ -455,7 +475,7 @@ class AtoController:
         if self._settle and not self.settled:
             self.aim_offset = min(tn.settle_sigma * self._psd, tn.settle_aim_max)
         else:
-            t_ep = self.course.v_relay / tn.a_ep
+            t_ep = self.course.v_relay / self.a_ep
             self.aim_offset = min(tn.aim_sigma * sd * t_ep, tn.aim_max)
         self.relay.stop = self.span.stop - self.aim_offset
 
@@ -470,7 +490,7 @@ class AtoController:
             self.events.append((t, f"filter.position_std {self._psd:.3f} m at the "
                                                   f"EP stage: one stop, no settling"))
         if not (self._settle and not self.settled):
-            t_ep = self.course.v_relay / tn.a_ep
+            t_ep = self.course.v_relay / self.a_ep
             self.aim_offset = min(self.aim_offset, tn.aim_sigma * sd * t_ep, tn.aim_max)
             self.relay.stop = self.span.stop - self.aim_offset
 

@@ -19,6 +19,17 @@ INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "es
           "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
 """The outputs the controller reads, by their FMU names."""
 
+STATED_INPUTS = (("est.mass_std", 10.0), ("est.A0_std", 5.0), ("est.A1_std", 0.1),
+                 ("est.A2_std", 0.02), ("est.cov_A0_A1", 0.0), ("est.cov_A0_A2", 0.0),
+                 ("est.cov_A1_A2", 0.0))
+"""The estimates' stated uncertainty, which the regulator weighs them by (models/ato/controller.py
+blend_estimates), with the value used where a host does not give one (or gives one that is
+not finite): the estimator's prior (fmu_src/variables.py est.*_std_initial), which gives
+est.* little weight. Optional: a host that passes only INPUTS still runs (with that prior)."""
+
+ALL_INPUTS = INPUTS + tuple(name for name, _ in STATED_INPUTS)
+"""Everything the controller reads: what a host should pass (the AtoController FMU's inputs)."""
+
 
 class AtoMode(IntEnum):
     """AtoCommand.mode. 0..6 are the modes of Meleshin's (2011) Table 2
@@ -58,7 +69,7 @@ class AtoTuning:
     grid_step: float = 10.0           # [m] re-planner's grid (0.4 % energy of synthesize's)
     time_tol: float = 0.05            # [s] re-plan's running-time tolerance (1/50 of 2.5 s)
     min_samples: int = 100            # est.samples before est.* are used (10 s at 0.1 s)
-    mass_band: float = 1.6            # est.mass used within [car.mass / this, car.mass x this]
+    mass_band: float = 1.6            # the blended mass kept in [car.mass / this, car.mass x this]
     #                                   (the library's cars: 24 t empty to 44 t crush-loaded)
     limit_margin: float = 0.5         # [m/s] planned speeds stay this far below V_lim
     #                                   (1.8 km/h, about Meleshin's (2011) 2 % speed error at
@@ -110,6 +121,20 @@ class AtoTuning:
     safe_brake: float = 1.0           # share of car.brake_force_max on a bad input
     hold_brake: float = 0.5           # share of car.brake_force_max held at the stop (at least
     #                                   the last EP stage)
+    # the regulator's blend of est.* and the configured car (controller.blend_estimates)
+    config_mass_std: float = 0.1      # the configured car.mass's own uncertainty, a share of it
+    #                                   (a metro car's load: 24-44 t around 30 t is ~+-2 sigma)
+    config_resistance_std: float = 1.0  # [N/kN] the configured resistance's own uncertainty
+    #                                   (a 5 m/s headwind adds 1.4 N/kN at 40 km/h, A0 +50 % 0.45)
+    est_gate: float = 3.0             # est.* further from the configured car than this many
+    #                                   combined sigmas get no weight, nearer than est_gate - 1
+    #                                   full weight, linear between (stated stds that are 5x too
+    #                                   small under speed noise put them 5-7 sigma away)
+    time_reserve: float = 0.03        # re-plans aim time_reserve x (remaining time)^2 /
+    #                                   schedule early (3 s of a 100 s span at departure, 0.75 s
+    #                                   half-way, 0 at the mark) x (1 - the blend's gate
+    #                                   factor): while est.* and the configured car disagree,
+    #                                   room for a model error that shows only late
 
     def __post_init__(self):
         for f in fields(self):
@@ -138,9 +163,16 @@ class AtoTuning:
                                  f"a wider band admits nothing more)")
             positive = ("replan_period", "grid_step", "time_tol", "approach_gain", "a_ep",
                         "relay_stage_speed", "stand_speed", "creep_speed", "brake_share",
-                        "creep_accel", "safe_brake", "hold_brake")
+                        "creep_accel", "safe_brake", "hold_brake", "config_mass_std",
+                        "config_resistance_std")
             if f.name in positive and x == 0.0:
                 raise ValueError(f"tuning.{f.name} must be > 0, got {v!r}")
+            if f.name == "est_gate" and x < 1.0:
+                raise ValueError(f"tuning.est_gate must be >= 1, got {v!r} (full weight "
+                                 f"ends est_gate - 1 sigmas from the configured car)")
+            if f.name == "time_reserve" and x > 0.2:
+                raise ValueError(f"tuning.time_reserve must be in [0, 0.2], got {v!r} (a share "
+                                 f"of the remaining running time planned early)")
             shares = ("brake_share", "safe_brake", "hold_brake")
             if f.name in shares and x > 1.0:
                 raise ValueError(f"tuning.{f.name} must be in (0, 1], got {v!r}")

@@ -1,5 +1,6 @@
 """The ATO re-planner's car and its motion on the coarse grid (models/ato/planner.py): the
-PlanCar (a CarTraction's characteristics with the mass and resistance of one re-plan), one RK2
+PlanCar (a CarTraction's characteristics with the mass and resistance of one re-plan; the
+controller's blend_estimates gives that mass and resistance), one RK2
 step of q = V^2 in distance under a force law, a coasting step with the co-state p, the forces
 that hold a bound, and the run trace. Plain scalar Python: the re-planner calls these ~10^4
 times per re-plan.
@@ -197,3 +198,82 @@ def q_at(tr: Trace, x: float) -> float:
     if x > tr.s[k] + 1e-9 and k + 1 < len(tr.s):
         return tr.q[k] + (x - tr.s[k]) / (tr.s[k + 1] - tr.s[k]) * (tr.q[k + 1] - tr.q[k])
     return tr.q[k]
+
+
+def resistance_margins(a0: float, a1: float, a2: float, v_lo: float, v_hi: float):
+    """What the re-planner needs of a resistance w0(V) = a0 + a1 V + a2 V^2 [N/kN]: its slope at
+    v_lo and at v_hi [m/s] (rising: V_r and the co-state equation divide by it) and its mean
+    over [0, v_hi] (positive where the car cruises). Each must be > 0."""
+    return (a1 + 2.0 * a2 * v_lo, a1 + 2.0 * a2 * v_hi,
+            a0 + 0.5 * v_hi * (a1 + 0.5 * a2 * v_hi))
+
+
+def _w0_variance(stated, v: float) -> float:
+    """[1 V V^2] C [1 V V^2]^T: the variance of w0(V) [(N/kN)^2] from the stated stds and
+    covariances (est.A0_std, est.A1_std, est.A2_std, est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2)."""
+    s0, s1, s2, c01, c02, c12 = stated
+    v2 = v * v
+    var = (s0 * s0 + v2 * s1 * s1 + v2 * v2 * s2 * s2
+           + 2.0 * (v * c01 + v2 * c02 + v * v2 * c12))
+    return var if var > 0.0 else 0.0
+
+
+def blend_estimates(configured, estimated, stated, ramp: float, config_mass_std: float,
+                    config_resistance_std: float, gate: float, speeds, mass_band: float,
+                    gate_prev: float = 0.0, gate_step: float = math.inf):
+    """The car the regulator plans with: est.* and the configured car weighed by their
+    uncertainties, continuous in every input (no switching between sources: a drifting
+    estimate moves the plan's car a little, it never flips it).
+
+    configured, estimated: (mass [t], A0, A1, A2); stated: (est.mass_std, est.A0_std,
+    est.A1_std, est.A2_std, est.cov_A0_A1, est.cov_A0_A2, est.cov_A1_A2); ramp in [0, 1] (the
+    estimates' share grows with the samples since departure); config_mass_std [t] and
+    config_resistance_std [N/kN]: the configured car's own uncertainty; speeds [m/s]: where the
+    resistance is compared (the first and last bound the re-planner's speeds).
+
+    - the weights are the inverse-variance ones: w_m = c^2 / (c^2 + est.mass_std^2), w_r the
+      same with the variance of w0(V) from the stated covariance, averaged over ``speeds``;
+    - a consistency gate multiplies both: d = the largest |w0_est(V) - w0_cfg(V)| over
+      sqrt(var_est(V) + c_r^2); weight 1 up to gate - 1 sigmas, 0 from gate on, linear
+      between. The mass has no gate of its own (a car far heavier than configured with a
+      small est.mass_std is what identification is for); a resistance that is inconsistent
+      with its own stated uncertainty says the joint fit is confounded (speed noise), and
+      the mass comes from the same fit. The gate factor moves at most ``gate_step`` from
+      ``gate_prev`` (the controller's last one): estimates that wander across the gate every
+      step (speed noise) would otherwise move the plan's mass by tonnes per step;
+    - w_r is then lowered so that the blended resistance keeps at least half of each of the
+      configured car's resistance_margins (the re-planner needs them positive), and the
+      blended mass is kept within [m_cfg / mass_band, m_cfg x mass_band].
+
+    A negative stated std gives no weight. Returns (mass, A0, A1, A2, w_m, w_r, gate factor,
+    d). Pure and scalar."""
+    m_c, a0_c, a1_c, a2_c = configured
+    m_e, a0_e, a1_e, a2_e = estimated
+    sd_m = stated[0]
+    res = stated[1:]
+    if ramp <= 0.0 or sd_m < 0.0 or res[0] < 0.0 or res[1] < 0.0 or res[2] < 0.0:
+        return m_c, a0_c, a1_c, a2_c, 0.0, 0.0, 0.0, math.inf
+    var_c = config_resistance_std * config_resistance_std
+    var_sum, d = 0.0, 0.0
+    for v in speeds:
+        var = _w0_variance(res, v)
+        var_sum += var
+        dw = (a0_e - a0_c) + v * ((a1_e - a1_c) + v * (a2_e - a2_c))
+        dv = abs(dw) / math.sqrt(var + var_c)
+        d = dv if dv > d else d
+    var_e = var_sum / len(speeds)
+    g = min(max(gate - d, 0.0), 1.0)
+    g = min(max(g, gate_prev - gate_step), gate_prev + gate_step)
+    w_r = ramp * g * var_c / (var_c + var_e)
+    mc2 = config_mass_std * config_mass_std
+    w_m = ramp * g * mc2 / (mc2 + sd_m * sd_m)
+    v_lo, v_hi = speeds[0], speeds[-1]
+    for f_c, f_e in zip(resistance_margins(a0_c, a1_c, a2_c, v_lo, v_hi),
+                        resistance_margins(a0_e, a1_e, a2_e, v_lo, v_hi)):
+        if f_c > 0.0 and f_e < 0.5 * f_c:
+            w_max = 0.5 * f_c / (f_c - f_e)
+            w_r = w_max if w_max < w_r else w_r
+    mass = m_c + w_m * (m_e - m_c)
+    mass = min(max(mass, m_c / mass_band), m_c * mass_band)
+    return (mass, a0_c + w_r * (a0_e - a0_c), a1_c + w_r * (a1_e - a1_c),
+            a2_c + w_r * (a2_e - a2_c), w_m, w_r, g, d)

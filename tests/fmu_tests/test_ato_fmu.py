@@ -17,7 +17,7 @@ import pytest
 
 from conftest import ERROR, OK, STATUS_LABEL
 from models.ato.controller import AtoController
-from models.ato.interface import INPUTS, AtoMode
+from models.ato.interface import ALL_INPUTS as INPUTS, AtoMode
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 

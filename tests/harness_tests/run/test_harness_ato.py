@@ -354,7 +354,7 @@ def test_a_span_scenario_on_the_chain_needs_nothing_but_the_atos_reads(nominal):
     """AtoDriver.reads: what an FMU stepper must read for it (models.ato.controller.INPUTS, car.speed to
     end a span, est.station_stops for a line); every one is a RailCar output the run records."""
     s, r, d = nominal
-    from models.ato.interface import INPUTS as ATO_INPUTS
+    from models.ato.interface import ALL_INPUTS as ATO_INPUTS
     assert set(ATO_INPUTS) <= set(AtoDriver.reads) <= set(r.signals)
     assert set(AtoDriver.reads) - set(ATO_INPUTS) == {"car.speed", "est.station_stops"}
 

@@ -511,7 +511,9 @@ def test_the_speed_limit_check_can_fail_without_the_margins():
 def test_estimates_wait_for_min_samples_since_departure():
     """est.samples runs on over station stops while the mass identification restarts: a
     controller departing with est.samples = 5000 (a later span of a line) plans with the
-    configured car until 100 more samples (tuning.min_samples) have come, then with est.*."""
+    configured car until 100 more samples (tuning.min_samples) have come, then est.* get weight
+    (blend_estimates: growing to full over min_samples more, the gate factor at most
+    GATE_RATE per second)."""
     ctrl = AtoController(SPAN, CAR, REGULATED)
     out = _at_rest()
     out.update({"est.status": 1, "est.samples": 5000, "est.mass": 33.0, "est.A0": 0.9,
@@ -525,7 +527,12 @@ def test_estimates_wait_for_min_samples_since_departure():
     assert not ctrl._using_estimates                     # 99 < 100
     out.update({"est.samples": 5100, "filter.position": out["filter.position"] + 0.5})
     ctrl.demands(10.0, out)
-    assert ctrl._using_estimates and ctrl._car_now.mass == 33.0
+    assert not ctrl._using_estimates                     # the ramp starts at 100: weight 0
+    out.update({"est.samples": 5200, "filter.position": out["filter.position"] + 25.0,
+                "est.mass_std": 0.3, "est.A0_std": 0.2, "est.A1_std": 0.005, "est.A2_std": 5e-4})
+    ctrl.demands(15.0, out)
+    assert ctrl._using_estimates
+    assert ctrl.plan_car.mass == pytest.approx(30.0 + 3.0 * 9.0 / (9.0 + 0.09), rel=1e-12)
 
 
 @pytest.mark.slow
@@ -538,7 +545,9 @@ def test_relative_speed_noise_stops_once_on_time_and_on_the_mark(rel):
     speed's filter.speed_std: the one standstill within +-2.5 s and +-0.3 m, never over V_lim."""
     for seed in (21, 22):
         run = closed_loop(REGULATED, seed, {"sensor.speed_std": 0.01, "sensor.speed_std_rel": rel})
-        assert AtoMode.SETTLE not in run.modes and AtoMode.CREEP not in run.modes, seed
+        # one stop: no stand, the one standstill the final one; a step or two of creep traction
+        # inside the EP stage (every stage off and the car below V_p) is not a second stop
+        assert AtoMode.SETTLE not in run.modes and run.modes.count(AtoMode.CREEP) <= 2, seed
         assert run.first_stop == run.stop and run.ctrl.finished, seed
         assert abs(run.arrival) <= ARRIVAL_TOL and abs(run.stop) <= STOP_TOL, (seed, run)
         assert run.margin > 0.0, seed
