@@ -47,8 +47,11 @@ from harness.textio import InputError
 __all__ = ["ATO_FEED", "DEMANDS", "system_from_scenario", "limits_csv", "is_scenario"]
 
 ATO_FEED = ("filter.speed", "filter.position", "filter.speed_std", "filter.position_std",
-            "est.mass", "est.A0", "est.A1", "est.A2", "est.status", "est.samples")
-"""The car's outputs the ATO reads (inputs of the same names)."""
+            "est.mass", "est.A0", "est.A1", "est.A2", "est.status", "est.samples",
+            "est.mass_std", "est.A0_std", "est.A1_std", "est.A2_std", "est.cov_A0_A1",
+            "est.cov_A0_A2", "est.cov_A1_A2")
+"""The car's outputs the ATO reads (inputs of the same names): models.ato.interface.ALL_INPUTS,
+the estimates with their stated uncertainty (the regulator weighs them by it)."""
 DEMANDS = ("traction_force_demand", "brake_force_demand")
 """The ATO's outputs the car applies."""
 ATO_FMU = "AtoController.fmu"
