@@ -30,6 +30,15 @@ READS = tuple(INPUTS) + (STATION_STOPS,)
 """The estimator's outputs a LineController reads, by their FMU names."""
 
 
+class LineError(ValueError):
+    """A span a line cannot run; ``span``: which (1-based), ``reason``: why (the message less
+    its "span k: " head)."""
+
+    def __init__(self, span: int, reason: str):
+        super().__init__(f"span {span}: {reason}")
+        self.span, self.reason = span, reason
+
+
 @dataclass(frozen=True)
 class LineSpan:
     """One span of a line: models.planning.span.Span, and for the second and later spans the
@@ -72,8 +81,8 @@ class LineController:
     """The ATO over the spans ``spans`` in order (module docstring): ``demands(t, outputs)`` gives
     each step's LineStep. ``finished``: the last span's controller stands at its mark.
     ``departures``: [s] each span's first command. ValueError (AtoController's, or a dwell or
-    boarding that is not a finite number, a dwell <= 0 before a second or later span) names
-    the span (1-based)."""
+    boarding that is not a finite number, a dwell <= 0 before a second or later span) is a
+    LineError naming the span (1-based)."""
 
     reads = READS
 
@@ -83,17 +92,17 @@ class LineController:
             raise ValueError("a line needs at least one span")
         for i, s in enumerate(self.spans):
             if not (math.isfinite(s.dwell_s) and math.isfinite(s.boarding_t)):
-                raise ValueError(f"span {i + 1}: dwell_s = {s.dwell_s!r} s and boarding_t = "
-                                 f"{s.boarding_t!r} t must be finite")
+                raise LineError(i + 1, f"dwell_s = {s.dwell_s!r} s and boarding_t = "
+                                       f"{s.boarding_t!r} t must be finite")
             if i > 0 and s.dwell_s <= 0.0:
-                raise ValueError(f"span {i + 1}: dwell_s = {s.dwell_s!r} s: the standstill at the "
-                                 f"station before it must be > 0")
+                raise LineError(i + 1, f"dwell_s = {s.dwell_s!r} s: the standstill at the "
+                                       f"station before it must be > 0")
         self.controllers: list[AtoController] = []
         for i, s in enumerate(self.spans):
             try:
                 self.controllers.append(AtoController(s.span, car, tuning))
             except ValueError as e:
-                raise ValueError(f"span {i + 1}: {e}") from None
+                raise LineError(i + 1, str(e)) from None
         self.k = 0                              # the span running or (dwell) just finished
         self.departures: list[float] = []
         self.finished = False
