@@ -44,7 +44,10 @@ identified again after boarding, the resistance carries over), so one run exerci
 what the estimates exist for, through the same loop, and stays one library scenario that the
 regression and the FMU-vs-chain checks run as they run the others. The price: the plant keys
 its grade profile by the distance from the previous station, so every span of a line runs over
-the same profile, from 0 to its own stop mark.
+the same profile, from 0 to its own stop mark. The line's logic (dwells, boarding, the
+filter.position shift after a departure, a span's end on the controller's own standstill
+decision) is models.ato.line.LineController, the one the AtoController FMU runs too, so a line is
+also a system (``python -m harness system build``, docs/systems.md "A line").
 """
 from __future__ import annotations
 
