@@ -284,6 +284,12 @@ def _ato_rows() -> tuple[Var, ...]:
         Var("ato.replans", "output", "Integer", None, 0, "re-plans so far", A, initial="calculated"),
         Var("ato.using_estimates", "output", "Boolean", None, False, "est.* have weight in the plan now (models.ato.controller.blend_estimates; else the configured car.*)", A, initial="calculated"),
         Var("ato.predicted_arrival", "output", "Real", "s", 0.0, "when the current plan stands at the stop mark", A, initial="calculated"),
+        # a line (models.ato.line): appended, the rows above keep their value references
+        Var("est.station_stops", "input", "Integer", None, 0, "station stops the estimator has recognised (a line: until it grows after a departure the filter still counts from the previous station); connect it for a line", A),
+        Var("line.profile", "parameter", "String", None, "", "CSV 'stop_m,length_m,schedule_s,dwell_s,boarding_t': one row per span after the first (span.*), in order: its stop mark [m], length [m] (0 = stop_m), schedule [s], the standstill at the station before it [s] (> 0, at least the estimator's track.station_dwell) and the passengers boarding there [t] (leaving: < 0); every span over span.grade_profile from its station; empty = one span", A),
+        Var("line.speed_limit_profile", "parameter", "String", None, "", "CSV 'span,distance_m,speed_limit_mps': the speed limits of line.profile's spans (span 2 is its first row), piecewise constant from each distance (each span's first 0); a span without rows: span.speed_limit over it", A),
+        Var("ato.payload", "output", "Real", "t", 0.0, "passengers boarded at the line's stations so far, from the dwell's start (RailCar's car.payload input)", A, initial="calculated"),
+        Var("ato.span", "output", "Integer", None, 1, "the span running (1: span.*, 2, 3, ..: line.profile's rows); during a dwell the span just finished, and ato.finished is that span's", A, initial="calculated"),
     ]
     from models.ato.interface import STATED_INPUTS
     units = {"est.mass_std": "t", "est.A0_std": "N/kN", "est.A1_std": "N/kN/(m/s)",

@@ -44,7 +44,10 @@ identified again after boarding, the resistance carries over), so one run exerci
 what the estimates exist for, through the same loop, and stays one library scenario that the
 regression and the FMU-vs-chain checks run as they run the others. The price: the plant keys
 its grade profile by the distance from the previous station, so every span of a line runs over
-the same profile, from 0 to its own stop mark.
+the same profile, from 0 to its own stop mark. The line's logic (dwells, boarding, the
+filter.position shift after a departure, a span's end on the controller's own standstill
+decision) is models.ato.line.LineController, the one the AtoController FMU runs too, so a line is
+also a system (``python -m harness system build``, docs/systems.md "A line").
 """
 from __future__ import annotations
 
@@ -52,11 +55,12 @@ import logging
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass, fields, replace
-from typing import Mapping
+from typing import Callable, Mapping
 
 from models.ato.controller import AtoController
-from models.ato.interface import ALL_INPUTS as ATO_INPUTS
-from models.ato.interface import AtoCommand, AtoMode, AtoTuning
+from models.ato.interface import AtoTuning
+from models.ato.line import READS as LINE_READS
+from models.ato.line import LineController, LineSpan, LineStep
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 from models.units import kmh_to_mps
@@ -82,15 +86,6 @@ def configured_car(plant: Mapping[str, float] | None, given: Mapping[str, float]
     from_plant = {} if plant is None else {
         f: float(plant[f"car.{f}"]) for f in PLANT_CAR_FIELDS if f not in given and f"car.{f}" in plant}
     return CarTraction(**{**from_plant, **given})
-
-
-@dataclass(frozen=True)
-class LineSpan:
-    """One span of a span scenario: models.planning.span.Span, and for the second and later spans of a
-    line the standstill before departure [s] and the passengers boarding then [t]."""
-    span: Span
-    dwell_s: float = 0.0
-    boarding_t: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -272,32 +267,9 @@ def parse_ato(data: dict, source: str, grade: GradeProfile, station_dwell: float
 
 # ------------------------------------------------------------------------------ the driver
 
-@dataclass(frozen=True)
-class AtoStep:
-    """What the ATO driver did at one call (time t [s]): the span (0-based), the command, and
-    whether it was a station dwell between spans (then the command is the holding brake)."""
-    t: float
-    span: int
-    command: AtoCommand
-    dwell: bool = False
-
-
-class _Shifted(Mapping):
-    """The outputs with filter.position less ``offset`` [m]: from a station until the estimator
-    has recognised it (est.station_stops), the filter still counts from the previous station."""
-
-    def __init__(self, outputs: Mapping[str, float], offset: float):
-        self._o, self._offset = outputs, offset
-
-    def __getitem__(self, name):
-        v = self._o[name]
-        return v - self._offset if name == "filter.position" else v
-
-    def __iter__(self):
-        return iter(self._o)
-
-    def __len__(self):
-        return len(self._o)
+AtoStep = LineStep
+"""What the ATO did at one call (models.ato.line.LineStep): t [s], the span (0-based), the command,
+whether it was a station dwell between spans (the holding brake), the payload change [t]."""
 
 
 class _ControllerLog(logging.Handler):
@@ -310,14 +282,15 @@ class _ControllerLog(logging.Handler):
         super().__init__(logging.DEBUG)
         self.logger = logging.getLogger("models.ato.controller")
         self.sink: list[str] | None = None
-        self.prefix = ""
+        self.prefix: Callable[[], str] = str
 
     def emit(self, record: logging.LogRecord) -> None:
         if self.sink is not None:
-            self.sink.append(self.prefix + record.getMessage())
+            self.sink.append(self.prefix() + record.getMessage())
 
     @contextmanager
-    def into(self, sink: list[str], prefix: str):
+    def into(self, sink: list[str], prefix: Callable[[], str]):
+        """``prefix()`` at each record: the span that logs (a call can switch spans)."""
         log, was = self.logger, self.logger.propagate
         self.sink, self.prefix = sink, prefix
         log.addHandler(self)
@@ -334,68 +307,51 @@ _CONTROLLER_LOG = _ControllerLog()
 
 
 class AtoDriver:
-    """A harness.run.driver Driver over a span scenario's spans: one AtoController per span, a
-    holding brake of ``dwell_s`` between them (``boarding_t`` boarding at its start). It records
-    every call (``steps``: AtoStep) for the metrics and the report.
+    """A harness.run.driver Driver over a span scenario's spans: models.ato.line.LineController
+    (one AtoController per span, a holding brake of ``dwell_s`` between them, ``boarding_t``
+    boarding at its start), the same line logic the AtoController FMU runs. It records every
+    call (``steps``: AtoStep) for the metrics and the report.
 
-    The controllers read the estimator's outputs only; the driver reads two more: car.speed, the
-    bench's truth, to end a span once the car really stands (a test bench ends a run so; no
-    control decision uses it), and est.station_stops, to know when the estimator has restarted
-    its filter at a station. ``finished``: the last span's car stands at its mark.
+    It reads what an ATO can read, the estimator's outputs (``reads``: models.ato.interface.INPUTS
+    and est.station_stops), never the plant's truth: a span ends when its controller has decided
+    that the car stands (models.ato.line). ``finished``: the last span's controller stands at
+    its mark.
 
     What the controllers log (models.ato.controller's logger: "ATO at t = 10.70 s: estimates not
     usable ...") goes to ``log_lines``, "<scenario>: span k: ..." (RunResult.driver_log), not to
     stderr: the command that wants it prints it, naming the scenario."""
 
+    reads = LINE_READS
+
     def __init__(self, setup: AtoSetup, name: str = ""):
         self.setup = setup
         self.name = name                       # the scenario's, first on every log line
-        self.controllers = setup.controllers()
+        self.line = LineController(setup.spans, setup.car, setup.tuning)
+        self.controllers = self.line.controllers
         self.steps: list[AtoStep] = []
         self.log_lines: list[str] = []         # the controllers' log (module docstring of _ControllerLog)
-        self.departures: list[float] = []      # [s] each span's first command
-        self.k = 0
-        self._dwell_from: float | None = None
-        self._offset: float | None = None
-        self.finished = False
 
-    reads = tuple(ATO_INPUTS) + ("car.speed", "est.station_stops")
+    @property
+    def departures(self) -> list[float]:
+        """[s] each span's first command."""
+        return self.line.departures
+
+    @property
+    def finished(self) -> bool:
+        return self.line.finished
+
+    def _log_prefix(self) -> str:
+        return f"{self.name or 'ATO'}: span {self.line.k + 1}: "
 
     def demands(self, t: float, outputs: Mapping[str, float]) -> Demands:
-        ctrl = self.controllers[self.k]
-        if self._dwell_from is not None:             # standing at a station between spans
-            nxt = self.setup.spans[self.k + 1]
-            if t - self._dwell_from < nxt.dwell_s - 1e-9:
-                cmd = AtoCommand(0.0, ctrl.tuning.hold_brake * ctrl.car.brake_force_max,
-                                 int(AtoMode.HOLD), 0.0)
-                first = not self.steps[-1].dwell
-                self.steps.append(AtoStep(t, self.k, cmd, dwell=True))
-                return Demands(cmd.traction, cmd.brake, nxt.boarding_t if first else 0.0)
-            self._dwell_from = None
-            self.k += 1
-            ctrl = self.controllers[self.k]
-            self._offset = float(outputs["filter.position"])
-        view = outputs
-        if self._offset is not None:
-            if outputs["est.station_stops"] >= self.k:      # the estimator restarted its filter
-                self._offset = None
-            else:
-                view = _Shifted(outputs, self._offset)
-        if len(self.departures) == self.k:
-            self.departures.append(t)
-        with _CONTROLLER_LOG.into(self.log_lines, f"{self.name or 'ATO'}: span {self.k + 1}: "):
-            cmd = ctrl.demands(t, view)
-        self.steps.append(AtoStep(t, self.k, cmd))
-        if ctrl.finished and outputs["car.speed"] == 0.0:
-            if self.k == len(self.controllers) - 1:
-                self.finished = True
-            else:
-                self._dwell_from = t
-        return Demands(cmd.traction, cmd.brake)
+        with _CONTROLLER_LOG.into(self.log_lines, self._log_prefix):
+            step = self.line.demands(t, outputs)
+        self.steps.append(step)
+        return Demands(step.command.traction, step.command.brake, step.payload_change)
 
     def events(self) -> list[tuple[int, float, str]]:
         """(span, t [s], text) of every controller's events."""
-        return [(k, t, e) for k, c in enumerate(self.controllers) for t, e in c.events]
+        return self.line.events()
 
 
 def replay_steps(scenario, result) -> AtoDriver:

@@ -8,13 +8,16 @@ schedule, stop error, energy, speed-limit margin and interventions, the numbers
 - the truth: the car's car.speed and car.position (the component the ATO's
   traction_force_demand drives), the true car of its parameters (fmu_src.adapter.chain_config,
   with car.total_mass at departure when recorded, as the harness takes it);
-- the span, the configured car and the tuning as the AtoController FMU builds them from its
-  parameters (fmu_src.adapter.open_ato, the profiles read from the package);
+- the spans, the configured car and the tuning as the AtoController FMU builds them from its
+  parameters (fmu_src.ato_controller.open_line: span.* and a line's line.profile, the profiles
+  read from the package);
 - the demands the car applied from each row on: in the Jacobi scheme the ATO's outputs recorded
   at row r are the car's inputs over [t_r, t_r+1] (the master's module text); when the ATO steps
   before the car (a step order), those recorded at row r + 1;
-- departure at the start time (the ATO's first step); arrived: the last row holds the stop
-  (ato.mode 8) with the car at rest, the harness's rule.
+- a span's rows (ato.span, as applied): from its first call (the departure; the first span's
+  at the start time) to its first holding brake (ato.mode 8: the controller's standstill
+  decision), the rest of its rows being the dwell, as harness.metrics.ato.ato_metrics takes the
+  AtoDriver's calls; arrived: that row holds the stop with the car at rest, the harness's rule.
 """
 from __future__ import annotations
 
@@ -53,6 +56,8 @@ def metric_outputs(system: LoadedSystem) -> list[str]:
     ato, car = found
     names = [f"{car}.car.speed", f"{car}.car.position", f"{ato}.traction_force_demand",
              f"{ato}.brake_force_demand", f"{ato}.ato.mode"]
+    if any(v.name == "ato.span" for v in system.models[ato].modelVariables):
+        names.append(f"{ato}.ato.span")
     if any(v.name == "car.total_mass" for v in system.models[car].modelVariables):
         names.append(f"{car}.car.total_mass")
     return names
@@ -71,10 +76,11 @@ def _values(system: LoadedSystem, component: str, model: str, folder: str) -> di
 
 
 def system_ato_metrics(system: LoadedSystem, result) -> list:
-    """[harness.metrics.ato.SpanMetrics] of the system's one span, from a run (``result``: a
-    harness.systems.master.Result holding ``metric_outputs``). SspError if the system has no ATO
-    driving a car or the FMUs' parameters cannot be read."""
-    from fmu_src.adapter import ParameterError, chain_config, open_ato
+    """[harness.metrics.ato.SpanMetrics] of the system's spans (one, or a line's), from a run
+    (``result``: a harness.systems.master.Result holding ``metric_outputs``). SspError if the
+    system has no ATO driving a car or the FMUs' parameters cannot be read."""
+    from fmu_src.adapter import ParameterError, chain_config
+    from fmu_src.ato_controller import open_line
     from fmu_src.variables import ATO, RAILCAR
     from harness.metrics.ato import span_metrics
     from models.ato.interface import AtoMode
@@ -87,22 +93,32 @@ def system_ato_metrics(system: LoadedSystem, result) -> list:
         raise SspError(f"{system.path}: the run did not record {', '.join(missing)}")
     with tempfile.TemporaryDirectory(prefix="railcar-ssp-metrics-") as folder:
         try:
-            ctrl = open_ato(_values(system, ato_name, ATO, folder), None)
-            truth = chain_config(_values(system, car_name, RAILCAR, folder)).vehicle
+            line = open_line(_values(system, ato_name, ATO, folder), None)
+            vehicle = chain_config(_values(system, car_name, RAILCAR, folder)).vehicle
         except (ParameterError, ValueError) as e:
             raise SspError(f"{system.path}: the ATO metrics need the FMUs' parameters: {e}") from None
     sig = {n.split(".", 1)[1]: np.asarray(result.signals[n]) for n in metric_outputs(system)}
-    if "car.total_mass" in sig:
-        truth = replace(truth, mass=float(sig["car.total_mass"][0]))
     order = system.spec.step_order
     ahead = bool(order) and order.index(ato_name) < order.index(car_name)
 
     def applied(recorded):           # the value applied from each row on (the module's text)
         return np.append(recorded[1:], recorded[-1]) if ahead else recorded
-    speed, modes = sig["car.speed"], applied(sig["ato.mode"])
-    last = len(result.time) - 1
-    arrived = int(sig["ato.mode"][last]) == int(AtoMode.HOLD) and float(speed[last]) == 0.0
-    return [span_metrics(0, ctrl.span, range(0, last + 1), result.time, speed, sig["car.position"],
-                         applied(sig["traction_force_demand"]), applied(sig["brake_force_demand"]),
-                         truth, ctrl.car, float(result.time[0]), [int(m) for m in modes], arrived,
-                         system.spec.step)]
+    speed, modes = sig["car.speed"], [int(m) for m in applied(sig["ato.mode"])]
+    spans = applied(sig["ato.span"]) if "ato.span" in sig else np.ones(len(result.time))
+    out = []
+    for k, ls in enumerate(line.spans):
+        rows = np.flatnonzero(spans == k + 1)
+        if rows.size == 0:
+            break
+        j0 = int(rows[0])                # the departure (the first span: the start time)
+        held = [int(j) for j in rows if j > j0 and modes[j] == int(AtoMode.HOLD)]
+        j1 = held[0] if held else int(rows[-1])
+        truth = vehicle if "car.total_mass" not in sig else replace(
+            vehicle, mass=float(sig["car.total_mass"][j0]))
+        arrived = modes[j1] == int(AtoMode.HOLD) and float(speed[j1]) == 0.0
+        out.append(span_metrics(k, ls.span, range(j0, j1 + 1), result.time, speed,
+                                sig["car.position"], applied(sig["traction_force_demand"]),
+                                applied(sig["brake_force_demand"]), truth, line.controllers[0].car,
+                                float(result.time[j0]), modes[j0:j1 + 1], arrived,
+                                system.spec.step))
+    return out

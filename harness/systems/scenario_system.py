@@ -1,6 +1,6 @@
 """A span scenario (harness/run/span_scenario.py) as an FMU system: RailCar <-> AtoController.
 
-``system_from_scenario`` turns a scenario with one ``[span]`` into the SystemSpec that
+``system_from_scenario`` turns a scenario with one ``[span]`` or a line of ``[[span]]`` into the SystemSpec that
 ``python -m harness system build SCENARIO.toml OUT.ssp`` writes, nothing repeated by hand:
 
 - the car (RailCar: the native FMU when the C core covers the scenario's parameters, as
@@ -17,17 +17,18 @@
   car's grade file, as the harness's span is) checked at build and packed into the .ssp
   (harness.systems.ssp.PackedFile): the masters hand the FMUs the unpacked copy, whatever the
   working directory;
+- a line (several ``[[span]]``): the first span as span.*, the later ones as a CSV made at build
+  for the AtoController's line.profile (``line_csv``: stop_m, length_m, schedule_s, dwell_s,
+  boarding_t per span) and their limits as one for line.speed_limit_profile (``line_limits_csv``),
+  packed as the limits CSV is; the ATO's ato.payload drives the car's car.payload (the boarding
+  at each dwell's start) and the car's est.station_stops feeds the ATO (models.ato.line: the
+  one line logic the harness's AtoDriver runs too);
 - a constant wind as the start value of the car's wind_speed input;
 - step_s and duration_s as the system's step and stop time.
 
 What a system cannot be, refused at build with the reason: a scenario without a span (its
-driving script is the harness's, not an FMU), a wind that changes during the run (no FMU gives
-it), and a line of several spans. The AtoController FMU runs one span per instance; the harness
-runs a line (harness.run.span_scenario.AtoDriver) by switching controllers at each station after
-a holding brake of dwell_s, boarding passengers through the car's car.payload input, and
-shifting filter.position until the estimator has seen the station (est.station_stops). A
-master cannot do that through FMI 2 (a parameter cannot change after initialisation); it needs
-an AtoController that takes the whole line (docs/systems.md, "A line").
+driving script is the harness's, not an FMU) and a wind that changes during the run (no FMU
+gives it).
 
 The system steps Gauss-Seidel, the ATO first (SystemSpec.step_order ("ato", "car")): the demand
 the ATO computes from the car's outputs at t is applied over [t, t + h], as ``python -m harness
@@ -44,14 +45,16 @@ from pathlib import Path
 from harness.systems.ssp import Component, Connection, PackedFile, SspError, SystemSpec
 from harness.textio import InputError
 
-__all__ = ["ATO_FEED", "DEMANDS", "system_from_scenario", "limits_csv", "is_scenario"]
+__all__ = ["ATO_FEED", "DEMANDS", "system_from_scenario", "limits_csv", "line_csv",
+           "line_limits_csv", "is_scenario"]
 
 ATO_FEED = ("filter.speed", "filter.position", "filter.speed_std", "filter.position_std",
             "est.mass", "est.A0", "est.A1", "est.A2", "est.status", "est.samples",
             "est.mass_std", "est.A0_std", "est.A1_std", "est.A2_std", "est.cov_A0_A1",
-            "est.cov_A0_A2", "est.cov_A1_A2")
-"""The car's outputs the ATO reads (inputs of the same names): models.ato.interface.ALL_INPUTS,
-the estimates with their stated uncertainty (the regulator weighs them by it)."""
+            "est.cov_A0_A2", "est.cov_A1_A2", "est.station_stops")
+"""The car's outputs the ATO reads (inputs of the same names): models.ato.line.READS, the
+estimates with their stated uncertainty (the regulator weighs them by it) and the station stops
+the estimator has recognised (a line)."""
 DEMANDS = ("traction_force_demand", "brake_force_demand")
 """The ATO's outputs the car applies."""
 ATO_FMU = "AtoController.fmu"
@@ -69,6 +72,26 @@ def limits_csv(distances, speeds_mps) -> bytes:
     rows = ["# speed limits [m/s] from each distance [m]: made by python -m harness system build",
             "distance_m,speed_limit_mps"]
     rows += [f"{float(d)!r},{float(v)!r}" for d, v in zip(distances, speeds_mps)]
+    return ("\n".join(rows) + "\n").encode("utf-8")
+
+
+def line_csv(spans) -> bytes:
+    """The second and later spans of a line (harness.run.span_scenario.LineSpan) as the
+    AtoController's line.profile reads them, the doubles written exactly (repr)."""
+    rows = ["# a line's spans after the first: made by python -m harness system build",
+            "stop_m,length_m,schedule_s,dwell_s,boarding_t"]
+    rows += [",".join(repr(float(x)) for x in (s.span.stop, s.span.length, s.span.schedule,
+                                               s.dwell_s, s.boarding_t)) for s in spans[1:]]
+    return ("\n".join(rows) + "\n").encode("utf-8")
+
+
+def line_limits_csv(spans) -> bytes:
+    """The speed limits of a line's second and later spans as line.speed_limit_profile reads
+    them: span (2, 3, ..), distance_m, speed_limit_mps, the doubles written exactly (repr)."""
+    rows = ["# speed limits [m/s] of a line's spans from each distance [m]: made by python -m "
+            "harness system build", "span,distance_m,speed_limit_mps"]
+    rows += [f"{k},{float(d)!r},{float(v)!r}" for k, s in enumerate(spans[1:], start=2)
+             for d, v in zip(s.span.limit_distances, s.span.limit_speeds)]
     return ("\n".join(rows) + "\n").encode("utf-8")
 
 
@@ -113,14 +136,6 @@ def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
                        f"built from a [span] scenario; a [[driver]] script or [driver_table] is "
                        f"the harness's driver (python -m harness run {path})")
     setup = scenario.ato_setup()
-    if len(setup.spans) > 1:
-        raise SspError(f"{path}: span: a line of {len(setup.spans)} spans with dwells cannot be a "
-                       f"system yet: the AtoController FMU runs one span per instance, and the "
-                       f"harness runs a line by switching controllers at each station after dwell_s "
-                       f"standing, boarding boarding_t through car.payload (harness.run.span_scenario."
-                       f"AtoDriver), which FMI 2 does not let a master do (parameters are fixed after "
-                       f"initialisation); run it with python -m harness run {path} (docs/systems.md, "
-                       f"'A line')")
     changing = [w for w in scenario.wind if w.time_s > 0.0]
     if changing:
         raise SspError(f"{path}: wind: the wind changes at t = {changing[0].time_s:g} s; in a system "
@@ -153,6 +168,14 @@ def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
            **_fields_as_parameters(setup.tuning, "ato", ato_md, f"{path}: ato")}
     connections = ([Connection(f"car.{v}", f"ato.{v}") for v in ATO_FEED]
                    + [Connection(f"ato.{v}", f"car.{v}") for v in DEMANDS])
+    if len(setup.spans) > 1:
+        stem = _system_name(scenario.name)
+        ato["line.profile"] = PackedFile(data=line_csv(setup.spans), name=f"{stem}_line.csv",
+                                         parameter="span")
+        ato["line.speed_limit_profile"] = PackedFile(data=line_limits_csv(setup.spans),
+                                                     name=f"{stem}_line_limits.csv",
+                                                     parameter="span.limit_kmh")
+        connections.append(Connection("ato.ato.payload", "car.car.payload"))
     return SystemSpec(_system_name(scenario.name), (Component("car", choice.path, params),
                                                     Component("ato", ato_path, ato)),
                       tuple(connections), scenario.step_s, 0.0, scenario.duration_s,
