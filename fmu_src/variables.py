@@ -88,7 +88,7 @@ VARIABLES: tuple[Var, ...] = (
     Var("car.adhesion_mass_fraction", "parameter", "Real", "1", 1.0, "share of the mass on driven axles", R, min=0.0, max=1.0),
     Var("car.adhesion_factor", "parameter", "Real", "1", 1.0, "scales the dry-rail adhesion coefficient (Curtius-Kniffler); wet rail ~0.5", R, min=0.0),
     Var("car.process_noise_psd", "parameter", "Real", "m2/s3", 1e-4, "process noise: white acceleration noise density; sigma^2 per step dt = psd * dt", R, min=0.0),
-    Var("car.initial_speed", "parameter", "Real", "m/s", 0.0, "speed at the start; > 0 starts the car moving mid-line", R, min=0.0),
+    Var("car.initial_speed", "parameter", "Real", "m/s", 0.0, "speed at the start (at most 200 m/s); > 0 starts the car moving mid-line", R, min=0.0, max=200.0),
     Var("car.initial_position", "parameter", "Real", "m", 0.0, "distance from the previous station at the start", R, min=0.0),
     Var("solver.step", "parameter", "Real", "s", 0.05, "plant's fixed internal integration step (RK4)", R, min=0.0),
     Var("sensor.sample_period", "parameter", "Real", "s", 0.1, "sensor sampling period; the estimator runs at this period", R, min=0.0),
@@ -284,12 +284,6 @@ def _ato_rows() -> tuple[Var, ...]:
         Var("ato.replans", "output", "Integer", None, 0, "re-plans so far", A, initial="calculated"),
         Var("ato.using_estimates", "output", "Boolean", None, False, "est.* have weight in the plan now (models.ato.controller.blend_estimates; else the configured car.*)", A, initial="calculated"),
         Var("ato.predicted_arrival", "output", "Real", "s", 0.0, "when the current plan stands at the stop mark", A, initial="calculated"),
-        # a line (models.ato.line): appended, the rows above keep their value references
-        Var("est.station_stops", "input", "Integer", None, 0, "station stops the estimator has recognised (a line: until it grows after a departure the filter still counts from the previous station); connect it for a line", A),
-        Var("line.profile", "parameter", "String", None, "", "CSV 'stop_m,length_m,schedule_s,dwell_s,boarding_t': one row per span after the first (span.*), in order: its stop mark [m], length [m] (0 = stop_m), schedule [s], the standstill at the station before it [s] (> 0, at least the estimator's track.station_dwell) and the passengers boarding there [t] (leaving: < 0); every span over span.grade_profile from its station; empty = one span", A),
-        Var("line.speed_limit_profile", "parameter", "String", None, "", "CSV 'span,distance_m,speed_limit_mps': the speed limits of line.profile's spans (span 2 is its first row), piecewise constant from each distance (each span's first 0); a span without rows: span.speed_limit over it", A),
-        Var("ato.payload", "output", "Real", "t", 0.0, "passengers boarded at the line's stations so far, from the dwell's start (RailCar's car.payload input)", A, initial="calculated"),
-        Var("ato.span", "output", "Integer", None, 1, "the span running (1: span.*, 2, 3, ..: line.profile's rows); during a dwell the span just finished, and ato.finished is that span's", A, initial="calculated"),
     ]
     from models.ato.interface import STATED_INPUTS
     units = {"est.mass_std": "t", "est.A0_std": "N/kN", "est.A1_std": "N/kN/(m/s)",
@@ -303,6 +297,14 @@ def _ato_rows() -> tuple[Var, ...]:
         t = typed[hints[f]]
         rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
                         min=0.0 if t == "Real" else None))
+    rows += [
+        # a line (models.ato.line): appended after the stated uncertainty, the rows above keep their value references
+        Var("est.station_stops", "input", "Integer", None, 0, "station stops the estimator has recognised (a line: until it grows after a departure the filter still counts from the previous station); connect it for a line", A),
+        Var("line.profile", "parameter", "String", None, "", "CSV 'stop_m,length_m,schedule_s,dwell_s,boarding_t': one row per span after the first (span.*), in order: its stop mark [m], length [m] (0 = stop_m), schedule [s], the standstill at the station before it [s] (> 0, at least the estimator's track.station_dwell) and the passengers boarding there [t] (leaving: < 0); every span over span.grade_profile from its station; empty = one span", A),
+        Var("line.speed_limit_profile", "parameter", "String", None, "", "CSV 'span,distance_m,speed_limit_mps': the speed limits of line.profile's spans (span 2 is its first row), piecewise constant from each distance (each span's first 0); a span without rows: span.speed_limit over it", A),
+        Var("ato.payload", "output", "Real", "t", 0.0, "passengers boarded at the line's stations so far, from the dwell's start (RailCar's car.payload input)", A, initial="calculated"),
+        Var("ato.span", "output", "Integer", None, 1, "the span running (1: span.*, 2, 3, ..: line.profile's rows); during a dwell the span just finished, and ato.finished is that span's", A, initial="calculated"),
+    ]
     return tuple(rows)
 
 
