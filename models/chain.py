@@ -130,6 +130,9 @@ class ChainConfig:
             v = getattr(self, name)
             if not (v >= 0 and math.isfinite(v)):
                 raise ValueError(f"car.{name} must be >= 0, got {v}")
+        if self.initial_speed > MAX_MEASURED_SPEED:     # 1e300 gave an infinite car.acceleration
+            raise ValueError(f"car.initial_speed must be <= {MAX_MEASURED_SPEED:g} m/s (no rail car "
+                             f"is that fast), got {self.initial_speed}")
         if self.sample_period + 1e-12 < self.solver_step:
             raise ValueError(f"solver.step ({self.solver_step}) must not exceed "
                              f"sensor.sample_period ({self.sample_period})")

@@ -7,6 +7,7 @@
 #include <stdio.h>
 
 #define SEED_MAX 2147483647L            /* 2 ** 31 - 1: the FMU's seed is an fmi2Integer */
+#define MAX_INITIAL_SPEED 200.0        /* [m/s] chain.MAX_MEASURED_SPEED */
 #define MAX_BATCH_SIZE 100000L          /* identification.MAX_BATCH_SIZE */
 #define MAX_SLOPE_WINDOW 1000L          /* identification.MAX_SLOPE_WINDOW */
 
@@ -196,6 +197,9 @@ rc_status rc_chain_validate(const rc_chain_config *cfg, long slope_window, int h
         return refuse_value(err, "car.initial_speed", "must be >= 0", cfg->initial_speed);
     if (!(cfg->initial_position >= 0 && isfinite(cfg->initial_position)))
         return refuse_value(err, "car.initial_position", "must be >= 0", cfg->initial_position);
+    if (cfg->initial_speed > MAX_INITIAL_SPEED)     /* chain.MAX_MEASURED_SPEED */
+        return refuse_value(err, "car.initial_speed",
+                            "must be <= 200 m/s (no rail car is that fast)", cfg->initial_speed);
     if (cfg->sample_period + 1e-12 < cfg->solver_step) {
         char a[40], b[40];
         rc_repr(cfg->solver_step, a, sizeof a);

@@ -216,6 +216,7 @@ CHAIN_CASES = [
     {"est.slope_window": 1000}, {"est.slope_window": 1001, "est.method": 2},
     {"est.slope_window": 2 ** 31 - 1},
     {"est.A0_initial": 50.0, "est.batch_size": 10 ** 6},    # the first bound in Python's order
+    {"car.initial_speed": 1e300}, {"car.initial_speed": 200.0}, {"car.initial_speed": 200.00000000000003},
     {"est.batch_size": 3, "est.method": 9},
     {"est.forgetting": 2.0, "est.run_forgetting": 2.0},
     # FilterConfig.validate (length = car.length)
