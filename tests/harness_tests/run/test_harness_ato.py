@@ -351,12 +351,12 @@ def test_the_line_stops_at_each_station(tmp_path):
 
 
 def test_a_span_scenario_on_the_chain_needs_nothing_but_the_atos_reads(nominal):
-    """AtoDriver.reads: what an FMU stepper must read for it (models.ato.controller.INPUTS, car.speed to
-    end a span, est.station_stops for a line); every one is a RailCar output the run records."""
+    """AtoDriver.reads: what an FMU stepper must read for it (models.ato.interface.ALL_INPUTS and
+    est.station_stops for a line; never the plant's truth); every one is a RailCar output the run records."""
     s, r, d = nominal
     from models.ato.interface import ALL_INPUTS as ATO_INPUTS
     assert set(ATO_INPUTS) <= set(AtoDriver.reads) <= set(r.signals)
-    assert set(AtoDriver.reads) - set(ATO_INPUTS) == {"car.speed", "est.station_stops"}
+    assert set(AtoDriver.reads) - set(ATO_INPUTS) == {"est.station_stops"}
 
 
 # ------------------------------------------------------------------------------ the report

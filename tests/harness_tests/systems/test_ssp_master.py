@@ -38,9 +38,7 @@ CAR = {"car.mass": 36.0, "seed": 11, "traction_force_demand": 30e3,
 EST = {"est.mass_initial": 30.0, "est.batch_size": 40}
 MEASURED = (("sensor.speed", "sensor.speed"), ("sensor.position", "sensor.position"),
             ("car.traction_force", "traction_force"), ("car.brake_force", "brake_force"))
-ATO_FEED = ("filter.speed", "filter.position", "filter.speed_std", "filter.position_std",
-            "est.mass", "est.A0", "est.A1", "est.A2", "est.status", "est.samples")
-DEMANDS = ("traction_force_demand", "brake_force_demand")
+from harness.systems.scenario_system import ATO_FEED, DEMANDS  # noqa: E402  (what the ATO reads and asks)
 SPAN = {"span.stop": 400.0, "span.schedule": 45.0, "span.grade_profile": "profiles/ato_span_grade.csv"}
 
 

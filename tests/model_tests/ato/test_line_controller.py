@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from models.ato.interface import INPUTS, AtoCommand, AtoMode, AtoTuning
+from models.ato.interface import ALL_INPUTS, INPUTS, AtoCommand, AtoMode, AtoTuning
 from models.ato.line import READS, LineController, LineSpan
 from models.planning.span import CarTraction, Span
 
@@ -51,8 +51,9 @@ def _stand_in_line(dwell: float = 3.0, boarding: float = 4.0) -> tuple[LineContr
 
 
 def test_reads_are_the_estimators_outputs_only():
-    """The line reads the controller's inputs and est.station_stops, nothing of the plant."""
-    assert READS == tuple(INPUTS) + ("est.station_stops",)
+    """The line reads the controller's inputs (ALL_INPUTS: the estimates and their stated
+    uncertainty) and est.station_stops, nothing of the plant."""
+    assert READS == tuple(ALL_INPUTS) + ("est.station_stops",)
     assert not any(n.startswith("car.") for n in READS)
 
 
