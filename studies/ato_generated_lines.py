@@ -46,7 +46,7 @@ import math
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -59,9 +59,7 @@ import numpy as np  # noqa: E402
 from harness.metrics.ato import ato_metrics  # noqa: E402
 from harness.run.driver import run_on_chain  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, scenario_from_dict  # noqa: E402
-from models.ato.interface import AtoTuning  # noqa: E402
-from models.ato.planner import ReducedCourse, ReducedPlanner  # noqa: E402
-from models.ato.motion import PlanCar  # noqa: E402
+from models.ato.controller import fastest_run  # noqa: E402
 from models.planning.span import CarTraction, Span, check_span_for_car  # noqa: E402
 from models.plant.track import GradeProfile  # noqa: E402
 
@@ -101,16 +99,6 @@ class DrawnSpan:
     boarding_t: float
 
 
-def fastest_run(span: Span, car: CarTraction = CAR, tuning: AtoTuning | None = None) -> float:
-    """[s] the fastest run the ATO plans for ``span`` with ``car`` (as AtoController does)."""
-    tuning = tuning or AtoTuning()
-    course = ReducedCourse(span, car, step=tuning.grid_step, limit_margin=tuning.limit_margin,
-                           v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
-    planner = ReducedPlanner(course, tol=tuning.time_tol)
-    configured = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
-    return planner.min_time(configured, planner.envelope(configured))
-
-
 def draw_grade(rng, top_m: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
     distances, grades, x = [0.0], [round(rng.uniform(*GRADE_PERMILLE), 1)], 0.0
     while True:
@@ -146,7 +134,7 @@ def generate_line(seed: int, n_spans: int):
             check_span_for_car(span, CAR)
         except ValueError:
             continue
-        fastest = fastest_run(span)
+        fastest = fastest_run(span, CAR)
         schedule = round(fastest * (1.0 + rng.uniform(*SCHEDULE_ABOVE)), 1)
         first = not spans
         board = 0.0 if first else float(np.clip(rng.uniform(*BOARDING_T), -on_board, 8.0 - on_board))

@@ -192,8 +192,7 @@ def span_info(setup) -> list[SpanInfo]:
     whose schedule the controller refuses is still described. A span the car cannot run at all
     (a climb it stalls on, a limit its brakes cannot keep) has nan times and its ``problem``."""
     from models.ato.controller import AtoController
-    from models.ato.motion import PlanCar
-    from models.ato.planner import ReducedCourse, ReducedPlanner
+    from models.ato.controller import plan_setup
     from models.planning.span import check_span_for_car
     car, tuning = setup.car, setup.tuning
     out = []
@@ -202,10 +201,7 @@ def span_info(setup) -> list[SpanInfo]:
         nan = math.nan
         try:
             check_span_for_car(span, car)
-            course = ReducedCourse(span, car, step=tuning.grid_step, limit_margin=tuning.limit_margin,
-                                   v_relay=car.regen_fade_speed, a_ep=tuning.a_ep)
-            planner = ReducedPlanner(course, tol=tuning.time_tol)
-            plan_car = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
+            _, planner, plan_car = plan_setup(span, car, tuning)
             qU = planner.envelope(plan_car)
             fastest = planner.min_time(plan_car, qU)
             fast = planner.plan(plan_car, 0.0, 0.0, 0.0, fastest, qU)

@@ -83,6 +83,24 @@ EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degr
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
 
 
+def plan_setup(span: Span, car: CarTraction, tuning: AtoTuning) -> tuple[ReducedCourse, ReducedPlanner, PlanCar]:
+    """(course, planner, configured car) the controller plans ``span`` with: the one copy that
+    AtoController, ``fastest_run``, the harness's span-info, the studies and the tests share (the
+    EP stage's deceleration follows the stop mark's grade: stopping.ep_deceleration)."""
+    a_ep = ep_deceleration(car, tuning, span.grade.average(span.stop, car.length))
+    course = ReducedCourse(span, car, step=tuning.grid_step, limit_margin=tuning.limit_margin,
+                           v_relay=car.regen_fade_speed, a_ep=a_ep)
+    planner = ReducedPlanner(course, tol=tuning.time_tol)
+    return course, planner, PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
+
+
+def fastest_run(span: Span, car: CarTraction, tuning: AtoTuning | None = None) -> float:
+    """[s] the fastest run the controller plans for ``span`` with ``car`` (the least schedule it
+    accepts, less its time_tol), whatever span.schedule is."""
+    _, planner, configured = plan_setup(span, car, AtoTuning() if tuning is None else tuning)
+    return planner.min_time(configured, planner.envelope(configured))
+
+
 class AtoController:
     """The ATO for one span (module docstring). ``finished``: the car stands at the stop mark."""
 
@@ -97,12 +115,8 @@ class AtoController:
         self.span, self.car, self.tuning = span, car, tuning
         check_span_for_car(span, car)          # a start on the grade, limits the brakes keep
         self._check_grid(span, car, tuning)
-        self.a_ep = ep_deceleration(car, tuning, span.grade.average(span.stop, car.length))
-        self.course = ReducedCourse(span, car, step=tuning.grid_step,
-                                    limit_margin=tuning.limit_margin,
-                                    v_relay=car.regen_fade_speed, a_ep=self.a_ep)
-        self.planner = ReducedPlanner(self.course, tol=tuning.time_tol)
-        self.configured = PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
+        self.course, self.planner, self.configured = plan_setup(span, car, tuning)
+        self.a_ep = self.course.a_ep
         qU = self.planner.envelope(self.configured)
         t_min = self.planner.min_time(self.configured, qU)
         if span.schedule < t_min - tuning.time_tol:

@@ -10,9 +10,7 @@ import random
 import pytest
 
 from models.ato.controller import AtoController
-from models.ato.motion import PlanCar
-from models.ato.interface import AtoTuning
-from models.ato.planner import ReducedCourse, ReducedPlanner
+from models.ato.controller import fastest_run as controller_fastest_run
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 from models.units import kmh_to_mps
@@ -44,13 +42,9 @@ def generated_span(rng: random.Random) -> Span:
 
 
 def fastest_run(span: Span) -> float:
-    """The fastest run [s] as the controller computes it at construction (its course, its
-    configured car, ReducedPlanner.min_time), without needing a feasible schedule."""
-    tn = AtoTuning()
-    course = ReducedCourse(span, CAR, step=tn.grid_step, limit_margin=tn.limit_margin,
-                           v_relay=CAR.regen_fade_speed, a_ep=tn.a_ep)
-    car = PlanCar(CAR, CAR.mass, CAR.A0, CAR.A1, CAR.A2, tn.brake_share)
-    return ReducedPlanner(course, tol=tn.time_tol).min_time(car)
+    """The fastest run [s] as the controller computes it at construction, without needing a
+    feasible schedule (models.ato.controller.fastest_run)."""
+    return controller_fastest_run(span, CAR)
 
 
 @pytest.mark.slow          # ~30 s: 1200 controllers built and planned
