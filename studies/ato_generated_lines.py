@@ -144,7 +144,7 @@ def generate_line(seed: int, n_spans: int):
     return distances, grades, spans
 
 
-def line_scenario(seed: int, n_spans: int, case: str, folder: Path):
+def line_scenario(seed: int, n_spans: int, case: str, folder: Path, tuning: dict | None = None):
     distances, grades, spans = generate_line(seed, n_spans)
     profile = folder / f"grade_{seed}.csv"
     profile.write_text("distance_m,grade_permille\n" + "".join(
@@ -160,7 +160,7 @@ def line_scenario(seed: int, n_spans: int, case: str, folder: Path):
     car = {f.name: getattr(CAR, f.name) for f in fields(CarTraction) if f.init}
     data = {"name": f"line{seed}", "purpose": "studies/ato_generated_lines.py", "step_s": STEP_S,
             "parameters": {"track.grade_profile": str(profile), "seed": seed, **PRIOR, **overrides},
-            "span": table, "ato": {"car": car}}
+            "span": table, "ato": {"car": car, **(tuning or {})}}
     if wind:
         data["wind"] = [{"time_s": 0.0, "speed_mps": wind}]
     return scenario_from_dict(data, str(profile.with_suffix(".toml")), folder), spans
@@ -186,9 +186,9 @@ class SpanOutcome:
 
 
 def run_job(job) -> list[SpanOutcome]:
-    case, seed, n_spans = job
+    case, seed, n_spans, tuning = job
     with tempfile.TemporaryDirectory(prefix="ato_lines_") as folder:
-        scenario, spans = line_scenario(seed, n_spans, case, Path(folder))
+        scenario, spans = line_scenario(seed, n_spans, case, Path(folder), dict(tuning))
         result = run_on_chain(scenario)
         metrics = ato_metrics(scenario, result, result.driver_steps)
     out = [SpanOutcome(case, seed, m.span, m.arrival_error_s, m.stop_error_m, m.margin_mps, m.arrived)
@@ -221,8 +221,11 @@ def markdown(rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
 
 
-def compute(cases, seeds: int, n_spans: int, processes: int) -> dict[str, list[SpanOutcome]]:
-    jobs = [(c, s, n_spans) for c in cases for s in range(1, seeds + 1)]
+def compute(cases, seeds: int, n_spans: int, processes: int,
+            tuning: dict | None = None) -> dict[str, list[SpanOutcome]]:
+    """{case: every span's outcome}; ``tuning``: [ato] fields for every run."""
+    items = tuple(sorted((tuning or {}).items()))
+    jobs = [(c, s, n_spans, items) for c in cases for s in range(1, seeds + 1)]
     if processes > 1:
         with Pool(processes) as pool:
             done = pool.map(run_job, jobs, chunksize=1)
@@ -243,12 +246,19 @@ def main(argv=None) -> None:
                     help="only this case (repeatable; default all): " + ", ".join(CASES))
     ap.add_argument("--processes", type=int, default=2)
     ap.add_argument("--worst", type=int, default=0, help="also list the N worst spans per case")
+    ap.add_argument("--tuning", action="append", default=[], metavar="NAME=VALUE",
+                    help="an [ato] field for every run (models.ato.interface.AtoTuning), e.g. time_reserve=0")
     args = ap.parse_args(argv)
+    tuning = {}
+    for item in args.tuning:
+        name, _, value = item.partition("=")
+        tuning[name.strip()] = float(value)
     cases = args.case or list(CASES)
     t0 = time.perf_counter()
-    results = compute(cases, args.seeds, args.spans, args.processes)
+    results = compute(cases, args.seeds, args.spans, args.processes, tuning)
     rows = [summary_row(c, results[c]) for c in cases]
-    text = (f"## Generated lines: {args.seeds} seeds x {args.spans} spans per case\n\n"
+    text = (f"## Generated lines: {args.seeds} seeds x {args.spans} spans per case"
+            + "".join(f", ato.{k} = {v:g}" for k, v in tuning.items()) + "\n\n"
             + markdown(rows) + f"\n\nComputed in {time.perf_counter() - t0:.0f} s.\n")
     if args.worst:
         for c in cases:

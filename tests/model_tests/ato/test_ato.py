@@ -532,7 +532,10 @@ def test_estimates_wait_for_min_samples_since_departure():
                 "est.mass_std": 0.3, "est.A0_std": 0.2, "est.A1_std": 0.005, "est.A2_std": 5e-4})
     ctrl.demands(15.0, out)
     assert ctrl._using_estimates
-    assert ctrl.plan_car.mass == pytest.approx(30.0 + 3.0 * 9.0 / (9.0 + 0.09), rel=1e-12)
+    assert ctrl.weights[0] == pytest.approx(9.0 / (9.0 + 0.09), rel=1e-12)   # the mass's weight
+    # the blend (30 + 3 x that weight) is lighter than est.mass: the plan takes the heavier
+    # car, rounded up to BRAKE_MASS_STEP (AtoController._brake_mass)
+    assert ctrl.plan_car.mass == ctrl.plan_car.brake_mass == 33.0
 
 
 @pytest.mark.slow
