@@ -14,21 +14,18 @@ from __future__ import annotations
 
 import os
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import ERROR, OK, ROOT, STATUS_LABEL
 from harness.metrics.ato import ato_metrics, format_ato
-from harness.run.runner import FmuRunner
-from harness.run.scenario import load_scenario
-from harness.systems.ato_run import metric_outputs, system_ato_metrics
-from harness.systems.cli import build, main
-from harness.systems.master import run_system
+from harness.systems.ato_run import system_ato_metrics
+from harness.systems.cli import main
 from harness.systems.ssp import PACKED_DIR, Connection
 from harness.systems.ssp_read import read_ssp
 from models.units import kmh_to_mps
+from test_ssp_span_build import dist, system_and_harness_runs  # noqa: F401  (dist: a fixture)
 
 LINE = ROOT / "scenarios" / "library" / "ato_line.toml"
 TRAJECTORY = {"car.position": "car.car.position", "car.speed": "car.car.speed",
@@ -38,21 +35,9 @@ STEP = 0.1     # [s]
 
 
 @pytest.fixture(scope="module")
-def dist(built_fmus) -> Path:
-    return built_fmus["RailCar"].parent
-
-
-@pytest.fixture(scope="module")
 def line(dist, tmp_path_factory):
-    """(the .ssp, its run in our master, the harness's run of the scenario on the same FMU)."""
-    ssp = build(LINE, tmp_path_factory.mktemp("line_build") / "ato_line.ssp", dist, "native")
-    system = read_ssp(ssp)
-    ours = run_system(system, outputs=list(dict.fromkeys(metric_outputs(system) + list(TRAJECTORY.values())
-                                                         + ["ato.ato.payload"])))
-    scenario = load_scenario(LINE)
-    with FmuRunner(dist / "native" / "RailCarNative.fmu") as runner:
-        harness = runner.run(scenario)
-    return ssp, ours, harness, scenario
+    return system_and_harness_runs(LINE, tmp_path_factory.mktemp("line_build") / "ato_line.ssp", dist,
+                                   [*TRAJECTORY.values(), "ato.ato.payload"])
 
 
 def test_the_line_system_is_the_harness_run(line):

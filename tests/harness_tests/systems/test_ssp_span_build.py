@@ -44,16 +44,24 @@ def dist(built_fmus) -> Path:
     return built_fmus["RailCar"].parent
 
 
-@pytest.fixture(scope="module")
-def nominal(dist, tmp_path_factory):
-    """(the .ssp, its run in our master, the harness's run of the scenario on the same FMU)."""
-    ssp = build(NOMINAL, tmp_path_factory.mktemp("span_build") / "ato_nominal.ssp", dist, "native")
+def system_and_harness_runs(path: Path, ssp: Path, dist: Path, outputs) -> tuple:
+    """(the .ssp built from the scenario at ``path``, its run in our master recording the ATO
+    metrics' outputs and ``outputs``, the harness's run of the scenario on the same FMU, the
+    scenario): the pair every system-vs-harness comparison starts from."""
+    ssp = build(path, ssp, dist, "native")
+    assert ssp.is_file()
     system = read_ssp(ssp)
-    ours = run_system(system, outputs=list(dict.fromkeys(metric_outputs(system) + list(TRAJECTORY.values()))))
-    scenario = load_scenario(NOMINAL)
+    ours = run_system(system, outputs=list(dict.fromkeys(metric_outputs(system) + list(outputs))))
+    scenario = load_scenario(path)
     with FmuRunner(dist / "native" / "RailCarNative.fmu") as runner:
         harness = runner.run(scenario)
     return ssp, ours, harness, scenario
+
+
+@pytest.fixture(scope="module")
+def nominal(dist, tmp_path_factory):
+    return system_and_harness_runs(NOMINAL, tmp_path_factory.mktemp("span_build") / "ato_nominal.ssp",
+                                   dist, TRAJECTORY.values())
 
 
 def test_the_system_is_the_harness_run(nominal):
