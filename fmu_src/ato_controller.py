@@ -36,6 +36,7 @@ from fmu_src.variables import ATO, variables_for
 from models.ato.interface import AtoMode
 from models.ato.line import LineController, LineError, LineSpan
 from models.chain import StepRejected, check_step
+from models.plant.track import ProfileError, csv_number_rows
 
 READS = tuple(v.name for v in variables_for(ATO) if v.causality == "input")
 PROFILE_PARAMETERS = ("span.grade_profile", "span.speed_limit_profile", "line.profile",
@@ -56,35 +57,13 @@ class LineRow:
 
 
 def _csv_rows(text: str, where: str, columns: tuple[str, ...]):
-    """(line number, floats) of each data row of a CSV with exactly the header ``columns``:
-    blank lines and '#' lines skipped, a UTF-8 byte-order mark too; every cell a finite
-    number. ParameterError names ``where`` (parameter: file) and the line."""
-    if text.startswith("\ufeff"):
-        text = text[1:]
-    header = False
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        cells = [c.strip().strip('"') for c in line.split(",")]
-        if not header:
-            if tuple(cells) != columns:
-                raise ParameterError(f"{where}: line {lineno}: header must be '{','.join(columns)}', "
-                                     f"got '{line}'")
-            header = True
-            continue
-        if len(cells) != len(columns):
-            raise ParameterError(f"{where}: line {lineno}: expected {len(columns)} values "
-                                 f"({','.join(columns)}), got {len(cells)}: '{line}'")
-        try:
-            values = [float(c) for c in cells]
-        except ValueError:
-            raise ParameterError(f"{where}: line {lineno}: not a number: '{line}'") from None
-        if not all(math.isfinite(x) for x in values):
-            raise ParameterError(f"{where}: line {lineno}: non-finite value: '{line}'")
-        yield lineno, values
-    if not header:
-        raise ParameterError(f"{where}: no header '{','.join(columns)}'")
+    """(line number, finite floats) of each data row of a CSV with exactly the header ``columns``
+    (models.plant.track.csv_number_rows, the profiles' reader); ParameterError names ``where``
+    (parameter: file) and the line."""
+    try:
+        yield from csv_number_rows(text, where, columns)
+    except ProfileError as e:
+        raise ParameterError(str(e)) from None
 
 
 def read_line_profile(text: str, path: str) -> list[LineRow]:

@@ -22,20 +22,14 @@ MAX_GRADE = 200.0   # [permille] |grade| accepted in a profile: rack-free railwa
 MAX_SPEED = 200.0   # [m/s] accepted in a speed profile (720 km/h)
 
 
-def parse_profile_csv(text: str, source: str, columns: tuple[str, str], *,
-                      nonnegative_values: bool = False,
-                      max_abs_value: float = math.inf) -> tuple[list[float], list[float]]:
-    """Parse a two-column profile CSV.
-
-    The header must be exactly ``columns`` (e.g. ``distance_m,grade_permille``); distances [m]
-    must be finite, >= 0 and strictly increasing; values within +-``max_abs_value``. A UTF-8
-    byte-order mark before the header is skipped. Blank lines and lines starting with ``#``
-    are skipped. Raises :class:`ProfileError` naming ``source`` and the 1-based line number.
-    """
+def csv_number_rows(text: str, source: str, columns: tuple[str, ...]):
+    """(1-based line, floats) of each data row of a CSV whose header is exactly ``columns``:
+    blank lines and lines starting with ``#`` skipped, a UTF-8 byte-order mark before the header
+    too; every row as many cells as ``columns``, each a finite number. Raises
+    :class:`ProfileError` naming ``source`` and the line (the words models/core/profile.c
+    repeats for the two-column profiles)."""
     if text.startswith("\ufeff"):
         text = text[1:]
-    distances: list[float] = []
-    values: list[float] = []
     header_seen = False
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
@@ -48,14 +42,33 @@ def parse_profile_csv(text: str, source: str, columns: tuple[str, str], *,
                                    f"'{','.join(columns)}', got '{line}'")
             header_seen = True
             continue
-        if len(cells) != 2:
-            raise ProfileError(f"{source}: line {lineno}: expected 2 values, got {len(cells)}: '{line}'")
+        if len(cells) != len(columns):
+            raise ProfileError(f"{source}: line {lineno}: expected {len(columns)} values, "
+                               f"got {len(cells)}: '{line}'")
         try:
-            d, v = float(cells[0]), float(cells[1])
+            numbers = [float(c) for c in cells]
         except ValueError:
             raise ProfileError(f"{source}: line {lineno}: not a number: '{line}'") from None
-        if not (math.isfinite(d) and math.isfinite(v)):
+        if not all(math.isfinite(x) for x in numbers):
             raise ProfileError(f"{source}: line {lineno}: non-finite value: '{line}'")
+        yield lineno, numbers
+    if not header_seen:
+        raise ProfileError(f"{source}: line 1: empty file, expected header '{','.join(columns)}'")
+
+
+def parse_profile_csv(text: str, source: str, columns: tuple[str, str], *,
+                      nonnegative_values: bool = False,
+                      max_abs_value: float = math.inf) -> tuple[list[float], list[float]]:
+    """Parse a two-column profile CSV.
+
+    The header must be exactly ``columns`` (e.g. ``distance_m,grade_permille``); distances [m]
+    must be finite, >= 0 and strictly increasing; values within +-``max_abs_value``. A UTF-8
+    byte-order mark before the header is skipped. Blank lines and lines starting with ``#``
+    are skipped. Raises :class:`ProfileError` naming ``source`` and the 1-based line number.
+    """
+    distances: list[float] = []
+    values: list[float] = []
+    for lineno, (d, v) in csv_number_rows(text, source, columns):
         if d < 0:
             raise ProfileError(f"{source}: line {lineno}: {columns[0]} must be >= 0, got {d}")
         if distances and d <= distances[-1]:
@@ -68,8 +81,6 @@ def parse_profile_csv(text: str, source: str, columns: tuple[str, str], *,
                                f"+-{max_abs_value:g}, got {v}")
         distances.append(d)
         values.append(v)
-    if not header_seen:
-        raise ProfileError(f"{source}: line 1: empty file, expected header '{','.join(columns)}'")
     if not distances:
         raise ProfileError(f"{source}: no data rows after the header")
     return distances, values
