@@ -244,7 +244,7 @@ _TUNING_ROWS_APPENDED = (   # AtoTuning fields added later: after the outputs (v
 
 
 def _ato_rows() -> tuple[Var, ...]:
-    from models.ato.interface import AtoTuning
+    from models.ato.interface import UPPER_BOUNDS, AtoTuning
     from models.planning.span import CarTraction
     from models.units import kmh_to_mps
     car, tuning = CarTraction(), AtoTuning()
@@ -273,7 +273,8 @@ def _ato_rows() -> tuple[Var, ...]:
     for f, u, d in _TUNING_ROWS:
         t = typed[hints[f]]
         rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
-                        min=0.0 if t == "Real" else None))
+                        min=0.0 if t == "Real" else None,
+                        max=UPPER_BOUNDS[f][0] if t == "Real" and f in UPPER_BOUNDS else None))
     rows += [
         Var("traction_force_demand", "output", "Real", "N", 0.0, "traction force asked of the car (RailCar's input)", A, initial="calculated"),
         Var("brake_force_demand", "output", "Real", "N", 0.0, "brake force asked of the car (RailCar's input); a holding brake before the first step", A, initial="calculated"),
@@ -296,7 +297,8 @@ def _ato_rows() -> tuple[Var, ...]:
     for f, u, d in _TUNING_ROWS_APPENDED:
         t = typed[hints[f]]
         rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
-                        min=0.0 if t == "Real" else None))
+                        min=0.0 if t == "Real" else None,
+                        max=UPPER_BOUNDS[f][0] if t == "Real" and f in UPPER_BOUNDS else None))
     rows += [
         # a line (models.ato.line): appended after the stated uncertainty, the rows above keep their value references
         Var("est.station_stops", "input", "Integer", None, 0, "station stops the estimator has recognised (a line: until it grows after a departure the filter still counts from the previous station); connect it for a line", A),

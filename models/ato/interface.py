@@ -49,6 +49,27 @@ class AtoMode(IntEnum):
     SETTLE = 12     # standing short of the mark while the filter's distance settles
 
 
+UPPER_BOUNDS = {   # AtoTuning field: (largest value, why), each found absurd at 1e300
+    "grid_step": (100.0, "m: 1e300 refused every schedule as infeasible without naming the grid"),
+    "limit_margin": (5.0, "m/s below every limit: 1e300 refused every limit"),
+    "time_tol": (2.5, "the planner's tolerance cannot exceed the running-time target itself: "
+                      "1e300 arrived 24 s late"),
+    "k_sigma": (10.0, "sigmas of filter.speed_std: 1e300 never left the station"),
+    "gap_sigma": (10.0, "sigmas of filter.speed_std: 1e300 never left the station"),
+    "supervisor_gap": (5.0, "m/s below the supervision curve: 1e300 never left the station"),
+    "mass_reserve": (1.0, "a share of the planned mass: 1e300 never left the station"),
+    "stand_time": (10.0, "s at rest before the car counts as standing: 1e300 never finished a "
+                         "stop, 60 outlasted the estimator's station dwell"),
+    "aim_sigma": (10.0, "sigmas of filter.speed_std short of the mark"),
+    "config_mass_std": (1.0, "a share of car.mass"),
+    "config_resistance_std": (100.0, "N/kN: 100 times any car's resistance uncertainty"),
+    "est_gate": (100.0, "combined sigmas"),
+}
+"""Upper bounds of AtoTuning fields whose largest values leave a useless controller (a car
+that never departs or never finishes its stop); the others run (tests/model_tests/ato/
+test_tuning_bounds.py drives each at 1e300 or at its bound)."""
+
+
 @dataclass(frozen=True)
 class AtoCommand:
     """One step's output: demands [N], the mode, the planned speed [m/s], the EP stage."""
@@ -173,6 +194,9 @@ class AtoTuning:
             if f.name == "est_gate" and x < 1.0:
                 raise ValueError(f"tuning.est_gate must be >= 1, got {v!r} (full weight "
                                  f"ends est_gate - 1 sigmas from the configured car)")
+            if f.name in UPPER_BOUNDS and x > UPPER_BOUNDS[f.name][0]:
+                high, why = UPPER_BOUNDS[f.name]
+                raise ValueError(f"tuning.{f.name} must be <= {high:g}, got {v!r} ({why})")
             if f.name == "time_reserve" and x > 0.2:
                 raise ValueError(f"tuning.time_reserve must be in [0, 0.2], got {v!r} (a share "
                                  f"of the remaining running time planned early)")
