@@ -59,7 +59,7 @@ import numpy as np  # noqa: E402
 from harness.metrics.ato import ato_metrics  # noqa: E402
 from harness.run.driver import run_on_chain  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, scenario_from_dict  # noqa: E402
-from models.ato.controller import fastest_run  # noqa: E402
+from models.ato.planner import fastest_run  # noqa: E402
 from models.planning.span import CarTraction, Span, check_span_for_car  # noqa: E402
 from models.plant.track import GradeProfile  # noqa: E402
 

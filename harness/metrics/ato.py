@@ -192,7 +192,7 @@ def span_info(setup) -> list[SpanInfo]:
     whose schedule the controller refuses is still described. A span the car cannot run at all
     (a climb it stalls on, a limit its brakes cannot keep) has nan times and its ``problem``."""
     from models.ato.controller import AtoController
-    from models.ato.controller import plan_setup
+    from models.ato.planner import plan_setup
     from models.planning.span import check_span_for_car
     car, tuning = setup.car, setup.tuning
     out = []

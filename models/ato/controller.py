@@ -65,9 +65,9 @@ from typing import Mapping
 
 # the host's side (inputs, command, modes, tuning) is models/ato/interface.py; also importable from here
 from models.ato.interface import INPUTS, STATED_INPUTS, AtoCommand, AtoMode, AtoTuning
-from models.ato.motion import PlanCar, blend_estimates
-from models.ato.planner import ReducedCourse, ReducedPlan, ReducedPlanner
-from models.ato.stopping import RelayBrake, ep_deceleration, track_force
+from models.ato.motion import PlanCar, blend_estimates, braking_mass, heavier_mass
+from models.ato.planner import ReducedPlan, plan_setup
+from models.ato.stopping import RelayBrake, track_force
 from models.ato.supervision import RECOVERY_TIME, InputSupervisor
 from models.fpmath import square
 from models.planning.span import CarTraction, Span, check_span_for_car
@@ -81,24 +81,6 @@ MAX_GRID_NODES = 10_000  # the re-planner's grid: ~0.5 s to initialise, a re-pla
 GATE_RATE = 0.2         # [1/s] the blend's gate factor moves at most this fast (0 to 1 in 5 s)
 EST_USABLE = (1, 2)     # est.status: identifying, holding (0 prior only, 3 degraded: not used)
 RUN, BRAKE, STOP_EP, SETTLE, HOLD = "run", "brake", "ep", "settle", "hold"
-
-
-def plan_setup(span: Span, car: CarTraction, tuning: AtoTuning) -> tuple[ReducedCourse, ReducedPlanner, PlanCar]:
-    """(course, planner, configured car) the controller plans ``span`` with: the one copy that
-    AtoController, ``fastest_run``, the harness's span-info, the studies and the tests share (the
-    EP stage's deceleration follows the stop mark's grade: stopping.ep_deceleration)."""
-    a_ep = ep_deceleration(car, tuning, span.grade.average(span.stop, car.length))
-    course = ReducedCourse(span, car, step=tuning.grid_step, limit_margin=tuning.limit_margin,
-                           v_relay=car.regen_fade_speed, a_ep=a_ep)
-    planner = ReducedPlanner(course, tol=tuning.time_tol)
-    return course, planner, PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
-
-
-def fastest_run(span: Span, car: CarTraction, tuning: AtoTuning | None = None) -> float:
-    """[s] the fastest run the controller plans for ``span`` with ``car`` (the least schedule it
-    accepts, less its time_tol), whatever span.schedule is."""
-    _, planner, configured = plan_setup(span, car, AtoTuning() if tuning is None else tuning)
-    return planner.min_time(configured, planner.envelope(configured))
 
 
 class AtoController:
@@ -384,34 +366,15 @@ class AtoController:
         self.weights = (w_m, w_r)
         c = self.configured
         plan = key if (key is not None and using) else (c.mass, c.A0, c.A1, c.A2)
-        brake_mass = self._brake_mass(est, plan[0])
-        if brake_mass > plan[0]:       # the heavier car accelerates slower too: plan it whole
-            plan = (brake_mass, *plan[1:])
+        plan = (heavier_mass(plan[0], est[0], int(est[4]) in EST_USABLE, c.mass, tn.mass_band),
+                *plan[1:])
+        brake_mass = braking_mass(plan[0], c.mass)
         if plan == (c.mass, c.A0, c.A1, c.A2) and brake_mass == c.brake_mass:
             self._car_now = c
         elif (plan, brake_mass) != self._last_key:
             self._car_now = PlanCar(self.car, *plan, tn.brake_share, brake_mass=brake_mass)
         self._last_key = (plan, brake_mass)
         return self._car_now
-
-    BRAKE_MASS_STEP = 0.5   # [t] the braking mass moves in steps (no new curve per sample)
-
-    def _brake_mass(self, est, planned: float) -> float:
-        """[t] the mass the braking curves and the supervision assume: the heaviest of the
-        configured car, the planned (blended) mass and est.mass once the estimator identifies
-        (est.status 1 or 2), within mass_band of the configured mass, rounded up to
-        BRAKE_MASS_STEP. Braking is planned for the heavier car even when the estimates get no
-        weight in the running time: a car 15 % heavier than configured plus 6 t of boarding,
-        planned as the configured 30 t on a -34 permille stop mark, could not keep its braking
-        curve (45 kN gave 0.8 instead of 1.2 m/s^2) and ran 9.5 m past under speed noise
-        (studies/ato_generated_lines.py, combination, seed 11 span 5)."""
-        m = max(planned, self.car.mass)
-        m_est = est[0]
-        if int(est[4]) in EST_USABLE and math.isfinite(m_est) and m_est > m:
-            m = min(m_est, self.tuning.mass_band * self.car.mass)
-        if m > self.car.mass:
-            m = self.car.mass + self.BRAKE_MASS_STEP * math.ceil((m - self.car.mass) / self.BRAKE_MASS_STEP)
-        return m
 
     def _replan(self, tau: float, s: float, v: float, car: PlanCar):
         t0 = _time.perf_counter()

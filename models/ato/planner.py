@@ -37,6 +37,8 @@ from dataclasses import dataclass
 from models.ato.motion import (
     K_BRAKE, K_COAST, K_TG, PlanCar, Trace, coast_step, free_step, hold_forces, q_at, step_time,
 )
+from models.ato.interface import AtoTuning
+from models.ato.stopping import ep_deceleration
 from models.fpmath import square
 from models.planning.span import CarTraction, Span
 from models.planning.engine import Mode
@@ -617,3 +619,23 @@ def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ft
 
 class _Stall(Exception):
     """The car comes to rest before the stop mark."""
+
+
+def plan_setup(span: Span, car: CarTraction,
+               tuning: AtoTuning) -> tuple[ReducedCourse, ReducedPlanner, PlanCar]:
+    """(course, planner, configured car) the controller plans ``span`` with: the one copy that
+    models.ato.controller.AtoController, ``fastest_run``, the harness's span-info, the studies
+    and the tests share (the EP stage's deceleration follows the stop mark's grade:
+    stopping.ep_deceleration)."""
+    a_ep = ep_deceleration(car, tuning, span.grade.average(span.stop, car.length))
+    course = ReducedCourse(span, car, step=tuning.grid_step, limit_margin=tuning.limit_margin,
+                           v_relay=car.regen_fade_speed, a_ep=a_ep)
+    planner = ReducedPlanner(course, tol=tuning.time_tol)
+    return course, planner, PlanCar(car, car.mass, car.A0, car.A1, car.A2, tuning.brake_share)
+
+
+def fastest_run(span: Span, car: CarTraction, tuning: AtoTuning | None = None) -> float:
+    """[s] the fastest run the controller plans for ``span`` with ``car`` (the least schedule it
+    accepts, less its time_tol), whatever span.schedule is."""
+    _, planner, configured = plan_setup(span, car, AtoTuning() if tuning is None else tuning)
+    return planner.min_time(configured, planner.envelope(configured))

@@ -533,8 +533,8 @@ def test_estimates_wait_for_min_samples_since_departure():
     ctrl.demands(15.0, out)
     assert ctrl._using_estimates
     assert ctrl.weights[0] == pytest.approx(9.0 / (9.0 + 0.09), rel=1e-12)   # the mass's weight
-    # the blend (30 + 3 x that weight) is lighter than est.mass: the plan takes the heavier
-    # car, rounded up to BRAKE_MASS_STEP (AtoController._brake_mass)
+    # the blend (30 + 3 x that weight) is lighter than est.mass: the plan takes the heavier car
+    # (motion.heavier_mass), the braking curves it rounded up to BRAKE_MASS_STEP
     assert ctrl.plan_car.mass == ctrl.plan_car.brake_mass == 33.0
 
 

@@ -10,7 +10,7 @@ import random
 import pytest
 
 from models.ato.controller import AtoController
-from models.ato.controller import fastest_run as controller_fastest_run
+from models.ato.planner import fastest_run as fastest_run_of
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 from models.units import kmh_to_mps
@@ -43,8 +43,8 @@ def generated_span(rng: random.Random) -> Span:
 
 def fastest_run(span: Span) -> float:
     """The fastest run [s] as the controller computes it at construction, without needing a
-    feasible schedule (models.ato.controller.fastest_run)."""
-    return controller_fastest_run(span, CAR)
+    feasible schedule (models.ato.planner.fastest_run)."""
+    return fastest_run_of(span, CAR)
 
 
 @pytest.mark.slow          # ~30 s: 1200 controllers built and planned

@@ -11,6 +11,7 @@ import pytest
 
 from models.ato.controller import AtoController
 from models.ato.interface import AtoTuning
+from models.ato.motion import BRAKE_MASS_STEP, braking_mass, heavier_mass
 from models.ato.stopping import ep_deceleration
 from models.planning.span import CarTraction
 from models.units import G
@@ -59,25 +60,20 @@ def test_issue_29_combination_stops_within_0_3_m_on_steep_marks(span, seed):
     assert abs(r["arrival"]) <= 2.5, r["arrival"]
 
 
-# --------------------------------------------- braking planned for the heavier car (_brake_mass)
+# --------------------------------------------- planned for the heavier car (motion.heavier_mass)
 
-def _est(mass: float, status: int = 1) -> tuple:
-    """est.mass, A0, A1, A2, status, samples as AtoController reads them."""
-    return (mass, CAR.A0, CAR.A1, CAR.A2, status, 500.0)
-
-
-def test_braking_assumes_the_heavier_of_the_configured_car_and_est_mass():
-    ctrl = AtoController(DOWN, CAR)
-    step = AtoController.BRAKE_MASS_STEP
-    assert ctrl._brake_mass(_est(CAR.mass - 3.0), CAR.mass) == CAR.mass        # lighter: configured
-    assert ctrl._brake_mass(_est(CAR.mass + 6.2), CAR.mass) == CAR.mass + 6.5  # heavier: rounded up
-    assert ctrl._brake_mass(_est(CAR.mass + 6.5), CAR.mass) == CAR.mass + 6.5
-    assert ctrl._brake_mass(_est(CAR.mass + 6.2), CAR.mass + 7.0) == CAR.mass + 7.0   # the blend's
-    assert ctrl._brake_mass(_est(CAR.mass + 6.2, status=0), CAR.mass) == CAR.mass     # prior only
-    assert ctrl._brake_mass(_est(CAR.mass + 6.2, status=3), CAR.mass) == CAR.mass     # degraded
-    band = AtoTuning().mass_band * CAR.mass
-    assert ctrl._brake_mass(_est(1e6), CAR.mass) == CAR.mass + step * -(-(band - CAR.mass) // step)
-    assert ctrl._brake_mass(_est(float("nan")), CAR.mass) == CAR.mass
+def test_plan_and_braking_assume_the_heavier_of_the_blend_and_est_mass():
+    m, band = CAR.mass, AtoTuning().mass_band
+    assert heavier_mass(m - 3.0, m - 1.0, True, m, band) == m - 1.0   # est heavier than the blend
+    assert heavier_mass(m - 3.0, m - 4.0, True, m, band) == m - 3.0   # lighter: the blend's
+    assert heavier_mass(m, m + 6.2, True, m, band) == m + 6.2
+    assert heavier_mass(m, m + 6.2, False, m, band) == m              # prior only, degraded
+    assert heavier_mass(m, 1e6, True, m, band) == band * m
+    assert heavier_mass(m, float("nan"), True, m, band) == m
+    assert braking_mass(m - 3.0, m) == m                             # never below configured
+    assert braking_mass(m + 6.2, m) == m + 6.5                       # rounded up, in steps
+    assert braking_mass(m + 6.5, m) == m + 6.5
+    assert BRAKE_MASS_STEP == 0.5
 
 
 def test_a_much_heavier_car_under_speed_noise_stops_at_a_steep_mark():
