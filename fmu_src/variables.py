@@ -270,11 +270,13 @@ def _ato_rows() -> tuple[Var, ...]:
     ]
     rows += [Var(f"car.{f}", "parameter", "Real", u, getattr(car, f), d, A, min=0.0)
              for f, u, d in _CAR_ROWS]
-    for f, u, d in _TUNING_ROWS:
+    def tuning_row(f: str, u: str, d: str) -> Var:
         t = typed[hints[f]]
-        rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
-                        min=0.0 if t == "Real" else None,
-                        max=UPPER_BOUNDS[f][0] if t == "Real" and f in UPPER_BOUNDS else None))
+        return Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
+                   min=0.0 if t == "Real" else None,
+                   max=UPPER_BOUNDS[f][0] if t == "Real" and f in UPPER_BOUNDS else None)
+
+    rows += [tuning_row(*r) for r in _TUNING_ROWS]
     rows += [
         Var("traction_force_demand", "output", "Real", "N", 0.0, "traction force asked of the car (RailCar's input)", A, initial="calculated"),
         Var("brake_force_demand", "output", "Real", "N", 0.0, "brake force asked of the car (RailCar's input); a holding brake before the first step", A, initial="calculated"),
@@ -294,11 +296,7 @@ def _ato_rows() -> tuple[Var, ...]:
         rows.append(Var(name, "input", "Real", units[name], prior,
                         f"the estimator's {name} (the regulator weighs est.* by it; the start value is "
                         f"the estimator's prior, which gives est.* little weight)", A))
-    for f, u, d in _TUNING_ROWS_APPENDED:
-        t = typed[hints[f]]
-        rows.append(Var(f"ato.{f}", "parameter", t, u if t == "Real" else None, getattr(tuning, f), d, A,
-                        min=0.0 if t == "Real" else None,
-                        max=UPPER_BOUNDS[f][0] if t == "Real" and f in UPPER_BOUNDS else None))
+    rows += [tuning_row(*r) for r in _TUNING_ROWS_APPENDED]
     rows += [
         # a line (models.ato.line): appended after the stated uncertainty, the rows above keep their value references
         Var("est.station_stops", "input", "Integer", None, 0, "station stops the estimator has recognised (a line: until it grows after a departure the filter still counts from the previous station); connect it for a line", A),
