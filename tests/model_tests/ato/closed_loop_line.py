@@ -1,6 +1,8 @@
 """A closed-loop run of models.ato.controller.AtoController on the RailCar chain (models.compiled.
 open_chain, the RailCar FMU's default parameters) over one span of a metro line of our own, for
-tests/model_tests/ato/test_regulator_blend.py and test_steep_stop.py (issue 29).
+tests/model_tests/ato/test_regulator_blend.py, test_steep_stop.py and test_tuning_bounds.py. Every
+step it asserts what holds in any case: a command within the car's force limits, a finite true
+speed that never runs backwards.
 
 Units: s [m], V [m/s], t [s], mass [t], grade [permille], resistance [N/kN].
 """
@@ -46,6 +48,9 @@ def run_span(span: Span, seed: int, overrides: dict, wind: float = HEADWIND,
     masses, w0s, using = [], [], []
     while k < 6000:
         cmd = ctrl.demands(t, out)
+        # every command a car can apply, whatever the case: finite, within the car's limits
+        assert 0.0 <= cmd.traction <= CAR.traction_force_max, (t, cmd)
+        assert 0.0 <= cmd.brake <= CAR.brake_force_max, (t, cmd)
         c = ctrl.plan_car
         masses.append(c.mass)
         w0s.append(c.w0(v_ref))
@@ -55,6 +60,7 @@ def run_span(span: Span, seed: int, overrides: dict, wind: float = HEADWIND,
         k += 1
         t = k * STEP
         out = chain.outputs()
+        assert math.isfinite(out["car.speed"]) and out["car.speed"] >= 0.0, (t, out["car.speed"])
         if v0 > 0.0 and out["car.speed"] == 0.0 and out["car.position"] > 0.5 * span.stop:
             t_last = t
         if t_last is not None and ctrl.finished:
