@@ -56,6 +56,8 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
+from harness.metrics.ato import ARRIVAL_BOUND_S as ARRIVAL_S  # noqa: E402
+from harness.metrics.ato import STOP_BOUND_M as STOP_M  # noqa: E402
 from harness.metrics.ato import ato_metrics  # noqa: E402
 from harness.run.driver import run_on_chain  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, scenario_from_dict  # noqa: E402
@@ -73,7 +75,6 @@ LIMIT_CHANGES = (2, 3)
 SCHEDULE_ABOVE = (0.04, 0.12)             # share above the fastest run
 DWELL_S = (25.0, 40.0)
 BOARDING_T = (-4.0, 4.0)                  # kept so that the passengers on board stay in 0-8 t
-ARRIVAL_S, STOP_M, PAST_M = 2.5, 0.3, 1.0
 NOISE = {"sensor.speed_std": 0.01, "sensor.speed_std_rel": 0.01}
 
 CASES = {   # name: (RailCar parameter overrides, headwind [m/s])
