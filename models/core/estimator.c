@@ -454,6 +454,8 @@ void rc_estimator_propagate(rc_estimator *e, double traction, double brake, doub
     double q = process_noise(e, traction, brake, dt);
     double before = rc_filter_speed(&e->filter);
     rc_filter_predict(&e->filter, traction, brake, theta, q, dt);
+    if (e->station.fast_run == 0 && traction <= 0.0)   /* holding: StationDetector.standing */
+        rc_filter_cap_predicted_speed(&e->filter, before, dt);
     if (e->likelihood_noise && e->station.moving)      /* LikelihoodNoise.predicted */
         bank_predict(&e->bank, rc_filter_predicted_speed(&e->filter) - before,
                      q - sigma2(e) * dt / e->dt_nominal);

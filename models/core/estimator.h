@@ -97,6 +97,9 @@ void rc_estimator_free(rc_estimator *e);
 const char *rc_estimator_not_covered(int method, int physical, int sigma2_method,
                                      long slope_window);
 void rc_estimator_measure(rc_estimator *e, double speed_meas, double position_meas);
+/* OnlineEstimator.propagate: the filter's prediction with the forces [N] over dt [s], capped at
+ * the filtered speed while the car stands and traction <= 0 (OnlineEstimator.holding: a
+ * virtual holding brake) */
 void rc_estimator_propagate(rc_estimator *e, double traction, double brake, double dt);
 /* OnlineEstimator.measure_track_speed */
 void rc_estimator_measure_track_speed(rc_estimator *e, double speed_meas, double age,

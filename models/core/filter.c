@@ -502,6 +502,33 @@ rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const d
     return RC_OK;
 }
 
+void rc_filter_cap_predicted_speed(rc_filter *f, double v_max, double dt)
+{
+    if (f->kind == RC_SINGER) {                /* SingerKind: singer._cap_speed, then publish */
+        double *x = f->singer.x;
+        const double *P = f->singer.P;
+        double excess, pvv;
+        if (!(x[1] > v_max))
+            return;
+        excess = x[1] - v_max;
+        pvv = P[4];
+        if (pvv > 0.0) {
+            x[0] = x[0] - P[1] / pvv * excess;
+            x[2] = x[2] - P[7] / pvv * excess;
+        }
+        x[1] = v_max;
+        singer_copy(f, 0);
+        return;
+    }
+    if (!(f->xb0 + f->vzad_bar > v_max))
+        return;
+    f->xb0 = v_max - f->vzad_bar;
+    if (f->kind != RC_PAPER) {                 /* EKFKind: the trapezoid with the capped speed */
+        double v_hat = f->xh0 + (f->kind == RC_LINEARISED ? f->vzad_hat : 0.0);
+        f->xb1 = f->xh1 + 0.5 * dt * (v_hat + v_max);
+    }                                          /* PaperKind: Euler's distance has no V' in it */
+}
+
 double rc_filter_speed(const rc_filter *f)
 {
     double v = f->xh0 + f->vzad_hat;

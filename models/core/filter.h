@@ -79,6 +79,11 @@ rc_status rc_filter_update_speed(rc_filter *f, double speed_meas, double varianc
  * RC_MATH: 1 + gamma == 0 (nothing changed); kind 4 (forces and theta unused): a bad dt */
 rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const double *theta,
                             double q, double dt);
+/* MotionFilter.cap_predicted_speed, after rc_filter_predict over dt [s]: the predicted speed at
+ * most v_max [m/s] (the kinds' cap_predicted_speed: kinds 1, 2 the distance by the trapezoid
+ * with the capped speed, kind 3 the speed row only, kind 4 singer._cap_speed's projection; the
+ * covariance unchanged) */
+void rc_filter_cap_predicted_speed(rc_filter *f, double v_max, double dt);
 /* MotionFilter.acceleration: 1 with the Singer filter's acceleration [m/s^2] in *out (kind 4),
  * else 0 (Python's None) and *out untouched */
 int rc_filter_acceleration(const rc_filter *f, double *out);

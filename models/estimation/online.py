@@ -53,6 +53,12 @@ class StationDetector:
         self.moving = False
         self._restarted = False
 
+    @property
+    def standing(self) -> bool:
+        """The last sample was at or below the speed threshold (so not ``moving`` either): the
+        car stands, or has only just started (OnlineEstimator.propagate's holding brake)."""
+        return self._fast_run == 0
+
     def observe(self, speed_meas: float, position_meas: float, dt: float) -> bool:
         """Take one sample; True when a station stop is confirmed at this sample."""
         self._fast_run = self._fast_run + 1 if speed_meas > self.v_thr else 0
@@ -248,15 +254,36 @@ class OnlineEstimator:
         return self.noise.sigma2(self)
 
     def propagate(self, traction: float, brake: float, dt: float) -> None:
-        """Forces [N] applied from this sample over the next dt [s]: the filter's prediction."""
+        """Forces [N] applied from this sample over the next dt [s]: the filter's prediction,
+        held by a virtual holding brake while the car stands (``holding``)."""
         theta = self.model_theta()
         q = self.process_noise(traction, brake, dt)
         self.method.record_forces(traction, brake)
         before = self.filter.speed
         self.filter.predict(traction, brake, theta, q, dt)
+        if self.holding(traction):
+            self.filter.cap_predicted_speed(before, dt)
         self.noise.predicted(self, before, q, dt)
         self._forces = (traction, brake)
         self._dt = dt
+
+    def holding(self, traction: float) -> bool:
+        """True when the prediction over the next interval, with this traction [N], may not speed
+        the car up: the car stands (StationDetector.standing: the last measured speed at or below
+        the threshold) and no traction is applied (traction <= 0).
+
+        A car standing at a platform is held by a brake. A recorded log may leave that brake out
+        (issue 27: a 25-40 s dwell on -12..-27 permille with brake_force 0): eq. (2) then rolls
+        the filter downhill at ~0.25 m/s^2, the measured 0 m/s soon falls outside the innovation
+        gate (MotionFilter.gate) and filter.speed climbed to 2-3 m/s, filter.position ~13 m
+        off, for the whole dwell. So while holding, an unknown brake holds the car: the predicted
+        speed is at most the filtered speed before the prediction (the filter's kind caps it,
+        MotionFilter.cap_predicted_speed). With the brake recorded, eq. (2) already predicts no
+        speed-up at rest and nothing changes. Traction ends the hold at once (a departure is not
+        delayed); a car released downhill without traction is followed from its first sample
+        above the threshold on. The likelihood bank (est.sigma2_method 1) follows the filter
+        only while the car moves (LikelihoodNoise.predicted): never a held prediction."""
+        return self.station.standing and traction <= 0.0
 
     def theta(self) -> np.ndarray:
         """Theta reported (est.*): the running LS's, with the method's A's once it has any

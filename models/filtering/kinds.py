@@ -13,6 +13,7 @@ the posterior x_hat, P of (speed part, distance), the reference speed V_zad, the
     update_speed(f, speed, variance)      an extra speed of the current instant (track sensors)
     acceleration()                        the kind's own acceleration estimate, or None
     predict(f, traction, brake, theta, q, dt)  eqs. (16), (19) or the kind's own
+    cap_predicted_speed(f, v_max, dt)     the prediction's speed at most v_max (a holding brake)
 
 The three Kalman kinds run models/filtering/kalman.py's pure functions on f's state; the Singer kind runs
 models/filtering/singer.py's filter on [w, v, r] and publishes its (v, r) block as f's state. A kind object
@@ -108,6 +109,22 @@ class EKFKind:
     def acceleration(self) -> float | None:
         return None
 
+    def _vzad_hat(self, f) -> float:
+        """V_zad [m/s] the prediction starts from (0: this kind runs on absolute speed)."""
+        return 0.0
+
+    def cap_predicted_speed(self, f, v_max: float, dt: float) -> None:
+        """The prediction over dt [s] with its speed at most v_max [m/s] (>= 0): the speed row
+        capped, the distance integrated with the capped speed by the trapezoid of
+        kalman2.predict -- what an unknown brake holding the car back would leave. M is left
+        as predicted: the cap moves the estimate towards the truth it bounds, so M stays a
+        conservative error covariance (as the Singer kind's clip, singer._project)."""
+        if not f.x_bar[0] + f.vzad_bar > v_max:
+            return
+        xh0, x_pos = f.x_hat
+        v_hat = xh0 + self._vzad_hat(f)
+        f.x_bar = (v_max - f.vzad_bar, x_pos + 0.5 * dt * (v_hat + v_max))
+
     def _grade(self, f) -> float:
         return self.grade_profile.average(f.x_hat[1], self.cfg.length)
 
@@ -139,6 +156,9 @@ class LinearisedKind(EKFKind):
     def vzad(self, x: float) -> float:
         return self.speed_profile.at(x)
 
+    def _vzad_hat(self, f) -> float:
+        return f.vzad_hat
+
     def _model(self, f, traction: float, brake: float, theta, dt: float):
         """(a, c, C) of eq. (13) from V_zad now to V_zad where the car will be, which becomes
         the prediction's V_zad."""
@@ -165,6 +185,12 @@ class PaperKind(LinearisedKind):
         a, c, C = self._model(f, traction, brake, theta, dt)
         x, f.M = kalman2.predict_paper(f.x_hat, f.P, a, c, C, dt, q)
         f.x_bar = kalman2.forward(x, f.vzad_bar)
+
+    def cap_predicted_speed(self, f, v_max: float, dt: float) -> None:
+        """As EKFKind's, but the distance is Euler's X + V dt (eq. (16)), which the predicted
+        speed does not enter: only the speed row is capped."""
+        if f.x_bar[0] + f.vzad_bar > v_max:
+            f.x_bar = (v_max - f.vzad_bar, f.x_bar[1])
 
 
 class SingerKind:
@@ -240,6 +266,12 @@ class SingerKind:
     def predict(self, f, traction: float, brake: float, theta, q: float, dt: float) -> None:
         """Model-free: the forces, Theta and q are not used."""
         self.singer.predict(dt)
+        self._publish(f, posterior=False)
+
+    def cap_predicted_speed(self, f, v_max: float, dt: float) -> None:
+        """The Singer state's speed at most v_max [m/s] by the estimate projection of its own
+        clip (singer._cap_speed: w and r move with their correlation to v, P unchanged)."""
+        self.singer.cap_speed(v_max)
         self._publish(f, posterior=False)
 
 

@@ -219,6 +219,12 @@ class MotionFilter:
         """Eqs. (16), (19) (or the kind's own) over dt [s] with forces [N] held, process noise q [(m/s)^2]."""
         self.algorithm.predict(self, traction, brake, theta, q, dt)
 
+    def cap_predicted_speed(self, v_max: float, dt: float) -> None:
+        """After ``predict`` over dt [s]: the predicted speed at most v_max [m/s] (>= 0), the
+        state as a brake holding the car back would leave it (the kind's cap_predicted_speed;
+        OnlineEstimator.propagate's virtual holding brake)."""
+        self.algorithm.cap_predicted_speed(self, v_max, dt)
+
     @property
     def speed(self) -> float:
         """Filtered speed [m/s] at the last measurement."""
