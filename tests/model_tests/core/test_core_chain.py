@@ -29,9 +29,9 @@ from models.chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejecte
 from models.compiled import CompiledChain, CompiledEstimatorChain, open_chain, open_estimator_chain
 from models.plant.dynamics import VehicleParams
 from models.estimation.online import StationConfig
-from models.filtering.motion_filter import FilterConfig
+from models.filtering.motion_filter import FilterConfig, MotionFilter
 from models.estimation.identification import IdentifierConfig
-from models.plant.track import GradeProfile
+from models.plant.track import GradeProfile, SpeedProfile
 
 ROOT = Path(__file__).resolve().parents[3]
 LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
@@ -399,6 +399,66 @@ def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty, me
     assert out_py[-1]["est.station_stops"] >= (2 if faulty else 3)   # a fault can hide a stop
     if faulty:
         assert out_py[-1]["filter.rejected"] > 40
+    for k, (a, b) in enumerate(zip(out_py, out_c)):
+        assert same(a, b), f"row {k}: {[(n, a[n], b[n]) for n in a if not same(a[n], b[n])][:4]}"
+
+
+DOWNHILL = GradeProfile((0.0,), (-25.0,))
+DOWNHILL_SPEED = SpeedProfile((0.0, 50.0, 77.0, 302.0, 406.0, 458.5, 461.0),
+                              (0.0, 12.3, 14.7, 17.5, 11.0, 2.2, 0.0))
+"""V_zad of downhill_dwells' legs over the distance from the station (kinds 1, 3)."""
+
+
+def downhill_dwells(seed: int) -> list[tuple]:
+    """(t, h, traction, brake, speed, distance) of a 30 t car on -25 permille, speed noise 0.01
+    m/s + 1 %: 30 s at the station, two legs (traction 10 s, coast 15 s, brake to a stop, 30 s
+    dwell), a departure; the plant held by 13.5 kN while it stands, which the log leaves out
+    (brake 0 for every step the car stands through): OnlineEstimator.holding's case."""
+    sensor = FilterConfig(speed_std=0.01, speed_std_rel=0.01)
+    chain = RailCarChain(ChainConfig(vehicle=VehicleParams(mass=30.0), seed=seed, filter=sensor),
+                         DOWNHILL)
+    plan = [((0.0, 13.5e3), 300)] + [((40e3, 0.0), 100), ((0.0, 0.0), 150), ((0.0, 40e3), None),
+                                     ((0.0, 13.5e3), 300)] * 2 + [((40e3, 0.0), 100)]
+    rows, t = [], 0.0
+    for forces, steps in plan:
+        k = 0
+        while (k < steps) if steps else chain.outputs()["car.speed"] > 0.0:
+            before = chain.outputs()
+            chain.do_step(t, 0.1, *forces, 0.0)
+            after = chain.outputs()
+            standing = before["car.speed"] == 0.0 and after["car.speed"] == 0.0
+            rows.append((t, 0.1, after["car.traction_force_mean"],
+                         0.0 if standing else after["car.brake_force_mean"],
+                         before["sensor.speed"], before["sensor.position"]))
+            t += 0.1
+            k += 1
+    return rows
+
+
+@pytest.mark.parametrize("kind", [1, 2, 3, 4])
+@pytest.mark.parametrize("method, sigma2_method", [(0, 0), (0, 1), (2, 0), (2, 1)])
+def test_estimator_chain_bit_identical_through_a_held_standstill(kind, method, sigma2_method,
+                                                                 monkeypatch):
+    """The virtual holding brake (OnlineEstimator.holding, MotionFilter.cap_predicted_speed; C:
+    rc_estimator_propagate, rc_filter_cap_predicted_speed) on dwells whose brake the log leaves
+    out, every filter kind: bit for bit, and the cap did change predictions (else this case
+    would not exercise it)."""
+    capped = []
+    original = MotionFilter.cap_predicted_speed
+
+    def counting(self, v_max, dt):
+        before = self.x_bar
+        original(self, v_max, dt)
+        capped.append(self.x_bar != before)
+
+    monkeypatch.setattr(MotionFilter, "cap_predicted_speed", counting)
+    rows = downhill_dwells(seed=5)
+    args = (IdentifierConfig(mass_initial=30.0, method=method, sigma2_method=sigma2_method),
+            FilterConfig(speed_std=0.01, speed_std_rel=0.01, kind=kind), StationConfig(dwell=20.0),
+            DOWNHILL, DOWNHILL_SPEED if kind in (1, 3) else None)
+    out_py = replay(EstimatorChain(*args), rows)
+    out_c = replay(CompiledEstimatorChain(*args), rows)
+    assert sum(capped) > 100 and out_py[-1]["est.station_stops"] == 3
     for k, (a, b) in enumerate(zip(out_py, out_c)):
         assert same(a, b), f"row {k}: {[(n, a[n], b[n]) for n in a if not same(a[n], b[n])][:4]}"
 
