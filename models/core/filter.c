@@ -504,7 +504,7 @@ rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const d
 
 void rc_filter_cap_predicted_speed(rc_filter *f, double v_max, double dt)
 {
-    if (f->kind == RC_SINGER) {                /* SingerKind: singer._cap_speed, then publish */
+    if (f->kind == RC_SINGER) {                /* SingerKind.cap_predicted_speed */
         double *x = f->singer.x;
         const double *P = f->singer.P;
         double excess, pvv;

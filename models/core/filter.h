@@ -81,7 +81,7 @@ rc_status rc_filter_predict(rc_filter *f, double traction, double brake, const d
                             double q, double dt);
 /* MotionFilter.cap_predicted_speed, after rc_filter_predict over dt [s]: the predicted speed at
  * most v_max [m/s] (the kinds' cap_predicted_speed: kinds 1, 2 the distance by the trapezoid
- * with the capped speed, kind 3 the speed row only, kind 4 singer._cap_speed's projection; the
+ * with the capped speed, kind 3 the speed row only, kind 4 the projection of the Singer clip; the
  * covariance unchanged) */
 void rc_filter_cap_predicted_speed(rc_filter *f, double v_max, double dt);
 /* MotionFilter.acceleration: 1 with the Singer filter's acceleration [m/s^2] in *out (kind 4),

@@ -269,9 +269,21 @@ class SingerKind:
         self._publish(f, posterior=False)
 
     def cap_predicted_speed(self, f, v_max: float, dt: float) -> None:
-        """The Singer state's speed at most v_max [m/s] by the estimate projection of its own
-        clip (singer._cap_speed: w and r move with their correlation to v, P unchanged)."""
-        self.singer.cap_speed(v_max)
+        """The Singer state's speed v at most v_max [m/s], by the estimate projection of its own
+        clip at 0 (singer._project): if v > v_max, x_i - (P[i, v] / P[v, v]) (v - v_max) for
+        i = w, r when P[v, v] > 0, and v = v_max -- a brake held the car back, so the
+        acceleration and the distance move with their correlation to v; P unchanged.
+        models/core/filter.c repeats it."""
+        s = self.singer
+        x, P = s._x, s._P                        # [w, v, r]; 3x3 row-major
+        if not x[1] > v_max:
+            return
+        excess = x[1] - v_max
+        pvv = P[4]
+        if pvv > 0.0:
+            s._x = [x[0] - P[1] / pvv * excess, v_max, x[2] - P[7] / pvv * excess]
+        else:
+            s._x = [x[0], v_max, x[2]]
         self._publish(f, posterior=False)
 
 

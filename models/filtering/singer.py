@@ -352,23 +352,6 @@ def _project(x: list, P) -> list:
     return x
 
 
-def _cap_speed(x: list, P, v_max: float) -> list:
-    """The speed of one state x (3 floats), P flat, at most ``v_max`` [m/s]: if v > v_max,
-    x_i - (P[i, v] / P[v, v]) (v - v_max) for i = w, r when P[v, v] > 0, and v = v_max: the
-    estimate projection of ``_project`` onto v = v_max (an unknown brake held the car back, so w
-    and r move with their correlation to v). P is left unchanged. models/core/filter.c repeats it."""
-    v = x[I_V]
-    if not v > v_max:
-        return x
-    excess = v - v_max
-    pvv = P[4]
-    if pvv > 0.0:
-        x = [x[0] - P[1] / pvv * excess, v_max, x[2] - P[7] / pvv * excess]
-    else:
-        x = [x[0], v_max, x[2]]
-    return x
-
-
 def _symmetric(M: list) -> list:
     """0.5 (M + M^T) of a flat 3x3: entry (i, j) is 0.5 * (M[i, j] + M[j, i])."""
     return [0.5 * (M[3 * i + j] + M[3 * j + i]) for i in range(3) for j in range(3)]
@@ -545,11 +528,6 @@ class SingerFilter:
         # equal), so -0.0 would get whichever came first (a zero's sign in Phi and u)
         Phi, Q, u = _discretisation_flat(p.alpha, float(dt) + 0.0, p.sigma_w, p.m_w)
         self._x, self._P = _predict(self._x, self._P, Phi, Q, u, self.clip)
-
-    def cap_speed(self, v_max: float) -> None:
-        """The speed at most ``v_max`` [m/s] (``_cap_speed``; the virtual holding brake of
-        models/estimation/online.py OnlineEstimator.propagate)."""
-        self._x = _cap_speed(self._x, self._P, v_max)
 
     def _take(self, z, H, R) -> None:
         self._x, self._P, self.nis = _update(self._x, self._P, z, H, R, self.clip)
