@@ -384,14 +384,17 @@ def with_faults(rows, seed: int):
     return [tuple(r) for r in rows]
 
 
-@pytest.mark.parametrize("kind, faulty, method, physical", [
-    (2, False, 0, 0), (2, True, 0, 0), (0, True, 0, 0), (2, False, 2, 0), (2, True, 2, 0),
-    (0, True, 2, 0), (2, True, 0, 1), (0, True, 2, 1)])
-def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty, method, physical):
+@pytest.mark.parametrize("kind, faulty, method, physical, sigma2_method", [
+    (2, False, 0, 0, 0), (2, True, 0, 0, 0), (0, True, 0, 0, 0), (2, False, 2, 0, 0),
+    (2, True, 2, 0, 0), (0, True, 2, 0, 0), (2, True, 0, 1, 0), (0, True, 2, 1, 0),
+    (2, True, 2, 0, 1), (0, True, 2, 1, 1), (2, True, 0, 0, 1)])
+def test_estimator_chain_bit_identical_through_faults_and_stops(kind, faulty, method, physical,
+                                                                 sigma2_method):
     rows = measurements(1500.0, seed=4, stops=4)
     if faulty:
         rows = with_faults(rows, seed=9)
-    args = (IdentifierConfig(mass_initial=30.0, method=method, physical=physical),
+    args = (IdentifierConfig(mass_initial=30.0, method=method, physical=physical,
+                             sigma2_method=sigma2_method),
             FilterConfig(kind=kind), StationConfig(dwell=20.0), GradeProfile.level())
     py, c = EstimatorChain(*args), CompiledEstimatorChain(*args)
     assert c.outputs() == py.outputs() == {}
