@@ -166,6 +166,7 @@ void rc_ident_reset(rc_ident *id)
     id->has_cL = 0;
     id->cL = 0.0;
     id->n_cL = 0;
+    id->cL_count = 0.0;
     id->speed_var = 0.0;
     id->n_speed_var = 0;
     id->has_cov = 0;
@@ -237,13 +238,14 @@ static void residual_stats(rc_ident *id, double err, int contiguous, double mu)
     }
     if (id->window_len == RC_LAG) {
         id->n_cL += 1;
+        id->cL_count += 1.0;
         double sq = id->window_sum * id->window_sum;
         if (!id->has_cL)
             id->cL = sq;
         else if (id->cfg.forgetting > 0.0)             /* forgets as c0 and c1 do */
             id->cL += mu * (sq - id->cL);
         else
-            id->cL = id->cL + (sq - id->cL) / (double)id->n_cL;
+            id->cL = id->cL + (sq - id->cL) / id->cL_count;
         id->has_cL = 1;
     }
     id->c0 += mu * (err * err - id->c0);
@@ -535,6 +537,7 @@ int rc_ident_restart_mass(rc_ident *id)
     }
     for (int i = 1; i < 4; i++)
         t[i - 1] = R[4 * i] / R[0];
+    id->cL_count *= lam;                               /* the LAG sums forget with the A's */
     double *meats[2] = {id->W, id->D};
     for (int m = 0; m < 2; m++) {
         double *M = meats[m], M_AA[9];

@@ -56,6 +56,7 @@ typedef struct {               /* models.estimation.identification.ParameterIden
     double c0, c1;  long n_c1;
     double window[RC_LAG];  long window_len, window_start;  double window_sum;   /* ring */
     int has_cL;  double cL;  long n_cL;
+    double cL_count;                                   /* _cL_count: n_cL forgotten with the runs */
     double speed_var;  long n_speed_var;               /* _speed_var, _n_speed_var */
     int has_cov;  double cov[16];                      /* caches */
     int has_sigma2;  double sigma2;

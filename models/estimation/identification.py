@@ -305,6 +305,7 @@ class ParameterIdentifier:
         self._window_sum = 0.0
         self.cL = None                    # mean square of LAG-sample residual sums
         self._n_cL = 0
+        self._cL_count = 0.0              # its sums' weight count, forgotten with the runs
         self._speed_var = 0.0             # mean measured-speed variance of the rows [(m/s)^2]
         self._n_speed_var = 0             # (with sensor.speed_std_rel; see _configured_noise)
         self._cov = None              # cached covariance (flat), cleared by every change
@@ -373,13 +374,14 @@ class ParameterIdentifier:
             self._window_sum -= w.pop(0)
         if len(w) == self.LAG:
             self._n_cL += 1
+            self._cL_count += 1.0
             sq = self._window_sum * self._window_sum
             if self.cL is None:
                 self.cL = sq
             elif self.cfg.forgetting > 0.0:   # forgets as c0 and c1 do: a mean over the whole
                 self.cL += mu * (sq - self.cL)  # history kept sigma^2 ~280x too high after a step
             else:
-                self.cL = self.cL + (sq - self.cL) / self._n_cL
+                self.cL = self.cL + (sq - self.cL) / self._cL_count
         self.c0 += mu * (err * err - self.c0)
         if contiguous and self._last_err is not None:
             self._n_c1 += 1
@@ -515,11 +517,16 @@ class ParameterIdentifier:
         # times lam, the prior's kept, Theta-hat unchanged. The meat takes lam too, not the lam^2
         # of a weighted sum (which would leave the data's covariance as it was): forgetting says
         # the A's may have moved, so their covariance grows by 1 / lam, as in
-        # ResistanceCarryOver's information form (est.method 1).
+        # ResistanceCarryOver's information form (est.method 1). The mean square cL of the LAG
+        # sums (b, the process share, in the sandwich and sigma^2) forgets with them: its weight
+        # count times lam, so a windy hour's larger residuals move b within a few runs. As a
+        # day-long mean it barely moved, and est.method 2's est.mass_std was too small there
+        # (studies/service_day.py 24 h, run_forgetting 0.3: within 3 sigma 98.21 -> 99.07 %).
         lam = 1.0 - self.cfg.run_forgetting
         if self._last_phi is not None:
             self._D = plus_outer(self._D, end_row(self._last_phi, self._end_weight))
         t = [R[4 * i] / R[0] for i in (1, 2, 3)]
+        self._cL_count *= lam     # the LAG sums forget with the A's information (see below)
         self._W = marginalise_meat(self._W, t, lam)
         self._D = marginalise_meat(self._D, t, lam)
         n_info = self._n_info()
