@@ -194,6 +194,32 @@ def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
     return plus_outer(W, phi), D
 
 
+def slope_noise_weight(rows, k) -> tuple[float, float, float, float]:
+    """g = sum_i k[i] rows[-1 - i] (i < len(rows)): how the measurement error of one speed sample
+    enters the score sum phi(n) e(n) of est.method 2's slope rows, rows[-1] the newest row that
+    holds the sample at window position 0 (its slope weight times the step, k[0]), rows[-2] the
+    row before (position 1), ... Fewer rows than k: a run's start (or, with k shifted, its end)."""
+    g0 = g1 = g2 = g3 = 0.0
+    for i in range(min(len(rows), len(k))):
+        r = rows[-1 - i]
+        w = k[i]
+        g0 += w * r[0]
+        g1 += w * r[1]
+        g2 += w * r[2]
+        g3 += w * r[3]
+    return g0, g1, g2, g3
+
+
+def slope_end_terms(M, rows, k, scale: float) -> list[float]:
+    """M plus the score terms of the speed samples after the newest row (its window's later
+    samples, which no later row of the run holds): sample d = 1 .. len(k) - 1 positions on, the
+    rows' weights k[d + i]; each term times the noise std ``scale`` of the run's last row [N/kN]."""
+    for d in range(1, len(k)):
+        g = slope_noise_weight(rows, k[d:])
+        M = plus_outer(M, (scale * g[0], scale * g[1], scale * g[2], scale * g[3]))
+    return M
+
+
 def meat(a: float, b: float, D, W, last_phi, end_weight: float, j0, s2) -> list[float]:
     """M = a D + b W (+ a times the open run's end, last_phi end_weight) + diag(s2) J0: the
     covariance of the score for measurement-noise variance a and process-noise variance b
