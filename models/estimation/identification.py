@@ -243,7 +243,7 @@ class ParameterIdentifier:
         self._slope_rows = cfg.method == 2
         self._end_factor = (2.0 * sum(x * x for x in centred_slope_weights([cfg.dt] * (int(cfg.slope_window) - 1))[1])
                             if self._slope_rows else 2.0)
-        self._end_weight = math.sqrt(0.5 * self._end_factor)   # scales a run's end row in D
+        self._end_weight = math.sqrt(0.5 * self._end_factor)   # a run's end row in D (not method 2)
         # est.method 2: how one speed sample's error enters the score, per window position: the
         # slope weights times the step (D's terms, _accumulate)
         self._k = ([w * cfg.dt for w in centred_slope_weights([cfg.dt] * (int(cfg.slope_window) - 1))[0]]

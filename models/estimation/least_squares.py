@@ -176,8 +176,9 @@ def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
 
     W = sum phi phi^T (white noise); D = sum over runs of consecutive pairs of the differenced
     regressors (phi(n) - phi(n-1)) (...)^T, plus each run's two ends, where one sample's
-    measurement noise enters alone (the paper's differences: weight 1; Sidorenko's (1997) slopes spread
-    it over the window: end_weight^2 = sum c_j^2). A new run closes the previous one's end
+    measurement noise enters alone with weight end_weight (1 for the paper's differences; est.method
+    2's slope rows take slope_noise_weight instead, ParameterIdentifier._accumulate_slope). A new
+    run closes the previous one's end
     (last_phi) and opens its own. With forgetting, both are first weighted by lam^2 = (1 -
     mu0)^2. ``contiguous``: phi's pair directly follows last_phi's (None: no open run)."""
     if lam < 1.0:
