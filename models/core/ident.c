@@ -96,6 +96,9 @@ int rc_ident_init_rows(rc_ident *id, const rc_ident_config *cfg, long slope_wind
         for (long j = 0; j < m; j++)
             dts[j] = cfg->dt;
         rc_centred_slope_weights(dts, m, w, c);
+        id->n_k = m + 1;
+        for (long j = 0; j <= m; j++)
+            id->slope_k[j] = w[j] * cfg->dt;
         double sum = 0.0;
         for (long j = 0; j < m; j++)
             sum += c[j] * c[j];
@@ -155,6 +158,10 @@ void rc_ident_reset(rc_ident *id)
     memset(id->D, 0, sizeof id->D);
     id->has_last_phi = 0;
     memset(id->last_phi, 0, sizeof id->last_phi);
+    id->rows_len = 0;
+    id->rows_next = 0;
+    id->row_scale = 1.0;
+    id->last_scale = 1.0;
     id->has_last_err = 0;
     id->last_err = 0.0;
     id->c0 = id->s2_ref;
@@ -166,6 +173,7 @@ void rc_ident_reset(rc_ident *id)
     id->has_cL = 0;
     id->cL = 0.0;
     id->n_cL = 0;
+    id->cL_count = 0.0;
     id->speed_var = 0.0;
     id->n_speed_var = 0;
     id->has_cov = 0;
@@ -190,8 +198,68 @@ static void end_row(const rc_ident *id, const double *phi, double *out)
         out[i] = e == 1.0 ? phi[i] : e * phi[i];
 }
 
+/* slope_noise_weight: g = sum_i k[i] row(newest - i), i < min(rows_len, nk) */
+static void slope_noise_weight(const rc_ident *id, const double *k, long nk, double *g)
+{
+    long n = id->rows_len < nk ? id->rows_len : nk;
+    g[0] = g[1] = g[2] = g[3] = 0.0;
+    for (long i = 0; i < n; i++) {
+        long at = ((id->rows_next - 1 - i) % id->n_k + id->n_k) % id->n_k;
+        const double *r = id->rows + 4 * at;
+        double w = k[i];
+        g[0] += w * r[0];
+        g[1] += w * r[1];
+        g[2] += w * r[2];
+        g[3] += w * r[3];
+    }
+}
+
+/* slope_end_terms: M plus the terms of the samples after the newest row, times scale */
+static void slope_end_terms(const rc_ident *id, double *M, double scale)
+{
+    double g[4];
+    for (long d = 1; d < id->n_k; d++) {
+        slope_noise_weight(id, id->slope_k + d, id->n_k - d, g);
+        double u[4] = {scale * g[0], scale * g[1], scale * g[2], scale * g[3]};
+        add_outer(M, u);
+    }
+}
+
+/* _accumulate_slope: est.method 2's W and D */
+static void accumulate_slope(rc_ident *id, const double *phi, int contiguous, double lam)
+{
+    double *W = id->W, *D = id->D, g[4];
+    if (lam < 1.0) {
+        double l2 = lam * lam;
+        for (int i = 0; i < 16; i++) {
+            W[i] *= l2;
+            D[i] *= l2;
+        }
+    }
+    if (!contiguous && id->rows_len) {
+        slope_end_terms(id, D, id->last_scale);         /* close the previous run */
+        id->rows_len = 0;
+    }
+    memcpy(id->rows + 4 * id->rows_next, phi, 4 * sizeof(double));   /* rows.append; pop(0) */
+    id->rows_next = (id->rows_next + 1) % id->n_k;
+    if (id->rows_len < id->n_k)
+        id->rows_len += 1;
+    double s = id->row_scale;
+    slope_noise_weight(id, id->slope_k, id->n_k, g);
+    double u[4] = {s * g[0], s * g[1], s * g[2], s * g[3]};
+    add_outer(D, u);
+    add_outer(W, phi);
+    memcpy(id->last_phi, phi, sizeof id->last_phi);
+    id->has_last_phi = 1;
+    id->last_scale = id->row_scale;
+}
+
 static void accumulate(rc_ident *id, const double *phi, int contiguous, double lam)
 {
+    if (id->slope_rows) {
+        accumulate_slope(id, phi, contiguous, lam);
+        return;
+    }
     double *W = id->W, *D = id->D, u[4];
     if (lam < 1.0) {
         double l2 = lam * lam;
@@ -215,6 +283,7 @@ static void accumulate(rc_ident *id, const double *phi, int contiguous, double l
     add_outer(W, phi);
     memcpy(id->last_phi, phi, sizeof id->last_phi);
     id->has_last_phi = 1;
+    id->last_scale = id->row_scale;
 }
 
 static void residual_stats(rc_ident *id, double err, int contiguous, double mu)
@@ -237,13 +306,14 @@ static void residual_stats(rc_ident *id, double err, int contiguous, double mu)
     }
     if (id->window_len == RC_LAG) {
         id->n_cL += 1;
+        id->cL_count += 1.0;
         double sq = id->window_sum * id->window_sum;
         if (!id->has_cL)
             id->cL = sq;
         else if (id->cfg.forgetting > 0.0)             /* forgets as c0 and c1 do */
             id->cL += mu * (sq - id->cL);
         else
-            id->cL = id->cL + (sq - id->cL) / (double)id->n_cL;
+            id->cL = id->cL + (sq - id->cL) / id->cL_count;
         id->has_cL = 1;
     }
     id->c0 += mu * (err * err - id->c0);
@@ -379,6 +449,8 @@ int rc_ident_update(rc_ident *id, double traction, double brake, double speed, d
         double var = rc_sq(id->cfg.speed_std + id->cfg.speed_std_rel * fabs(speed));
         id->speed_var += (var - id->speed_var) / (double)id->n_speed_var;
     }
+    if (id->slope_rows)
+        id->row_scale = id->scale * (id->cfg.speed_std + id->cfg.speed_std_rel * fabs(speed));
     double phi[4] = {traction - brake, -1.0, -speed, -speed * speed};                 /* (4) */
     double dtu = dt != 0.0 ? dt : id->cfg.dt;
     double y = 1000.0 * (1.0 + id->cfg.gamma) * (speed_next - speed) / (RC_G * dtu) + grade;
@@ -529,12 +601,18 @@ int rc_ident_restart_mass(rc_ident *id)
     if (rc_la_inverse(id->S, 4, R))
         st = RC_MATH;
     double lam = 1.0 - id->cfg.run_forgetting;
-    if (id->has_last_phi) {
+    if (id->slope_rows) {
+        if (id->rows_len) {
+            slope_end_terms(id, id->D, id->last_scale);
+            id->rows_len = 0;
+        }
+    } else if (id->has_last_phi) {
         end_row(id, id->last_phi, u);
         add_outer(id->D, u);
     }
     for (int i = 1; i < 4; i++)
         t[i - 1] = R[4 * i] / R[0];
+    id->cL_count *= lam;                               /* the LAG sums forget with the A's */
     double *meats[2] = {id->W, id->D};
     for (int m = 0; m < 2; m++) {
         double *M = meats[m], M_AA[9];
@@ -594,6 +672,18 @@ static void sandwich(const rc_ident *id, const double *Ji, double a, double b, c
                      const double *s2, double *out)
 {
     double M[16];
+    if (id->slope_rows) {                              /* D carries each sample's a */
+        for (int i = 0; i < 16; i++)
+            M[i] = 1.0 * id->D[i] + b * id->W[i];
+        M[0] += s2[0] * j0[0];
+        M[5] += s2[1] * j0[1];
+        M[10] += s2[2] * j0[2];
+        M[15] += s2[3] * j0[3];
+        if (id->rows_len)
+            slope_end_terms(id, M, id->last_scale);
+        sandwich4(Ji, M, out);
+        return;
+    }
     for (int i = 0; i < 16; i++)
         M[i] = a * id->D[i] + b * id->W[i];
     if (id->has_last_phi) {                            /* the open run's end */

@@ -17,6 +17,7 @@
 #include "rc_common.h"
 
 #define RC_LAG 50              /* ParameterIdentifier.LAG */
+#define RC_MAX_SLOPE_WINDOW 1000   /* identification.MAX_SLOPE_WINDOW: est.method 2's rows held */
 
 typedef struct {               /* models.estimation.identification.IdentifierConfig */
     double dt;                 /* [s] */
@@ -38,6 +39,7 @@ typedef struct {               /* models.estimation.identification.ParameterIden
     double theta0[4], scale, s2_ref, s2_prior[4], j0[4];
     double end_factor, end_weight;     /* 2 and 1 for the paper's rows */
     int slope_rows;                    /* _slope_rows: est.method 2 */
+    long n_k;  double slope_k[RC_MAX_SLOPE_WINDOW];   /* _k: slope weights times dt */
     double theta[4], prior_mean[4];
     int has_running;  double running_theta[4];         /* _running_theta */
     double batch_info_inv[16], batch_j0[4], batch_s2p[4];   /* _batch_info_inv, _batch_prior */
@@ -52,10 +54,13 @@ typedef struct {               /* models.estimation.identification.ParameterIden
     long mass_restarts, repairs;
     double W[16], D[16];
     int has_last_phi;  double last_phi[4];
+    double rows[4 * RC_MAX_SLOPE_WINDOW];  long rows_len, rows_next;   /* _rows, a ring */
+    double row_scale, last_scale;      /* _row_scale, _last_scale */
     int has_last_err;  double last_err;
     double c0, c1;  long n_c1;
     double window[RC_LAG];  long window_len, window_start;  double window_sum;   /* ring */
     int has_cL;  double cL;  long n_cL;
+    double cL_count;                                   /* _cL_count: n_cL forgotten with the runs */
     double speed_var;  long n_speed_var;               /* _speed_var, _n_speed_var */
     int has_cov;  double cov[16];                      /* caches */
     int has_sigma2;  double sigma2;

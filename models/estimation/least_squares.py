@@ -176,8 +176,9 @@ def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
 
     W = sum phi phi^T (white noise); D = sum over runs of consecutive pairs of the differenced
     regressors (phi(n) - phi(n-1)) (...)^T, plus each run's two ends, where one sample's
-    measurement noise enters alone (the paper's differences: weight 1; Sidorenko's (1997) slopes spread
-    it over the window: end_weight^2 = sum c_j^2). A new run closes the previous one's end
+    measurement noise enters alone with weight end_weight (1 for the paper's differences; est.method
+    2's slope rows take slope_noise_weight instead, ParameterIdentifier._accumulate_slope). A new
+    run closes the previous one's end
     (last_phi) and opens its own. With forgetting, both are first weighted by lam^2 = (1 -
     mu0)^2. ``contiguous``: phi's pair directly follows last_phi's (None: no open run)."""
     if lam < 1.0:
@@ -192,6 +193,32 @@ def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
             D = plus_outer(D, end_row(last_phi, end_weight))   # close the previous run
         D = plus_outer(D, end_row(phi, end_weight))            # open a new one
     return plus_outer(W, phi), D
+
+
+def slope_noise_weight(rows, k) -> tuple[float, float, float, float]:
+    """g = sum_i k[i] rows[-1 - i] (i < len(rows)): how the measurement error of one speed sample
+    enters the score sum phi(n) e(n) of est.method 2's slope rows, rows[-1] the newest row that
+    holds the sample at window position 0 (its slope weight times the step, k[0]), rows[-2] the
+    row before (position 1), ... Fewer rows than k: a run's start (or, with k shifted, its end)."""
+    g0 = g1 = g2 = g3 = 0.0
+    for i in range(min(len(rows), len(k))):
+        r = rows[-1 - i]
+        w = k[i]
+        g0 += w * r[0]
+        g1 += w * r[1]
+        g2 += w * r[2]
+        g3 += w * r[3]
+    return g0, g1, g2, g3
+
+
+def slope_end_terms(M, rows, k, scale: float) -> list[float]:
+    """M plus the score terms of the speed samples after the newest row (its window's later
+    samples, which no later row of the run holds): sample d = 1 .. len(k) - 1 positions on, the
+    rows' weights k[d + i]; each term times the noise std ``scale`` of the run's last row [N/kN]."""
+    for d in range(1, len(k)):
+        g = slope_noise_weight(rows, k[d:])
+        M = plus_outer(M, (scale * g[0], scale * g[1], scale * g[2], scale * g[3]))
+    return M
 
 
 def meat(a: float, b: float, D, W, last_phi, end_weight: float, j0, s2) -> list[float]:
