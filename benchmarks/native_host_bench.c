@@ -1,10 +1,12 @@
 /* native_host_bench.c -- a plain C FMI 2.0 co-simulation host that times an extracted FMU
  * (benchmarks/native_benchmark.py compiles it with -O2 and runs it).
  *
- *   native_host_bench UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS
+ *   native_host_bench UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS [PARAMS]
  *
  * IN_VRS, REAL_VRS and INT_VRS are comma-separated value references: the three demand inputs
- * (traction, brake, wind), and every Real and Integer output. Each repeat instantiates the FMU
+ * (traction, brake, wind), and every Real and Integer output. PARAMS, optional, sets parameters
+ * before initialisation: comma-separated iVR=VALUE (Integer) or rVR=VALUE (Real), e.g.
+ * "i32=0,r44=5" (a configuration other than the FMU's defaults). Each repeat instantiates the FMU
  * (UNZIPDIR/binaries/linux64/MODEL_ID.so, dlopen'ed once), initialises it and runs STEPS steps
  * of 0.1 s: fmi2SetReal of the inputs (benchmark.py's demands: traction 40 kN for 20 s, brake
  * 30 kN from 120 s to 150 s), fmi2DoStep, fmi2GetReal and fmi2GetInteger of all outputs. Only
@@ -46,6 +48,29 @@ static size_t parse_vrs(const char *s, fmi2ValueReference *out) {
     return n;
 }
 
+/* Sets "iVR=V,rVR=V,..." on c; 0, or -1 on a malformed item or a refused value. */
+static int set_parameters(const char *s, fmi2Component c, fmi2SetRealTYPE *set_real,
+                          fmi2SetIntegerTYPE *set_integer) {
+    while (*s) {
+        char kind = *s++, *end;
+        fmi2ValueReference vr = (fmi2ValueReference)strtoul(s, &end, 10);
+        if ((kind != 'i' && kind != 'r') || end == s || *end != '=') {
+            fprintf(stderr, "PARAMS: expected iVR=VALUE or rVR=VALUE at \"%s\"\n", s - 1);
+            return -1;
+        }
+        s = end + 1;
+        if (kind == 'r') {
+            fmi2Real v = strtod(s, &end);
+            if (end == s || set_real(c, &vr, 1, &v) != fmi2OK) return -1;
+        } else {
+            fmi2Integer v = (fmi2Integer)strtol(s, &end, 10);
+            if (end == s || set_integer(c, &vr, 1, &v) != fmi2OK) return -1;
+        }
+        s = *end == ',' ? end + 1 : end;
+    }
+    return 0;
+}
+
 static double now(void) {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -78,8 +103,9 @@ int main(int argc, char **argv) {
     void *lib, *sym;
     fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
 
-    if (argc != 9) {
-        fprintf(stderr, "usage: %s UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS\n",
+    if (argc != 9 && argc != 10) {
+        fprintf(stderr, "usage: %s UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS"
+                " [PARAMS]\n",
                 argv[0]);
         return 2;
     }
@@ -105,6 +131,7 @@ int main(int argc, char **argv) {
         LOAD(fmi2EnterInitializationMode)
         LOAD(fmi2ExitInitializationMode)
         LOAD(fmi2SetReal)
+        LOAD(fmi2SetInteger)
         LOAD(fmi2DoStep)
         LOAD(fmi2GetReal)
         LOAD(fmi2GetInteger)
@@ -116,6 +143,10 @@ int main(int argc, char **argv) {
                                               fmi2False, fmi2False);
             if (!c) {
                 fprintf(stderr, "fmi2Instantiate failed\n");
+                return 1;
+            }
+            if (argc == 10 && set_parameters(argv[9], c, fmi2SetReal, fmi2SetInteger)) {
+                fprintf(stderr, "setting PARAMS \"%s\" failed\n", argv[9]);
                 return 1;
             }
             CHECK(fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0))

@@ -19,7 +19,7 @@ INPUTS = ("filter.speed", "filter.position", "filter.speed_std", "est.mass", "es
           "est.A1", "est.A2", "est.status", "est.samples", "filter.position_std")
 """The outputs the controller reads, by their FMU names."""
 
-STATED_INPUTS = (("est.mass_std", 10.0), ("est.A0_std", 5.0), ("est.A1_std", 0.1),
+STATED_INPUTS = (("est.mass_std", 10.0), ("est.A0_std", 2.0), ("est.A1_std", 0.1),
                  ("est.A2_std", 0.02), ("est.cov_A0_A1", 0.0), ("est.cov_A0_A2", 0.0),
                  ("est.cov_A1_A2", 0.0))
 """The estimates' stated uncertainty, which the regulator weighs them by (models/ato/controller.py

@@ -288,7 +288,9 @@ class ProcessNoiseBank:
     def __init__(self, q0: float, R: float, decades=(-2.0, 1.0), n: int = 13, prior_decades: float = 1.0,
                  variance_at=None):
         if not (q0 > 0 and math.isfinite(q0) and R > 0 and math.isfinite(R)):
-            raise ValueError(f"ProcessNoiseBank needs q0 > 0 and R > 0, got {q0}, {R}")
+            raise ValueError(f"est.sigma2_method 1 (the likelihood bank) needs est.sigma2_initial > 0 "
+                             f"and a speed measurement variance > 0 (sensor.speed_std), got "
+                             f"est.sigma2_initial = {q0}, sensor.speed_std^2 = {R}")
         self.variance_at = variance_at   # z [m/s] -> R at that measurement (sensor.speed_std_rel)
         # scalar loops in a fixed order with models.fpmath: models/core/estimator.c repeats them
         # bit for bit (numpy's exp/log/linspace/sum are neither CPU-independent nor C's order)

@@ -119,7 +119,7 @@ def test_the_covariance_of_the_As_is_the_runs_own_outputs(run):
     assert np.diag(cov).tobytes() == (std * std).tobytes()
     np.testing.assert_allclose(np.diag(cov), np.diag(own), rtol=1e-15, atol=0)
     corr = cov[0, 2] / np.sqrt(cov[0, 0] * cov[2, 2])
-    assert corr < -0.5            # A0 and A2 trade off: why the stds alone would mislead
+    assert abs(corr) > 0.5        # A0 and A2 correlate: why the stds alone would mislead
 
 
 def test_resistance_band_is_the_covariance_propagated_to_w0(run):
@@ -186,7 +186,7 @@ def test_no_model_runs_for_a_plot(run, monkeypatch, tmp_path):
 
 def test_resistance_vs_time_is_scaled_to_the_estimate_and_the_truth(run):
     """Each axis holds the whole estimate and the truth, with a 10 % margin, however wide the
-    band; the band stays inside the axis: where it is wider (the prior's, A0 +-10 N/kN) it is not
+    band; the band stays inside the axis: where it is wider (the prior's, A0 +-4 N/kN) it is not
     drawn, and the legend says so and gives its width at the end."""
     result, _ = run
     A = true_A(result)
@@ -206,9 +206,9 @@ def test_resistance_vs_time_is_scaled_to_the_estimate_and_the_truth(run):
         label = poly.get_label()
         assert "wider than the axes" in label and f"+-{2 * sd[-1]:.3g} {unit}" in label, label   # ... and said
         assert label in legend_texts(ax)
-    # control: scaled to the band (as before), A0's axis would be > 10x the estimate's range
+    # control: scaled to the band (as before), A0's axis would be > 5x the estimate's range
     est0 = result["est.A0"]
-    assert 4 * result["est.A0_std"][0] > 10 * (max(est0.max(), A[0]) - min(est0.min(), A[0]))
+    assert 4 * result["est.A0_std"][0] > 5 * (max(est0.max(), A[0]) - min(est0.min(), A[0]))
     close(fig)
 
 

