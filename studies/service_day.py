@@ -613,11 +613,12 @@ def main(argv=None) -> int:
     ap.add_argument("--wind-max", type=float, default=DayConfig.wind_max_mps,
                     help="largest |wind| drawn [m/s] (default %(default)s)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                    help="an FMU parameter instead of SERVICE_PARAMETERS (repeatable)")
+                    help="an FMU parameter on top of SERVICE_PARAMETERS (repeatable; "
+                         "est.run_forgetting=0 gives the FMU's own default)")
     args = ap.parse_args(argv)
     overrides = None
     if args.param:
-        overrides = {}
+        overrides = dict(SERVICE_PARAMETERS)
         for item in args.param:
             name, sep, value = item.partition("=")
             if not sep:
