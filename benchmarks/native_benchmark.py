@@ -43,12 +43,12 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(HERE))
 
 from benchmark import best_rate, contract_outputs, fmpy_stepper  # noqa: E402  (sets BLAS threads)
+from fmu_src.variables import FORMER_DEFAULTS  # noqa: E402
 
 HOST_TARGET = 500_000
 FLOOR_RATIO_TARGET = 1.5
 PYTHONFMU_RATIO_TARGET = 5.0
 DEFAULT_SPEED_TARGET = 0.5
-PAPER_ESTIMATOR = {"est.method": 0, "est.sigma2_method": 0, "est.A0_std_initial": 5.0}
 
 
 def build_noop(dest: Path, native_fmu: Path) -> Path:
@@ -146,7 +146,7 @@ def main() -> None:
 
         host_native = host_rate(exe, native_fmu, args.host_steps, args.repeat)
         host_paper = host_rate(exe, native_fmu, args.host_steps, args.repeat,
-                               parameters=PAPER_ESTIMATOR)
+                               parameters=FORMER_DEFAULTS)
         host_noop = host_rate(exe, noop_fmu, args.host_steps, args.repeat)
         host_py = host_rate(exe, fmus["RailCar"], args.py_steps * 10, args.repeat, libpython_env())
         run_native, run_noop, run_py = (fmpy_stepper(native_fmu), fmpy_stepper(noop_fmu),

@@ -310,6 +310,14 @@ def _ato_rows() -> tuple[Var, ...]:
 
 VARIABLES = VARIABLES + _ato_rows()
 
+PAPER_ESTIMATOR = {"est.method": 0, "est.sigma2_method": 0}
+"""The paper's scheme exactly: the recursive LS of eq. (4)-(11) and sigma^2 by eq. (12) on LAG
+sums (the table's defaults are the measured best, est.method 2 with est.sigma2_method 1)."""
+FORMER_DEFAULTS = {**PAPER_ESTIMATOR, "est.A0_std_initial": 5.0}
+"""The estimator's defaults before est.method 2 became the default: the paper's scheme with A0's
+prior std 5 N/kN (docs/estimation.md compares the two)."""
+
+
 def variables_for(fmu: str) -> tuple[Var, ...]:
     """The variables of one FMU, in value-reference order."""
     return tuple(v for v in VARIABLES if fmu in v.fmus)

@@ -82,6 +82,7 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
+from fmu_src.variables import FORMER_DEFAULTS  # noqa: E402
 from harness.run.driver import chain_result  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, load_scenario, scenario_from_dict  # noqa: E402
 from models.plant.dynamics import COASTING, resistance_eq1  # noqa: E402
@@ -118,9 +119,7 @@ def _default_std(name: str) -> float:
 
 WIDE_PRIORS = {n: 3.0 * _default_std(n) for n in ("est.A0_std_initial", "est.A1_std_initial",
                                                   "est.A2_std_initial")}
-PAPER = {"est.method": 0, "est.sigma2_method": 0, "est.A0_std_initial": 5.0}
-"""The paper's LS with the LAG sigma^2 and the A0 prior std the FMUs had before (their default
-until est.method 2 became it)."""
+PAPER = FORMER_DEFAULTS   # the paper's LS, LAG sigma^2, A0 prior std 5: the FMUs' default before
 DEFAULT_CONFIGS: tuple[dict, ...] = (
     PAPER,
     {},

@@ -169,7 +169,9 @@ static rc_status estimator_validate(const rc_ident_config *ident, const rc_filte
         char q0[40], R[40];            /* ProcessNoiseBank's check (LikelihoodNoise.from_config) */
         rc_repr(id.sigma2_initial, q0, sizeof q0);
         rc_repr(filt->speed_std * filt->speed_std, R, sizeof R);
-        return refuse(err, "ProcessNoiseBank needs q0 > 0 and R > 0, got %s, %s", q0, R);
+        return refuse(err, "est.sigma2_method 1 (the likelihood bank) needs est.sigma2_initial > 0 "
+                      "and a speed measurement variance > 0 (sensor.speed_std), got "
+                      "est.sigma2_initial = %s, sensor.speed_std^2 = %s", q0, R);
     }
     if ((st = rc_filter_validate(filt, has_speed_profile, err)))
         return st;

@@ -21,7 +21,7 @@ from fmpy.validation import validate_fmu
 
 from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
 from fmu_src.build import native, toolchain
-from fmu_src.variables import ESTIMATOR, variables_for
+from fmu_src.variables import ESTIMATOR, FORMER_DEFAULTS, variables_for
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
 
@@ -383,7 +383,7 @@ def test_physical_runs_natively_bit_identical(pair, railcar_runner):
     coasting_rusich_row3, where the paper's free LS's A0 or A2 goes negative, bit for bit the
     pythonfmu FMU's, with no negative A0, A2 reported."""
     params, rows, times, steps = _railcar_run(railcar_runner, "coasting_rusich_row3")
-    params = {**params, "est.method": 0}
+    params = {**params, **FORMER_DEFAULTS}
     free, _, _ = _compare(pair, params, rows, times, steps)
     out, statuses, _ = _compare(pair, {**params, "est.physical": 1}, rows, times, steps)
     assert statuses == [OK] * len(rows)

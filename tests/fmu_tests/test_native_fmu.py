@@ -17,6 +17,7 @@ from fmpy.validation import validate_fmu
 
 from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave, fifo_released
 from fmu_src.build import native, toolchain
+from fmu_src.variables import FORMER_DEFAULTS
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
 from test_profile_files import unfit  # noqa: F401 (a fixture)
@@ -302,7 +303,7 @@ def test_physical_runs_natively_bit_identical(runners, stem):
     A0 or A2 goes negative: every output bit for bit the pythonfmu FMU's, no negative A0, A2."""
     py, c = runners
     scenario = load_scenario(ROOT / "scenarios" / "library" / f"{stem}.toml")
-    scenario = replace(scenario, parameters={**scenario.parameters, "est.method": 0})
+    scenario = replace(scenario, parameters={**scenario.parameters, **FORMER_DEFAULTS})
     free = c.run(scenario).signals
     assert np.any((free["est.A0"] < 0.0) | (free["est.A2"] < 0.0))
     scenario = replace(scenario, parameters={**scenario.parameters, "est.physical": 1})

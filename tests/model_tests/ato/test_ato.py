@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
+from fmu_src.variables import FORMER_DEFAULTS
 from models.ato.controller import AtoController
 from models.ato.interface import INPUTS, AtoMode, AtoTuning
 from models.ato.motion import PlanCar
@@ -37,8 +38,7 @@ SPAN = Span(2200.0, 135.0, stop=2150.0, grade=GRADE, limit_distances=(0.0, 900.0
 CAR = CarTraction()                   # the configured car: the RailCar FMU's defaults
 STEP = 0.1                            # [s] communication step
 REGULATED = AtoTuning()
-PAPER_ESTIMATOR = {"est.method": 0, "est.sigma2_method": 0, "est.A0_std_initial": 5.0}
-"""The paper's estimator as published (the FMUs' default before est.method 2 became it)."""
+PAPER_ESTIMATOR = FORMER_DEFAULTS   # the paper's estimator, the FMUs' default before
 FIXED = AtoTuning(replan=False, use_estimates=False)
 ARRIVAL_TOL = 2.5                     # [s] Meleshin (2011), Sidorenko (1997)
 STOP_TOL = 0.3                        # [m] Sidorenko (1997)

@@ -15,6 +15,7 @@ from models.ato.motion import blend_estimates, resistance_margins
 from models.planning.span import CarTraction
 
 from closed_loop_line import DISTURBED, line_span, run_span
+from fmu_src.variables import FORMER_DEFAULTS
 
 CAR = CarTraction()
 CFG = (CAR.mass, CAR.A0, CAR.A1, CAR.A2)
@@ -122,9 +123,9 @@ DESCENT_SPAN = line_span((0, 400, 900, 1600, 2150), (0, -35, 20, 0, -30), 2500.0
                          ((0, 80), (1000, 60)), 168.0)
 
 
-# The paper's estimator as published (the FMUs' default before): under this speed noise its
-# estimates drift, which is what the regulator must ride out here.
-PAPER_ESTIMATOR = {"est.method": 0, "est.sigma2_method": 0, "est.A0_std_initial": 5.0}
+# The paper's estimator (the FMUs' default before): under this speed noise its estimates
+# drift, which is what the regulator must ride out here.
+PAPER_ESTIMATOR = FORMER_DEFAULTS
 
 
 @pytest.mark.parametrize("seed", [1, 2])

@@ -16,6 +16,7 @@ from models.units import G
 
 from test_estimator_refit import TRUE_A, run_day
 from harness.metrics.estimation import w0_relative_rms_error
+from fmu_src.variables import FORMER_DEFAULTS
 
 DT = 0.1
 
@@ -234,8 +235,8 @@ def test_physical_keeps_a0_and_a2_non_negative_where_the_ls_goes_negative():
     ends at A0 = -0.55 N/kN. With est.physical = 1 every reported A0, A2 is >= 0 and w0 over
     the coast's speeds is no worse (measured 7.7 -> 7.4 %); the mass is untouched (the
     projection moves the A's only here: their prior decouples them from 1/(Pg))."""
-    raw, _ = _library_run("coasting_rusich_row3", **{"est.method": 0})
-    phys, p = _library_run("coasting_rusich_row3", **{"est.method": 0, "est.physical": 1})
+    raw, _ = _library_run("coasting_rusich_row3", **FORMER_DEFAULTS)
+    phys, p = _library_run("coasting_rusich_row3", **{**FORMER_DEFAULTS, "est.physical": 1})
     assert raw["est.A0"][-1] < -0.3                             # the failure this fixes
     assert phys["est.A0"].min() >= 0.0 and phys["est.A2"].min() >= 0.0
     true_A = (p("car.A0"), p("car.A1"), p("car.A2"))
