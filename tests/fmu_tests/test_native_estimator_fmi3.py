@@ -77,9 +77,8 @@ def fmi3_aware_drivers(monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def fmu3(built_fmus, tmp_path_factory) -> Path:
-    return native_fmi3.build_native3_estimator_fmu(tmp_path_factory.mktemp("native3_est"),
-                                                   built_fmus["RailCarEstimator"])
+def fmu3(native_fmus) -> Path:
+    return native_fmus["RailCarEstimatorNative3"]
 
 
 @pytest.fixture(scope="module")

@@ -31,9 +31,8 @@ PARAMETERS = {v.name for v in variables_for(ESTIMATOR) if v.causality == "parame
 
 
 @pytest.fixture(scope="module")
-def native_fmu(built_fmus, tmp_path_factory) -> Path:
-    return native.build_native_estimator_fmu(tmp_path_factory.mktemp("native_est"),
-                                             built_fmus["RailCarEstimator"])
+def native_fmu(native_fmus) -> Path:
+    return native_fmus["RailCarEstimatorNative"]
 
 
 @pytest.fixture(scope="module")

@@ -23,11 +23,9 @@ DT = 0.1   # [s]
 
 
 @pytest.fixture(scope="module")
-def pair(built_fmus, tmp_path_factory) -> dict[str, FmuFile]:
+def pair(built_fmus, native_fmus, tmp_path_factory) -> dict[str, FmuFile]:
     """"py": the pythonfmu RailCarEstimator.fmu, "c": the native one built from the sources."""
-    paths = {"py": built_fmus["RailCarEstimator"],
-             "c": native.build_native_estimator_fmu(tmp_path_factory.mktemp("native_hold"),
-                                                    built_fmus["RailCarEstimator"])}
+    paths = {"py": built_fmus["RailCarEstimator"], "c": native_fmus["RailCarEstimatorNative"]}
     out = {}
     for key, path in paths.items():
         unzipdir = extract(str(path), unzipdir=str(tmp_path_factory.mktemp(f"unzip_hold_{key}")))

@@ -33,13 +33,13 @@ INPUTS = ("traction_force_demand", "brake_force_demand", "wind_speed", "car.payl
 
 
 @pytest.fixture(scope="module")
-def fmu3(built_fmus, tmp_path_factory) -> Path:
-    return native_fmi3.build_native3_fmu(tmp_path_factory.mktemp("native3"), built_fmus["RailCar"])
+def fmu3(native_fmus) -> Path:
+    return native_fmus["RailCarNative3"]
 
 
 @pytest.fixture(scope="module")
-def fmu2(built_fmus, tmp_path_factory) -> Path:
-    return native.build_native_fmu(tmp_path_factory.mktemp("native2"), built_fmus["RailCar"])
+def fmu2(native_fmus) -> Path:
+    return native_fmus["RailCarNative"]
 
 
 class Fmi3AsFmi2:

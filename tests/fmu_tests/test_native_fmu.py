@@ -26,8 +26,8 @@ LIBRARY = sorted((ROOT / "scenarios" / "library").glob("*.toml"))
 
 
 @pytest.fixture(scope="module")
-def native_fmu(built_fmus, tmp_path_factory) -> Path:
-    return native.build_native_fmu(tmp_path_factory.mktemp("native"), built_fmus["RailCar"])
+def native_fmu(native_fmus) -> Path:
+    return native_fmus["RailCarNative"]
 
 
 @pytest.fixture(scope="module")
