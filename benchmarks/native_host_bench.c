@@ -1,12 +1,15 @@
 /* native_host_bench.c -- a plain C FMI 2.0 co-simulation host that times an extracted FMU
  * (benchmarks/native_benchmark.py compiles it with -O2 and runs it).
  *
- *   native_host_bench UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS [PARAMS]
+ *   native_host_bench UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS [PARAMS [CYCLE]]
  *
  * IN_VRS, REAL_VRS and INT_VRS are comma-separated value references: the three demand inputs
  * (traction, brake, wind), and every Real and Integer output. PARAMS, optional, sets parameters
  * before initialisation: comma-separated iVR=VALUE (Integer) or rVR=VALUE (Real), e.g.
- * "i32=0,r44=5" (a configuration other than the FMU's defaults). Each repeat instantiates the FMU
+ * "i32=0,r44=5" (a configuration other than the FMU's defaults; "" for none). CYCLE, optional,
+ * repeats the demands every CYCLE seconds (e.g. 180: 20 s traction, coast, brake from 120 s to
+ * a stop, 30 s standing), so that the car runs most of the time instead of standing after the
+ * first 150 s (identification only works while the car moves). Each repeat instantiates the FMU
  * (UNZIPDIR/binaries/linux64/MODEL_ID.so, dlopen'ed once), initialises it and runs STEPS steps
  * of 0.1 s: fmi2SetReal of the inputs (benchmark.py's demands: traction 40 kN for 20 s, brake
  * 30 kN from 120 s to 150 s), fmi2DoStep, fmi2GetReal and fmi2GetInteger of all outputs. Only
@@ -18,6 +21,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <math.h>
 #include <time.h>
 
 #include "fmi2Functions.h"
@@ -103,9 +107,10 @@ int main(int argc, char **argv) {
     void *lib, *sym;
     fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
 
-    if (argc != 9 && argc != 10) {
+    double cycle = argc == 11 ? atof(argv[10]) : 0.0;
+    if (argc < 9 || argc > 11 || cycle < 0.0) {
         fprintf(stderr, "usage: %s UNZIPDIR MODEL_ID GUID STEPS REPEAT IN_VRS REAL_VRS INT_VRS"
-                " [PARAMS]\n",
+                " [PARAMS [CYCLE]]\n",
                 argv[0]);
         return 2;
     }
@@ -145,7 +150,7 @@ int main(int argc, char **argv) {
                 fprintf(stderr, "fmi2Instantiate failed\n");
                 return 1;
             }
-            if (argc == 10 && set_parameters(argv[9], c, fmi2SetReal, fmi2SetInteger)) {
+            if (argc >= 10 && set_parameters(argv[9], c, fmi2SetReal, fmi2SetInteger)) {
                 fprintf(stderr, "setting PARAMS \"%s\" failed\n", argv[9]);
                 return 1;
             }
@@ -155,8 +160,9 @@ int main(int argc, char **argv) {
             t0 = now();
             for (k = 0; k < steps; k++) {
                 double t = (double)k * STEP;
-                inputs[0] = t < 20.0 ? 40e3 : 0.0;
-                inputs[1] = (120.0 < t && t < 150.0) ? 30e3 : 0.0;
+                double ts = cycle > 0.0 ? fmod(t, cycle) : t;   /* the schedule's time */
+                inputs[0] = ts < 20.0 ? 40e3 : 0.0;
+                inputs[1] = (120.0 < ts && ts < 150.0) ? 30e3 : 0.0;
                 inputs[2] = 0.0;
                 CHECK(fmi2SetReal(c, in_vr, n_in, inputs))
                 CHECK(fmi2DoStep(c, t, STEP, fmi2True))
