@@ -170,6 +170,8 @@ static void bank_predict(rc_noise_bank *b, double dv, double q_param)
     }
 }
 
+#define BANK_NEGLIGIBLE (-45.0)   /* ProcessNoiseBank.NEGLIGIBLE */
+
 static void bank_update(rc_noise_bank *b, double z)
 {
     const int n = RC_BANK_SIZE;
@@ -199,6 +201,8 @@ static void bank_update(rc_noise_bank *b, double z)
         top = rc_max(top, w[j]);
     double num = 0.0, den = 0.0;
     for (int j = 0; j < n; j++) {
+        if (w[j] - top < BANK_NEGLIGIBLE)
+            continue;
         double e = rc_exp(w[j] - top);
         num += e * b->log_q[j];
         den += e;
