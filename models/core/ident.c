@@ -225,10 +225,9 @@ static void slope_end_terms(const rc_ident *id, double *M, double scale)
     }
 }
 
-/* _accumulate_slope: est.method 2's W and D */
-static void accumulate_slope(rc_ident *id, const double *phi, int contiguous, double lam)
+/* forget_meats: W and D weighted by lam^2 before one more row */
+static void forget_meats(double *W, double *D, double lam)
 {
-    double *W = id->W, *D = id->D, g[4];
     if (lam < 1.0) {
         double l2 = lam * lam;
         for (int i = 0; i < 16; i++) {
@@ -236,6 +235,12 @@ static void accumulate_slope(rc_ident *id, const double *phi, int contiguous, do
             D[i] *= l2;
         }
     }
+}
+
+/* _accumulate_slope: est.method 2's D (accumulate does the rest) */
+static void accumulate_slope(rc_ident *id, const double *phi, int contiguous)
+{
+    double *D = id->D, g[4];
     if (!contiguous && id->rows_len) {
         slope_end_terms(id, D, id->last_scale);         /* close the previous run */
         id->rows_len = 0;
@@ -248,27 +253,16 @@ static void accumulate_slope(rc_ident *id, const double *phi, int contiguous, do
     slope_noise_weight(id, id->slope_k, id->n_k, g);
     double u[4] = {s * g[0], s * g[1], s * g[2], s * g[3]};
     add_outer(D, u);
-    add_outer(W, phi);
-    memcpy(id->last_phi, phi, sizeof id->last_phi);
-    id->has_last_phi = 1;
-    id->last_scale = id->row_scale;
 }
 
+/* accumulate_meats (est.method 0) or _accumulate_slope (2), then the row's W and the open run */
 static void accumulate(rc_ident *id, const double *phi, int contiguous, double lam)
 {
-    if (id->slope_rows) {
-        accumulate_slope(id, phi, contiguous, lam);
-        return;
-    }
-    double *W = id->W, *D = id->D, u[4];
-    if (lam < 1.0) {
-        double l2 = lam * lam;
-        for (int i = 0; i < 16; i++) {
-            W[i] *= l2;
-            D[i] *= l2;
-        }
-    }
-    if (contiguous && id->has_last_phi) {
+    double *D = id->D, u[4];
+    forget_meats(id->W, D, lam);
+    if (id->slope_rows)
+        accumulate_slope(id, phi, contiguous);
+    else if (contiguous && id->has_last_phi) {
         const double *last = id->last_phi;
         double d[4] = {phi[0] - last[0], phi[1] - last[1], phi[2] - last[2], phi[3] - last[3]};
         add_outer(D, d);
@@ -280,7 +274,7 @@ static void accumulate(rc_ident *id, const double *phi, int contiguous, double l
         end_row(id, phi, u);                           /* open a new one */
         add_outer(D, u);
     }
-    add_outer(W, phi);
+    add_outer(id->W, phi);
     memcpy(id->last_phi, phi, sizeof id->last_phi);
     id->has_last_phi = 1;
     id->last_scale = id->row_scale;

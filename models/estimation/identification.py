@@ -45,7 +45,7 @@ import numpy as np
 from models import linalg4
 from models.estimation.differentiation import centred_slope_weights
 from models.estimation.least_squares import (
-    LAG, accumulate_meats, batch_ls, batch_residuals, end_row, marginalise_mass, marginalise_meat,
+    LAG, accumulate_meats, batch_ls, forget_meats, batch_residuals, end_row, marginalise_mass, marginalise_meat,
     mass_from_theta, meat, noise_split_lag1, plus_outer, positive_definite_S, process_share_lag,
     quadratic4, regression_target, regressor, regularised_forgetting, residual_variance, rls_step,
     sandwich, sigma2_from_residual, slope_end_terms, slope_noise_weight, theta_from_params,
@@ -380,11 +380,7 @@ class ParameterIdentifier:
         force, and a force step, smoothed by the window's force weights and again by the
         slope's, counted ~2x its share. studies/speed_noise_line.py: +-2 sigma coverage of the
         mass 100 -> 96 %, median |err|/sigma 0.42 -> 0.52."""
-        W, D = self._W, self._D
-        if lam < 1.0:
-            l2 = lam * lam
-            W = [w * l2 for w in W]
-            D = [d * l2 for d in D]
+        W, D = forget_meats(self._W, self._D, lam)
         rows = self._rows
         if not contiguous and rows:
             D = slope_end_terms(D, rows, self._k, self._last_scale)   # close the previous run

@@ -170,6 +170,16 @@ def end_row(phi, end_weight: float):
     return phi if end_weight == 1.0 else [end_weight * x for x in phi]
 
 
+def forget_meats(W, D, lam: float) -> tuple[list[float], list[float]]:
+    """W and D weighted by lam^2 = (1 - mu0)^2 before one more row (exponential forgetting; as
+    they are for lam = 1)."""
+    if lam < 1.0:
+        l2 = lam * lam
+        W = [w * l2 for w in W]
+        D = [d * l2 for d in D]
+    return W, D
+
+
 def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
                      end_weight: float) -> tuple[list[float], list[float]]:
     """The meats after one more regressor: returns (W, D).
@@ -180,11 +190,8 @@ def accumulate_meats(W, D, phi, last_phi, contiguous: bool, lam: float,
     2's slope rows take slope_noise_weight instead, ParameterIdentifier._accumulate_slope). A new
     run closes the previous one's end
     (last_phi) and opens its own. With forgetting, both are first weighted by lam^2 = (1 -
-    mu0)^2. ``contiguous``: phi's pair directly follows last_phi's (None: no open run)."""
-    if lam < 1.0:
-        l2 = lam * lam
-        W = [w * l2 for w in W]
-        D = [d * l2 for d in D]
+    mu0)^2 (forget_meats). ``contiguous``: phi's pair directly follows last_phi's (None: no open run)."""
+    W, D = forget_meats(W, D, lam)
     if contiguous and last_phi is not None:
         last = last_phi
         D = plus_outer(D, (phi[0] - last[0], phi[1] - last[1], phi[2] - last[2], phi[3] - last[3]))
