@@ -119,9 +119,8 @@ def _default_std(name: str) -> float:
 
 WIDE_PRIORS = {n: 3.0 * _default_std(n) for n in ("est.A0_std_initial", "est.A1_std_initial",
                                                   "est.A2_std_initial")}
-PAPER = FORMER_DEFAULTS   # the paper's LS, LAG sigma^2, A0 prior std 5: the FMUs' default before
 DEFAULT_CONFIGS: tuple[dict, ...] = (
-    PAPER,
+    FORMER_DEFAULTS,
     {},
     {"est.sigma2_method": 0},
     {"est.physical": 1},
@@ -138,7 +137,7 @@ def config_label(config: dict) -> str:
     if not config:
         return "FMU defaults"
     label = ", ".join(f"{k}={v:g}" for k, v in config.items())
-    return label + (" (paper)" if config == PAPER else "")
+    return label + (" (paper)" if config == FORMER_DEFAULTS else "")
 
 
 def parse_config(text: str) -> dict:

@@ -38,7 +38,6 @@ SPAN = Span(2200.0, 135.0, stop=2150.0, grade=GRADE, limit_distances=(0.0, 900.0
 CAR = CarTraction()                   # the configured car: the RailCar FMU's defaults
 STEP = 0.1                            # [s] communication step
 REGULATED = AtoTuning()
-PAPER_ESTIMATOR = FORMER_DEFAULTS   # the paper's estimator, the FMUs' default before
 FIXED = AtoTuning(replan=False, use_estimates=False)
 ARRIVAL_TOL = 2.5                     # [s] Meleshin (2011), Sidorenko (1997)
 STOP_TOL = 0.3                        # [m] Sidorenko (1997)
@@ -459,7 +458,7 @@ def test_a0_off_by_half_and_speed_noise():
             assert abs(run.arrival) <= ARRIVAL_TOL and abs(run.stop) <= STOP_TOL, (a0, run)
             assert run.margin > 0.0
     for seed in (21, 22):   # the paper's estimator (est.method 0), whose filter settles here
-        run = closed_loop(REGULATED, seed, {"sensor.speed_std": 0.01 * V80, **PAPER_ESTIMATOR})
+        run = closed_loop(REGULATED, seed, {"sensor.speed_std": 0.01 * V80, **FORMER_DEFAULTS})
         assert abs(run.arrival) <= ARRIVAL_TOL, (seed, run.arrival)
         assert run.first_stop <= -0.3, (seed, run.first_stop)
         assert AtoMode.SETTLE in run.modes and AtoMode.CREEP in run.modes

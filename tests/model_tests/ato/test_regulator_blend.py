@@ -123,11 +123,6 @@ DESCENT_SPAN = line_span((0, 400, 900, 1600, 2150), (0, -35, 20, 0, -30), 2500.0
                          ((0, 80), (1000, 60)), 168.0)
 
 
-# The paper's estimator (the FMUs' default before): under this speed noise its estimates
-# drift, which is what the regulator must ride out here.
-PAPER_ESTIMATOR = FORMER_DEFAULTS
-
-
 @pytest.mark.parametrize("seed", [1, 2])
 def test_under_drifting_estimates_the_plan_car_never_jumps_and_the_run_is_on_time(seed):
     """Speed noise 2 % of V (1 sigma), a 4 m/s headwind, 15 % more mass: the paper's estimates drift to
@@ -136,7 +131,7 @@ def test_under_drifting_estimates_the_plan_car_never_jumps_and_the_run_is_on_tim
     configured car, 3-20 N/kN, two to six times per span), and the run arrives within +-2.5 s
     (it was +4.0 and +4.2 s late on seeds 1 and 2, +0.9 .. +4.6 s over seeds 1-10). The mass
     follows est.mass, weighed by est.mass_std: it moves as much as the estimator's does."""
-    r = run_span(DESCENT_SPAN, seed, {**DISTURBED, **PAPER_ESTIMATOR})
+    r = run_span(DESCENT_SPAN, seed, {**DISTURBED, **FORMER_DEFAULTS})
     jumps_w0 = max(abs(b - a) for a, b in zip(r["w0"], r["w0"][1:]))
     assert jumps_w0 <= 0.25, jumps_w0
     assert any(r["using"]), "the estimates never had weight"
