@@ -77,10 +77,42 @@ def test_a_deliberate_model_change_fails_naming_scenario_and_signal(built_fmus):
 # The library targets the default estimator (est.method 2) does not meet, each with the bound it
 # is held to instead (measured, docs/estimation.md): a 12 m/s headwind rising mid-run moves A1 to
 # 2.5 sigma of its prior, est.forgetting forgets the data but not the prior, and the mass takes up
-# the difference: 1.44 % at the stop of seed 13 (over seeds 1-30, 11 of 30 miss 1 %; the former
-# default 12 of 30, though 0.06 % on seed 13).
+# the difference: 1.44 % at the stop of seed 13. Over seeds 1-30 the default misses 1 % in 11, the
+# former default in 12 (0.06 % on seed 13 was its luck): test_headwind_change_gap_is_no_worse_...
 KNOWN_GAPS = {"headwind_change": ("mass", 1.5)}
 """scenario -> (its missed target, the largest mass error at a stop [%] allowed meanwhile)."""
+
+
+HEADWIND_SEEDS = range(1, 31)
+
+
+def _headwind_stop_errors(overrides: dict) -> np.ndarray:
+    """headwind_change on the models chain (the C core where built) for seeds 1..30: the mass
+    error at the stop [%] and |error| / est.mass_std there [-], per seed."""
+    from harness.run.driver import drive_chain
+    scenario = load_scenario(LIBRARY_PATHS["headwind_change"])
+    rows = []
+    for seed in HEADWIND_SEEDS:
+        out = drive_chain(scenario.chain_setup({**overrides, "seed": seed}).open(), scenario)
+        k = max(i for i in range(1, len(out)) if out[i]["car.speed"] <= 0.0 < out[i - 1]["car.speed"])
+        err = out[k]["est.mass"] - out[k]["car.total_mass"]
+        rows.append((100.0 * err / out[k]["car.total_mass"], abs(err) / out[k]["est.mass_std"]))
+    return np.array(rows)
+
+
+def test_headwind_change_gap_is_no_worse_than_the_former_default_over_seeds():
+    """KNOWN_GAPS' headwind_change is one draw: over seeds 1..30 the default misses 1 % at the
+    stop in no more seeds than the former default (the paper's scheme, 0.06 % on seed 13 by
+    luck), its median error is within 1 %, and its stated sigma covers every error within 3."""
+    from fmu_src.variables import FORMER_DEFAULTS
+    today, former = _headwind_stop_errors({}), _headwind_stop_errors(FORMER_DEFAULTS)
+    misses_today = int(np.sum(np.abs(today[:, 0]) > 1.0))
+    misses_former = int(np.sum(np.abs(former[:, 0]) > 1.0))
+    assert misses_today <= misses_former, (misses_today, misses_former)
+    assert np.median(np.abs(today[:, 0])) <= 1.0, today[:, 0]
+    assert today[:, 1].max() <= 3.0, today[:, 1]
+    print(f"headwind_change seeds 1-30: > 1 % in {misses_today} (former {misses_former}); "
+          f"median {np.median(np.abs(today[:, 0])):.2f} %; worst |err|/sigma {today[:, 1].max():.2f}")
 
 
 def test_library_targets_met(library_results):
