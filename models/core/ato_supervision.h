@@ -120,10 +120,15 @@ ato_reason ato_supervisor_check(ato_supervisor *s, double t, const double *x);
 /* InputSupervisor.note_command(traction [N]): after each command */
 void ato_supervisor_note_command(ato_supervisor *s, double traction);
 
-/* AtoController.demands up to its step: `inputs` holds ATO_N_ALL_INPUTS values (ALL_INPUTS
- * order; the stated ones not finite where the host has none); `values` receives them as the
- * controller uses them (stated ones not finite replaced by their prior; only written when the
- * time and INPUTS are finite). The verdict, with s->gate filled (subject, reason, text) for
+/* AtoController.demands up to its step. The controller on its verdict: ATO_GATE_SAFE: the safe
+ * brake (tuning.safe_brake x car.brake_force_max), the gate's text logged once per episode of
+ * its subject (key "input:<name>", or "recovery"); every verdict but a SAFE one for an input
+ * (the check passed) ends the input episodes (_clear_inputs); ATO_GATE_RUN_RELEASED also ends the
+ * "recovery" episode and records the gate's text as an event; then for RUN and RUN_RELEASED the
+ * step from `values`, and ato_supervisor_note_command(s, its traction).
+ * `inputs` holds ATO_N_ALL_INPUTS values (ALL_INPUTS order; the stated ones not finite where the
+ * host has none); `values` receives them as the controller uses them (stated ones not finite
+ * replaced by their prior; only written when the time and INPUTS are finite). The verdict, with s->gate filled (subject, reason, text) for
  * ATO_GATE_SAFE and ATO_GATE_RUN_RELEASED. */
 ato_gate_verdict ato_supervisor_gate(ato_supervisor *s, double t, const double *inputs,
                                      double *values);

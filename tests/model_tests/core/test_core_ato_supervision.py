@@ -373,7 +373,7 @@ def gate_ops(controller_calls: list) -> tuple[list[list[float]], list[Expected]]
             assert len(c["safes"]) == 1, c["safes"]
             reason, key = c["safes"][0]
             name = key[len("input:"):] if key.startswith("input:") else key
-            # a stated input's state is before note_command(0): same as after (no push at rest)
+            # the state after the call: the C gate has done _safe's note_command(0) too
             expected.append(Expected(GATE_SAFE, name, reason_code(reason), reason, state))
         elif c["released"] is not None:
             expected.append(Expected(GATE_RUN_RELEASED, "recovery", 0, c["released"], None,
