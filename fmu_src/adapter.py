@@ -275,7 +275,7 @@ def open_ato(v: dict, resources: str | None):
     from models.ato.interface import AtoTuning
     from models.planning.span import CarTraction, Span
     from models.plant.track import parse_profile_csv
-    from .variables import _CAR_ROWS, _TUNING_ROWS
+    from .variables import _CAR_ROWS, _TUNING_ROWS, _TUNING_ROWS_APPENDED
 
     grade = read_grade(v, "span.grade_profile", resources)
     limit_src = read_profile_text(v, "span.speed_limit_profile", resources)
@@ -291,7 +291,7 @@ def open_ato(v: dict, resources: str | None):
     try:
         span = Span(length, v["span.schedule"], stop, grade, tuple(distances), tuple(limits))
         car = CarTraction(**{f: v[f"car.{f}"] for f, _, _ in _CAR_ROWS})
-        tuning = AtoTuning(**{f: v[f"ato.{f}"] for f, _, _ in _TUNING_ROWS})
+        tuning = AtoTuning(**{f: v[f"ato.{f}"] for f, _, _ in (*_TUNING_ROWS, *_TUNING_ROWS_APPENDED)})
         return AtoController(span, car, tuning)
     except ValueError as e:
         raise ParameterError(_fmu_names(str(e), bool(limit_src))) from None

@@ -88,8 +88,11 @@ class InputSupervisor:
         problem = self._check_time(t)
         if self.t_last is None or t > self.t_last:
             self.t_last = t
-        problem = (problem or self._check_stds(x) or self._check_motion(x)
-                   or self._check_estimates(x) or self._check_consistency(t, x))
+        problem = problem or self._check_stds(x) or self._check_motion(x) or self._check_estimates(x)
+        if problem is None:
+            problem = self._check_consistency(t, x)
+        else:
+            self._anchor = None      # a window spans sane calls only: no trapezoid over a bad episode
         self._at_rest = (t, x[POSITION]) if problem is None and x[SPEED] == 0.0 else None
         return problem or self._check_response(t, x)
 
@@ -205,11 +208,12 @@ class InputSupervisor:
         advance = s - s0
         tol = NOISE_SIGMA * (psd0 + psd + self._sd_max * (t - t0)) + CONSISTENCY_SLACK
         if abs(advance - self._travel) > tol:
-            self._restart(t, s, v, sd, psd)
-            return "filter.speed vs filter.position", (
+            problem = "filter.speed vs filter.position", (
                 f"filter.speed and filter.position disagree: filter.position advanced "
                 f"{advance:.3f} m in {t - t0:.3g} s, filter.speed (now {v!r} m/s) accounts for "
                 f"{self._travel:.3f} m (tolerance {tol:.3f} m)")
+            self._restart(t, s, v, sd, psd)
+            return problem
         if t - t0 >= CONSISTENCY_WINDOW - 1e-9:
             self._restart(t, s, v, sd, psd)
         return None

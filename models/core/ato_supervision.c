@@ -212,15 +212,14 @@ static ato_reason check_consistency(ato_supervisor *s, double t, const double *x
     double advance = pos - s0;
     double tol = ATO_NOISE_SIGMA * (psd0 + psd + s->sd_max * (t - t0)) + ATO_CONSISTENCY_SLACK;
     if (fabs(advance - s->travel) > tol) {
-        restart(s, t, pos, v, sd, psd);
-        /* Python formats its message after _restart: the travel it names is the new window's
-         * (0.000 m), not the one compared (a bug of supervision.py, kept for identity) */
         char r[REPR_SIZE];
         rc_repr(v, r, sizeof r);
-        return say(p, ATO_SUBJECT_CONSISTENCY, ATO_INCONSISTENT,
-                   "filter.speed and filter.position disagree: filter.position advanced %.3f m "
-                   "in %.3g s, filter.speed (now %s m/s) accounts for %.3f m (tolerance %.3f m)",
-                   advance, t - t0, r, s->travel, tol);
+        say(p, ATO_SUBJECT_CONSISTENCY, ATO_INCONSISTENT,
+            "filter.speed and filter.position disagree: filter.position advanced %.3f m "
+            "in %.3g s, filter.speed (now %s m/s) accounts for %.3f m (tolerance %.3f m)",
+            advance, t - t0, r, s->travel, tol);
+        restart(s, t, pos, v, sd, psd);
+        return p->reason;
     }
     if (t - t0 >= ATO_CONSISTENCY_WINDOW - 1e-9)
         restart(s, t, pos, v, sd, psd);
@@ -275,6 +274,8 @@ ato_reason ato_supervisor_check(ato_supervisor *s, double t, const double *x)
         found = check_estimates(s, x, p);
     if (found == ATO_SANE)
         found = check_consistency(s, t, x, p);
+    else
+        s->has_anchor = 0;     /* a window spans sane calls only: no trapezoid over a bad episode */
     s->at_rest = found == ATO_SANE && x[ATO_IN_SPEED] == 0.0;
     if (s->at_rest) {
         s->at_rest_t = t;

@@ -204,3 +204,25 @@ def test_terminate_and_free_after_a_failed_initialisation(ato_fmu, slave_factory
     t = slave_factory(ato_fmu)
     t.initialize({})
     assert t.do_step(0.0, STEP) == OK and t.get("traction_force_demand") > 0.0
+
+
+def test_every_tuning_parameter_reaches_the_controller(monkeypatch, profiles):
+    """fmu_src.adapter.open_ato builds AtoTuning from every ato.<field> the FMU declares, the
+    fields appended after the outputs too (ato.config_mass_std, ato.est_gate, ... were once left
+    at their defaults whatever the user set): each parameter set to a marker value arrives."""
+    from dataclasses import fields
+    import models.ato.controller as controller_module
+    import models.ato.interface as interface
+    from fmu_src.adapter import open_ato
+    from fmu_src.variables import variables_for
+    v = {x.name: x.start for x in variables_for("AtoController")}
+    v.update(profiles)
+    markers = {}
+    for k, f in enumerate(fields(interface.AtoTuning)):
+        markers[f.name] = not v[f"ato.{f.name}"] if f.type == "bool" else 1000 + k
+        v[f"ato.{f.name}"] = markers[f.name]
+    seen = {}
+    monkeypatch.setattr(interface, "AtoTuning", lambda **kw: seen.update(kw) or "tuning")
+    monkeypatch.setattr(controller_module, "AtoController", lambda span, car, tuning: tuning)
+    assert open_ato(v, None) == "tuning"
+    assert seen == markers

@@ -130,6 +130,41 @@ def test_position_and_speed_must_agree():
         assert sup.check(k * STEP, values(moving(k, filter__position=100.0 + k + 0.1 * k))) is None
 
 
+def test_a_disagreement_names_the_travel_it_compared():
+    """The message states what the speeds accounted for in the window compared, not the
+    restarted window's 0 m: the window opened at t = 0, the speed cut to 0 from 10 m/s at
+    t = 0.3 s, found at t = 0.5 s: 10 x 0.2 + 0.5 x 10 x 0.1 = 2.5 m against 5 m advanced."""
+    sup = InputSupervisor(30.0)
+    for k in range(3):
+        assert sup.check(k * STEP, values(moving(k))) is None
+    got = None
+    for k in range(3, 40):
+        got = sup.check(k * STEP, values(moving(k, filter__speed=0.0)))
+        if got is not None:
+            break
+    assert "advanced 5.000 m in 0.5 s" in got[1], got
+    assert "accounts for 2.500 m" in got[1], got
+
+
+def test_a_bad_episode_does_not_enter_the_next_window():
+    """10 s of est.mass out of bounds while the car brakes from 10 m/s to a stop in 2 s and
+    stands (position and speed consistent throughout): the first sane call after it starts a new
+    window instead of integrating one trapezoid from the last sane speed (10 m/s) over the
+    episode, which read a spurious disagreement (10 m advanced against that trapezoid's 50 m)."""
+    sup = InputSupervisor(30.0)
+    for k in range(3):
+        assert sup.check(k * STEP, values(moving(k))) is None
+    s, v = 100.0 + 10.0 * 2 * STEP, 10.0
+    for k in range(3, 103):
+        v_next = max(0.0, 10.0 - 5.0 * (k - 2) * STEP)
+        s += 0.5 * (v + v_next) * STEP
+        v = v_next
+        out = moving(k, est__mass=1000.0, filter__speed=v, filter__position=s)
+        assert sup.check(k * STEP, values(out))[0] == "est.mass"
+    assert v == 0.0
+    assert sup.check(103 * STEP, values(moving(103, filter__speed=0.0, filter__position=s))) is None
+
+
 def test_inputs_that_do_not_follow_the_car_are_refused_until_they_move():
     """The FMU's inputs left unconnected are a car at rest (start values): the controller
     commands traction, the inputs stay exactly at rest: after RESPONSE_TIME (3 s) the safe
