@@ -1,0 +1,370 @@
+"""The C re-planner (models/core/ato_{span,motion,stopping,planner}.c) against models/ato/planner.py,
+motion.py, stopping.py and models/planning/span.py, bit for bit (issue 30).
+
+The C pieces are driven through tests/core_cases/ato_plan_shim.c (ctypes). The courses are the
+library's ATO scenarios' spans and cars (scenarios/library/ato_*.toml, as
+harness/run/span_scenario.py builds them) plus two variants that reach what those leave out (a car
+with a length, over which the grade is averaged, and a rotating-mass factor; a wider speed
+margin and a finer grid). Compared by their bits:
+
+- the course (nodes, cell grades, planning limits, the EP curve's node), the envelope qU and
+  min_time for the configured car and for random PlanCars (mass, A0..A2, braking mass);
+- plan() from a sequence of states along and off the planned run (s0, v0, t0, arrival, PlanCar)
+  on one planner per course, so that the warm starts (last V_c and its slope, last cap, the coast
+  hints) are exercised as the controller exercises them: every scalar of the ReducedPlan, its
+  s, v, t, mode, qU and coasts, speed_at at random distances, and the planner's state after it
+  (coast_runs, last V_c, its slope, last cap); the statuses ok/late/early and both policies met;
+- ValueError messages word for word (the course's, the envelope's, check_span_for_car's);
+- PlanCar's methods, accel, free_step, coast_step, hold_forces, step_time, Trace.cut_at, q_at,
+  blend_estimates, heavier_mass, braking_mass, resistance_margins over random inputs; the span
+  and CarTraction lookups; RelayBrake.command sequences of a simulated stop; ep_deceleration;
+- a one-ulp mutation of a planner expression makes the plan comparison fail, and the shim built
+  with -fsanitize=address,undefined runs a plan sequence without a report.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+import os
+import random
+import shutil
+import subprocess
+import sys
+from dataclasses import fields, replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.run.scenario import load_scenario
+from models.ato.interface import AtoTuning
+from models.ato.motion import (
+    PlanCar, Trace, accel, blend_estimates, braking_mass, coast_step, free_step, heavier_mass,
+    hold_forces, q_at, resistance_margins, step_time,
+)
+from models.ato.planner import ReducedCourse, ReducedPlanner, fastest_run, plan_setup
+from models.ato.stopping import RelayBrake, ep_deceleration, track_force
+from models.planning.span import CarTraction, Span, check_span_for_car
+
+ROOT = Path(__file__).resolve().parents[3]
+CORE = ROOT / "models" / "core"
+SHIM = ROOT / "tests" / "core_cases" / "ato_plan_shim.c"
+SOURCES = ["ato_span.c", "ato_motion.c", "ato_stopping.c", "ato_planner.c", "repr.c"]
+FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+MAX_NODES = 10_000          # models.ato.controller.MAX_GRID_NODES
+D = ctypes.POINTER(ctypes.c_double)
+CAR_FIELDS = [f.name for f in fields(CarTraction) if f.init]
+STATUS = {0: "ok", 1: "late", 2: "early"}
+POLICY = {0: "energy", 1: "capped"}
+
+
+def build(directory: Path, sources_dir: Path = CORE, extra=()) -> Path:
+    gcc = shutil.which("gcc")
+    assert gcc, "gcc is needed to build the C core"
+    so = directory / "libato_plan.so"
+    proc = subprocess.run([gcc, *FLAGS, *extra, "-fPIC", "-shared", f"-I{sources_dir}", str(SHIM),
+                           *(str(sources_dir / s) for s in SOURCES), "-o", str(so), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    return so
+
+
+def load(so: Path):
+    dll = ctypes.CDLL(str(so))
+    vp, ci = ctypes.c_void_p, ctypes.c_int
+    dll.shim_new.restype = vp
+    dll.shim_new.argtypes = [D, D, D, ci, D, D, ci, D, D, ci, ci, ctypes.POINTER(ci), ctypes.c_char_p]
+    dll.shim_free.argtypes = [vp]
+    dll.shim_msg.argtypes = [vp]
+    dll.shim_msg.restype = ctypes.c_char_p
+    dll.shim_course.argtypes = [vp, D, D, D, D, ci]
+    dll.shim_set_car.argtypes = [vp, D]
+    dll.shim_envelope.argtypes = [vp, D]
+    dll.shim_min_time.argtypes = [vp, D, D]
+    dll.shim_plan.argtypes = [vp, ctypes.c_double, ctypes.c_double, ctypes.c_double,
+                              ctypes.c_double, D, D]
+    dll.shim_plan_arrays.argtypes = [vp, D, D, D, D, D, D]
+    dll.shim_speed_at.argtypes = [vp, ctypes.c_double]
+    dll.shim_speed_at.restype = ctypes.c_double
+    dll.shim_span_lookups.argtypes = [vp, D, ci, D]
+    dll.shim_breakpoints.argtypes = [vp, ctypes.c_double, D, ci]
+    dll.shim_check_span.argtypes = [vp]
+    dll.shim_ep_deceleration.argtypes = [vp, ctypes.c_double, ci, ctypes.c_double, ctypes.c_double]
+    dll.shim_ep_deceleration.restype = ctypes.c_double
+    dll.shim_plancar.argtypes = [vp, ctypes.c_double, ctypes.c_double, D]
+    dll.shim_steps.argtypes = [vp] + [ctypes.c_double] * 6 + [D]
+    dll.shim_blend.argtypes = [D, D, D, D, D, ci, D]
+    dll.shim_masses.argtypes = [D, D]
+    dll.shim_margins.argtypes = [ctypes.c_double] * 5 + [D]
+    dll.shim_trace_cut.argtypes = [D, D, D, D, D, D, ci, ctypes.c_double, D, ctypes.POINTER(ci)]
+    dll.shim_trace_cut.restype = ctypes.c_double
+    dll.shim_relay_new.argtypes = [D]
+    dll.shim_relay_new.restype = vp
+    dll.shim_relay_free.argtypes = [vp]
+    dll.shim_relay_command.argtypes = [vp, vp] + [ctypes.c_double] * 4 + [D, ctypes.c_char_p]
+    dll.shim_track_force.argtypes = [vp] + [ctypes.c_double] * 5
+    dll.shim_track_force.restype = ctypes.c_double
+    return dll
+
+
+def arr(values, n=None):
+    values = [float(x) for x in values]
+    if n is not None:
+        values += [0.0] * (n - len(values))
+    return (ctypes.c_double * max(len(values), 1))(*values)
+
+
+def bits(values) -> list:
+    return [int(x) for x in np.array([float(v) for v in values], dtype=float).view(np.uint64)]
+
+
+def same(a, b) -> bool:
+    """Equal bit for bit (lists or scalars; NaN equals NaN of the same bits)."""
+    if not isinstance(a, (list, tuple)):
+        a, b = [a], [b]
+    return len(a) == len(b) and bits(a) == bits(b)
+
+
+def tuning_vector(tn: AtoTuning) -> list:
+    return [tn.grid_step, tn.limit_margin, tn.time_tol, tn.a_ep, tn.ep_stages, tn.mass_reserve,
+            tn.brake_share]
+
+
+class CPlanner:
+    """The C span, car, course and planner of plan_setup(span, car, tuning) (setup=False: the span
+    and the car only)."""
+
+    def __init__(self, lib, span: Span, car: CarTraction, tuning: AtoTuning, setup: bool = True):
+        self.lib = lib
+        status, msg = ctypes.c_int(), ctypes.create_string_buffer(512)
+        self.h = lib.shim_new(arr([span.length, span.schedule, span.stop]), arr(span.grade.distances),
+                              arr(span.grade.grades), len(span.grade.grades), arr(span.limit_distances),
+                              arr(span.limit_speeds), len(span.limit_speeds),
+                              arr([getattr(car, f) for f in CAR_FIELDS]), arr(tuning_vector(tuning)),
+                              MAX_NODES, int(setup), ctypes.byref(status), msg)
+        self.status, self.msg = status.value, msg.value.decode()
+        self.n = 0
+        if self.h and setup:
+            self.n = self.course()[0]
+            self.set_car(None)
+
+    def close(self):
+        if self.h:
+            self.lib.shim_free(self.h)
+            self.h = None
+
+    def error(self) -> str:
+        return self.lib.shim_msg(self.h).decode()
+
+    def course(self, cap=MAX_NODES + 10):
+        s, g, q, sc = arr([], cap), arr([], cap), arr([], cap), arr([], 3)
+        n = self.lib.shim_course(self.h, s, g, q, sc, cap)
+        return n, list(s[:n]), list(g[:n - 1]), list(q[:n]), list(sc)
+
+    def set_car(self, pc: PlanCar | None):
+        self.lib.shim_set_car(self.h, None if pc is None else arr(
+            [pc.mass, pc.A0, pc.A1, pc.A2, pc.share, pc.brake_mass]))
+
+    def envelope(self):
+        qU = arr([], self.n)
+        rc = self.lib.shim_envelope(self.h, qU)
+        return rc, list(qU)
+
+    def min_time(self, qU=None):
+        t = arr([0.0])
+        rc = self.lib.shim_min_time(self.h, None if qU is None else arr(qU), t)
+        return rc, t[0]
+
+    def plan(self, s0, v0, t0, arrival, qU=None):
+        out = arr([], 15)
+        rc = self.lib.shim_plan(self.h, s0, v0, t0, arrival, None if qU is None else arr(qU), out)
+        sc = list(out)
+        if rc != 0:
+            return rc, sc, None
+        n, nc = int(sc[9]), int(sc[10])
+        s, v, t, q, m, c = (arr([], n), arr([], n), arr([], n), arr([], self.n), arr([], n),
+                            arr([], 2 * nc + 2))
+        self.lib.shim_plan_arrays(self.h, s, v, t, q, m, c)
+        arrays = dict(s=list(s), v=list(v), t=list(t), qU=list(q), mode=[int(x) for x in m[:n - 1]],
+                      coasts=[(c[2 * k], c[2 * k + 1]) for k in range(nc)])
+        return rc, sc, arrays
+
+    def speed_at(self, x):
+        return self.lib.shim_speed_at(self.h, x)
+
+
+def courses():
+    """(name, span, car, tuning): the library's ATO spans and cars, distinct, plus two variants."""
+    out, seen = [], set()
+    for path in sorted((ROOT / "scenarios" / "library").glob("ato_*.toml")):
+        setup = load_scenario(path).ato_setup()
+        for k, ls in enumerate(setup.spans):
+            key = (ls.span, setup.car, setup.tuning)
+            if key not in seen:
+                seen.add(key)
+                out.append((f"{path.stem}[{k}]", ls.span, setup.car, setup.tuning))
+    _, span, car, tuning = out[0]
+    out.append(("long_car", span, replace(car, length=25.0, gamma=0.08, mass=34.0), tuning))
+    out.append(("margin_fine_grid", span, car, replace(tuning, limit_margin=1.5, grid_step=4.0)))
+    return out
+
+
+COURSES = courses()
+PLANS_PER_COURSE = 40
+
+
+@pytest.fixture(scope="module")
+def lib(tmp_path_factory):
+    return load(build(tmp_path_factory.mktemp("ato_plan")))
+
+
+def random_plancar(rng: random.Random, car: CarTraction, tuning: AtoTuning) -> PlanCar:
+    mass = car.mass * rng.uniform(0.8, 1.45)
+    A0 = car.A0 * rng.uniform(0.5, 1.6)
+    A1 = car.A1 * rng.uniform(0.3, 2.0)
+    A2 = car.A2 * rng.uniform(0.6, 1.5)
+    brake = braking_mass(mass, car.mass) if rng.random() < 0.7 else mass
+    return PlanCar(car, mass, A0, A1, A2, tuning.brake_share, brake_mass=brake)
+
+
+# ---------------------------------------------------------------- course, envelope, min_time
+
+@pytest.mark.parametrize("name, span, car, tuning", COURSES, ids=[c[0] for c in COURSES])
+def test_course_envelope_and_min_time_are_python_s(lib, name, span, car, tuning):
+    course, planner, configured = plan_setup(span, car, tuning)
+    cp = CPlanner(lib, span, car, tuning)
+    try:
+        assert cp.status == 0, cp.msg
+        n, s, g, qlim, scalars = cp.course()
+        assert n == course.n
+        assert same(s, course.s) and same(g, course.g) and same(qlim, course.qlim)
+        assert same(scalars, [course.d_relay, course.a_ep, course.i_relay])
+        rng = random.Random(hash(name) % 1000)
+        cars = [configured] + [random_plancar(rng, car, tuning) for _ in range(12)]
+        for pc in cars:
+            cp.set_car(pc)
+            qU = planner.envelope(pc)
+            rc, cq = cp.envelope()
+            assert rc == 0 and same(cq, qU)
+            rc, t_min = cp.min_time()
+            assert rc == 0 and same(t_min, planner.min_time(pc, qU))
+            rc, t_given = cp.min_time(qU)
+            assert rc == 0 and same(t_given, t_min)
+    finally:
+        cp.close()
+
+
+def test_fastest_run_through_plan_setup(lib):
+    """min_time of the configured car from plan_setup's course (fastest_run's number)."""
+    for _, span, car, tuning in COURSES:
+        cp = CPlanner(lib, span, car, tuning)
+        try:
+            assert same(cp.min_time()[1], fastest_run(span, car, tuning))
+        finally:
+            cp.close()
+
+
+# ---------------------------------------------------------------- plan()
+
+def compare_plan(cp: CPlanner, planner: ReducedPlanner, pc: PlanCar, state, rng):
+    """(the differences between the Python and the C plan from ``state`` (empty: bit-identical),
+    (status, policy) or the error)."""
+    s0, v0, t0, arrival = state
+    try:
+        p = planner.plan(pc, s0, v0, t0, arrival)
+        py_err = None
+    except ValueError as e:
+        p, py_err = None, str(e)
+    rc, sc, a = cp.plan(s0, v0, t0, arrival)
+    if py_err is not None:
+        ok = rc != 0 and cp.error() == py_err
+        return ([] if ok else [f"error: {py_err!r} vs rc {rc} {cp.error()!r}"]), ("error", py_err)
+    if rc != 0:
+        return [f"C failed: {cp.error()}"], None
+    bad = []
+    want = [p.hold_speed, p.regen_speed, p.arrival, p.energy_kwh, p.traction_kwh, p.regen_kwh]
+    if not same(sc[:6], want):
+        bad.append(f"scalars {sc[:6]} vs {want}")
+    if (STATUS[int(sc[6])], int(sc[7]), POLICY[int(sc[8])]) != (p.status, p.trials, p.policy):
+        bad.append(f"status {sc[6:9]} vs {(p.status, p.trials, p.policy)}")
+    for key in ("s", "v", "t", "qU"):
+        if not same(a[key], getattr(p, key)):
+            bad.append(key)
+    if a["mode"] != list(p.mode):
+        bad.append("mode")
+    if not same([x for c in a["coasts"] for x in c], [x for c in p.coasts for x in c]):
+        bad.append("coasts")
+    xs = [rng.uniform(-10.0, p.s[-1] + 10.0) for _ in range(5)] + [p.s[0], p.s[-1]]
+    if not same([cp.speed_at(x) for x in xs], [p.speed_at(x) for x in xs]):
+        bad.append("speed_at")
+    none = float("nan")
+    state_py = [planner.coast_runs, none if planner._last_vc is None else planner._last_vc,
+                none if planner._vc_slope is None else planner._vc_slope,
+                none if planner._last_cap is None else planner._last_cap]
+    if not same(sc[11:15], state_py):
+        bad.append(f"planner state {sc[11:15]} vs {state_py}")
+    return bad, (p.status, p.policy)
+
+
+def plan_states(rng: random.Random, span: Span, reference, n: int):
+    """States for re-plans: along the reference plan with speed, position and time errors, a
+    schedule that moves (the controller's reserve), some far too early/late, some off the plan."""
+    for k in range(n):
+        x = rng.uniform(0.0, span.stop * 0.97) if k else 0.0
+        v = max(reference.speed_at(x) * rng.uniform(0.8, 1.2) + rng.uniform(-1.0, 1.0), 0.0)
+        if k == 0:
+            v = 0.0
+        i = max(0, min(len(reference.s) - 2, np.searchsorted(reference.s, x) - 1))
+        t = reference.t[i] + rng.uniform(-8.0, 8.0) if k else 0.0
+        r = rng.random()
+        if r < 0.1:
+            arrival = t + rng.uniform(1.0, 20.0)               # late: far too little time
+        elif r < 0.2:
+            arrival = t + 1.5 * (span.stop - x) + rng.uniform(100.0, 400.0)   # early: slower
+            #                                          than holding v_min = 1 m/s all the way
+        else:
+            arrival = span.schedule - rng.uniform(0.0, 6.0)
+        yield x, v, max(t, 0.0), arrival
+
+
+@pytest.mark.parametrize("name, span, car, tuning", COURSES, ids=[c[0] for c in COURSES])
+def test_plan_is_python_s_bit_for_bit(lib, name, span, car, tuning):
+    course, planner, configured = plan_setup(span, car, tuning)
+    reference = planner.plan(configured, 0.0, 0.0, 0.0, span.schedule)
+    planner = ReducedPlanner(course, tol=tuning.time_tol)          # fresh: both start alike
+    cp = CPlanner(lib, span, car, tuning)
+    rng = random.Random(7 + len(name))
+    met = set()
+    try:
+        pc = configured
+        for k, state in enumerate(plan_states(rng, span, reference, PLANS_PER_COURSE)):
+            if k % 5 == 4:                    # a new identified car now and then, as the controller
+                pc = random_plancar(rng, car, tuning)
+            cp.set_car(pc)
+            bad, what = compare_plan(cp, planner, pc, state, rng)
+            assert not bad, f"{name} state {k} {state}: {bad}"
+            met.add(what)
+    finally:
+        cp.close()
+    # the states reach both policies and the fallback's statuses on every course
+    assert {("ok", "energy"), ("late", "capped"), ("early", "capped")} <= met, met
+
+
+def test_plan_meets_every_status_and_policy(lib):
+    """The sequences above, counted: ok/late/early, energy/capped all compared (nominal span)."""
+    _, span, car, tuning = COURSES[0]
+    course, planner, configured = plan_setup(span, car, tuning)
+    cp = CPlanner(lib, span, car, tuning)
+    met = set()
+    rng = random.Random(3)
+    try:
+        states = [(0.0, 0.0, 0.0, span.schedule), (0.0, 0.0, 0.0, 60.0), (0.0, 0.0, 0.0, 4e3),
+                  (900.0, 14.0, 60.0, 80.0), (1500.0, 18.0, 75.0, 200.0), (2100.0, 6.0, 130.0, 133.0),
+                  (300.0, 12.0, 25.0, 135.0), (0.0, 0.0, 0.0, 150.0), (1200.0, 16.0, 70.0, 120.0)]
+        for st in states:
+            bad, what = compare_plan(cp, planner, configured, st, rng)
+            assert not bad, f"{st}: {bad}"
+            met.add(what)
+    finally:
+        cp.close()
+    assert {("ok", "energy"), ("late", "capped"), ("early", "capped")} <= met, met
