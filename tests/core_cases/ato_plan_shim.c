@@ -362,3 +362,18 @@ double shim_track_force(void *hv, double v, double v_ref, double a_ref, double g
 {
     return rc_ato_track_force(&((shim *)hv)->plan_car, v, v_ref, a_ref, grade, gain);
 }
+
+/* ReducedCourse(span, car, step=, limit_margin=, v_relay=, a_ep=) on the handle's span and car:
+ * its status, msg its error; the course is freed again */
+int shim_course_error(void *hv, double step, double margin, double v_relay, double a_ep,
+                      char *msg)
+{
+    shim *h = hv;
+    rc_ato_course c;
+    rc_error err;
+    int rc = rc_ato_course_init(&c, &h->span, &h->car, step, margin, v_relay, a_ep, 10000, &err);
+    strcpy(msg, err.msg);
+    if (rc == RC_OK)
+        rc_ato_course_free(&c);
+    return rc;
+}

@@ -104,6 +104,7 @@ def load(so: Path):
     dll.shim_relay_command.argtypes = [vp, vp] + [ctypes.c_double] * 4 + [D, ctypes.c_char_p]
     dll.shim_track_force.argtypes = [vp] + [ctypes.c_double] * 5
     dll.shim_track_force.restype = ctypes.c_double
+    dll.shim_course_error.argtypes = [vp] + [ctypes.c_double] * 4 + [ctypes.c_char_p]
     return dll
 
 
@@ -368,3 +369,308 @@ def test_plan_meets_every_status_and_policy(lib):
     finally:
         cp.close()
     assert {("ok", "energy"), ("late", "capped"), ("early", "capped")} <= met, met
+
+
+# ---------------------------------------------------------------- errors, word for word
+
+def _span(**kw) -> Span:
+    _, span, _, _ = COURSES[0]
+    args = dict(length=span.length, schedule=span.schedule, stop=span.stop, grade=span.grade,
+                limit_distances=span.limit_distances, limit_speeds=span.limit_speeds)
+    args.update(kw)
+    return Span(**args)
+
+
+def _python_error(fn) -> str:
+    with pytest.raises(ValueError) as e:
+        fn()
+    return str(e.value)
+
+
+@pytest.mark.parametrize("case", ["step", "a_ep", "margin", "v_relay", "limit", "stop"])
+def test_course_errors_are_python_s(lib, case):
+    _, span, car, tuning = COURSES[0]
+    kw = dict(step=tuning.grid_step, limit_margin=tuning.limit_margin,
+              v_relay=car.regen_fade_speed, a_ep=0.6)
+    if case == "step":
+        kw["step"] = -0.25
+    elif case == "a_ep":
+        kw["a_ep"] = float("inf")
+    elif case == "margin":
+        kw["limit_margin"] = -1e-7
+    elif case == "v_relay":
+        kw["v_relay"] = float("nan")
+    elif case == "limit":
+        kw["limit_margin"] = 15.123456789
+    else:
+        span = _span(stop=3.125, length=10.0, limit_distances=(0.0,), limit_speeds=(20.0,))
+    want = _python_error(lambda: ReducedCourse(span, car, **kw))
+    cp = CPlanner(lib, span, car, tuning, setup=False)
+    try:
+        msg = ctypes.create_string_buffer(512)
+        rc = lib.shim_course_error(cp.h, kw["step"], kw["limit_margin"], kw["v_relay"], kw["a_ep"],
+                                   msg)
+    finally:
+        cp.close()
+    assert rc != 0 and msg.value.decode() == want
+
+
+def test_envelope_and_plan_errors_are_python_s(lib):
+    """A service brake too weak for the descent: envelope's ValueError, also through plan()."""
+    _, span, car, tuning = COURSES[0]
+    span = _span(grade=type(span.grade)((0.0, 1000.0), (0.0, -39.0)))
+    course, planner, configured = plan_setup(span, car, tuning)
+    weak = PlanCar(car, 30.0, car.A0, car.A1, car.A2, 0.02, brake_mass=41.5)
+    want = _python_error(lambda: planner.envelope(weak))
+    cp = CPlanner(lib, span, car, tuning)
+    try:
+        cp.set_car(weak)
+        rc, _ = cp.envelope()
+        assert rc != 0 and cp.error() == want
+        rc, _, _ = cp.plan(100.0, 10.0, 10.0, 130.0)
+        assert rc != 0 and cp.error() == _python_error(
+            lambda: planner.plan(weak, 100.0, 10.0, 10.0, 130.0))
+    finally:
+        cp.close()
+
+
+@pytest.mark.parametrize("case", ["start", "limit", "ok"])
+def test_check_span_for_car_is_python_s(lib, case):
+    _, span, car, _ = COURSES[0]
+    if case == "start":
+        car = replace(car, traction_force_max=200.0)
+    elif case == "limit":
+        span = _span(grade=type(span.grade)((0.0, 500.0), (0.0, -38.5)))
+        car = replace(car, brake_force_max=5e3, mech_force_max=1e3)
+    cp = CPlanner(lib, span, car, AtoTuning(), setup=False)
+    try:
+        rc = lib.shim_check_span(cp.h)
+        if case == "ok":
+            check_span_for_car(span, car)
+            assert rc == 0
+        else:
+            assert rc != 0 and cp.error() == _python_error(lambda: check_span_for_car(span, car))
+    finally:
+        cp.close()
+
+
+# ---------------------------------------------------------------- the span, the car, motion
+
+def test_span_and_car_lookups_are_python_s(lib):
+    rng = random.Random(11)
+    for name, span, car, _ in COURSES:
+        for length in (0.0, 17.5):
+            car_l = replace(car, length=length, regen_off_speed=car.regen_off_speed * (length > 0))
+            cp = CPlanner(lib, span, car_l, AtoTuning(), setup=False)
+            try:
+                xs = [rng.uniform(-50.0, span.length + 50.0) for _ in range(200)]
+                xs += list(span.limit_distances) + list(span.grade.distances) + [0.0, 1e-12,
+                                                                                  car.regen_fade_speed]
+                out = arr([], 10 * len(xs))
+                lib.shim_span_lookups(cp.h, arr(xs), len(xs), out)
+                want = []
+                for x in xs:
+                    want += [span.grade.at(x), span.grade.average(x, car_l.length), span.v_lim(x),
+                             span.v_lim_at_node(x), car_l.f_max(x), car_l.r_max(x),
+                             car_l.brake_total_max(x), *car_l.service_brake(x),
+                             car_l.hold_speed_regen(x) if x > 0.0 else math.nan]
+                got = list(out)
+                for k, x in enumerate(xs):      # V_hold <= 0 is outside hold_speed_regen's domain
+                    got[10 * k + 9] = got[10 * k + 9] if x > 0.0 else math.nan
+                assert same(got, want), name
+                bp = arr([], 400)
+                n = lib.shim_breakpoints(cp.h, length, bp, 400)
+                assert same(list(bp[:n]), span.breakpoints(length))
+            finally:
+                cp.close()
+
+
+def test_plancar_and_steps_are_python_s(lib):
+    rng = random.Random(5)
+    _, span, car, tuning = COURSES[0]
+    cp = CPlanner(lib, span, replace(car, gamma=0.06), tuning)
+    car = replace(car, gamma=0.06)
+    try:
+        for _ in range(300):
+            pc = random_plancar(rng, car, tuning)
+            if rng.random() < 0.2:
+                pc = PlanCar(car, pc.mass, pc.A0, rng.choice([0.0, -0.01, pc.A1]),
+                             rng.choice([0.0, -1e-3, pc.A2]), rng.uniform(0.3, 1.0))
+            cp.set_car(pc)
+            v = rng.choice([0.0, rng.uniform(0.0, 2.0), rng.uniform(0.0, 35.0), 1.9444444444444444])
+            g = rng.uniform(-40.0, 40.0)
+            out = arr([], 10)
+            lib.shim_plancar(cp.h, v, g, out)
+            # hold_regen_speed(0) divides 0 by 0 in Python (ZeroDivisionError): the planner asks
+            # for V_c >= v_min only
+            want = [pc.adhesion(v), pc.f_max(v), pc.r_full(v), pc.b_service(v), pc.w0(v),
+                    pc.w_slope(v), pc.hold_regen_speed(v) if v > 0.0 else math.nan,
+                    *(accel(pc, v, g, k) for k in range(3))]
+            got = list(out)
+            got[6] = got[6] if v > 0.0 else math.nan
+            assert same(got, want)
+            q0, q1 = rng.uniform(0.0, 600.0), rng.uniform(-5.0, 600.0)
+            if rng.random() < 0.1:
+                q0 = 0.0
+            p0, h = rng.uniform(0.5, 1.5), rng.choice([rng.uniform(0.1, 12.0), -rng.uniform(0.1, 12.0)])
+            k_lam = rng.uniform(0.0, 1e5)
+            out = arr([], 13)
+            lib.shim_steps(cp.h, q0, q1, p0, h, g, k_lam, out)
+            want = []
+            for k in range(3):
+                want += list(free_step(pc, q0, h, g, k))
+            want += list(coast_step(pc, q0, p0, h, g, k_lam))
+            F, R, M, ok = hold_forces(pc, q0, q1, abs(h), g)
+            want += [F, R, M, float(ok), step_time(h, q0, q1)]
+            lib.shim_steps(cp.h, q0, q1, p0, h, g, k_lam, out)
+            # hold_forces is called with |h| in Python above: the shim's with h; redo for |h|
+            out2 = arr([], 13)
+            lib.shim_steps(cp.h, q0, q1, p0, abs(h), g, k_lam, out2)
+            assert same(list(out)[:8], want[:8])
+            assert same(list(out2)[8:12], want[8:12])
+            assert same(out[12], want[12])
+            v_ref, a_ref, gain = rng.uniform(0, 30), rng.uniform(-1, 1), rng.uniform(0, 2)
+            assert same(lib.shim_track_force(cp.h, v, v_ref, a_ref, g, gain),
+                        track_force(pc, v, v_ref, a_ref, g, gain))
+    finally:
+        cp.close()
+
+
+def test_trace_cut_and_q_at_are_python_s(lib):
+    rng = random.Random(9)
+    for _ in range(200):
+        n = rng.randint(1, 12)
+        s = sorted(rng.uniform(0.0, 1000.0) for _ in range(n))
+        tr = Trace(s[0], rng.uniform(0.0, 500.0), rng.uniform(0.0, 10.0))
+        for x in s[1:]:
+            tr.add(x, rng.uniform(0.0, 500.0), rng.uniform(0.1, 5.0), rng.randint(0, 6),
+                   rng.uniform(0.0, 1e5), rng.uniform(0.0, 1e5))
+        x = rng.choice([rng.uniform(-10.0, 1010.0), s[rng.randrange(n)],
+                        s[rng.randrange(n)] + 5e-10])
+        out = arr([], 6 * (n + 2))
+        n_out = ctypes.c_int()
+        qa = lib.shim_trace_cut(arr(tr.s), arr(tr.q), arr(tr.t), arr(tr.wF + [0.0]),
+                                arr(tr.wR + [0.0]), arr(tr.mode + [0]), n, x, out,
+                                ctypes.byref(n_out))
+        cut = tr.cut_at(x)
+        assert same(qa, q_at(tr, x))
+        m = n_out.value
+        assert m == len(cut.s)
+        rows = [out[6 * k:6 * k + 6] for k in range(m)]
+        assert same([r[0] for r in rows], cut.s) and same([r[1] for r in rows], cut.q)
+        assert same([r[2] for r in rows], cut.t)
+        assert [int(r[3]) for r in rows[:m - 1]] == cut.mode
+        assert same([r[4] for r in rows[:m - 1]], cut.wF) and same([r[5] for r in rows[:m - 1]], cut.wR)
+
+
+def test_blend_and_masses_are_python_s(lib):
+    rng = random.Random(13)
+    for k in range(2000):
+        cfg = (rng.uniform(25, 40), rng.uniform(0.5, 1.5), rng.uniform(0.0, 0.05), rng.uniform(0.005, 0.02))
+        est = (cfg[0] * rng.uniform(0.7, 1.5), cfg[1] * rng.uniform(-1.0, 3.0),
+               cfg[2] * rng.uniform(-3.0, 3.0), cfg[3] * rng.uniform(-1.0, 3.0))
+        stated = [rng.uniform(-0.1, 5.0), rng.uniform(-0.02, 0.5), rng.uniform(-0.002, 0.05),
+                  rng.uniform(-1e-4, 2e-3), rng.uniform(-0.01, 0.01), rng.uniform(-1e-3, 1e-3),
+                  rng.uniform(-1e-4, 1e-4)]
+        speeds = sorted(rng.uniform(1.0, 25.0) for _ in range(rng.randint(1, 6)))
+        ramp = rng.choice([0.0, 1.0, rng.uniform(-0.2, 1.0)])
+        args = [ramp, rng.uniform(0.5, 5.0), rng.uniform(0.05, 0.5), rng.uniform(1.5, 4.0),
+                rng.uniform(1.1, 2.0), rng.uniform(0.0, 1.0), rng.choice([math.inf, rng.uniform(0, 0.3)])]
+        out = arr([], 8)
+        lib.shim_blend(arr(cfg), arr(est), arr(stated), arr(args), arr(speeds), len(speeds), out)
+        want = blend_estimates(cfg, est, stated, args[0], args[1], args[2], args[3], speeds,
+                               args[4], args[5], args[6])
+        assert same(list(out), list(want)), k
+        margins = arr([], 3)
+        lib.shim_margins(*est[1:], speeds[0], speeds[-1], margins)
+        assert same(list(margins), list(resistance_marginsof(est, speeds)))
+        m_args = [rng.uniform(20, 50), rng.choice([rng.uniform(20, 60), math.inf, math.nan]),
+                  rng.randint(0, 1), cfg[0], rng.uniform(1.1, 2.0)]
+        out = arr([], 2)
+        lib.shim_masses(arr(m_args), out)
+        assert same(list(out), [heavier_mass(m_args[0], m_args[1], bool(m_args[2]), m_args[3], m_args[4]),
+                                braking_mass(m_args[0], m_args[3])])
+
+
+def resistance_marginsof(est, speeds):
+    return resistance_margins(est[1], est[2], est[3], speeds[0], speeds[-1])
+
+
+# ---------------------------------------------------------------- stopping
+
+def test_relay_command_sequences_are_python_s(lib):
+    """A car braking to the stop mark under the relay (its own simple motion), with speed noise,
+    a coming-in above / below the programmed curve, standing short and creeping: every command's
+    outputs and the relay's a_prog and creep integral compared by their bits."""
+    _, span, car, tuning = COURSES[0]
+    cp = CPlanner(lib, span, car, tuning)
+    rng = random.Random(17)
+    stages = set()
+    try:
+        for run in range(40):
+            pc = random_plancar(rng, car, tuning)
+            cp.set_car(pc)
+            stop = 500.0
+            a_ep = ep_deceleration(car, tuning, rng.uniform(-30.0, 30.0))
+            args = [stop, a_ep, car.mech_force_max / tuning.ep_stages, tuning.ep_stages,
+                    tuning.relay_hysteresis, tuning.relay_stage_speed, tuning.relay_dwell,
+                    tuning.creep_speed, tuning.creep_accel, tuning.stop_window]
+            relay = RelayBrake(*args)
+            cr = lib.shim_relay_new(arr(args))
+            try:
+                s = stop - rng.uniform(0.5, 4.0)
+                v = math.sqrt(2.0 * a_ep * (stop - s)) * rng.uniform(0.5, 1.4)
+                grade = rng.uniform(-30.0, 30.0)
+                t = 0.0
+                for k in range(400):
+                    v_meas = max(v + rng.gauss(0.0, 0.02), 0.0)
+                    want = relay.command(t, s, v_meas, pc, grade)
+                    out, msg = arr([], 6), ctypes.create_string_buffer(256)
+                    rc = lib.shim_relay_command(cr, cp.h, t, s, v_meas, grade, out, msg)
+                    assert rc == 0
+                    assert same(list(out), [*want[:2], float(want[2]), want[3], relay.a_prog,
+                                            relay._creep_int]), (run, k)
+                    stages.add(want[2])
+                    F, B = want[0], want[1]
+                    acc = (F - B) / pc.m_in - pc.pg * (pc.w0(v) + grade) / pc.m_in
+                    v = max(v + 0.1 * acc, 0.0)
+                    s += 0.1 * v
+                    t += 0.1
+            finally:
+                lib.shim_relay_free(cr)
+    finally:
+        cp.close()
+    assert {-1, 0, tuning.ep_stages} <= stages and len(stages) >= 5, stages   # creep, off, full
+
+
+def test_relay_refuses_a_nan_stage_count_as_python(lib):
+    _, span, car, tuning = COURSES[0]
+    cp = CPlanner(lib, span, car, tuning)
+    try:
+        args = [500.0, 1.0, math.nan, 6, 0.03, 0.1, 0.3, 0.3, 0.2, 0.15]
+        relay, cr = RelayBrake(*args), lib.shim_relay_new(arr(args))
+        with pytest.raises(ValueError) as e:
+            relay.command(0.0, 499.0, 1.0, plan_setup(span, car, tuning)[2], 0.0)
+        out, msg = arr([], 6), ctypes.create_string_buffer(256)
+        assert lib.shim_relay_command(cr, cp.h, 0.0, 499.0, 1.0, 0.0, out, msg) != 0
+        assert msg.value.decode() == str(e.value)
+        lib.shim_relay_free(cr)
+    finally:
+        cp.close()
+
+
+def test_ep_deceleration_is_python_s(lib):
+    rng = random.Random(19)
+    _, span, car, tuning = COURSES[0]
+    for _ in range(300):
+        c = replace(car, mass=rng.uniform(20, 50), A0=rng.uniform(0.3, 2.0), gamma=rng.uniform(0, 0.1),
+                    mech_force_max=rng.uniform(10e3, 80e3))
+        tn = replace(tuning, a_ep=rng.uniform(0.3, 1.5), ep_stages=rng.randint(1, 12),
+                     mass_reserve=rng.uniform(0.0, 0.5))
+        grade = rng.uniform(-40.0, 40.0)
+        cp = CPlanner(lib, span, c, tn, setup=False)
+        try:
+            assert same(lib.shim_ep_deceleration(cp.h, tn.a_ep, tn.ep_stages, tn.mass_reserve, grade),
+                        ep_deceleration(c, tn, grade))
+        finally:
+            cp.close()
