@@ -674,3 +674,92 @@ def test_ep_deceleration_is_python_s(lib):
                         ep_deceleration(c, tn, grade))
         finally:
             cp.close()
+
+
+# ---------------------------------------------------------------- mutations and sanitizers
+
+ONE_ULP = "(1.0 + 2.220446049250313e-16)"
+MUTATIONS = {
+    # the arrival error a V_c trial returns to the solve, one ulp off
+    "trial_error": ("double y = stalled ? INFINITY : p->work->t[p->work->n - 1] - p->arrival;\n"
+                    "    new_trial(p, v_c, y, stalled);\n    if (!p->has_best",
+                    f"double y = stalled ? INFINITY : (p->work->t[p->work->n - 1] - p->arrival)"
+                    f" * {ONE_ULP};\n    new_trial(p, v_c, y, stalled);\n    if (!p->has_best"),
+    # the time of a held step, one operand one ulp off
+    "held_step_time": ("o->dt = dt1 + rc_ato_step_time(rest, qx, bound);",
+                       f"o->dt = dt1 + rc_ato_step_time(rest, qx, bound) * {ONE_ULP};"),
+    # the envelope's backward braking step, its length one ulp off
+    "envelope_step": ("qb = rc_ato_free_step(car, qU[i + 1], s[i] - s[i + 1], g[i], RC_ATO_K_BRAKE, &vm);",
+                      f"qb = rc_ato_free_step(car, qU[i + 1], (s[i] - s[i + 1]) * {ONE_ULP}, g[i], "
+                      f"RC_ATO_K_BRAKE, &vm);"),
+}
+# (one ulp in the work of a held step, in U between nodes or in a coast's co-state residual
+# left every plan of the sequence bit-identical: absorbed by the sums, rare, or inside the
+# coast point's 1e-4 tolerance; and the EP curve 2 a_ep (stop - s) re-associated is exact at
+# a_ep = 1)
+
+
+def plan_mismatches(lib, states=12) -> int:
+    """How many of a plan sequence's plans (nominal course) differ from Python's."""
+    _, span, car, tuning = COURSES[0]
+    course, planner, configured = plan_setup(span, car, tuning)
+    reference = planner.plan(configured, 0.0, 0.0, 0.0, span.schedule)
+    planner = ReducedPlanner(course, tol=tuning.time_tol)
+    cp = CPlanner(lib, span, car, tuning)
+    rng = random.Random(23)
+    bad = 0
+    try:
+        for state in plan_states(rng, span, reference, states):
+            bad += bool(compare_plan(cp, planner, configured, state, rng)[0])
+    finally:
+        cp.close()
+    return bad
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+def test_a_one_ulp_mutation_of_the_planner_is_caught(mutation, tmp_path):
+    target, replacement = MUTATIONS[mutation]
+    for name in SOURCES + ["ato_span.h", "ato_motion.h", "ato_stopping.h", "ato_planner.h",
+                           "rc_common.h", "rc_fp_contract.h"]:
+        shutil.copy(CORE / name, tmp_path / name)
+    source = tmp_path / "ato_planner.c"
+    text = source.read_text()
+    assert text.count(target) == 1, f"the mutation's target occurs {text.count(target)} times"
+    source.write_text(text.replace(target, replacement))
+    assert plan_mismatches(load(build(tmp_path, tmp_path))) > 0
+
+
+def test_the_unmutated_copy_matches(lib):
+    assert plan_mismatches(lib) == 0
+
+
+SANITIZED_RUN = r"""
+import sys
+sys.path.insert(0, {test_dir!r})
+import test_core_ato_plan as t
+lib = t.load(t.Path({so!r}))
+t.test_envelope_and_plan_errors_are_python_s(lib)
+for case in ("step", "limit", "stop"):
+    t.test_course_errors_are_python_s(lib, case)
+t.test_check_span_for_car_is_python_s(lib, "limit")
+t.test_trace_cut_and_q_at_are_python_s(lib)
+print("mismatches", t.plan_mismatches(lib, 8))
+"""
+
+
+def test_the_shim_under_address_and_undefined_sanitizers(tmp_path):
+    """The shim built with -fsanitize=address,undefined runs a plan sequence bit-identically and
+    the error paths (course, envelope, plan, check_span_for_car) and Trace.cut_at, with no
+    sanitizer report on stderr."""
+    asan = subprocess.run([shutil.which("gcc"), "-print-file-name=libasan.so"], capture_output=True,
+                          text=True).stdout.strip()
+    so = build(tmp_path, extra=["-g", "-O1", "-fsanitize=address,undefined",
+                                "-fno-sanitize-recover=all"])
+    env = dict(os.environ, LD_PRELOAD=asan, ASAN_OPTIONS="detect_leaks=0",
+               PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", SANITIZED_RUN.format(
+        test_dir=str(Path(__file__).parent), so=str(so))], capture_output=True, text=True,
+        env=env, timeout=600, cwd=str(ROOT))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "mismatches 0" in proc.stdout
+    assert "runtime error" not in proc.stderr and "AddressSanitizer" not in proc.stderr, proc.stderr
