@@ -763,3 +763,37 @@ def test_the_shim_under_address_and_undefined_sanitizers(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "mismatches 0" in proc.stdout
     assert "runtime error" not in proc.stderr and "AddressSanitizer" not in proc.stderr, proc.stderr
+
+
+# ---------------------------------------------------------------- the controller's own re-plans
+
+def test_an_ato_run_s_replans_are_python_s(lib, monkeypatch):
+    """Every plan() call the controller makes in a library ATO run under speed noise (the
+    estimates move the PlanCar, the schedule's reserve moves the arrival) replayed in order on a
+    fresh Python and a fresh C planner: every plan compared in full."""
+    from harness.run.driver import run_on_chain
+
+    scenario = load_scenario(ROOT / "scenarios" / "library" / "ato_speed_noise.toml")
+    setup = scenario.ato_setup()
+    calls = []
+    original = ReducedPlanner.plan
+
+    def spy(self, car, s0, v0, t0, arrival, qU=None):
+        calls.append((car, s0, v0, t0, arrival))
+        return original(self, car, s0, v0, t0, arrival, qU)
+
+    monkeypatch.setattr(ReducedPlanner, "plan", spy)
+    run_on_chain(scenario)
+    monkeypatch.setattr(ReducedPlanner, "plan", original)
+    assert len(calls) > 30 and len({c[0].mass for c in calls}) > 3     # the car moved
+    span, car, tuning = setup.spans[0].span, setup.car, setup.tuning
+    _, planner, _ = plan_setup(span, car, tuning)
+    cp = CPlanner(lib, span, car, tuning)
+    rng = random.Random(29)
+    try:
+        for k, (pc, *state) in enumerate(calls):
+            cp.set_car(pc)
+            bad, _ = compare_plan(cp, planner, pc, state, rng)
+            assert not bad, f"call {k} {state}: {bad}"
+    finally:
+        cp.close()
