@@ -110,7 +110,7 @@ def replay(lib, span, car, tuning, seq, repeat: int):
     for _ in range(repeat):
         h = lib.shim_new(arr([span.length, span.schedule, span.stop]), arr(span.grade.distances),
                          arr(span.grade.grades), len(span.grade.grades), arr(span.limit_distances),
-                         arr(span.limit_speeds), len(span.limit_speeds), arr(carv), arr(tn), 10_000,
+                         arr(span.limit_speeds), len(span.limit_speeds), arr(carv), arr(tn), 10_003,
                          1, ctypes.byref(status), msg)
         assert h, msg.value.decode()
         handles.append(h)

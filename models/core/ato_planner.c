@@ -98,29 +98,36 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
         }
         return RC_BAD_CONFIG;
     }
+    /* the grid's size is refused before anything is allocated for it (the nodes every step
+     * m), then counted with the breakpoints (C only: the controller refuses more than
+     * MAX_GRID_NODES first, with its own message) */
     double cells = ceil(span->stop / step);
-    int bound = rc_ato_breakpoints_bound(span);
-    if (!(cells + bound + 2.0 <= (double)max_nodes)) {
-        if (err)
-            say(err, "the re-planner's grid would have %.4g candidate "
-                     "nodes (span.stop %g m, step %g m): at most %d", cells + bound + 2.0,
-                     span->stop, step, max_nodes);
+    if (!(cells + 2.0 <= (double)max_nodes)) {
+        say(err, "the re-planner's grid would have at least %.4g nodes (span.stop = %g m, step "
+            "%g m): at most %d", cells + 2.0, span->stop, step, max_nodes);
         return RC_BAD_CONFIG;
     }
+    int bound = rc_ato_breakpoints_bound(span);
     int n = cells > 1.0 ? (int)cells : 1;
     int total = n + 1 + bound + 1;
     double *block = malloc(sizeof(double) * (size_t)total * 3);
     if (block == NULL) {
-        if (err)
-            say(err, "out of memory for the re-planner's grid");
+        say(err, "out of memory for the re-planner's grid");
         return RC_BAD_CONFIG;
     }
     double *s = block;
     int m = 0;
     for (int k = 0; k <= n; k++)
         s[m++] = span->stop * k / n;
-    m += rc_ato_breakpoints(span, car->length, s + m, bound);
+    int breaks = rc_ato_breakpoints(span, car->length, s + m, bound);
+    m += breaks;
     s[m++] = span->stop - c->d_relay;
+    if (m > max_nodes) {
+        free(block);
+        say(err, "the re-planner's grid would have %d nodes (span.stop = %g m, step %g m, %d "
+            "grade and limit changes): at most %d", m, span->stop, step, breaks, max_nodes);
+        return RC_BAD_CONFIG;
+    }
     qsort(s, (size_t)m, sizeof *s, cmp_double);
     int kept = 1;
     for (int k = 1; k < m; k++)

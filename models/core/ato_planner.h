@@ -26,8 +26,11 @@ typedef struct {
     double *s, *g, *qlim;          /* owned: rc_ato_course_free */
 } rc_ato_course;
 
-/* ReducedCourse(span, car, step=, limit_margin=, v_relay=, a_ep=); refuses a grid of more than
- * max_nodes candidate nodes (the controller's MAX_GRID_NODES check comes first in Python). */
+/* ReducedCourse(span, car, step=, limit_margin=, v_relay=, a_ep=): the grid's arrays allocated
+ * here, once. Refuses (C only) a grid of more than max_nodes candidate nodes (the nodes every step
+ * m, the breakpoints, the EP curve's start): the controller refuses stop / step + breakpoints >
+ * MAX_GRID_NODES first, with its own message, so MAX_GRID_NODES + 3 here never refuses what it
+ * accepts. */
 rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc_ato_car *car,
                              double step, double limit_margin, double v_relay, double a_ep,
                              int max_nodes, rc_error *err);
@@ -61,7 +64,9 @@ typedef struct {
     int has_last_vc, has_vc_slope, has_last_cap;
     double last_vc, vc_slope, last_cap;
     long coast_runs;
-    /* coast hints per stretch end node (Python keys them by round(s_end, 3)) */
+    /* coast hints per stretch end node. Python keys them by round(s_end, 3): the same key for
+     * the same node; two nodes would share one only if they lay within 1 mm (the grid keeps
+     * nodes 1e-6 m apart), which no span with limits and grades on whole metres has */
     int *hint_has, *hint_has_slope;
     double *hint_x, *hint_slope;
     double *qU;                     /* the last envelope plan/min_time used */

@@ -51,7 +51,7 @@ CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "ato_plan_shim.c"
 SOURCES = ["ato_span.c", "ato_motion.c", "ato_stopping.c", "ato_planner.c", "repr.c"]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
-MAX_NODES = 10_000          # models.ato.controller.MAX_GRID_NODES
+MAX_NODES = 10_003          # models.ato.controller.MAX_GRID_NODES + 3 (ato_planner.h)
 D = ctypes.POINTER(ctypes.c_double)
 CAR_FIELDS = [f.name for f in fields(CarTraction) if f.init]
 STATUS = {0: "ok", 1: "late", 2: "early"}
@@ -795,5 +795,22 @@ def test_an_ato_run_s_replans_are_python_s(lib, monkeypatch):
             cp.set_car(pc)
             bad, _ = compare_plan(cp, planner, pc, state, rng)
             assert not bad, f"call {k} {state}: {bad}"
+    finally:
+        cp.close()
+
+
+def test_a_grid_beyond_the_node_limit_is_refused_before_allocation(lib):
+    """C only (the controller refuses it first in Python): a step that puts 215,000 nodes on the
+    grid is refused with its size; the library grids are far below the limit."""
+    _, span, car, tuning = COURSES[0]
+    cp = CPlanner(lib, span, car, tuning, setup=False)
+    try:
+        msg = ctypes.create_string_buffer(512)
+        rc = lib.shim_course_error(cp.h, 0.01, tuning.limit_margin, car.regen_fade_speed, 0.6, msg)
+        assert rc != 0
+        assert msg.value.decode() == ("the re-planner's grid would have at least 2.15e+05 nodes "
+                                      "(span.stop = 2150 m, step 0.01 m): at most 10000")
+        assert lib.shim_course_error(cp.h, 0.25, tuning.limit_margin, car.regen_fade_speed, 0.6,
+                                     msg) == 0          # 8,600 cells and the breakpoints
     finally:
         cp.close()
