@@ -53,6 +53,16 @@ static rc_status int_of(double x, double *out, rc_error *err)
     return RC_OK;
 }
 
+/* Python's round(x) of a finite float: to the nearest integer, ties to even, whatever the
+ * FPU's rounding mode (x - floor(x) is exact) */
+static double round_half_even(double x)
+{
+    double r = floor(x), diff = x - r;
+    if (diff > 0.5 || (diff == 0.5 && fmod(r, 2.0) != 0.0))
+        r += 1.0;
+    return r;
+}
+
 static int clamp_stage(double x, int n)
 {
     /* min(max(x, 0), n) of an integer-valued x (exact in a double) */
@@ -83,7 +93,8 @@ rc_status rc_ato_relay_command(rc_ato_relay *r, double t, double s, double v,
         double a = rc_max(r->a_prog, v * v / (2.0 * d));
         double need = car->m_in * a - car->pg * (rc_ato_pc_w0(car, v) + grade);
         double k;
-        if (int_of(nearbyint(need / r->stage_force), &k, err) != RC_OK)
+        double ratio = need / r->stage_force;
+        if (int_of(isfinite(ratio) ? round_half_even(ratio) : ratio, &k, err) != RC_OK)
             return RC_MATH;          /* round() of NaN/inf raises too: the state is unchanged */
         r->stage = clamp_stage(k, r->n_stages);
         r->has_stage = 1;

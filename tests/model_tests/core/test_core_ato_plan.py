@@ -814,3 +814,54 @@ def test_a_grid_beyond_the_node_limit_is_refused_before_allocation(lib):
                                      msg) == 0          # 8,600 cells and the breakpoints
     finally:
         cp.close()
+
+
+def test_relay_first_stage_rounds_half_to_even_as_python(lib):
+    """The first command's stage count is Python's round(): a need of exactly 2.5 and 3.5
+    stages gives 2 and 4 stages, in C as in Python."""
+    _, span, car, tuning = COURSES[0]
+    _, _, pc = plan_setup(span, car, tuning)
+    cp = CPlanner(lib, span, car, tuning)
+    met = set()
+    try:
+        for half in (2.5, 3.5):
+            for k in range(200):
+                v, s, grade, stop, a_ep = 1.5 + 0.001 * k, 498.5, -3.0, 500.0, 1.0
+                d = stop - s
+                a_prog = min(max(v * v / (2.0 * d), 0.3 * a_ep), a_ep)
+                need = pc.m_in * max(a_prog, v * v / (2.0 * d)) - pc.pg * (pc.w0(v) + grade)
+                force = need / half
+                if need / force != half:
+                    continue
+                args = [stop, a_ep, force, 8, 0.03, 0.1, 0.3, 0.3, 0.2, 0.15]
+                relay, cr = RelayBrake(*args), lib.shim_relay_new(arr(args))
+                try:
+                    want = relay.command(0.0, s, v, pc, grade)
+                    out, msg = arr([], 6), ctypes.create_string_buffer(256)
+                    assert lib.shim_relay_command(cr, cp.h, 0.0, s, v, grade, out, msg) == 0
+                    assert int(out[2]) == want[2] == round(half)
+                    met.add(half)
+                finally:
+                    lib.shim_relay_free(cr)
+                break
+    finally:
+        cp.close()
+    assert met == {2.5, 3.5}
+
+
+def test_memory_is_allocated_only_at_set_up():
+    """No allocation per re-plan: malloc/calloc/realloc are called in the course's and the
+    planner's init and in check_span_for_car (set-up time) and nowhere else in the C ATO core."""
+    import re
+
+    allowed = {"rc_ato_course_init", "rc_ato_planner_init", "rc_ato_check_span_for_car"}
+    callers = set()
+    for path in sorted(CORE.glob("ato_*.c")):
+        function = None
+        for line in path.read_text().splitlines():
+            head = re.match(r"^[a-z_][\w \*]*?\b(\w+)\(", line)
+            if head and not line.startswith((" ", "\t", "#", "/")):
+                function = head.group(1)
+            if re.search(r"\b(malloc|calloc|realloc)\(", line):
+                callers.add((path.name, function))
+    assert callers and {f for _, f in callers} <= allowed, callers
