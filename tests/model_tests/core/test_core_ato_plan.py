@@ -865,3 +865,82 @@ def test_memory_is_allocated_only_at_set_up():
             if re.search(r"\b(malloc|calloc|realloc)\(", line):
                 callers.add((path.name, function))
     assert callers and {f for _, f in callers} <= allowed, callers
+
+
+def random_span(rng: random.Random):
+    """A span with random grades (to +-30 permille) and 1-4 limit zones (40-100 km/h), a car of
+    random mass and length; None if Python refuses it (check_span_for_car, the course, min_time)."""
+    from models.plant.track import GradeProfile
+
+    length = rng.uniform(1200.0, 4000.0)
+    stop = length - rng.uniform(0.0, 50.0)
+    n_g = rng.randint(2, 12)
+    gd = [0.0] + sorted(rng.uniform(10.0, length) for _ in range(n_g - 1))
+    gg = [rng.uniform(-30.0, 30.0) for _ in range(n_g)]
+    n_l = rng.randint(1, 4)
+    ld = [0.0] + sorted(rng.uniform(100.0, stop - 100.0) for _ in range(n_l - 1))
+    lv = [rng.uniform(40.0, 100.0) / 3.6 for _ in range(n_l)]
+    car = CarTraction(mass=rng.uniform(25.0, 45.0), length=rng.choice([0.0, rng.uniform(5.0, 40.0)]))
+    tuning = AtoTuning()
+    try:
+        span = Span(length, 1.0, stop, GradeProfile(tuple(gd), tuple(gg)), tuple(ld), tuple(lv))
+        check_span_for_car(span, car)
+        t_min = fastest_run(span, car, tuning)
+    except (ValueError, ArithmeticError) as e:
+        del e
+        return None
+    except Exception:             # _Stall: min_time lets it escape (the car cannot climb)
+        return None
+    return span.with_schedule(t_min * rng.uniform(1.02, 1.5)), car, tuning
+
+
+def test_plan_on_random_spans_is_python_s(lib):
+    """Spans beyond the library's (several lower-limit zones, steep grades, long cars): plan()
+    from 25 states each, compared in full."""
+    rng = random.Random(31)
+    done = 0
+    while done < 8:
+        made = random_span(rng)
+        if made is None:
+            continue
+        span, car, tuning = made
+        course, planner, configured = plan_setup(span, car, tuning)
+        reference = planner.plan(configured, 0.0, 0.0, 0.0, span.schedule)
+        planner = ReducedPlanner(course, tol=tuning.time_tol)
+        cp = CPlanner(lib, span, car, tuning)
+        try:
+            assert cp.status == 0, cp.msg
+            rc, t_min = cp.min_time()
+            assert rc == 0 and same(t_min, planner.min_time(configured))
+            pc = configured
+            for k, state in enumerate(plan_states(rng, span, reference, 25)):
+                if k % 4 == 3:
+                    pc = random_plancar(rng, car, tuning)
+                cp.set_car(pc)
+                bad, _ = compare_plan(cp, planner, pc, state, rng)
+                assert not bad, f"random span {done} state {k} {state}: {bad}"
+        finally:
+            cp.close()
+        done += 1
+
+
+def test_a_stalling_car_fails_as_in_python(lib):
+    """A resistance above the traction limit: plan() raises its ValueError (no holding speed
+    runs the rest of the span), min_time lets _Stall escape (C: RC_ATO_STALL, its str)."""
+    from models.ato.planner import _Stall
+
+    _, span, car, tuning = COURSES[0]
+    _, planner, _ = plan_setup(span, car, tuning)
+    heavy = PlanCar(car, 30.0, 200.0, car.A1, car.A2, tuning.brake_share)
+    cp = CPlanner(lib, span, car, tuning)
+    try:
+        cp.set_car(heavy)
+        rc, _, _ = cp.plan(500.0, 10.0, 30.0, 135.0)
+        assert rc != 0 and cp.error() == _python_error(lambda: planner.plan(heavy, 500.0, 10.0, 30.0, 135.0))
+        assert cp.error().startswith("no holding speed runs the rest of the span from s = 500.0 m")
+        with pytest.raises(_Stall) as e:
+            planner.min_time(heavy)
+        rc, _ = cp.min_time()
+        assert rc == 10 and cp.error() == str(e.value)        # RC_ATO_STALL
+    finally:
+        cp.close()
