@@ -529,7 +529,12 @@ class ReducedPlanner:
         schedule, computed by the same code."""
         qU = self.envelope(car) if qU is None else qU
         v_free = 4.0 * math.sqrt(max(qU))
-        return self._capped_run(car, 0.0, 0.0, 0.0, v_free, qU, self._stretches(qU))[0].t[-1]
+        try:
+            return self._capped_run(car, 0.0, 0.0, 0.0, v_free, qU, self._stretches(qU))[0].t[-1]
+        except _Stall as e:    # a climb beyond the traction: say where (it escaped as "1150.0")
+            raise ValueError(f"the span cannot be run: at full traction from rest the "
+                             f"{car.mass:.1f} t car comes to rest at s = {e.args[0]} m, before "
+                             f"span.stop = {self.c.stop} m (a climb beyond its traction)") from None
 
 
 def _solve(f, x0: float, dx: float, slope, lo: float, hi: float, xtol: float, ftol: float,

@@ -1036,9 +1036,15 @@ rc_status rc_ato_min_time(rc_ato_planner *p, const rc_ato_plancar *car, const do
     p->s0 = p->q0 = p->t0 = 0.0;
     double stall_at;
     if (capped_run(p, car, v_free, p->qU, &stall_at)) {
-        if (err)
-            rc_repr(stall_at, err->msg, RC_MSG_SIZE);      /* str(_Stall(b)) */
-        return RC_ATO_STALL;
+        if (err) {
+            char at[40], st[40];
+            rc_repr(stall_at, at, sizeof at);
+            rc_repr(p->c->stop, st, sizeof st);
+            say(err, "the span cannot be run: at full traction from rest the %.1f t car comes "
+                     "to rest at s = %s m, before span.stop = %s m (a climb beyond its traction)",
+                car->mass, at, st);
+        }
+        return RC_BAD_CONFIG;
     }
     *t_min = p->work->t[p->work->n - 1];
     return internal(p, RC_OK, err);

@@ -10,9 +10,7 @@
 
 #include "ato_motion.h"
 
-/* status codes beyond rc_status: _Stall (the car comes to rest before the stop mark) where
- * Python lets it escape (min_time), and a capacity the planner's own sizing should never miss */
-#define RC_ATO_STALL 10
+/* a status code beyond rc_status: a capacity the planner's own sizing should never miss */
 #define RC_ATO_INTERNAL 11
 
 enum { RC_ATO_PLAN_OK = 0, RC_ATO_PLAN_LATE = 1, RC_ATO_PLAN_EARLY = 2 };   /* ReducedPlan.status */

@@ -241,3 +241,14 @@ def test_bounds_are_the_documented_ones():
     assert (NOISE_SIGMA, RECOVERY_TIME, MAX_CALL_GAP, MASS_FACTOR, A0_MAX, MAX_GRID_NODES,
             CONSISTENCY_SLACK) == (6.0, 1.0, 10.0, 10.0, 1000.0, 10_000, 1.0)
 
+
+
+def test_a_climb_beyond_the_traction_is_refused_naming_where():
+    """A 150 permille climb from 500 m: the fastest run stalls, and the controller's construction
+    says so with the place (it raised a bare _Stall, '1150.0')."""
+    from models.plant.track import GradeProfile
+    span = Span(2200.0, 300.0, stop=2150.0, grade=GradeProfile((0.0, 500.0, 1400.0), (0.0, 150.0, 0.0)))
+    with pytest.raises(ValueError, match=r"^the span cannot be run: at full traction from rest the "
+                                         r"30\.0 t car comes to rest at s = 1150\.0 m, before "
+                                         r"span\.stop = 2150\.0 m"):
+        AtoController(span, CAR)
