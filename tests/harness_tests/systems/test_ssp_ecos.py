@@ -171,12 +171,11 @@ def test_the_parameter_sets_were_applied_and_the_car_moves(pe, pe_runs):
         run_ecos(unapplied, n_steps=2)
 
 
-def test_fmi3_natives_in_ecos_give_our_numbers(pe3, pe_runs):
-    """ecos loads our FMI 3 FMUs and gives the FMI 2 system's numbers; it cannot read an FMI 3
-    String back, which the result names."""
+def test_fmi3_natives_in_ecos_give_our_numbers(pe, pe3):
+    """ecos loads our FMI 3 FMUs and gives the FMI 2 system's numbers in ours; it cannot read an
+    FMI 3 String back, which the result names."""
     need_ecos("plant_estimator (FMI 3) in ecos")
-    ours, _ = pe_runs
-    ecos3 = run_ecos(pe3)
+    ours, ecos3 = run_system(pe), run_ecos(pe3)
     assert_close(ours, ecos3, exact_prefix="car.")
     assert ecos3.limits == ["component 'car' (FMI 3): String parameters track.grade_profile set but not "
                             "read back (ecos 0.7.2 reads an FMI 3 String as '')"]
@@ -260,7 +259,7 @@ def test_without_ecospy_or_libtbb_the_runner_says_what_to_install(pe, monkeypatc
 
 # ------------------------------------------------------------------------- the command line
 
-def test_compare_prints_the_three_masters(pe, pe_runs, capsys):
+def test_compare_prints_the_three_masters(pe, capsys):
     need_ecos("system compare with ecos")
     rows = compare_masters(read_ssp(pe), ("ours", "libcosim", "ecos"), stop_time=3.0)
     assert [r.master for r in rows] == ["ours", "libcosim", "ecos"]
@@ -281,3 +280,30 @@ def test_compare_names_a_master_that_refuses(pe3, capsys):
     out = capsys.readouterr().out
     assert "libcosim  no: " in out and "is an FMI 3.0 FMU; libcosim 0.11 runs FMI 2.0 only" in out
     assert "ecos: component 'car' (FMI 3): String parameters track.grade_profile set but not read back" in out
+
+
+def test_the_pythonfmu_ato_refusing_its_parameters_is_an_error(dist, tmp_path):
+    """An infeasible schedule: the AtoController fails exitInitializationMode, which ecos ignores;
+    the runner stops on the FMU's message."""
+    need_ecos("a pythonfmu FMU failing initialisation in ecos")
+    spec = load_system(SYSTEMS / "ato_span.toml", dist)
+    comps = [replace(c, parameters=dict(c.parameters, **{"span.schedule": 5.0})) if c.name == "ato" else c
+             for c in spec.components]
+    ssp = write_ssp(replace(spec, components=comps), tmp_path / "bad_ato.ssp")
+    with pytest.raises(MasterError, match=r"ato_span: component 'ato': error in initialisation in ecos .*"
+                                          r"span.schedule = 5.00 s is infeasible"):
+        run_ecos(ssp, n_steps=3)
+
+
+def test_a_crash_of_ecos_s_process_is_an_error_naming_the_signal(pe, tmp_path, monkeypatch):
+    """ecos's process dying on a signal (as its CLI does on a pythonfmu FMU: exit 139, no word) is a
+    MasterError, never an empty result: here a stand-in for the child that kills itself."""
+    need_ecos("a crash of ecos's process")
+    crash = tmp_path / "crash.sh"
+    crash.write_text("#!/bin/sh\necho '[2026-01-01 00:00:00.000] [ecos] [debug] Loading SSP'\nkill -SEGV $$\n")
+    crash.chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(crash))
+    with pytest.raises(MasterError) as e:
+        run_ecos(pe, n_steps=2)
+    assert e.value.message == "plant_estimator: ecos's process was killed by SIGSEGV loading the package"
+    assert e.value.log == ["[2026-01-01 00:00:00.000] [ecos] [debug] Loading SSP"]
