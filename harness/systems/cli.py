@@ -340,7 +340,8 @@ def format_comparison(system, rows: list[MasterComparison], shown=None) -> str:
     n = len(ref.time) - 1 if ref is not None else 0
     lines = [f"{system.path.name}: {n} steps of {system.spec.step!r} s, compared with our master "
              f"(harness.systems.master)",
-             f"{'master':<9} {'ran':<4} {'outputs':>7} {'same bits':>9} {'max |diff|':>10} {'max rel':>8}  worst output"]
+             f"{'master':<9} {'ran':<4} {'outputs':>7} {'same bits':>9} {'max |diff|':>10} "
+             f"{'max rel':>8}  worst output"]
     for r in rows:
         if r.result is None:
             lines.append(f"{r.master:<9} {'no:' if r.refused else 'FAILED:'} {r.error}")

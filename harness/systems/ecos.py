@@ -30,8 +30,9 @@ simulation.cpp, algorithm/fixed_step_algorithm.cpp) and checked here:
   returns before copying the values): the String parameters of an FMI 3 component are set, and
   the run says (EcosResult.limits) that they could not be read back.
 
-After initialisation every bound parameter is read back through ecos and must have the value in
-the package (the bits of a Real): that is the check that ecos applied the parameter sets.
+After initialisation every bound parameter (and bound input no connection drives) is read back
+through ecos and must have the value in the package (the bits of a Real): that is the check that
+ecos applied the parameter sets.
 Values are read through ecospy after every step, as doubles (ecos's CSV writer prints 6
 decimals); Real, Integer and Boolean outputs are observed (libcosim observes no Boolean).
 
@@ -57,7 +58,7 @@ import numpy as np
 
 from harness.systems.master import (MasterError, Result, check_outputs, default_outputs, report_failure,
                                     steps_for, time_grid)
-from harness.systems.ssp import PARAMETER_SET, LoadedSystem, SspError, packed_member, split_name, ssp_type, unit_of
+from harness.systems.ssp import PARAMETER_SET, LoadedSystem, SspError, split_name, ssp_type, unit_of
 from harness.systems.ssp_read import read_ssp, unpack_files
 
 __all__ = ["EcosMissing", "EcosResult", "ecos_unavailable", "run_ecos"]
@@ -229,11 +230,14 @@ def _check_parameters(system: LoadedSystem, data: dict, log: list[str]) -> list[
     """Every bound parameter, read back through ecos after initialisation, has its value in the
     package; the limits of that check (FMI 3 Strings) as sentences."""
     read_back = json.loads(str(data["parameters"]))
+    driven = {conn.end for conn in system.spec.connections}      # a connection sets these after the set
     limits = []
     for c in system.spec.components:
         fmi3 = system.models[c.name].fmiVersion.startswith("3")
         unread = []
         for pname, want in c.parameters.items():
+            if f"{c.name}.{pname}" in driven:
+                continue
             got = read_back[c.name].get(pname)
             typ = ssp_type(system.variable(f"{c.name}.{pname}"))
             if typ == "String" and fmi3:

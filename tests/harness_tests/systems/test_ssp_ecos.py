@@ -45,7 +45,7 @@ from conftest import ROOT
 from harness.systems.cli import build, build_system, compare_masters, load_system, main
 from harness.systems.ecos import EcosMissing, ecos_unavailable, run_ecos
 from harness.systems.master import MasterError, run_system
-from harness.systems.ssp import PARAMETER_SET, Component, SspError, write_ssp
+from harness.systems.ssp import PARAMETER_SET, SspError, write_ssp
 from harness.systems.ssp_read import read_ssp
 
 SYSTEMS = ROOT / "scenarios" / "systems"
