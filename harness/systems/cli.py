@@ -23,11 +23,18 @@ Command line (docs/systems.md):
 
     python -m harness system build scenarios/systems/ato_span.toml out/ato_span.ssp
     python -m harness system build scenarios/library/ato_nominal.toml out/ato_nominal.ssp [--fmu auto|native|python]
-    python -m harness system run out/ato_span.ssp [--master ours|libcosim] [--stop S] [--csv F]
+    python -m harness system run out/ato_span.ssp [--master ours|libcosim|ecos] [--stop S] [--csv F]
+        [--output Component.variable ...]
+    python -m harness system compare out/plant_estimator.ssp [--masters ours,libcosim,ecos] [--stop S]
         [--output Component.variable ...]
 
 ``run`` prints the last values and, for a system with an AtoController driving the car, the ATO
-metrics (harness.systems.ato_run).
+metrics (harness.systems.ato_run). ``compare`` runs the package in each master and prints, per
+master, how its table differs from our master's (``compare_masters``): the outputs compared, how
+many have the same bits at every time point, the largest differences, and the last values of
+``--output`` (default: the car's position and speed, the estimated mass); a master that refuses the
+package (a limit of that master: libcosim and FMI 3) or fails says why in its row; exit code 1 if
+one failed or is not installed.
 
 Every error in a description, also one found against the FMUs while building (an unknown
 variable, a unit mismatch), names the TOML file, the line where it can and the key
@@ -40,12 +47,14 @@ import argparse
 import re
 import sys
 import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from harness.systems.ssp import Component, Connection, PackedFile, SspError, SystemSpec, Where, write_ssp
 from harness.textio import InputError, read_text
 
-__all__ = ["load_system", "build", "build_system", "file_parameters", "main"]
+__all__ = ["load_system", "build", "build_system", "file_parameters", "compare_masters", "MasterComparison",
+           "format_comparison", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 DIST = ROOT / "dist"
@@ -241,9 +250,124 @@ def build_system(description: str | Path, out: str | Path, dist: str | Path = DI
     return write_ssp(spec, out, where)
 
 
+MASTERS = ("ours", "libcosim", "ecos")
+SHOWN_BY_DEFAULT = ("car.car.position", "car.car.speed", "est.est.mass", "car.est.mass")
+
+
+def run_in(master: str, system, stop_time: float | None = None, outputs=None):
+    """Run ``system`` in ``master`` (ours, libcosim in a child process, ecos in a child process):
+    harness.systems.master.Result."""
+    if master == "libcosim":                     # libcosim aborts its process when an FMU fails initialisation
+        from harness.systems.libcosim import run_libcosim
+        return run_libcosim(system, stop_time=stop_time, outputs=outputs, isolated=True)
+    if master == "ecos":
+        from harness.systems.ecos import run_ecos
+        return run_ecos(system, stop_time=stop_time, outputs=outputs)
+    from harness.systems.master import run_system
+    return run_system(system, stop_time=stop_time, outputs=outputs)
+
+
+@dataclass
+class MasterComparison:
+    """One master's table against the reference (our master's): ``result`` None and ``error`` the
+    reason when it did not run; ``compared`` the outputs in both tables; ``identical`` those with
+    the same bits (the same integers, booleans) at every time point; ``max_abs`` / ``max_rel`` the
+    largest |difference| of a Real output [its unit] and relative to max(1, |ours|), with
+    ``worst`` the output of max_rel; ``integer_diffs`` the non-Real outputs that differ."""
+    master: str
+    result: object = None
+    error: str = ""
+    compared: list = field(default_factory=list)
+    identical: list = field(default_factory=list)
+    max_abs: float = 0.0
+    max_rel: float = 0.0
+    worst: str = ""
+    integer_diffs: list = field(default_factory=list)
+    limits: list = field(default_factory=list)
+    refused: bool = False             # the master refused the package (SspError), did not fail
+
+
+def compare_results(reference, other, master: str) -> MasterComparison:
+    """How ``other`` (a Result) differs from ``reference`` on their common outputs; the times must
+    be the same grid (else AssertionError naming both)."""
+    import numpy as np
+    if len(reference.time) != len(other.time) or not np.array_equal(reference.time, other.time):
+        raise AssertionError(f"{master}: {len(other.time)} time points, the reference {len(reference.time)}")
+    c = MasterComparison(master, other, limits=list(getattr(other, "limits", [])))
+    for name, y in other.signals.items():
+        if name not in reference.signals:
+            continue
+        x = reference.signals[name]
+        c.compared.append(name)
+        if x.dtype.kind == "f":
+            same = np.array_equal(x.view(np.int64), np.ascontiguousarray(y, dtype=np.float64).view(np.int64))
+            d = np.abs(x - y)
+            rel = float(np.max(d / np.maximum(1.0, np.abs(x))))
+            c.max_abs = max(c.max_abs, float(np.max(d)))
+            if rel > c.max_rel:
+                c.max_rel, c.worst = rel, name
+        else:
+            same = np.array_equal(x, y)
+            if not same:
+                c.integer_diffs.append(name)
+        if same:
+            c.identical.append(name)
+    return c
+
+
+def compare_masters(system, masters=MASTERS, stop_time: float | None = None, outputs=None) -> list[MasterComparison]:
+    """Run ``system`` in every master of ``masters`` and compare each table with our master's
+    (which runs first, whether asked or not); a master that refuses or fails has its error."""
+    from harness.systems.master import MasterError
+    reference = run_in("ours", system, stop_time, outputs)
+    rows = []
+    for master in masters:
+        if master == "ours":
+            rows.append(compare_results(reference, reference, "ours"))
+            continue
+        try:
+            rows.append(compare_results(reference, run_in(master, system, stop_time, outputs), master))
+        except SspError as e:                    # this master cannot run such a package: a limit
+            rows.append(MasterComparison(master, error=str(e).splitlines()[0], refused=True))
+        except (MasterError, ImportError) as e:
+            rows.append(MasterComparison(master, error=str(e).splitlines()[0]))
+    return rows
+
+
+def format_comparison(system, rows: list[MasterComparison], shown=None) -> str:
+    """The table ``compare`` prints: one row per master, then the last values of ``shown``."""
+    ref = rows[0].result if rows and rows[0].result is not None else next((r.result for r in rows if r.result), None)
+    n = len(ref.time) - 1 if ref is not None else 0
+    lines = [f"{system.path.name}: {n} steps of {system.spec.step!r} s, compared with our master "
+             f"(harness.systems.master)",
+             f"{'master':<9} {'ran':<4} {'outputs':>7} {'same bits':>9} {'max |diff|':>10} "
+             f"{'max rel':>8}  worst output"]
+    for r in rows:
+        if r.result is None:
+            lines.append(f"{r.master:<9} {'no:' if r.refused else 'FAILED:'} {r.error}")
+            continue
+        lines.append(f"{r.master:<9} {'yes':<4} {len(r.compared):>7} {len(r.identical):>9} {r.max_abs:>10.1e} "
+                     f"{r.max_rel:>8.1e}  {r.worst or '-'}"
+                     + (f"; integers/booleans differ: {', '.join(r.integer_diffs)}" if r.integer_diffs else ""))
+    for r in rows:
+        for limit in r.limits:
+            lines.append(f"  {r.master}: {limit}")
+    ran = [r for r in rows if r.result is not None]
+    if shown is None:
+        shown = [o for o in SHOWN_BY_DEFAULT if ran and o in ran[0].result.signals]
+    if shown and ran:
+        width = max(len(o) for o in shown)
+        lines.append(f"last values (t = {float(ran[0].result.time[-1])!r} s):")
+        lines.append(f"  {'':<{width}}  " + "  ".join(f"{r.master:>22}" for r in ran))
+        for o in shown:
+            cells = [f"{r.result.signals[o][-1].item()!r:>22}" if o in r.result.signals else f"{'-':>22}" for r in ran]
+            lines.append(f"  {o:<{width}}  " + "  ".join(cells) + f"  {ran[0].result.units.get(o, '')}".rstrip())
+    return "\n".join(lines)
+
+
 def main(argv=None, prog: str = PROG) -> int:
     """``python -m harness system build|run ...``; the exit code."""
-    from harness.systems.master import MasterError, report_failure, run_system
+    from harness.systems.master import MasterError, report_failure
     p = argparse.ArgumentParser(prog=prog,
                                 description="Build an SSP system from a description, or run one.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -258,25 +382,42 @@ def main(argv=None, prog: str = PROG) -> int:
                         "reaches the car one step late (default: the ATO steps first, as in python -m harness run)")
     r = sub.add_parser("run", help="run an .ssp and print the last values (or write them all: --csv)")
     r.add_argument("ssp")
-    r.add_argument("--master", choices=("ours", "libcosim"), default="ours")
+    r.add_argument("--master", choices=MASTERS, default="ours")
     r.add_argument("--stop", type=float, default=None, help="stop time [s] (default: the file's)")
     r.add_argument("--output", action="append", default=None, help="Component.variable (repeatable)")
     r.add_argument("--csv", default=None, help="write every time point here, units in the header")
+    c = sub.add_parser("compare", help="run an .ssp in several masters and print how they differ from ours")
+    c.add_argument("ssp")
+    c.add_argument("--masters", default=",".join(MASTERS),
+                   help=f"comma-separated, of {', '.join(MASTERS)} (default all)")
+    c.add_argument("--stop", type=float, default=None, help="stop time [s] (default: the file's)")
+    c.add_argument("--output", action="append", default=None,
+                   help="Component.variable whose last value is shown (repeatable)")
     args = p.parse_args(argv)
     try:
         if args.command == "build":
             print(build(args.description, args.out, args.dist, args.fmu, args.jacobi))
             return 0
+        if args.command == "compare":
+            from harness.systems.ssp_read import read_ssp
+            masters = [m.strip() for m in args.masters.split(",") if m.strip()]
+            bad = [m for m in masters if m not in MASTERS]
+            if bad or not masters:
+                print(f"error: --masters {args.masters!r}: expected some of {', '.join(MASTERS)}", file=sys.stderr)
+                return 2
+            system = read_ssp(args.ssp)
+            if args.output:
+                for o in args.output:
+                    system.variable(o, f"--output {o}")
+            rows = compare_masters(system, masters, args.stop)
+            print(format_comparison(system, rows, args.output))
+            return 0 if all(r.result is not None or r.refused for r in rows) else 1
         from harness.systems.ato_run import metric_outputs, system_ato_metrics
         from harness.systems.ssp_read import read_ssp
         system = read_ssp(args.ssp)
         extra = metric_outputs(system)
         outputs = None if args.output is None else list(dict.fromkeys(args.output + extra))
-        if args.master == "libcosim":                # in a child process: libcosim aborts its
-            from harness.systems.libcosim import run_libcosim       # process when an FMU fails initialisation
-            result = run_libcosim(system, stop_time=args.stop, outputs=outputs, isolated=True)
-        else:
-            result = run_system(system, stop_time=args.stop, outputs=outputs)
+        result = run_in(args.master, system, args.stop, outputs)
         metrics = system_ato_metrics(system, result) if extra else None
     except (SspError, MasterError) as e:
         return report_failure(e)

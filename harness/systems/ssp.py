@@ -8,7 +8,8 @@ that nothing drives). ``write_ssp`` packs it as an SSP 1.0 archive that our own 
     SystemStructure.ssd        the system: components, their connectors (every input and output
                                of the FMU, with type and unit), connections, units, the step
     resources/<Name>.fmu       each component's FMU (its own file name)
-    resources/<Name>.ssv       each component's parameter set, bound by ssd:ParameterBinding
+    resources/<Name>.ssv       each component's parameter set, bound by ssd:ParameterBinding; every
+                               set has the one name PARAMETER_SET (below)
     resources/profiles/<file>  each profile file a parameter names (a ``PackedFile`` value): the
                                SSV holds this path, relative to the .ssd as SSP resolves a
                                relative URI; the masters hand the FMU the unpacked copy
@@ -24,6 +25,14 @@ an unknown component or variable, a type or unit that does not match the FMU, an
 a parameter, a missing FMU, malformed XML (the reader is harness.systems.ssp_read). Every error is an
 ``SspError`` naming the file, the element and the variable. fmpy's SSP reader (fmpy.ssp.ssd.read_ssd) validates the same file
 against the SSP 1.0 schema.
+
+Every component's parameter set is named PARAMETER_SET, so that the three masters apply them all.
+Ours and libcosim apply each component's bound set whatever its name. ecos (harness.systems.ecos)
+reads the same per-component bindings but gathers the sets BY NAME into system-wide sets
+(component, parameter) -> value, and applies the one set it is told to (``init(parameter_set=...)``,
+the CLI's ``--parameterSet``): sets named after their components (car, est) would be two sets of which
+ecos applies at most one. ecos reads no binding at the system level, so one system-wide .ssv would
+not do. The name is kept on read (LoadedSystem.parameter_sets) for the ecos runner to check.
 """
 from __future__ import annotations
 
@@ -38,7 +47,7 @@ from xml.etree import ElementTree as ET
 
 from harness.textio import InputError, did_you_mean
 
-__all__ = ["ORDER_ANNOTATION", "SSD_NAME", "PACKED_DIR", "PackedFile", "packed_member", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
+__all__ = ["PARAMETER_SET", "ORDER_ANNOTATION", "SSD_NAME", "PACKED_DIR", "PackedFile", "packed_member", "Component", "Connection", "LoadedSystem", "SspError", "SystemSpec", "Where",
            "write_ssp", "ssp_type", "unit_of", "split_name"]
 
 SSD_NAME = "SystemStructure.ssd"
@@ -49,6 +58,7 @@ NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "rc": "urn:railcar-fmu:ssp"}                       # our own annotation's elements
 OSP_ANNOTATION = "com.opensimulationplatform"
 ORDER_ANNOTATION = "org.railcar-fmu.master"       # our master's Gauss-Seidel step order
+PARAMETER_SET = "start_values"    # the name of every component's parameter set (ecos applies sets by name)
 TYPES = ("Real", "Integer", "Boolean", "String")
 PACKED_DIR = "resources/profiles/"                      # where a packed file lives in the .ssp
 NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")       # no dot: "Component.variable" splits at the first
@@ -130,6 +140,7 @@ class LoadedSystem:
     path: Path
     spec: SystemSpec
     models: dict                      # component name -> fmpy ModelDescription
+    parameter_sets: dict = field(default_factory=dict)   # component -> the name of its bound set
 
     def variable(self, full: str, what: str = ""):
         """The model variable of "Component.variable"; SspError naming ``what`` if unknown."""
@@ -356,7 +367,7 @@ def _units_of(md) -> dict:
 
 def _ssv(comp: Component, md) -> bytes:
     root = ET.Element("ssv:ParameterSet", {"xmlns:ssv": NS["ssv"], "xmlns:ssc": NS["ssc"],
-                                           "version": "1.0", "name": comp.name})
+                                           "version": "1.0", "name": PARAMETER_SET})
     params = ET.SubElement(root, "ssv:Parameters")
     units = {}
     for name, value in comp.parameters.items():

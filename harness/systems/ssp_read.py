@@ -57,11 +57,12 @@ def _connector_type(el, where: str) -> tuple[str, str]:
     raise SspError(f"{where}: no type (ssc:Real, ssc:Integer, ssc:Boolean, ssc:String)")
 
 
-def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
-    """(name, type, value text, unit) of each ssv:Parameter of an ssv:ParameterSet element."""
+def _parameter_set(el, where: str) -> tuple[str, list[tuple[str, str, str, str]]]:
+    """The set's name, and (name, type, value text, unit) of each ssv:Parameter of an
+    ssv:ParameterSet element."""
     if el.tag != _tag("ssv", "ParameterSet"):
         raise SspError(f"{where}: expected an ssv:ParameterSet, found <{_local(el.tag)}>")
-    _attr(el, "name", where)                      # libcosim needs it
+    set_name = _attr(el, "name", where)           # libcosim needs it; ecos applies sets by it
     out = []
     params = el.find("ssv:Parameters", NS)
     for p in (params if params is not None else []):
@@ -74,7 +75,7 @@ def _parameter_set(el, where: str) -> list[tuple[str, str, str, str]]:
         if value is None:
             raise SspError(f"{where}: parameter '{name}' has no value")
         out.append((name, _local(typed[0].tag), value, typed[0].get("unit", "")))
-    return out
+    return set_name, out
 
 
 def _step_order(root, where: str) -> tuple[str, ...]:
@@ -140,7 +141,7 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
         if system is None:
             raise SspError(f"{ssd_where}: no ssd:System")
         name = _attr(system, "name", ssd_where)
-        models, components, declared = {}, [], {}
+        models, components, declared, set_names = {}, [], {}, {}
         for el in system.iterfind("ssd:Elements/*", NS):
             if el.tag != _tag("ssd", "Component"):
                 raise SspError(f"{ssd_where}: element <{_local(el.tag)}> is not supported (ssd:Component only)")
@@ -165,14 +166,14 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                     if src not in names:
                         raise SspError(f"{cwhere}: parameter set '{src}' is not in the package")
                     swhere = f"{where}: {src}"
-                    entries = _parameter_set(_parse(z.read(src), swhere), swhere)
+                    set_names[cname], entries = _parameter_set(_parse(z.read(src), swhere), swhere)
                 else:
                     swhere = f"{cwhere}: inline parameter set"
                     sets = b.findall("ssd:ParameterValues/*", NS)
                     if len(sets) != 1:
                         raise SspError(f"{swhere}: expected one ssv:ParameterSet in ssd:ParameterValues, "
                                        f"found {len(sets)}")
-                    entries = _parameter_set(sets[0], swhere)
+                    set_names[cname], entries = _parameter_set(sets[0], swhere)
                 for pname, typ, text, unit in entries:
                     v = find_variable(md, cname, pname, f"{swhere}: parameter '{pname}'")
                     if ssp_type(v) != typ:
@@ -212,7 +213,7 @@ def read_ssp(path: str | Path, step: float | None = None) -> LoadedSystem:
                        f"baseStepSize); pass one")
     spec = check_system(SystemSpec(name, components, connections, step, start, stop,
                                    system.get("description", ""), order), models, ssd_where)
-    return LoadedSystem(path, spec, models)
+    return LoadedSystem(path, spec, models, set_names)
 
 
 def _check_packed(member: str, names: set, z: zipfile.ZipFile, where: str) -> None:
@@ -242,7 +243,7 @@ def unpack_files(system: LoadedSystem, folder: str | Path) -> LoadedSystem:
                         target.write_bytes(z.read(value))
                     params[name] = str(target)
             components.append(Component(c.name, c.fmu, params))
-    return LoadedSystem(system.path, replace(system.spec, components=tuple(components)), system.models)
+    return replace(system, spec=replace(system.spec, components=tuple(components)))
 
 
 def _check_connectors(el, md, cname: str, where: str) -> set[str]:
