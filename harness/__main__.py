@@ -355,7 +355,7 @@ def main(argv=None) -> int:
     _fmu_options(p)
     p.set_defaults(func=cmd_filters)
     sub.add_parser("system", help="build an SSP system (RailCar + AtoController, ...) from scenarios/systems/NAME.toml or a span scenario, "
-                   "or run an .ssp in our master or libcosim (python -m harness system -h)")
+                   "or run an .ssp in our master, libcosim or ecos and compare them (python -m harness system -h)")
     p = sub.add_parser("list", help="the scenarios, sweeps and systems that come with the harness, one line each")
     p.set_defaults(func=cmd_list)
     p = sub.add_parser("plan", help="write the nominal reference speed profile V_zad(X) of a scenario")
