@@ -202,6 +202,7 @@ def estimator_settings(v: dict) -> tuple[IdentifierConfig, FilterConfig, Station
         method=int(v["est.method"]), slope_window=int(v["est.slope_window"]),
         physical=int(v["est.physical"]), sigma2_method=int(v["est.sigma2_method"]),
         run_forgetting=v["est.run_forgetting"],
+        A0_drift_std=v["est.A0_drift_std"], A1_drift_std=v["est.A1_drift_std"],
         mass_initial=v["est.mass_initial"], mass_std_initial=v["est.mass_std_initial"],
         A0_initial=v["est.A0_initial"], A1_initial=v["est.A1_initial"], A2_initial=v["est.A2_initial"],
         A0_std_initial=v["est.A0_std_initial"], A1_std_initial=v["est.A1_std_initial"],

@@ -167,6 +167,8 @@ VARIABLES: tuple[Var, ...] = (
     Var("est.cov_A1_A2", "output", "Real", "(N/kN)2/(m/s)3", 0.0, "covariance of est.A1 and est.A2 (see est.cov_A0_A1)"),
     Var("car.traction_force_mean", "output", "Real", "N", 0.0, "the traction force averaged over the last sample interval, as the estimator was fed it (the plant's impulse over the interval / sensor.sample_period); 0 before the first interval ends. A log of it replays to est.* bit for bit", R),
     Var("car.brake_force_mean", "output", "Real", "N", 0.0, "the brake force averaged over the last sample interval, as the estimator was fed it (see car.traction_force_mean)", R),
+    Var("est.A0_drift_std", "parameter", "Real", "N/kN", 0.0, "est.method 0 and 2: the carried est.A0 may move by this much (std, a random walk) between runs, at each station stop: a wind Vw moves A0 by A2 Vw^2. Widens the stated covariance only (est.mass_std, est.A*_std, est.cov_*; the filter's model term follows it), not the identification's arithmetic (0 = none; studies/service_day.py uses 0.04 for its wind changes)", BOTH, min=0.0, max=10.0),
+    Var("est.A1_drift_std", "parameter", "Real", "N/kN/(m/s)", 0.0, "as est.A0_drift_std for est.A1 (a wind Vw moves A1 by 2 A2 Vw; studies/service_day.py uses 0.03)", BOTH, min=0.0, max=1.0),
 )
 
 

@@ -93,7 +93,8 @@ def _estimator_values(ic: IdentifierConfig, fc: FilterConfig) -> list[float]:
             int(ic.sigma2_method),
             fc.dt, fc.speed_std, fc.position_std, fc.position_std_rel, fc.gamma, int(fc.kind),
             fc.length, fc.singer_tau, fc.singer_p0, fc.singer_p_plus, fc.singer_p_minus,
-            fc.singer_w_max_plus, fc.singer_w_max_minus, fc.speed_std_rel]
+            fc.singer_w_max_plus, fc.singer_w_max_minus, fc.speed_std_rel,
+            ic.A0_drift_std, ic.A1_drift_std]   # added after the filter's: the indices before stay
 
 
 def _config_values(cfg: ChainConfig, start_time: float) -> list[float]:

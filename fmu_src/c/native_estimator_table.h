@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NES_NVARS 61
+#define NES_NVARS 63
 
 /* indexed by value reference */
 static const native_var NES_VARS[NES_NVARS] = {
@@ -71,12 +71,14 @@ static const native_var NES_VARS[NES_NVARS] = {
     /* 58 */ {"est.cov_A0_A1", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 59 */ {"est.cov_A0_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 60 */ {"est.cov_A1_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 61 */ {"est.A0_drift_std", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
+    /* 62 */ {"est.A1_drift_std", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
 };
 
 /* models/compiled.py CompiledEstimatorChain's configuration: index -> value reference of the parameter
  * it is, NATIVE_CONFIG_START_TIME (fmi2SetupExperiment's startTime) or
  * NATIVE_CONFIG_CONSTANT (NES_CONFIG_CONST[index]) */
-#define NES_NCONFIG 39
+#define NES_NCONFIG 41
 static const int NES_CONFIG_VR[NES_NCONFIG] = {
     /*  0 */ NATIVE_CONFIG_CONSTANT,   /* constant */
     /*  1 */ 16,   /* est.batch_size */
@@ -111,12 +113,14 @@ static const int NES_CONFIG_VR[NES_NCONFIG] = {
     /* 30 */ 38,   /* filter.singer_w_max_plus */
     /* 31 */ 39,   /* filter.singer_w_max_minus */
     /* 32 */ 57,   /* sensor.speed_std_rel */
-    /* 33 */ 15,   /* track.station_dwell */
-    /* 34 */ NATIVE_CONFIG_CONSTANT,   /* constant */
-    /* 35 */ NATIVE_CONFIG_CONSTANT,   /* constant */
-    /* 36 */ 9,   /* sensor.track_base */
-    /* 37 */ 10,   /* sensor.track_resolution */
-    /* 38 */ 11,   /* sensor.track_jitter */
+    /* 33 */ 61,   /* est.A0_drift_std */
+    /* 34 */ 62,   /* est.A1_drift_std */
+    /* 35 */ 15,   /* track.station_dwell */
+    /* 36 */ NATIVE_CONFIG_CONSTANT,   /* constant */
+    /* 37 */ NATIVE_CONFIG_CONSTANT,   /* constant */
+    /* 38 */ 9,   /* sensor.track_base */
+    /* 39 */ 10,   /* sensor.track_resolution */
+    /* 40 */ 11,   /* sensor.track_jitter */
 };
 static const double NES_CONFIG_CONST[NES_NCONFIG] = {
     /*  0 */ 0x1.999999999999ap-4 /* 0.1 */,
@@ -158,6 +162,8 @@ static const double NES_CONFIG_CONST[NES_NCONFIG] = {
     /* 36 */ 0.0,
     /* 37 */ 0.0,
     /* 38 */ 0.0,
+    /* 39 */ 0.0,
+    /* 40 */ 0.0,
 };
 
 /* the chain's do_step inputs: traction_force, brake_force, sensor.speed, sensor.position, sensor.track_speed, sensor.track_time */

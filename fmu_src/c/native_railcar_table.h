@@ -6,7 +6,7 @@
 
 #include "native_common.h"
 
-#define NRC_NVARS 90
+#define NRC_NVARS 92
 
 /* indexed by value reference */
 static const native_var NRC_VARS[NRC_NVARS] = {
@@ -100,12 +100,14 @@ static const native_var NRC_VARS[NRC_NVARS] = {
     /* 87 */ {"est.cov_A1_A2", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 88 */ {"car.traction_force_mean", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
     /* 89 */ {"car.brake_force_mean", GLUE_REAL, GLUE_OUTPUT, GLUE_CONTINUOUS, 0.0, NULL},
+    /* 90 */ {"est.A0_drift_std", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
+    /* 91 */ {"est.A1_drift_std", GLUE_REAL, GLUE_PARAMETER, GLUE_FIXED, 0.0, NULL},
 };
 
 /* models/compiled.py _config_values: index -> value reference of the parameter
  * it is, NATIVE_CONFIG_START_TIME (fmi2SetupExperiment's startTime) or
  * NATIVE_CONFIG_CONSTANT (NRC_CONFIG_CONST[index]) */
-#define NRC_NCONFIG 58
+#define NRC_NCONFIG 60
 static const int NRC_CONFIG_VR[NRC_NCONFIG] = {
     /*  0 */ 4,   /* car.mass */
     /*  1 */ 5,   /* car.A0 */
@@ -160,11 +162,13 @@ static const int NRC_CONFIG_VR[NRC_NCONFIG] = {
     /* 50 */ 53,   /* filter.singer_w_max_plus */
     /* 51 */ 54,   /* filter.singer_w_max_minus */
     /* 52 */ 84,   /* sensor.speed_std_rel */
-    /* 53 */ 19,   /* sensor.track_spacing */
-    /* 54 */ 24,   /* sensor.track_base */
-    /* 55 */ 25,   /* sensor.track_resolution */
-    /* 56 */ 26,   /* sensor.track_jitter */
-    /* 57 */ NATIVE_CONFIG_START_TIME,   /* start time */
+    /* 53 */ 90,   /* est.A0_drift_std */
+    /* 54 */ 91,   /* est.A1_drift_std */
+    /* 55 */ 19,   /* sensor.track_spacing */
+    /* 56 */ 24,   /* sensor.track_base */
+    /* 57 */ 25,   /* sensor.track_resolution */
+    /* 58 */ 26,   /* sensor.track_jitter */
+    /* 59 */ NATIVE_CONFIG_START_TIME,   /* start time */
 };
 static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {
     /*  0 */ 0.0,
@@ -225,6 +229,8 @@ static const double NRC_CONFIG_CONST[NRC_NCONFIG] = {
     /* 55 */ 0.0,
     /* 56 */ 0.0,
     /* 57 */ 0.0,
+    /* 58 */ 0.0,
+    /* 59 */ 0.0,
 };
 
 /* the chain's do_step inputs: traction_force_demand, brake_force_demand, wind_speed, car.payload */

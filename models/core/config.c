@@ -2,7 +2,8 @@
  * Python binding (models/_railcar.c) and C hosts (tests/core_cases/chain_driver.c) share. One
  * optional value may follow the configuration: est.slope_window, which est.method 2 needs (the
  * native FMUs append it after their flat configuration, fmu_src/c/native_common.c; without it
- * slope_window is 0). */
+ * slope_window is 0). est.A0_drift_std and est.A1_drift_std were added after the filter's numbers,
+ * so the fixed indices below (seed, batch_size, frozen, method, ..., filter.kind) stayed. */
 #include "rc_fp_contract.h"
 #include "railcar.h"
 
@@ -31,6 +32,7 @@ long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
         &c->filter.singer_tau, &c->filter.singer_p0, &c->filter.singer_p_plus,
         &c->filter.singer_p_minus, &c->filter.singer_w_max_plus, &c->filter.singer_w_max_minus,
         &c->filter.speed_std_rel,
+        &c->identifier.A0_drift_std, &c->identifier.A1_drift_std,   /* appended (models/compiled.py) */
         &c->track_spacing, &c->track_base, &c->track_resolution, &c->track_jitter,
         &c->start_time,
     };
@@ -67,6 +69,7 @@ long rc_estchain_config_from_values(rc_estchain_config *c, const double *v, long
         &c->filter.singer_tau, &c->filter.singer_p0, &c->filter.singer_p_plus,
         &c->filter.singer_p_minus, &c->filter.singer_w_max_plus, &c->filter.singer_w_max_minus,
         &c->filter.speed_std_rel,
+        &c->identifier.A0_drift_std, &c->identifier.A1_drift_std,   /* appended (models/compiled.py) */
         &c->station.dwell, &c->station.speed_threshold, &c->station.position_threshold,
         &c->track_base, &c->track_resolution, &c->track_jitter,
     };

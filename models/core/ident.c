@@ -106,6 +106,9 @@ int rc_ident_init_rows(rc_ident *id, const rc_ident_config *cfg, long slope_wind
         free(buf);
     }
     id->end_weight = sqrt(0.5 * id->end_factor);
+    id->drift_var[0] = cfg->A0_drift_std * cfg->A0_drift_std;
+    id->drift_var[1] = cfg->A1_drift_std * cfg->A1_drift_std;
+    id->drift = cfg->A0_drift_std > 0.0 || cfg->A1_drift_std > 0.0;
     id->theta0[0] = 1.0 / (RC_G * cfg->mass_initial);      /* theta_from_params */
     id->theta0[1] = cfg->A0_initial;
     id->theta0[2] = cfg->A1_initial;
@@ -156,6 +159,7 @@ void rc_ident_reset(rc_ident *id)
     id->repairs = 0;
     memset(id->W, 0, sizeof id->W);
     memset(id->D, 0, sizeof id->D);
+    memset(id->Dq, 0, sizeof id->Dq);
     id->has_last_phi = 0;
     memset(id->last_phi, 0, sizeof id->last_phi);
     id->rows_len = 0;
@@ -259,6 +263,11 @@ static void accumulate_slope(rc_ident *id, const double *phi, int contiguous)
 static void accumulate(rc_ident *id, const double *phi, int contiguous, double lam)
 {
     double *D = id->D, u[4];
+    if (id->drift && lam < 1.0) {                      /* the drift meat forgets with them */
+        double l2 = lam * lam;
+        for (int i = 0; i < 16; i++)
+            id->Dq[i] *= l2;
+    }
     forget_meats(id->W, D, lam);
     if (id->slope_rows)
         accumulate_slope(id, phi, contiguous);
@@ -538,6 +547,23 @@ static void marginalise_mass(double *R, double lam, const double *j0)
 
 static double process_share(const rc_ident *id, double a, double b);
 
+/* drift_meat: M plus Jc diag(drift_var) Jc in its A block, Jc = info's A block symmetrised,
+ * times info_scale, less the prior's j0 */
+static void drift_meat(double *M, const double *info, double info_scale, const double *j0,
+                       const double *drift_var)
+{
+    double Jc[9];
+    for (int i = 1; i < 4; i++)
+        for (int j = 1; j < 4; j++) {
+            double d = i == j ? j0[i] : 0.0;
+            Jc[3 * (i - 1) + j - 1] = 0.5 * (info[4 * i + j] + info[4 * j + i]) * info_scale - d;
+        }
+    double v0 = drift_var[0], v1 = drift_var[1];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            M[4 * (i + 1) + j + 1] += (Jc[3 * i] * Jc[3 * j]) * v0 + (Jc[3 * i + 1] * Jc[3 * j + 1]) * v1;
+}
+
 /* _reweight_prior (est.method 2, at a mass restart): the prior's weight follows the identified
  * process noise once the LAG sums exist; J and Theta-hat move with it */
 static int reweight_prior(rc_ident *id)
@@ -607,8 +633,8 @@ int rc_ident_restart_mass(rc_ident *id)
     for (int i = 1; i < 4; i++)
         t[i - 1] = R[4 * i] / R[0];
     id->cL_count *= lam;                               /* the LAG sums forget with the A's */
-    double *meats[2] = {id->W, id->D};
-    for (int m = 0; m < 2; m++) {
+    double *meats[3] = {id->W, id->D, id->Dq};
+    for (int m = 0; m < (id->drift ? 3 : 2); m++) {
         double *M = meats[m], M_AA[9];
         double m00 = M[0];
         for (int i = 1; i < 4; i++)
@@ -631,6 +657,12 @@ int rc_ident_restart_mass(rc_ident *id)
         st = RC_MATH;
     if (id->has_J)
         marginalise_mass(id->J, lam, id->j0);
+    if (id->drift) {                   /* the carried A's drift: see identification.py */
+        if (id->has_J)
+            drift_meat(id->Dq, id->J, 1.0, id->j0, id->drift_var);
+        else
+            drift_meat(id->Dq, R, ni, id->j0, id->drift_var);
+    }
     id->has_last_phi = 0;
     id->has_cov = 0;
     return st;
@@ -719,6 +751,15 @@ const double *rc_ident_covariance(rc_ident *id)
             Ji[i] = id->S[i] * k;
     }
     sandwich(id, Ji, a, b, id->j0, id->s2_prior, id->cov);
+    if (id->drift) {                   /* drift_covariance: J^-1 symmetrised, then its sandwich */
+        double Js[16], c[16];
+        for (int i = 0; i < 4; i++)
+            for (int j = 0; j < 4; j++)
+                Js[4 * i + j] = 0.5 * (Ji[4 * i + j] + Ji[4 * j + i]);
+        sandwich4(Js, id->Dq, c);
+        for (int i = 0; i < 16; i++)
+            id->cov[i] = id->cov[i] + c[i];
+    }
     return id->cov;
 }
 

@@ -4,7 +4,8 @@
  * reweighting at a mass restart): the first batch with its prior, the
  * running estimate before it, the recursive step (8), (9), (11) with mu = 1/n or a constant
  * forgetting mu0 (J kept), the sandwich covariance, sigma^2 from LAG sums, the mass restart at a
- * station (with est.run_forgetting) and the positive-definiteness repair. The rare paths use
+ * station (with est.run_forgetting and the carried A's drift, est.A0_drift_std / est.A1_drift_std)
+ * and the positive-definiteness repair. The rare paths use
  * linalg4.c, the twin of models/linalg4.py, so every number is bit-identical to the Python.
  *
  * Where Python raises (a singular matrix: SingularMatrixError; a division by zero; sqrt of a
@@ -32,6 +33,8 @@ typedef struct {               /* models.estimation.identification.IdentifierCon
     int frozen;                /* bool */
     double run_forgetting;     /* [0, 1) */
     double speed_std_rel;      /* [-]: sensor.speed_std_rel (set by rc_estimator_init) */
+    double A0_drift_std;       /* [N/kN per stop], est.method 0 and 2 (validate.c) */
+    double A1_drift_std;       /* [N/kN/(m/s) per stop] */
 } rc_ident_config;
 
 typedef struct {               /* models.estimation.identification.ParameterIdentifier */
@@ -53,6 +56,7 @@ typedef struct {               /* models.estimation.identification.ParameterIden
     long batch_len;
     long mass_restarts, repairs;
     double W[16], D[16];
+    int drift;  double drift_var[2], Dq[16];   /* _drift, _drift_var, the drift meat _Dq */
     int has_last_phi;  double last_phi[4];
     double rows[4 * RC_MAX_SLOPE_WINDOW];  long rows_len, rows_next;   /* _rows, a ring */
     double row_scale, last_scale;      /* _row_scale, _last_scale */

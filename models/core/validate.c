@@ -130,13 +130,24 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
         {"est.A2_std_initial", "must be in [1e-9, 1e8] N/kN/(m/s)^2", 1e-9, 1e8},
         {"est.sigma2_initial", "must be in [1e-20, 1] (m/s)^2 per sample", 1e-20, 1.0},
         {"est.gamma", "must be in [0, 1]", 0.0, 1.0},
+        {"est.A0_drift_std", "must be in [0, 10] N/kN per stop", 0.0, 10.0},
+        {"est.A1_drift_std", "must be in [0, 1] N/kN/(m/s) per stop", 0.0, 1.0},
     };
     const double bv[] = {c->mass_initial, c->mass_std_initial, c->A0_initial, c->A1_initial,
                          c->A2_initial, c->A0_std_initial, c->A1_std_initial, c->A2_std_initial,
-                         c->sigma2_initial, c->gamma};
+                         c->sigma2_initial, c->gamma, c->A0_drift_std, c->A1_drift_std};
     for (size_t k = 0; k < sizeof bv / sizeof bv[0]; k++)
         if (!(bounds[k].low <= bv[k] && bv[k] <= bounds[k].high))
             return refuse_value(err, bounds[k].name, bounds[k].rule, bv[k]);
+    /* identification.DRIFT_METHODS: the LS's own carried A's */
+    if ((c->A0_drift_std != 0.0 || c->A1_drift_std != 0.0) && method != 0 && method != 2) {
+        char q0[40], q1[40];
+        rc_repr(c->A0_drift_std, q0, sizeof q0);
+        rc_repr(c->A1_drift_std, q1, sizeof q1);
+        return refuse(err, "est.A0_drift_std and est.A1_drift_std apply to est.method 0 and 2 (the "
+                           "LS's carried A's), got est.A0_drift_std = %s, est.A1_drift_std = %s "
+                           "with est.method %d", q0, q1, method);
+    }
     if (c->batch_size > MAX_BATCH_SIZE)
         return refuse(err, "est.batch_size must be <= %ld (the first batch is held in memory "
                            "until solved), got %ld", MAX_BATCH_SIZE, c->batch_size);

@@ -45,7 +45,7 @@ import numpy as np
 from models import linalg4
 from models.estimation.differentiation import centred_slope_weights
 from models.estimation.least_squares import (
-    LAG, accumulate_meats, batch_ls, forget_meats, batch_residuals, end_row, marginalise_mass, marginalise_meat,
+    LAG, accumulate_meats, batch_ls, drift_covariance, drift_meat, forget_meats, batch_residuals, end_row, marginalise_mass, marginalise_meat,
     mass_from_theta, meat, noise_split_lag1, plus_outer, positive_definite_S, process_share_lag,
     quadratic4, regression_target, regressor, regularised_forgetting, residual_variance, rls_step,
     sandwich, sigma2_from_residual, slope_end_terms, slope_noise_weight, theta_from_params,
@@ -128,6 +128,8 @@ PRIOR_BOUNDS = (
     ("A2_std_initial", 1e-9, 1e8, "[1e-9, 1e8] N/kN/(m/s)^2"),
     ("sigma2_initial", 1e-20, 1.0, "[1e-20, 1] (m/s)^2 per sample"),
     ("gamma", 0.0, 1.0, "[0, 1]"),
+    ("A0_drift_std", 0.0, 10.0, "[0, 10] N/kN per stop"),
+    ("A1_drift_std", 0.0, 1.0, "[0, 1] N/kN/(m/s) per stop"),
 )
 """(IdentifierConfig field, lowest, highest, the rule as the refusal states it): the priors a run
 stays alive with. Beyond them the arithmetic leaves the doubles (est.sigma2_initial = 1e300 or
@@ -135,7 +137,14 @@ est.mass_std_initial = 1e-300 overflowed the prior's weight and the filter then 
 measurement, stuck at 0 m/s while the car ran at 17 m/s) or the prior is no car's (a mass of
 1e4 t for a 39 t car: the filter 10 m/s off; A's of 1e4 N/kN: 962 m/s). At each bound,
 station_day keeps every output finite and the filter on the car
-(tests/model_tests/estimation/test_prior_bounds.py); C twin: models/core/validate.c."""
+(tests/model_tests/estimation/test_prior_bounds.py); C twin: models/core/validate.c. The A's
+drift per stop (est.A0_drift_std, est.A1_drift_std) is bounded at 5-10x the prior's default std
+of each: a random walk that large per stop says the carried A's are worth nothing, which
+est.run_forgetting says better."""
+DRIFT_METHODS = (0, 2)
+"""est.method values whose stated covariance takes the A's drift (est.A0_drift_std,
+est.A1_drift_std): the LS's own carried A's. Methods 1 and 3 carry their A's elsewhere
+(ResistanceCarryOver, the coasting EKF) and refuse a nonzero drift."""
 MAX_BATCH_SIZE = 100000    # est.batch_size: rows held until the first solve (3.2 MB in C)
 MAX_SLOPE_WINDOW = 1000    # est.slope_window: samples per slope fit (100 s at 0.1 s)
 
@@ -186,6 +195,9 @@ class IdentifierConfig:
                                      # forgotten at each station stop, in [0, 1)
     sigma2_method: int = 0           # est.sigma2_method: 0 LAG sums of the LS residuals (sigma2()),
                                      # 1 innovation likelihood (models.filtering.motion_filter.ProcessNoiseBank)
+    A0_drift_std: float = 0.0        # est.A0_drift_std [N/kN per stop]: random walk of the carried
+    A1_drift_std: float = 0.0        # A0, A1 (est.A1_drift_std [N/kN/(m/s) per stop]) at each station
+                                     # stop, in their stated covariance only (restart_mass)
 
     def validate(self) -> None:
         """Raise ValueError naming the first invalid setting."""
@@ -218,6 +230,10 @@ class IdentifierConfig:
             v = getattr(self, name)
             if not low <= v <= high:
                 raise ValueError(f"est.{name} must be in {rule}, got {v}")
+        if (self.A0_drift_std or self.A1_drift_std) and int(self.method) not in DRIFT_METHODS:
+            raise ValueError(f"est.A0_drift_std and est.A1_drift_std apply to est.method 0 and 2 (the "
+                             f"LS's carried A's), got est.A0_drift_std = {self.A0_drift_std}, "
+                             f"est.A1_drift_std = {self.A1_drift_std} with est.method {int(self.method)}")
         if int(self.batch_size) > MAX_BATCH_SIZE:
             raise ValueError(f"est.batch_size must be <= {MAX_BATCH_SIZE} (the first batch is held "
                              f"in memory until solved), got {self.batch_size}")
@@ -248,6 +264,9 @@ class ParameterIdentifier:
         # slope weights times the step (D's terms, _accumulate)
         self._k = ([w * cfg.dt for w in centred_slope_weights([cfg.dt] * (int(cfg.slope_window) - 1))[0]]
                    if self._slope_rows else None)
+        # the carried A0, A1's random walk per stop (restart_mass, drift_meat): variances
+        self._drift_var = (cfg.A0_drift_std * cfg.A0_drift_std, cfg.A1_drift_std * cfg.A1_drift_std)
+        self._drift = cfg.A0_drift_std > 0.0 or cfg.A1_drift_std > 0.0
         self.theta0 = theta_from_params(cfg.mass_initial, cfg.A0_initial, cfg.A1_initial,
                                         cfg.A2_initial)
         self._scale = 1000.0 * (1.0 + cfg.gamma) / (G * cfg.dt)   # y per (m/s) of speed change
@@ -300,6 +319,7 @@ class ParameterIdentifier:
         # (closed runs; the open run's end is _last_phi), lag-0/lag-1 residual autocovariance
         self._W = [0.0] * 16
         self._D = [0.0] * 16
+        self._Dq = [0.0] * 16         # the carried A's drift (est.A*_drift_std; restart_mass)
         self._last_phi = None
         self._rows: list = []         # est.method 2: the open run's last slope_window rows
         self._row_scale = 1.0         # and the std of this row's speed error in y units [N/kN]
@@ -347,6 +367,11 @@ class ParameterIdentifier:
         return np.array(self._D).reshape(4, 4)
 
     @property
+    def Dq(self) -> np.ndarray:
+        """The carried A's drift meat (est.A0_drift_std, est.A1_drift_std; restart_mass)."""
+        return np.array(self._Dq).reshape(4, 4)
+
+    @property
     def samples(self) -> int:
         """Sample pairs used so far (including those waiting for the first batch)."""
         return self.n if self._S is not None else len(self._batch_y)
@@ -359,7 +384,11 @@ class ParameterIdentifier:
     # ------------------------------------------------------------ updates
 
     def _accumulate(self, phi, contiguous: bool, lam: float) -> None:
-        """Add one regressor to W and D (weights of exponential forgetting lam = 1 - mu0)."""
+        """Add one regressor to W and D (weights of exponential forgetting lam = 1 - mu0; the
+        drift meat Dq forgets with them)."""
+        if self._drift and lam < 1.0:
+            l2 = lam * lam
+            self._Dq = [x * l2 for x in self._Dq]
         if self._slope_rows:
             self._accumulate_slope(phi, contiguous, lam)
         else:
@@ -572,9 +601,24 @@ class ParameterIdentifier:
         self._W = marginalise_meat(self._W, t, lam)
         self._D = marginalise_meat(self._D, t, lam)
         n_info = self._n_info()
-        self._S = linalg4.inverse(marginalise_mass(R, lam, [x / n_info for x in self._j0]))
+        R = marginalise_mass(R, lam, [x / n_info for x in self._j0])
+        self._S = linalg4.inverse(R)
         if self._J is not None:
             self._J = marginalise_mass(self._J, lam, self._j0)
+        if self._drift:
+            # est.A0_drift_std, est.A1_drift_std: the carried A's may have moved since their data
+            # were taken (a wind change moves A0' = A0 + A2 Vw^2, A1' = A1 + 2 A2 Vw), a random
+            # walk per stop. Multiplicative forgetting cannot say that: it grows a small
+            # covariance by 1/lam, while a change of the wind moves the A's by a fixed amount
+            # (studies/service_day.py: in a run after a wind change the carried A's were ~7x
+            # their stated std from the truth, and a long cruise, which cannot tell the mass from
+            # A0, stated the mass 3-5 sigma off). The estimate is unchanged; the drift meat Dq
+            # (marginalised and forgotten with W and D, as the A's are) gains Jc Q Jc.
+            self._Dq = marginalise_meat(self._Dq, t, lam)
+            if self._J is not None:
+                self._Dq = drift_meat(self._Dq, self._J, 1.0, self._j0, self._drift_var)
+            else:
+                self._Dq = drift_meat(self._Dq, R, n_info, self._j0, self._drift_var)
         self._last_phi = None
         self._cov = None
 
@@ -652,8 +696,11 @@ class ParameterIdentifier:
         else:                                    # mu = 1/n: J = n R, so J^-1 = S / n exactly
             k = 1.0 / self._n_info()
             Ji = [x * k for x in self._S]
-        self._cov = self._sandwich(Ji, a, b, j0, self.s2_prior)
-        return self._cov
+        cov = self._sandwich(Ji, a, b, j0, self.s2_prior)
+        if self._drift:
+            cov = drift_covariance(cov, Ji, self._Dq)
+        self._cov = cov
+        return cov
 
     def _sandwich(self, Ji: list, a: float, b: float, j0: list, s2: list) -> list[float]:
         """J^-1 M J^-1 with M = a D + b W (+ the open run's end) + diag(s2) J0 (see covariance);

@@ -332,6 +332,38 @@ def marginalise_mass(R, lam: float, j0) -> list[float]:
     return R
 
 
+def drift_meat(M, info, info_scale: float, j0, drift_var) -> list[float]:
+    """M plus Jc diag(drift_var) Jc in its A block: the score's covariance from a random walk
+    eps ~ N(0, diag(drift_var)) of the carried A0, A1 since their data were taken (a wind
+    change moves A0 by A2 Vw^2 and A1 by 2 A2 Vw). Jc is the data's information on the A's as
+    carried, info's A block (info_scale times it is J: n_info for R, 1 for J) symmetrised, the
+    prior's j0 left out (the prior's std covers the truth's range already); the estimate's error
+    gains J^-1 Jc eps. drift_var = (q0^2, q1^2) [(N/kN)^2, (N/kN/(m/s))^2]: A2 does not drift.
+    Each entry (Jc_i0 Jc_j0) q0^2 + (Jc_i1 Jc_j1) q1^2, so the added block is exactly
+    symmetric."""
+    Jc = []
+    for i in (1, 2, 3):
+        for j in (1, 2, 3):
+            d = j0[i] if i == j else 0.0
+            Jc.append(0.5 * (info[4 * i + j] + info[4 * j + i]) * info_scale - d)
+    v0, v1 = drift_var
+    M = list(M)
+    for i in range(3):
+        for j in range(3):
+            M[4 * (i + 1) + j + 1] += (Jc[3 * i] * Jc[3 * j]) * v0 + (Jc[3 * i + 1] * Jc[3 * j + 1]) * v1
+    return M
+
+
+def drift_covariance(cov, Ji, Dq) -> list[float]:
+    """cov plus J^-1 Dq J^-1 for the drift meat Dq (drift_meat), with J^-1 symmetrised first:
+    R from the recursive steps is ~30 % asymmetric in its mass-A terms after a day, and
+    ``sandwich`` reads one triangle, which cancelled the mass's share of Dq to nothing (its std
+    went to 0 on a service day in the first try)."""
+    Js = [0.5 * (Ji[4 * i + j] + Ji[4 * j + i]) for i in range(4) for j in range(4)]
+    c = sandwich(Js, Dq)
+    return [x + y for x, y in zip(cov, c)]
+
+
 def positive_definite_S(S, floor: float) -> list[float]:
     """S with R = S^-1 made positive definite: R symmetrised, its eigenvalues lifted to at least
     ``floor`` (Jacobi, linalg4.eigh), S = V diag(w)^-1 V^T."""

@@ -7,11 +7,12 @@
 #include "linalg4.h"
 
 /* c: dt, batch_size, forgetting, gamma, mass_initial, mass_std_initial, A0, A1, A2, A0_std,
- * A1_std, A2_std, sigma2_initial, speed_std, frozen, run_forgetting, speed_std_rel */
+ * A1_std, A2_std, sigma2_initial, speed_std, frozen, run_forgetting, speed_std_rel, A0_drift_std,
+ * A1_drift_std */
 rc_ident *shim_new(const double *c)
 {
     rc_ident_config cfg = {c[0], (long)c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9],
-                           c[10], c[11], c[12], c[13], (int)c[14], c[15], c[16]};
+                           c[10], c[11], c[12], c[13], (int)c[14], c[15], c[16], c[17], c[18]};
     rc_ident *id = malloc(sizeof *id);
     if (!id)
         return NULL;
@@ -96,6 +97,7 @@ long shim_state(const rc_ident *id, double *o)
     s = put1(s, (double)id->n_cL);
     s = put1(s, id->has_J);
     s = put(s, id->J, 16, id->has_J);
+    s = put(s, id->Dq, 16, 1);
     return (long)(s - o);
 }
 

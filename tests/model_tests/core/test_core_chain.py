@@ -107,6 +107,8 @@ def test_library_scenario_bit_identical(path):
 VARIANTS = {
     "forgetting": {"est.forgetting": 0.002},
     "run_forgetting": {"est.run_forgetting": 0.3},
+    "run_forgetting_and_drift": {"est.run_forgetting": 0.3, "est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03},
+    "forgetting_and_drift": {"est.forgetting": 0.002, "est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03},
     "car_length_and_odometry_drift": {"car.length": 60.0, "sensor.position_std_rel": 0.01},
     "relative_speed_noise": {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01},
     "singer_relative_speed_noise": {"filter.kind": 4, "sensor.speed_std_rel": 0.02,
@@ -146,6 +148,9 @@ def test_library_scenario_with_slope_ls_bit_identical(path):
 SLOPE_VARIANTS = {
     "forgetting": ("station_day", {"est.forgetting": 0.002}),
     "run_forgetting": ("station_day", {"est.run_forgetting": 0.3}),
+    "drift": ("station_day", {"est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03}),
+    "drift_A1_forgetting": ("station_day", {"est.A1_drift_std": 0.03, "est.forgetting": 0.002,
+                                            "est.run_forgetting": 0.3}),
     "shortest_window": ("station_day", {"est.slope_window": 2}),
     "window_6_small_batch": ("station_day", {"est.slope_window": 6, "est.batch_size": 4}),
     "long_window_noisy": ("etcs_noisy_sensors", {"est.slope_window": 25}),
@@ -193,6 +198,8 @@ def test_library_scenario_with_the_likelihood_bank_bit_identical(path):
 
 LIKELIHOOD_VARIANTS = {
     "slopes_physical": ("station_day", {**SLOPE_LS, **PHYSICAL}),
+    "slopes_physical_drift": ("station_day", {**SLOPE_LS, **PHYSICAL, "est.run_forgetting": 0.3,
+                                              "est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03}),
     "relative_speed_noise": ("steep_grades", {"sensor.speed_std_rel": 0.02, "sensor.speed_std": 0.01}),
     "singer_slopes_relative_noise": ("steep_grades", {**SLOPE_LS, "filter.kind": 4,
                                                       "sensor.speed_std_rel": 0.02}),

@@ -30,17 +30,18 @@ SHIM = ROOT / "tests" / "core_cases" / "ident_shim.c"
 SOURCES = [CORE / "ident.c", CORE / "linalg4.c", CORE / "fpmath.c"]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 LAG = ParameterIdentifier.LAG
-N_STATE = 4 + 2 + 4 + 4 + 4 + 4 + 1 + 4 + 16 + 4 + 4 + 1 + 16 + 6 + 16 + 16 + 1 + 4 + 2 + 4 + LAG + 5 + 16
+N_STATE = 4 + 2 + 4 + 4 + 4 + 4 + 1 + 4 + 16 + 4 + 4 + 1 + 16 + 6 + 16 + 16 + 1 + 4 + 2 + 4 + LAG + 5 + 16 + 16
 N_OUT = 4 + 16 + 1 + 16 + 4 + 4 + 2
 D = ctypes.POINTER(ctypes.c_double)
 
 
-@pytest.fixture(scope="module")
-def lib(tmp_path_factory):
+def build_lib(directory: Path, sources=SOURCES):
+    """The shim and ``sources`` (ident.c, linalg4.c, fpmath.c or a mutated copy) as a ctypes
+    library."""
     gcc = shutil.which("gcc")
     assert gcc, "gcc is needed to build the C core"
-    so = tmp_path_factory.mktemp("core") / "libident.so"
-    subprocess.run([gcc, *FLAGS, "-fPIC", "-shared", f"-I{CORE}", str(SHIM), *map(str, SOURCES),
+    so = directory / "libident.so"
+    subprocess.run([gcc, *FLAGS, "-fPIC", "-shared", f"-I{CORE}", str(SHIM), *map(str, sources),
                     "-o", str(so), "-lm"], check=True, capture_output=True, text=True)
     dll = ctypes.CDLL(str(so))
     dll.shim_new.argtypes = [D]
@@ -64,6 +65,11 @@ def lib(tmp_path_factory):
     return dll
 
 
+@pytest.fixture(scope="module")
+def lib(tmp_path_factory):
+    return build_lib(tmp_path_factory.mktemp("core"))
+
+
 def arr(values):
     values = [float(x) for x in values]
     return (ctypes.c_double * max(len(values), 1))(*values)
@@ -79,7 +85,7 @@ class CIdent:
         c = [cfg.dt, cfg.batch_size, cfg.forgetting, cfg.gamma, cfg.mass_initial, cfg.mass_std_initial,
              cfg.A0_initial, cfg.A1_initial, cfg.A2_initial, cfg.A0_std_initial, cfg.A1_std_initial,
              cfg.A2_std_initial, cfg.sigma2_initial, cfg.speed_std, float(cfg.frozen), cfg.run_forgetting,
-             cfg.speed_std_rel]
+             cfg.speed_std_rel, cfg.A0_drift_std, cfg.A1_drift_std]
         self.ptr = lib.shim_new(arr(c))
         assert self.ptr
 
@@ -116,6 +122,7 @@ def py_state(p: ParameterIdentifier) -> list[float]:
     s += [p.c0, p.c1, p._n_c1, len(p._window)] + list(p._window) + [0.0] * (LAG - len(p._window))
     s += [p._window_sum, p.cL is not None, 0.0 if p.cL is None else p.cL, p._n_cL]
     s += [p._J is not None] + opt(p._J, 16)
+    s += list(p._Dq)
     assert len(s) == N_STATE
     return [float(x) for x in s]
 
@@ -252,6 +259,10 @@ CASES = {
     "frozen": dict(frozen=True),
     "no speed noise stated": dict(speed_std=0.0, batch_size=20, sigma2_initial=3e-5),
     "relative speed noise": dict(speed_std=0.01, speed_std_rel=0.01),
+    "drift": dict(A0_drift_std=0.05, A1_drift_std=0.03),
+    "drift, run_forgetting 0.3": dict(A0_drift_std=0.05, A1_drift_std=0.03, run_forgetting=0.3),
+    "A1 drift alone, forgetting 0.002": dict(A1_drift_std=0.03, forgetting=0.002, run_forgetting=0.3),
+    "A0 drift alone at its bound": dict(A0_drift_std=10.0),
 }
 
 
@@ -267,11 +278,17 @@ def test_the_simulated_car_gives_the_same_bits_in_c(lib, name):
         assert p.mass_restarts >= 2 and 30.0 < p.mass < 60.0
 
 
+DRIFT = {"no drift": {}, "drift": dict(A0_drift_std=0.05, A1_drift_std=0.03)}
+"""est.A0_drift_std, est.A1_drift_std off and on (the drift meat at each restart)."""
+
+
+@pytest.mark.parametrize("drift", list(DRIFT))
 @pytest.mark.parametrize("forgetting", [0.0, 0.002])
-def test_random_rows(lib, forgetting):
+def test_random_rows(lib, forgetting, drift):
     """Random rows (dt None and others, skipped pairs, restarts) after a prior centre moved
     before any data, and a simulated car checked every third event."""
-    cfg = IdentifierConfig(speed_std=0.05, forgetting=forgetting, run_forgetting=0.2, batch_size=30)
+    cfg = IdentifierConfig(speed_std=0.05, forgetting=forgetting, run_forgetting=0.2, batch_size=30,
+                           **DRIFT[drift])
     events = [("theta", [1.0 / (G * 40.0), 1.1, 0.02, 0.008])] + random_events(7, 1500)
     run_pair(lib, cfg, events)
     run_pair(lib, cfg, car_events(3, 2500), check_every=3)
@@ -286,9 +303,10 @@ def negative_S(p) -> list[float]:
     return [float(x) for x in np.linalg.inv((V * w) @ V.T).ravel()]
 
 
+@pytest.mark.parametrize("drift", list(DRIFT))
 @pytest.mark.parametrize("forgetting", [0.0, 0.002])
-def test_the_positive_definiteness_repair(lib, forgetting):
-    cfg = IdentifierConfig(speed_std=0.05, forgetting=forgetting, run_forgetting=0.3)
+def test_the_positive_definiteness_repair(lib, forgetting, drift):
+    cfg = IdentifierConfig(speed_std=0.05, forgetting=forgetting, run_forgetting=0.3, **DRIFT[drift])
     events = car_events(11, 1500)
     p, c = run_pair(lib, cfg, events, check_every=10)
     # at an update: an indefinite S that the next regressor meets with phi^T S phi <= 0
@@ -333,6 +351,50 @@ def test_one_ulp_in_one_speed_shows(lib):
     c.lib.shim_update(c.ptr, ev[1], ev[2], v, ev[4], ev[5], ev[6] or 0.0, int(ev[7]))
     with pytest.raises(AssertionError, match="differs"):
         assert_same(p, c, k, (1e4, -1.0, -10.0, -100.0))
+
+
+ONE_ULP = "(1.0 + 2.220446049250313e-16)"
+DRIFT_MUTATIONS = {
+    # drift_meat: the data's information on the carried A's, one ulp larger
+    "drift_meat_Jc": ("0.5 * (info[4 * i + j] + info[4 * j + i]) * info_scale - d;",
+                      f"0.5 * (info[4 * i + j] + info[4 * j + i]) * info_scale * {ONE_ULP} - d;"),
+    # drift_meat: the A1 term one ulp larger
+    "drift_meat_A1": ("(Jc[3 * i] * Jc[3 * j]) * v0 + (Jc[3 * i + 1] * Jc[3 * j + 1]) * v1;",
+                      f"(Jc[3 * i] * Jc[3 * j]) * v0 + (Jc[3 * i + 1] * Jc[3 * j + 1]) * v1 * {ONE_ULP};"),
+    # drift_covariance: J^-1 symmetrised, one ulp off
+    "drift_covariance_Js": ("Js[4 * i + j] = 0.5 * (Ji[4 * i + j] + Ji[4 * j + i]);",
+                            f"Js[4 * i + j] = 0.5 * (Ji[4 * i + j] + Ji[4 * j + i]) * {ONE_ULP};"),
+    # the drift meat's forgetting per step (est.forgetting)
+    "drift_forgetting": ("id->Dq[i] *= l2;", f"id->Dq[i] *= l2 * {ONE_ULP};"),
+}
+
+
+@pytest.mark.parametrize("mutation", DRIFT_MUTATIONS)
+def test_a_one_ulp_mutation_of_the_drift_shows(mutation, tmp_path):
+    """The drift's C code (ident.c: drift_meat, the covariance's drift term, the meat's
+    forgetting) is compared for real: one ulp in one of its expressions, in a copy of ident.c,
+    makes the simulated car's state or outputs differ from Python's."""
+    target, replacement = DRIFT_MUTATIONS[mutation]
+    text = (CORE / "ident.c").read_text()
+    assert text.count(target) == 1, f"ident.c: the mutation's target occurs {text.count(target)} times"
+    mutant = tmp_path / "ident.c"
+    mutant.write_text(text.replace(target, replacement))
+    mutated = build_lib(tmp_path, [mutant, *SOURCES[1:]])
+    cfg = IdentifierConfig(speed_std=0.05, forgetting=0.002 if mutation == "drift_forgetting" else 0.0,
+                           run_forgetting=0.3, A0_drift_std=0.05, A1_drift_std=0.03)
+    with pytest.raises(AssertionError, match="differ"):
+        run_pair(mutated, cfg, car_events(4, 4000))
+
+
+def test_no_drift_adds_nothing(lib):
+    """With both drift stds 0 the drift meat stays 0 and the C state's Dq with it; with drift it
+    grows at each restart (the comparison above is not of zeros)."""
+    events = car_events(4, 4000)
+    p, _ = run_pair(lib, IdentifierConfig(speed_std=0.05), events, check_every=50)
+    assert p.mass_restarts >= 2 and not any(p._Dq)
+    p, _ = run_pair(lib, IdentifierConfig(speed_std=0.05, A0_drift_std=0.05, A1_drift_std=0.03), events,
+                    check_every=50)
+    assert p._Dq[5] > 0.0 and p._Dq[10] > 0.0 and p._Dq[0] == 0.0
 
 
 # ---------------------------------------------------------------- linalg4.c alone
@@ -383,7 +445,8 @@ int main(void)
     for (int c = 0; c < 6; c++) {
         rc_ident_config cfg = {0.1, c == 1 ? 4 : 50, c >= 2 && c <= 3 ? 0.002 : 0.0, c == 4 ? 0.1 : 0.0,
                                30.0, 10.0, 1.0, 0.03, 0.01, 5.0, 0.1, 0.02, 1e-4, 0.05, c == 5,
-                               c == 3 ? 0.3 : 0.0, c == 2 ? 0.01 : 0.0};
+                               c == 3 ? 0.3 : 0.0, c == 2 ? 0.01 : 0.0, c >= 3 ? 0.05 : 0.0,
+                               c == 0 || c >= 3 ? 0.03 : 0.0};
         rc_ident id;
         if (rc_ident_init(&id, &cfg)) return 2;
         double phi[4] = {1e4, -1.0, -10.0, -100.0}, out[4];

@@ -212,6 +212,15 @@ CHAIN_CASES = [
     {"est.A0_std_initial": 1e300}, {"est.A0_std_initial": 1e4}, {"est.A1_std_initial": 1e-10},
     {"est.A2_std_initial": 2e8}, {"est.A2_std_initial": 1e-9},
     {"est.gamma": 1.0}, {"est.gamma": 1.5},
+    # the carried A's drift per stop (identification.PRIOR_BOUNDS, then DRIFT_METHODS)
+    {"est.A0_drift_std": -5e-324}, {"est.A0_drift_std": NAN}, {"est.A0_drift_std": INF},
+    {"est.A0_drift_std": 10.0}, {"est.A0_drift_std": 10.000000000000002}, {"est.A0_drift_std": -0.0},
+    {"est.A1_drift_std": -1e-9}, {"est.A1_drift_std": NAN}, {"est.A1_drift_std": 1.0},
+    {"est.A1_drift_std": 1.0000000000000002},
+    {"est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03},
+    {"est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03, "est.method": 0},
+    {"est.A1_drift_std": NAN, "est.gamma": 2.0},             # gamma's bound first
+    {"est.A1_drift_std": 2.0, "est.batch_size": 10 ** 6},      # before the batch's size
     {"est.batch_size": 100000}, {"est.batch_size": 100001}, {"est.batch_size": 2 ** 31 - 1},
     {"est.slope_window": 1000}, {"est.slope_window": 1001, "est.method": 2},
     {"est.slope_window": 2 ** 31 - 1},
@@ -286,6 +295,8 @@ EST_CASES = [
     {"track.station_dwell": -0.0}, {"track.station_dwell": INF},
     {"car.length": -1.0, "track.station_dwell": 0.0},
     {"est.method": 1, "sensor.track_base": -1.0},
+    {"est.A0_drift_std": -1.0}, {"est.A1_drift_std": 1.5}, {"est.A1_drift_std": 0.03},
+    {"est.A0_drift_std": 0.05, "est.A1_drift_std": 0.03, "est.method": 0},
 ]
 
 
@@ -427,6 +438,62 @@ def test_uncovered_options_are_refused_where_python_checks_them(lib):
     assert c_chain(lib, v, None, 0.0)[1].startswith("est.method = 1 is not in the native")
     v = {**CHAIN_DEFAULTS, "est.method": 1, "est.batch_size": 3}
     assert c_chain(lib, v, None, 0.0)[1] == python_chain(v, None, 0.0)
+
+
+IDENT_VALIDATE_SHIM = r"""
+#include <string.h>
+#include "validate.h"
+
+/* rc_ident_validate (no native FMU: every est.method Python knows) on IdentifierConfig's numbers */
+int shim_ident_validate(const double *c, int method, char *msg, int n)
+{
+    rc_ident_config cfg = {c[0], (long)c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10],
+                           c[11], c[12], c[13], (int)c[14], c[15], c[16], c[17], c[18]};
+    rc_error err;
+    int st = rc_ident_validate(&cfg, method, 0, 0, 10, &err);
+    strncpy(msg, st ? err.msg : "", (size_t)n - 1);
+    msg[n - 1] = '\0';
+    return st;
+}
+"""
+
+
+@pytest.mark.parametrize("method", [1, 3])
+def test_drift_with_a_method_that_carries_its_own_as_is_refused_naming_both(method, tmp_path):
+    """est.method 1 and 3 carry their A's themselves: a nonzero est.A0_drift_std or
+    est.A1_drift_std is refused, in Python's words by rc_ident_validate (the native FMUs refuse
+    est.method 1 and 3 before: test_uncovered_options_are_refused_where_python_checks_them)."""
+    from models.estimation.identification import IdentifierConfig
+    shim = tmp_path / "ident_validate_shim.c"
+    shim.write_text(IDENT_VALIDATE_SHIM)
+    so = tmp_path / "libidentvalidate.so"
+    proc = subprocess.run([shutil.which("gcc"), *FLAGS, "-shared", "-Wl,--no-undefined",
+                           f"-I{CORE}", *map(str, SOURCES), str(shim), "-o", str(so), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    dll = ctypes.CDLL(str(so))
+    dll.shim_ident_validate.argtypes = [ctypes.POINTER(ctypes.c_double), ctypes.c_int, ctypes.c_char_p,
+                                        ctypes.c_int]
+    for drift in ({"A0_drift_std": 0.05}, {"A1_drift_std": 0.03}, {"A0_drift_std": 0.05, "A1_drift_std": 1.0},
+                  {}, {"A0_drift_std": -0.0}):
+        cfg = IdentifierConfig(method=method, **drift)
+        try:
+            cfg.validate()
+            py = None
+        except ValueError as e:
+            py = str(e)
+        c = [cfg.dt, cfg.batch_size, cfg.forgetting, cfg.gamma, cfg.mass_initial, cfg.mass_std_initial,
+             cfg.A0_initial, cfg.A1_initial, cfg.A2_initial, cfg.A0_std_initial, cfg.A1_std_initial,
+             cfg.A2_std_initial, cfg.sigma2_initial, cfg.speed_std, float(cfg.frozen), cfg.run_forgetting,
+             cfg.speed_std_rel, cfg.A0_drift_std, cfg.A1_drift_std]
+        buf = ctypes.create_string_buffer(MSG)
+        st = dll.shim_ident_validate((ctypes.c_double * len(c))(*c), method, buf, MSG)
+        if any(drift.values()):
+            assert py and py.startswith("est.A0_drift_std and est.A1_drift_std apply to est.method 0 and 2")
+            assert f"with est.method {method}" in py
+        else:
+            assert py is None
+        assert_same_message(py, st, buf.value.decode(), repr(drift))
 
 
 def test_python_overflow_is_not_a_valueerror(lib):
