@@ -272,15 +272,16 @@ def test_relative_speed_noise(pair, railcar_runner, kind):
 
 
 def test_speed_profile_and_nan_free_faults(pair, railcar_runner):
-    """A speed profile (linearised filter), forgetting, a stuck speed sensor and a position
-    sensor that drops to zero for a while: faults without NaN, all steps OK."""
+    """A speed profile (linearised filter), forgetting and the carried A's drift, a stuck speed
+    sensor and a position sensor that drops to zero for a while: faults without NaN, all steps OK."""
     params, rows, times, steps = _railcar_run(railcar_runner, "steep_grades")
     rows = rows.copy()
     n = len(rows)
     rows[n // 3:n // 3 + 300, 2] = rows[n // 3, 2]                # stuck speed
     rows[2 * n // 3:2 * n // 3 + 100, 3] = 0.0                    # position dropout
     params = {**params, "track.speed_profile": "profiles/default_speed.csv", "filter.kind": 0,
-              "est.forgetting": 0.01, "est.run_forgetting": 0.002}
+              "est.forgetting": 0.01, "est.run_forgetting": 0.002,
+              "est.A0_drift_std": 0.04, "est.A1_drift_std": 0.03}
     _, statuses, _ = _compare(pair, params, rows, times, steps)
     assert statuses == [OK] * len(rows)
 
