@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
+import logging
 import math
 import shutil
 import struct
@@ -36,7 +37,8 @@ import pytest
 from harness.run.driver import run_on_chain
 from harness.run.scenario import load_scenario
 from models.ato.controller import AtoController
-from models.ato.interface import ALL_INPUTS, AtoTuning
+from models.ato.interface import ALL_INPUTS, AtoCommand, AtoTuning
+from models.ato.planner import fastest_run
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
 
@@ -126,9 +128,14 @@ class CController:
         return (out[0], out[1], int(out[2]), out[3], int(out[4]), bool(out[5]), int(out[6]))
 
     def event(self, k: int) -> tuple[float, str]:
+        return self.coded_event(k)[:2]
+
+    def coded_event(self, k: int) -> tuple[float, str, int]:
+        """(t, text, ato_event_code) of event k"""
         t, text = ctypes.c_double(), ctypes.create_string_buffer(TEXT)
-        assert self.lib.shim_event(self.h, k, ctypes.byref(t), text) >= 0, f"event {k} left the ring"
-        return t.value, text.value.decode()
+        code = self.lib.shim_event(self.h, k, ctypes.byref(t), text)
+        assert code >= 0, f"event {k} left the ring"
+        return t.value, text.value.decode(), code
 
     def state(self) -> list[float]:
         out = (ctypes.c_double * 8)()
@@ -232,3 +239,254 @@ def test_the_replays_cover_every_phase_and_event_kind(recorded):
     assert {0, 1, 2, 3, 4, 7, 8} <= modes, modes       # TG, C, VB, SR, RK, EP, HOLD
     assert any("est.* usable" in e for e in texts)
     assert any(e.startswith("stopped") for e in texts)
+
+
+# ------------------------------------------------------------------ variants: what the library leaves out
+
+def _faults(t, seen):
+    """NaN, est.* garbage the supervisor refuses, est.status flickering, est.A0 far off but sane,
+    a stated input missing, a speed std jump (ST), each in its own window"""
+    seen = dict(seen)
+    if 30.0 <= t < 30.35:
+        seen["filter.speed"] = math.nan
+    if 50.0 <= t < 50.5:
+        seen["est.mass"] = 1000.0
+    if 60.0 <= t < 62.0:
+        seen["est.status"] = 0.0
+    if 70.0 <= t < 75.0:
+        seen["est.A0"] = 30.0
+    if 80.0 <= t < 82.0:
+        seen["est.mass_std"] = None
+    if 100.0 <= t < 100.3:
+        seen["filter.speed_std"] = 1.0
+    return t, seen
+
+
+def _overspeed(t, seen):
+    """filter.speed 6 m/s too high for 0.3 s at full speed: the supervisor's full brake"""
+    seen = dict(seen)
+    if 40.0 <= t < 40.3:
+        seen["filter.speed"] = seen["filter.speed"] + 6.0
+    return t, seen
+
+
+def _inf_time_and_input(t, seen):
+    """t and est.A1 not finite once each; est.samples running backwards (refused)"""
+    seen = dict(seen)
+    if 20.0 <= t < 20.05:
+        t = math.inf
+    if 25.0 <= t < 25.05:
+        seen["est.A1"] = -math.inf
+    if 35.0 <= t < 35.5:
+        seen["est.samples"] = -5.0
+    return t, seen
+
+
+# (id, scenario, span change, tuning change, faults)
+VARIANTS = (
+    ("settle", "ato_speed_noise", None, lambda tn: replace(tn, settle_std=0.0), None),
+    ("settle_line", "ato_line", None, lambda tn: replace(tn, settle_std=0.0, settle_time=2.0),
+     None),
+    ("late", "ato_mass_plus20", lambda s, c, tn: s.with_schedule(fastest_run(s, c, tn) + 0.3),
+     None, None),
+    ("faults", "ato_nominal", None, None, _faults),
+    ("faults_noise", "ato_speed_noise", None, None, _faults),
+    ("overspeed", "ato_nominal", None, None, _overspeed),
+    ("not_finite", "ato_headwind", None, None, _inf_time_and_input),
+    ("fixed_plan", "ato_A0_plus50", None, lambda tn: replace(tn, replan=False,
+                                                              use_estimates=False), None),
+)
+
+
+def record_variant(name, span_of=None, tuning_of=None, faults=None) -> list[dict]:
+    init = AtoController.__init__
+
+    def new_init(self, span, car, tuning=None):
+        tuning = AtoTuning() if tuning is None else tuning
+        tuning = tuning_of(tuning) if tuning_of else tuning
+        init(self, span_of(span, car, tuning) if span_of else span, car, tuning)
+
+    AtoController.__init__ = new_init
+    try:
+        return record(name, faults)
+    finally:
+        AtoController.__init__ = init
+
+
+@pytest.fixture(scope="module")
+def variants():
+    return {v[0]: record_variant(*v[1:]) for v in VARIANTS}
+
+
+@pytest.mark.parametrize("variant", [v[0] for v in VARIANTS])
+def test_the_c_controller_replays_settling_late_plans_and_faults_bit_for_bit(lib, variants,
+                                                                            variant):
+    for k, run in enumerate(variants[variant]):
+        assert run["calls"][-1][3], f"{variant} span {k}: the Python controller never finished"
+        assert replay_differences(lib, run) == [], f"{variant} span {k}"
+
+
+def test_the_variants_reach_settle_creep_safe_overspeed_and_their_events(variants):
+    modes = {call[2][2] for runs in variants.values() for run in runs for call in run["calls"]}
+    assert {5, 9, 10, 11, 12} <= modes, modes            # ST, SAFE, OVERSPEED, CREEP, SETTLE
+    texts = " | ".join(e for runs in variants.values() for run in runs for _, e in run["events"])
+    for words in ("is not finite: safe brake", "is not a finite number", "of car.mass =",
+                  "the safe brake is held", "the safe brake is released",
+                  "estimates not usable (est.status = 0)", "stated sigmas from the configured",
+                  "above the supervision curve", "standing", "settled:", "re-plan status late"):
+        assert words in texts, words
+
+
+# ------------------------------------------------------------------ the closed loop on C
+
+# ato_controller.h's ato_event_code of the events AtoController._log records (once per episode)
+# and logs: INPUT, RECOVERY, ESTIMATES, OVERSPEED, INTERNAL
+LOGGED_EVENTS = (0, 1, 3, 10, 11)
+CONTROLLER_LOG = logging.getLogger("models.ato.controller")
+
+
+def run_with_c_controllers(lib, name: str):
+    """The scenario on the models chain with every AtoController's demands made by a C
+    controller (models/ato/line.py still sequences the spans)."""
+    demands, ctrls = AtoController.demands, {}
+
+    def c_demands(self, t, outputs):
+        if id(self) not in ctrls:
+            ctrls[id(self)] = (self, CController(lib, self.span, self.car, self.tuning))
+        c = ctrls[id(self)][1]
+        got = c.demands(t, seen_inputs(outputs))
+        for k in range(len(self.events), got[6]):
+            te, text, code = c.coded_event(k)
+            self.events.append((te, text))
+            if code in LOGGED_EVENTS:           # AtoController._log's: also logged
+                CONTROLLER_LOG.warning("ATO at t = %.2f s: %s", te, text)
+        if got[5]:
+            self.phase = "hold"                  # AtoController.finished
+        return AtoCommand(got[0], got[1], got[2], got[3], got[4])
+
+    AtoController.demands = c_demands
+    try:
+        return run_on_chain(load_scenario(ROOT / "scenarios" / "library" / f"{name}.toml")), ctrls
+    finally:
+        AtoController.demands = demands
+
+
+@pytest.mark.parametrize("name", ATO_SCENARIOS)
+def test_the_closed_loop_driven_by_the_c_controller_is_the_python_one(lib, name):
+    want = run_on_chain(load_scenario(ROOT / "scenarios" / "library" / f"{name}.toml"))
+    got, ctrls = run_with_c_controllers(lib, name)
+    assert len(ctrls) == (3 if name == "ato_line" else 1)
+    assert got.time.tobytes() == want.time.tobytes()
+    assert set(got.signals) == set(want.signals)
+    for key in want.signals:
+        assert got.signals[key].tobytes() == want.signals[key].tobytes(), key
+    for key in want.inputs:
+        assert got.inputs[key].tobytes() == want.inputs[key].tobytes(), key
+    assert got.driver_log == want.driver_log
+
+
+# ------------------------------------------------------------------ construction refusals
+
+def _python_refusal(make) -> str:
+    with pytest.raises(ValueError) as e:
+        make()
+    return str(e.value)
+
+
+BASE_SPAN = Span(2200.0, 135.0, stop=2150.0)
+BASE_CAR = CarTraction()
+REFUSALS = (
+    ("grid_cap", BASE_SPAN, BASE_CAR, {"grid_step": 1e-3}),
+    ("grid_cap_long", Span(200_000.0, 9000.0, stop=199_000.0), BASE_CAR, {}),
+    ("infeasible", BASE_SPAN.with_schedule(60.0), BASE_CAR, {}),
+    ("too_long_huge", BASE_SPAN.with_schedule(1e20), BASE_CAR, {}),
+    ("too_long", BASE_SPAN.with_schedule(4000.0), BASE_CAR, {}),
+    ("climb", Span(2200.0, 300.0, stop=2150.0,
+                   grade=GradeProfile((0.0, 500.0, 1400.0), (0.0, 150.0, 0.0))), BASE_CAR, {}),
+    ("margin", Span(2200.0, 600.0, stop=2150.0, limit_distances=(0.0, 800.0),
+                    limit_speeds=(20.0, 2.5)), BASE_CAR, {}),
+    ("ep_stage", BASE_SPAN, replace(BASE_CAR, mech_force_max=20_000.0), {"a_ep": 1.2}),
+    ("short_stop", Span(60.0, 60.0, stop=3.0), BASE_CAR, {}),
+)
+
+
+@pytest.mark.parametrize("case, span, car, kw", REFUSALS, ids=[r[0] for r in REFUSALS])
+def test_construction_refusals_are_python_s_word_for_word(lib, case, span, car, kw):
+    tuning = AtoTuning(**kw)
+    want = _python_refusal(lambda: AtoController(span, car, tuning))
+    c = CController(lib, span, car, tuning)
+    assert c.refusal is not None, f"{case}: C accepted what Python refuses: {want}"
+    assert c.refusal[1] == want
+
+
+def test_an_early_initial_plan_is_refused_word_for_word(lib):
+    """A schedule below the slowest run's bound that the planner still cannot fill ("early")."""
+    t_min = fastest_run(BASE_SPAN, BASE_CAR)
+    t_slowest = t_min + BASE_SPAN.stop / 1.0
+    found = 0
+    for schedule in np.linspace(t_slowest - 200.0, t_slowest, 41):
+        span = BASE_SPAN.with_schedule(float(schedule))
+        try:
+            AtoController(span, BASE_CAR)
+            continue
+        except ValueError as e:
+            want = str(e)
+        found += "still arrives after" in want
+        c = CController(lib, span, BASE_CAR, AtoTuning())
+        assert c.refusal is not None and c.refusal[1] == want
+    assert found > 0
+
+
+BAD_TUNING = (("ep_stages", 0), ("grid_step", -1.0), ("safe_brake", 0.0), ("mass_band", 7.0),
+              ("k_sigma", math.nan))
+
+
+@pytest.mark.parametrize("field, value", BAD_TUNING)
+def test_bad_tuning_is_refused_as_ato_tuning_refuses_it(lib, field, value):
+    want = _python_refusal(lambda: AtoTuning(**{field: value}))
+    values = [float(getattr(AtoTuning(), n)) for n in TUNING_FIELDS]
+    values[TUNING_FIELDS.index(field)] = float(value)
+    c = CController(lib, BASE_SPAN, BASE_CAR, None, tuning_values=values)
+    assert c.refusal is not None and c.refusal[1] == want
+
+
+# ------------------------------------------------------------------ sanitizers, mutation
+
+def test_the_shim_runs_clean_under_the_sanitizers(tmp_path, recorded):
+    run = recorded["ato_speed_noise"][0]
+    exe = tmp_path / "ato_controller_shim"
+    build(exe, SANITIZE + ["-DSHIM_MAIN"])
+    data = header(run["span"], run["car"], run["tuning"])
+    for t, inputs, *_ in run["calls"]:
+        data += [t, *inputs]
+    path = tmp_path / "calls.bin"
+    path.write_bytes(np.asarray(data, dtype="<f8").tobytes())
+    proc = subprocess.run([str(exe), str(path)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "runtime error" not in proc.stderr and "Sanitizer" not in proc.stderr, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert len(lines) == len(run["calls"])
+    for line, (_, _, want, finished, n_events) in zip(lines, run["calls"]):
+        f = line.split()
+        assert (float.fromhex(f[0]), float.fromhex(f[1]), int(f[2]), float.fromhex(f[3]),
+                int(f[4])) == want
+        assert (bool(int(f[5])), int(f[6])) == (finished, n_events)
+
+
+MUTATIONS = (
+    ("double f = rc_min(f_ceil + car->m_in * c->brake_int, 0.0);",
+     f"double f = rc_min(f_ceil * {ONE_ULP} + car->m_in * c->brake_int, 0.0);"),
+    ("double a_u = 0.5 * dq;", f"double a_u = 0.5 * dq * {ONE_ULP};"),
+)
+
+
+@pytest.mark.parametrize("original, mutated", MUTATIONS)
+def test_a_one_ulp_mutation_of_the_controller_is_caught(tmp_path, recorded, original, mutated):
+    source = (CORE / "ato_controller.c").read_text()
+    assert source.count(original) == 1
+    mutant = tmp_path / "ato_controller.c"
+    mutant.write_text(source.replace(original, mutated))
+    out = tmp_path / "libmutant.so"
+    build(out, ["-shared"], [mutant] + SOURCES[1:])
+    dll = load(out)
+    assert replay_differences(dll, recorded["ato_nominal"][0]) != []
