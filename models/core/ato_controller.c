@@ -117,17 +117,40 @@ static double interp(const ato_controller *c, const double *q, double x, double 
 
 /* ---------------------------------------------------------------- construction */
 
+/* len(Span.breakpoints(car_length)): the distinct limit distances (but the first), grade
+ * distances and grade distances + car length within (0, stop), counted without a buffer */
+static double candidate(const rc_ato_span *span, double car_length, int k)
+{
+    int nl = span->n_limits - 1;
+    if (k < nl)
+        return span->limit_distances[k + 1];
+    k -= nl;
+    if (car_length > 0)
+        return k % 2 == 0 ? span->grade.distances[k / 2]
+                          : span->grade.distances[k / 2] + car_length;
+    return span->grade.distances[k];
+}
+
+static int count_breakpoints(const rc_ato_span *span, double car_length)
+{
+    int m = span->n_limits - 1 + (car_length > 0 ? 2 : 1) * span->grade.n;
+    int count = 0;
+    for (int k = 0; k < m; k++) {
+        double x = candidate(span, car_length, k);
+        if (!(0.0 < x && x < span->stop))
+            continue;
+        int seen = 0;
+        for (int j = 0; j < k && !seen; j++)
+            seen = candidate(span, car_length, j) == x;
+        count += !seen;
+    }
+    return count;
+}
+
 static rc_status check_grid(const rc_ato_span *span, const rc_ato_car *car,
                             const ato_tuning *tn, char *msg)
 {
-    int cap = rc_ato_breakpoints_bound(span);
-    double *buf = malloc(sizeof(double) * (size_t)(cap > 0 ? cap : 1));
-    if (buf == NULL) {
-        set_msg(msg, "out of memory for the span's breakpoints");
-        return RC_BAD_CONFIG;
-    }
-    int breaks = rc_ato_breakpoints(span, car->length, buf, cap);
-    free(buf);
+    int breaks = count_breakpoints(span, car->length);
     double cells = span->stop / tn->grid_step;
     if (cells + breaks > ATO_MAX_GRID_NODES) {
         int rest = ATO_MAX_GRID_NODES - breaks;
@@ -181,19 +204,16 @@ static rc_status construct(ato_controller *c, char *msg)
         return rc;
     rc = rc_ato_plan_setup(&c->course, &c->planner, &c->configured, span, car, tn->grid_step,
                            tn->limit_margin, tn->time_tol, tn->a_ep, tn->ep_stages,
-                           tn->mass_reserve, tn->brake_share, ATO_MAX_GRID_NODES + 3, &err);
+                           tn->mass_reserve, tn->brake_share, ATO_MAX_NODES, &err);
     if (rc != RC_OK) {
         set_msg(msg, "%s", err.msg);
         return rc;
     }
-    int n = c->course.n;
-    c->block = calloc((size_t)(2 * n), sizeof(double));
-    if (c->block == NULL) {
-        set_msg(msg, "out of memory for the controller's curves");
+    if (c->course.n > ATO_MAX_NODES) {   /* never: the course refuses more than this */
+        set_msg(msg, "the re-planner's grid has %d nodes, the controller room for %d",
+                c->course.n, ATO_MAX_NODES);
         return RC_BAD_CONFIG;
     }
-    c->qU = c->block;
-    c->sup_q = c->qU + n;
     c->a_ep = c->course.a_ep;
     rc = rc_ato_envelope(&c->planner, &c->configured, c->qU, &err);
     double t_min = 0.0;
@@ -286,9 +306,8 @@ void ato_controller_free(ato_controller *c)
         rc_ato_planner_free(&c->planner);
     if (c->course.s != NULL)
         rc_ato_course_free(&c->course);
-    free(c->block);
-    c->block = NULL;
-    c->qU = c->sup_q = NULL;
+    c->planner.block = NULL;
+    c->course.s = NULL;
 }
 
 int ato_controller_finished(const ato_controller *c) { return c->phase == ATO_PHASE_HOLD; }

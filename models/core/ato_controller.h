@@ -4,8 +4,10 @@
  * blended car and the time reserve, the aim point, the speed supervisor), bit-identical to it.
  *
  * One struct: the tuning, the supervisor, the course, the planner, the plan's envelope and the
- * relay live in it; everything is allocated by ato_controller_init, nothing per step. The span and
- * car structs (and their arrays) are the caller's and must outlive the controller.
+ * relay live in it (the curves on the grid as arrays of ATO_MAX_NODES, ~160 kB: allocate the struct
+ * itself, not on a stack); the course and the planner allocate their grids at ato_controller_init,
+ * nothing is allocated per step. The span and car structs (and their arrays) are the caller's and
+ * must outlive the controller.
  *
  * Python's events list is a ring of the latest ATO_EVENT_RING (t, reason, text) with the count of
  * all events so far; replan_seconds (wall-clock) is left out, the re-plans are counted.
@@ -21,6 +23,7 @@
 
 #define ATO_MAX_GRID_NODES 10000    /* controller.MAX_GRID_NODES */
 #define ATO_GATE_RATE 0.2           /* [1/s] controller.GATE_RATE */
+#define ATO_MAX_NODES (ATO_MAX_GRID_NODES + 3)  /* the course's nodes at most (ato_planner.h) */
 
 /* controller.py's phases (RUN, BRAKE, STOP_EP, SETTLE, HOLD) */
 typedef enum { ATO_PHASE_RUN = 0, ATO_PHASE_BRAKE = 1, ATO_PHASE_EP = 2, ATO_PHASE_SETTLE = 3,
@@ -70,8 +73,8 @@ typedef struct {
     ato_supervisor supervisor;
     rc_ato_relay relay;
     double a_ep;
-    double *qU;                /* the plan's envelope (a copy: a failed re-plan keeps it) */
-    double *sup_q;             /* the supervision curve's V^2 on the course's nodes */
+    double qU[ATO_MAX_NODES];  /* the plan's envelope (a copy: a failed re-plan keeps it) */
+    double sup_q[ATO_MAX_NODES]; /* the supervision curve's V^2 on the course's nodes */
     double sup_mass, final_start;
     int plan_status;           /* the plan in planner.plan (RC_ATO_PLAN_*) */
     double plan_arrival, plan_hold_speed;   /* the initial plan's (the early refusal's) */
@@ -104,7 +107,6 @@ typedef struct {
     /* the events */
     long n_events;             /* all so far; the latest ATO_EVENT_RING are in the ring */
     ato_event events[ATO_EVENT_RING];
-    void *block;
 } ato_controller;
 
 /* AtoController(span, car, tuning): RC_OK, or RC_BAD_CONFIG (RC_MATH where Python raises

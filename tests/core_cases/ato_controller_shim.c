@@ -4,6 +4,7 @@
  * sanitizers. */
 #include "rc_fp_contract.h"
 #include "ato_controller.h"
+#include "ato_line.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -133,6 +134,155 @@ void shim_state(void *hv, double *out)
     out[5] = c->w_r;
     out[6] = c->using_estimates;
     out[7] = c->relay.stop;
+}
+
+/* ---------------------------------------------------------------- the line */
+
+typedef struct {
+    int n;
+    rc_ato_span *spans;
+    double *arrays;              /* every span's grade and limit arrays and grade sums */
+    double *dwell, *boarding, *departures;
+    ato_controller *controllers;
+    rc_ato_car car;
+    ato_line line;
+} line_shim;
+
+static void car_of(rc_ato_car *c, const double *car)
+{
+    double *fields[18] = {&c->mass, &c->A0, &c->A1, &c->A2, &c->gamma, &c->length,
+                          &c->traction_force_max, &c->traction_power_max, &c->brake_force_max,
+                          &c->regen_force_max, &c->regen_power_max, &c->regen_fade_speed,
+                          &c->regen_off_speed, &c->mech_force_max, &c->adhesion_mass_fraction,
+                          &c->adhesion_factor, &c->eta_f, &c->eta};
+    for (int k = 0; k < 18; k++)
+        *fields[k] = car[k];
+}
+
+static void tuning_of(ato_tuning *tn, const double *tuning)
+{
+    ato_tuning_defaults(tn);
+    for (int k = 0; k < ATO_N_TUNING_FIELDS; k++) {
+        const ato_tuning_field *f = ato_tuning_field_at(k);
+        char *at = (char *)tn + f->offset;
+        if (f->kind == ATO_FIELD_REAL)
+            *(double *)at = tuning[k];
+        else
+            *(int *)at = (int)tuning[k];
+    }
+}
+
+static void free_line(line_shim *h)
+{
+    free(h->spans);
+    free(h->arrays);
+    free(h->dwell);
+    free(h->boarding);
+    free(h->departures);
+    free(h->controllers);
+    free(h);
+}
+
+/* flat: per span (length, schedule, stop, n_grade, distances, grades, n_limits, distances,
+ * speeds, dwell_s, boarding_t), n_flat doubles in all */
+void *shim_line_new(int n, const double *flat, int n_flat, const double *car,
+                    const double *tuning, int *status, char *msg)
+{
+    line_shim *h = calloc(1, sizeof *h);
+    if (h == NULL)
+        return NULL;
+    h->n = n;
+    h->spans = calloc((size_t)(n > 0 ? n : 1), sizeof(rc_ato_span));
+    h->arrays = malloc(sizeof(double) * (size_t)(2 * n_flat + 1));
+    double *dwell = h->dwell = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    double *boarding = h->boarding = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    h->departures = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    h->controllers = calloc((size_t)(n > 0 ? n : 1), sizeof(ato_controller));
+    memcpy(h->arrays, flat, sizeof(double) * (size_t)n_flat);
+    double *cum = h->arrays + n_flat;
+    int p = 0;
+    for (int i = 0; i < n; i++) {
+        rc_ato_span *s = &h->spans[i];
+        const double *a = h->arrays;
+        s->length = a[p];
+        s->schedule = a[p + 1];
+        s->stop = a[p + 2];
+        int ng = (int)a[p + 3];
+        p += 4;
+        s->grade.n = ng;
+        s->grade.distances = a + p;
+        s->grade.grades = a + p + ng;
+        s->grade.cum = cum + p;
+        rc_ato_grade_init(&s->grade);
+        p += 2 * ng;
+        int nl = (int)a[p++];
+        s->n_limits = nl;
+        s->limit_distances = a + p;
+        s->limit_speeds = a + p + nl;
+        p += 2 * nl;
+        dwell[i] = a[p];
+        boarding[i] = a[p + 1];
+        p += 2;
+    }
+    car_of(&h->car, car);
+    ato_tuning tn;
+    tuning_of(&tn, tuning);
+    *status = ato_line_init(&h->line, n, h->spans, dwell, boarding, &h->car, &tn, h->controllers,
+                            h->departures, msg);
+    if (*status != RC_OK) {
+        free_line(h);
+        return NULL;
+    }
+    return h;
+}
+
+void shim_line_free(void *hv)
+{
+    line_shim *h = hv;
+    ato_line_free(&h->line);
+    free_line(h);
+}
+
+/* out = (t, span, traction, brake, mode, planned_speed, ep_stage, dwell, payload_change,
+ * finished, departures) */
+void shim_line_demands(void *hv, double t, const double *inputs, double stops, double *out)
+{
+    line_shim *h = hv;
+    ato_line_step st = ato_line_demands(&h->line, t, inputs, stops);
+    out[0] = st.t;
+    out[1] = st.span;
+    out[2] = st.command.traction;
+    out[3] = st.command.brake;
+    out[4] = st.command.mode;
+    out[5] = st.command.planned_speed;
+    out[6] = st.command.ep_stage;
+    out[7] = st.dwell;
+    out[8] = st.payload_change;
+    out[9] = h->line.finished;
+    out[10] = h->line.n_departures;
+}
+
+/* the line's departures [s] (n_departures of them) */
+void shim_line_departures(void *hv, double *out)
+{
+    line_shim *h = hv;
+    memcpy(out, h->line.departures, sizeof(double) * (size_t)h->line.n_departures);
+}
+
+/* span i's controller's event k as shim_event */
+int shim_line_event(void *hv, int i, long k, double *t, char *text)
+{
+    const ato_event *e = ato_controller_event(&((line_shim *)hv)->line.controllers[i], k);
+    if (e == NULL)
+        return -1;
+    *t = e->t;
+    memcpy(text, e->text, ATO_TEXT_SIZE);
+    return (int)e->code;
+}
+
+long shim_line_n_events(void *hv, int i)
+{
+    return ((line_shim *)hv)->line.controllers[i].n_events;
 }
 
 #ifdef SHIM_MAIN

@@ -38,6 +38,7 @@ from harness.run.driver import run_on_chain
 from harness.run.scenario import load_scenario
 from models.ato.controller import AtoController
 from models.ato.interface import ALL_INPUTS, AtoCommand, AtoTuning
+from models.ato.line import STATION_STOPS, LineController, LineSpan, LineStep
 from models.ato.planner import fastest_run
 from models.planning.span import CarTraction, Span
 from models.plant.track import GradeProfile
@@ -45,7 +46,7 @@ from models.plant.track import GradeProfile
 ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "ato_controller_shim.c"
-SOURCES = [CORE / f for f in ("ato_controller.c", "ato_supervision.c", "ato_tuning.c",
+SOURCES = [CORE / f for f in ("ato_controller.c", "ato_line.c", "ato_supervision.c", "ato_tuning.c",
                               "ato_span.c", "ato_motion.c", "ato_stopping.c", "ato_planner.c",
                               "repr.c")]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic",
@@ -80,6 +81,16 @@ def load(path: Path):
     dll.shim_event.argtypes = [vp, ctypes.c_long, D, ctypes.c_char_p]
     dll.shim_event.restype = ctypes.c_int
     dll.shim_state.argtypes = [vp, D]
+    dll.shim_line_new.argtypes = [ctypes.c_int, D, ctypes.c_int, D, D, ctypes.POINTER(ctypes.c_int),
+                                  ctypes.c_char_p]
+    dll.shim_line_new.restype = vp
+    dll.shim_line_free.argtypes = [vp]
+    dll.shim_line_demands.argtypes = [vp, ctypes.c_double, D, ctypes.c_double, D]
+    dll.shim_line_departures.argtypes = [vp, D]
+    dll.shim_line_event.argtypes = [vp, ctypes.c_int, ctypes.c_long, D, ctypes.c_char_p]
+    dll.shim_line_event.restype = ctypes.c_int
+    dll.shim_line_n_events.argtypes = [vp, ctypes.c_int]
+    dll.shim_line_n_events.restype = ctypes.c_long
     assert dll.shim_sizes() == TEXT
     return dll
 
@@ -407,6 +418,8 @@ REFUSALS = (
                     limit_speeds=(20.0, 2.5)), BASE_CAR, {}),
     ("ep_stage", BASE_SPAN, replace(BASE_CAR, mech_force_max=20_000.0), {"a_ep": 1.2}),
     ("short_stop", Span(60.0, 60.0, stop=3.0), BASE_CAR, {}),
+    ("low_limit_zone", Span(2200.0, 300.0, stop=2150.0, limit_distances=(0.0, 1000.0),
+                            limit_speeds=(20.0, 2.2)), BASE_CAR, {"limit_margin": 0.0}),
 )
 
 
@@ -447,6 +460,190 @@ def test_bad_tuning_is_refused_as_ato_tuning_refuses_it(lib, field, value):
     values = [float(getattr(AtoTuning(), n)) for n in TUNING_FIELDS]
     values[TUNING_FIELDS.index(field)] = float(value)
     c = CController(lib, BASE_SPAN, BASE_CAR, None, tuning_values=values)
+    assert c.refusal is not None and c.refusal[1] == want
+
+
+# ------------------------------------------------------------------ the line (models/ato/line.py)
+
+class CLine:
+    """One C LineController; ``refusal``: (status, text) where the C construction refused."""
+
+    def __init__(self, lib, spans, car: CarTraction, tuning: AtoTuning | None, tuning_values=None):
+        self.lib, self.n = lib, len(spans)
+        tuning = AtoTuning() if tuning is None else tuning
+        values = tuning_values or [float(getattr(tuning, n)) for n in TUNING_FIELDS]
+        flat = []
+        for ls in spans:
+            sp, g = ls.span, ls.span.grade
+            flat += [sp.length, sp.schedule, sp.stop, len(g.distances), *g.distances, *g.grades,
+                     len(sp.limit_distances), *sp.limit_distances, *sp.limit_speeds,
+                     ls.dwell_s, ls.boarding_t]
+        status, msg = ctypes.c_int(), ctypes.create_string_buffer(TEXT)
+        self.h = lib.shim_line_new(len(spans), arr(flat), len(flat),
+                                   arr(getattr(car, n) for n in CAR_FIELDS), arr(values),
+                                   ctypes.byref(status), msg)
+        self.refusal = None if self.h else (status.value, msg.value.decode())
+
+    def demands(self, t: float, inputs, stops: float) -> tuple:
+        """(t, span, traction, brake, mode, planned_speed, ep_stage, dwell, payload_change,
+        finished, number of departures)"""
+        out = (ctypes.c_double * 11)()
+        self.lib.shim_line_demands(self.h, t, arr(inputs), stops, out)
+        return tuple(out)
+
+    def departures(self, n: int) -> list[float]:
+        out = (ctypes.c_double * max(n, 1))()
+        self.lib.shim_line_departures(self.h, out)
+        return list(out)[:n]
+
+    def events(self, i: int) -> list[tuple[float, str, int]]:
+        out = []
+        for k in range(self.lib.shim_line_n_events(self.h, i)):
+            t, text = ctypes.c_double(), ctypes.create_string_buffer(TEXT)
+            code = self.lib.shim_line_event(self.h, i, k, ctypes.byref(t), text)
+            assert code >= 0, f"span {i} event {k} left the ring"
+            out.append((t.value, text.value.decode(), code))
+        return out
+
+    def __del__(self):
+        if getattr(self, "h", None):
+            self.lib.shim_line_free(self.h)
+
+
+def line_inputs(outputs) -> tuple[list[float], float]:
+    stops = outputs.get(STATION_STOPS)
+    return seen_inputs(outputs), math.nan if stops is None else float(stops)
+
+
+def record_line(name: str, faults=None) -> dict:
+    """The scenario's LineController in the Python closed loop: its spans, car, tuning, calls
+    [(t, inputs, station_stops, LineStep as the shim's tuple, finished, departures)], and the
+    controllers' events."""
+    demands, run = LineController.demands, {}
+
+    def rec(self, t, outputs):
+        if faults is not None:
+            t, outputs = faults(t, dict(outputs))
+            outputs = {n: v for n, v in outputs.items() if v is not None}
+        inputs, stops = line_inputs(outputs)
+        st = demands(self, t, outputs)
+        c = st.command
+        run.setdefault("line", self)
+        run.setdefault("calls", []).append(
+            (t, inputs, stops, (st.t, st.span, c.traction, c.brake, c.mode, c.planned_speed,
+                                c.ep_stage, st.dwell, st.payload_change),
+             self.finished, len(self.departures)))
+        return st
+
+    LineController.demands = rec
+    try:
+        run_on_chain(load_scenario(ROOT / "scenarios" / "library" / f"{name}.toml"))
+    finally:
+        LineController.demands = demands
+    return run
+
+
+def _line_faults(t, outputs):
+    """after the second span's departure (165.3 s): est.station_stops missing (the shift stays
+    longer), a NaN filter.speed (the safe brake and its release)"""
+    if 160.0 <= t < 180.0:
+        outputs[STATION_STOPS] = None
+    if 170.0 <= t < 170.3:
+        outputs["filter.speed"] = math.nan
+    return t, outputs
+
+
+def _line_nan_offset(t, outputs):
+    """filter.position NaN at the second span's departure (165.3 s): models/ato/line.py takes
+    the offset NaN, every shifted position is then NaN and the safe brake holds the car, which
+    never departs, so the estimator never counts the station stop that would end the shift (a
+    Python bug, mirrored: the line never finishes)"""
+    if 165.0 <= t < 165.5:
+        outputs["filter.position"] = math.nan
+    return t, outputs
+
+
+LINE_RUNS = ((None, True), (_line_faults, True), (_line_nan_offset, False))
+
+
+@pytest.mark.parametrize("faults, finishes", LINE_RUNS,
+                         ids=["ato_line", "ato_line_faults", "ato_line_nan_offset"])
+def test_the_c_line_replays_the_python_line_bit_for_bit(lib, faults, finishes):
+    run = record_line("ato_line", faults)
+    line = run["line"]
+    c = CLine(lib, line.spans, line.controllers[0].car, line.controllers[0].tuning)
+    assert c.refusal is None, c.refusal
+    for k, (t, inputs, stops, want, finished, n_dep) in enumerate(run["calls"]):
+        got = c.demands(t, inputs, stops)
+        assert [bits(x) for x in got[:9]] == [bits(x) for x in want], f"step {k} (t = {t})"
+        assert (bool(got[9]), int(got[10])) == (finished, n_dep), f"step {k}"
+    assert line.finished == finishes
+    n = len(line.departures)
+    assert n == (3 if finishes else 2)
+    assert [bits(x) for x in c.departures(n)] == [bits(x) for x in line.departures]
+    for i, ctrl in enumerate(line.controllers):
+        assert [(bits(t), e) for t, e, _ in c.events(i)] == [(bits(t), e) for t, e in ctrl.events]
+    texts = [e for ctrl in line.controllers for _, e in ctrl.events]
+    assert (faults is None) == (not any("safe brake" in e for e in texts))
+    assert any(call[3][7] for call in run["calls"])                  # a dwell was replayed
+    assert sum(call[3][8] != 0.0 for call in run["calls"]) >= 1       # ... with its boarding
+
+
+def test_the_closed_loop_driven_by_the_c_line_is_the_python_one(lib):
+    demands, lines = LineController.demands, {}
+
+    def c_demands(self, t, outputs):
+        if id(self) not in lines:
+            lines[id(self)] = (self, CLine(lib, self.spans, self.controllers[0].car,
+                                           self.controllers[0].tuning))
+        c = lines[id(self)][1]
+        inputs, stops = line_inputs(outputs)
+        got = c.demands(t, inputs, stops)
+        self.k = int(got[1])
+        for i, ctrl in enumerate(self.controllers):
+            for te, text, code in c.events(i)[len(ctrl.events):]:
+                ctrl.events.append((te, text))
+                if code in LOGGED_EVENTS:
+                    CONTROLLER_LOG.warning("ATO at t = %.2f s: %s", te, text)
+        self.finished = bool(got[9])
+        self.departures[:] = c.departures(int(got[10]))
+        return LineStep(got[0], int(got[1]), AtoCommand(got[2], got[3], int(got[4]), got[5],
+                                                        int(got[6])),
+                        dwell=bool(got[7]), payload_change=got[8])
+
+    scenario = ROOT / "scenarios" / "library" / "ato_line.toml"
+    want = run_on_chain(load_scenario(scenario))
+    LineController.demands = c_demands
+    try:
+        got = run_on_chain(load_scenario(scenario))
+    finally:
+        LineController.demands = demands
+    assert len(lines) == 1
+    for key in want.signals:
+        assert got.signals[key].tobytes() == want.signals[key].tobytes(), key
+    for key in want.inputs:
+        assert got.inputs[key].tobytes() == want.inputs[key].tobytes(), key
+    assert got.driver_log == want.driver_log
+    assert [(s.span, s.dwell, s.payload_change) for s in got.driver_steps] == \
+        [(s.span, s.dwell, s.payload_change) for s in want.driver_steps]
+
+
+LINE_REFUSALS = (
+    ("no_span", []),
+    ("dwell_nan", [LineSpan(BASE_SPAN), LineSpan(BASE_SPAN, dwell_s=math.nan)]),
+    ("boarding_inf", [LineSpan(BASE_SPAN, boarding_t=math.inf)]),
+    ("dwell_zero", [LineSpan(BASE_SPAN), LineSpan(BASE_SPAN, dwell_s=0.0)]),
+    ("second_infeasible", [LineSpan(BASE_SPAN), LineSpan(BASE_SPAN.with_schedule(60.0),
+                                                         dwell_s=20.0)]),
+    ("third_grid", [LineSpan(BASE_SPAN), LineSpan(BASE_SPAN, dwell_s=20.0),
+                    LineSpan(Span(200_000.0, 9000.0, stop=199_000.0), dwell_s=5.0)]),
+)
+
+
+@pytest.mark.parametrize("case, spans", LINE_REFUSALS, ids=[r[0] for r in LINE_REFUSALS])
+def test_line_refusals_are_python_s_word_for_word(lib, case, spans):
+    want = _python_refusal(lambda: LineController(spans, BASE_CAR))
+    c = CLine(lib, spans, BASE_CAR, None)
     assert c.refusal is not None and c.refusal[1] == want
 
 
