@@ -286,19 +286,49 @@ long shim_line_n_events(void *hv, int i)
 }
 
 #ifdef SHIM_MAIN
-/* a file of doubles: the span/car/tuning header (3, n_grade, grades d, g, n_lim, d, v, 18 car, 40
- * tuning), then per call t and ATO_N_ALL_INPUTS inputs; prints each command's fields */
+/* argv[1] "span": a file of doubles, the span/car/tuning header (3, n_grade, grade distances and
+ * grades, n_limits, limit distances and speeds, 18 car, ATO_N_TUNING_FIELDS tuning), then per
+ * call t and ATO_N_ALL_INPUTS inputs; prints each command's fields.
+ * argv[1] "line": n, n_flat, shim_line_new's flat spans, 18 car, tuning, then per call t, the
+ * inputs and est.station_stops; prints each step's fields. */
 int main(int argc, char **argv)
 {
-    if (argc != 2)
+    if (argc != 3)
         return 2;
-    FILE *f = fopen(argv[1], "rb");
+    FILE *f = fopen(argv[2], "rb");
     if (f == NULL)
         return 2;
     static double buf[1 << 22];
     size_t n = fread(buf, sizeof(double), sizeof buf / sizeof buf[0], f);
     fclose(f);
     size_t p = 0;
+    int status;
+    char msg[ATO_TEXT_SIZE];
+    if (strcmp(argv[1], "line") == 0) {
+        int spans = (int)buf[p++];
+        int n_flat = (int)buf[p++];
+        const double *flat = buf + p;
+        p += (size_t)n_flat;
+        const double *car = buf + p;
+        p += 18;
+        const double *tuning = buf + p;
+        p += ATO_N_TUNING_FIELDS;
+        void *h = shim_line_new(spans, flat, n_flat, car, tuning, &status, msg);
+        if (h == NULL) {
+            printf("refused %d %s\n", status, msg);
+            return 0;
+        }
+        double out[11];
+        while (p + 2 + ATO_N_ALL_INPUTS <= n) {
+            shim_line_demands(h, buf[p], buf + p + 1, buf[p + 1 + ATO_N_ALL_INPUTS], out);
+            p += 2 + ATO_N_ALL_INPUTS;
+            for (int k = 0; k < 11; k++)
+                printf(k ? " %a" : "%a", out[k]);
+            printf("\n");
+        }
+        shim_line_free(h);
+        return 0;
+    }
     const double *span3 = buf;
     p += 3;
     int n_grade = (int)buf[p++];
@@ -311,8 +341,6 @@ int main(int argc, char **argv)
     p += 18;
     const double *tuning = buf + p;
     p += ATO_N_TUNING_FIELDS;
-    int status;
-    char msg[ATO_TEXT_SIZE];
     void *h = shim_new(span3, gd, gg, n_grade, ld, lv, n_lim, car, tuning, &status, msg);
     if (h == NULL) {
         printf("refused %d %s\n", status, msg);

@@ -15,9 +15,11 @@ Driven through tests/core_cases/ato_controller_shim.c:
 - the construction refusals (the grid cap, an infeasible or too long schedule, an early initial
   plan, the EP stage, a climb the car cannot make, a limit the margin leaves nothing of, bad
   tuning) word for word;
-- the shim as a program under -fsanitize=address,undefined replaying a scenario: the same
-  commands, no report;
-- a one-ulp mutation of a controller expression makes the replay fail.
+- models/ato/line.py's LineController as ato_line.c: ato_line replayed (also with faults), the
+  closed loop driven by the C line, its refusals;
+- the shim as a program under -fsanitize=address,undefined replaying scenarios (a settling stop,
+  faults, the line): the same commands, no report;
+- a one-ulp mutation of a controller or line expression makes the replay fail.
 """
 from __future__ import annotations
 
@@ -418,6 +420,11 @@ REFUSALS = (
                     limit_speeds=(20.0, 2.5)), BASE_CAR, {}),
     ("ep_stage", BASE_SPAN, replace(BASE_CAR, mech_force_max=20_000.0), {"a_ep": 1.2}),
     ("short_stop", Span(60.0, 60.0, stop=3.0), BASE_CAR, {}),
+    ("grid_cap_shared_breaks", Span(2200.0, 135.0, stop=2150.0,
+                                    grade=GradeProfile((0.0, 500.0, 1000.0), (0.0, 5.0, -5.0)),
+                                    limit_distances=(0.0, 500.0, 1000.0 + BASE_CAR.length),
+                                    limit_speeds=(20.0, 15.0, 20.0)), BASE_CAR,
+     {"grid_step": 0.215}),
     ("low_limit_zone", Span(2200.0, 300.0, stop=2150.0, limit_distances=(0.0, 1000.0),
                             limit_speeds=(20.0, 2.2)), BASE_CAR, {"limit_margin": 0.0}),
 )
@@ -465,6 +472,17 @@ def test_bad_tuning_is_refused_as_ato_tuning_refuses_it(lib, field, value):
 
 # ------------------------------------------------------------------ the line (models/ato/line.py)
 
+def line_flat(spans) -> list[float]:
+    """shim_line_new's spans, flat"""
+    flat = []
+    for ls in spans:
+        sp, g = ls.span, ls.span.grade
+        flat += [sp.length, sp.schedule, sp.stop, len(g.distances), *g.distances, *g.grades,
+                 len(sp.limit_distances), *sp.limit_distances, *sp.limit_speeds,
+                 ls.dwell_s, ls.boarding_t]
+    return flat
+
+
 class CLine:
     """One C LineController; ``refusal``: (status, text) where the C construction refused."""
 
@@ -472,12 +490,7 @@ class CLine:
         self.lib, self.n = lib, len(spans)
         tuning = AtoTuning() if tuning is None else tuning
         values = tuning_values or [float(getattr(tuning, n)) for n in TUNING_FIELDS]
-        flat = []
-        for ls in spans:
-            sp, g = ls.span, ls.span.grade
-            flat += [sp.length, sp.schedule, sp.stop, len(g.distances), *g.distances, *g.grades,
-                     len(sp.limit_distances), *sp.limit_distances, *sp.limit_speeds,
-                     ls.dwell_s, ls.boarding_t]
+        flat = line_flat(spans)
         status, msg = ctypes.c_int(), ctypes.create_string_buffer(TEXT)
         self.h = lib.shim_line_new(len(spans), arr(flat), len(flat),
                                    arr(getattr(car, n) for n in CAR_FIELDS), arr(values),
@@ -649,25 +662,52 @@ def test_line_refusals_are_python_s_word_for_word(lib, case, spans):
 
 # ------------------------------------------------------------------ sanitizers, mutation
 
-def test_the_shim_runs_clean_under_the_sanitizers(tmp_path, recorded):
-    run = recorded["ato_speed_noise"][0]
-    exe = tmp_path / "ato_controller_shim"
+@pytest.fixture(scope="module")
+def sanitized(tmp_path_factory):
+    exe = tmp_path_factory.mktemp("sanitized") / "ato_controller_shim"
     build(exe, SANITIZE + ["-DSHIM_MAIN"])
+    return exe
+
+
+def run_sanitized(exe: Path, mode: str, data: list[float], tmp_path: Path) -> list[list[str]]:
+    path = tmp_path / f"{mode}.bin"
+    path.write_bytes(np.asarray(data, dtype="<f8").tobytes())
+    proc = subprocess.run([str(exe), mode, str(path)], capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "runtime error" not in proc.stderr and "Sanitizer" not in proc.stderr, proc.stderr
+    return [line.split() for line in proc.stdout.splitlines()]
+
+
+@pytest.mark.parametrize("variant", ["settle", "faults_noise"])
+def test_the_controller_runs_clean_under_the_sanitizers(sanitized, tmp_path, variants, variant):
+    run = variants[variant][0]
     data = header(run["span"], run["car"], run["tuning"])
     for t, inputs, *_ in run["calls"]:
         data += [t, *inputs]
-    path = tmp_path / "calls.bin"
-    path.write_bytes(np.asarray(data, dtype="<f8").tobytes())
-    proc = subprocess.run([str(exe), str(path)], capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    assert "runtime error" not in proc.stderr and "Sanitizer" not in proc.stderr, proc.stderr
-    lines = proc.stdout.splitlines()
-    assert len(lines) == len(run["calls"])
-    for line, (_, _, want, finished, n_events) in zip(lines, run["calls"]):
-        f = line.split()
+    rows = run_sanitized(sanitized, "span", data, tmp_path)
+    assert len(rows) == len(run["calls"])
+    for f, (_, _, want, finished, n_events) in zip(rows, run["calls"]):
         assert (float.fromhex(f[0]), float.fromhex(f[1]), int(f[2]), float.fromhex(f[3]),
                 int(f[4])) == want
         assert (bool(int(f[5])), int(f[6])) == (finished, n_events)
+
+
+def test_the_line_runs_clean_under_the_sanitizers(sanitized, tmp_path):
+    run = record_line("ato_line", _line_faults)
+    line = run["line"]
+    flat = line_flat(line.spans)
+    car, tuning = line.controllers[0].car, line.controllers[0].tuning
+    data = ([len(line.spans), len(flat), *flat] + [float(getattr(car, n)) for n in CAR_FIELDS]
+            + [float(getattr(tuning, n)) for n in TUNING_FIELDS])
+    for t, inputs, stops, *_ in run["calls"]:
+        data += [t, *inputs, stops]
+    rows = run_sanitized(sanitized, "line", data, tmp_path)
+    assert len(rows) == len(run["calls"])
+    for f, (_, _, _, want, finished, n_dep) in zip(rows, run["calls"]):
+        got = [float.fromhex(x) for x in f]
+        assert [bits(x) for x in got[:9]] == [bits(x) for x in want]
+        assert (bool(got[9]), int(got[10])) == (finished, n_dep)
 
 
 MUTATIONS = (
@@ -687,3 +727,23 @@ def test_a_one_ulp_mutation_of_the_controller_is_caught(tmp_path, recorded, orig
     build(out, ["-shared"], [mutant] + SOURCES[1:])
     dll = load(out)
     assert replay_differences(dll, recorded["ato_nominal"][0]) != []
+
+
+def test_a_one_ulp_mutation_of_the_line_is_caught(tmp_path):
+    original = "view[ATO_IN_POSITION] = inputs[ATO_IN_POSITION] - line->offset;"
+    source = (CORE / "ato_line.c").read_text()
+    assert source.count(original) == 1
+    mutant = tmp_path / "ato_line.c"
+    mutant.write_text(source.replace(original, original.replace(
+        "inputs[ATO_IN_POSITION] -", f"inputs[ATO_IN_POSITION] * {ONE_ULP} -")))
+    out = tmp_path / "libmutant.so"
+    build(out, ["-shared"], [SOURCES[0], mutant] + SOURCES[2:])
+    dll = load(out)
+    run = record_line("ato_line")
+    line = run["line"]
+    c = CLine(dll, line.spans, line.controllers[0].car, line.controllers[0].tuning)
+    differs = False
+    for t, inputs, stops, want, *_ in run["calls"]:
+        got = c.demands(t, inputs, stops)
+        differs = differs or [bits(x) for x in got[:9]] != [bits(x) for x in want]
+    assert differs
