@@ -27,6 +27,7 @@ import ctypes
 import dataclasses
 import logging
 import math
+import random
 import shutil
 import struct
 import subprocess
@@ -348,6 +349,73 @@ def test_the_variants_reach_settle_creep_safe_overspeed_and_their_events(variant
                   "estimates not usable (est.status = 0)", "stated sigmas from the configured",
                   "above the supervision curve", "standing", "settled:", "re-plan status late"):
         assert words in texts, words
+
+
+# ------------------------------------------------------------------ seeded perturbations, open loop
+
+def random_tuning(rng: random.Random) -> AtoTuning:
+    """AtoTuning with a few settings drawn (within AtoTuning's bounds: redrawn until valid)"""
+    while True:
+        kw = {"settle_std": rng.choice([0.0, 0.05, 0.3]),
+              "aim_sigma": rng.uniform(0.0, 3.0), "k_sigma": rng.uniform(1.0, 4.0),
+              "gap_sigma": rng.uniform(0.0, 2.0), "replan_period": rng.choice([0.5, 1.0, 2.0, 5.0]),
+              "time_reserve": rng.uniform(0.0, 0.05), "est_gate": rng.uniform(1.0, 6.0),
+              "approach_gain": rng.uniform(0.2, 2.0), "min_samples": rng.choice([1, 50, 100]),
+              "brake_integral_gain": rng.uniform(0.0, 1.0), "ep_stages": rng.randint(2, 8),
+              "settle_time": rng.choice([0.0, 2.0, 5.0])}
+        try:
+            return AtoTuning(**kw)
+        except ValueError:
+            continue
+
+
+def perturbed(rng: random.Random, calls) -> list[tuple[float, list[float]]]:
+    """A recorded run's calls with seeded noise on what the controller reads: speeds and
+    positions off, the stds scaled, est.* wandering, est.status flickering, a rare NaN"""
+    out, drift, mass = [], 0.0, 0.0
+    names = list(ALL_INPUTS)
+    for t, inputs, *_ in calls:
+        x = list(inputs)
+        drift += rng.gauss(0.0, 0.02)
+        mass += rng.gauss(0.0, 0.3)
+        x[0] = x[0] * (1.0 + rng.gauss(0.0, 0.01)) + rng.gauss(0.0, 0.03)
+        x[1] = x[1] + drift
+        x[2] = x[2] * rng.uniform(0.5, 3.0)
+        x[9] = x[9] * rng.uniform(0.5, 3.0)
+        x[3] = x[3] + mass
+        for j in (4, 5, 6):
+            x[j] = x[j] * (1.0 + rng.gauss(0.0, 0.05))
+        if rng.random() < 0.01:
+            x[7] = float(rng.choice([0, 3]))
+        if rng.random() < 0.003:
+            x[rng.randrange(len(x))] = math.nan
+        if rng.random() < 0.02:
+            x[names.index("est.mass_std")] = math.nan
+        out.append((t, x))
+    return out
+
+
+SEEDS = range(8)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_seeded_perturbed_inputs_and_tunings_open_loop_are_python_s(lib, recorded, seed):
+    """The Python and the C controller fed the same perturbed inputs (no loop: the car does not
+    answer), with a drawn tuning: every command and event equal."""
+    rng = random.Random(seed)
+    name = ATO_SCENARIOS[seed % len(ATO_SCENARIOS)]
+    base = recorded[name][0]
+    tuning = random_tuning(rng)
+    calls = perturbed(rng, base["calls"])
+    py = AtoController(base["span"], base["car"], tuning)
+    run = {"span": base["span"], "car": base["car"], "tuning": tuning, "events": py.events,
+           "calls": []}
+    for t, x in calls:
+        cmd = py.demands(t, dict(zip(ALL_INPUTS, x)))
+        run["calls"].append((t, x, (cmd.traction, cmd.brake, int(cmd.mode), cmd.planned_speed,
+                                    int(cmd.ep_stage)), py.finished, len(py.events)))
+    assert replay_differences(lib, run) == [], f"seed {seed} ({name}, {tuning})"
+    assert any(call[2][2] == 9 for call in run["calls"])          # the NaNs were met
 
 
 # ------------------------------------------------------------------ the closed loop on C
