@@ -5,7 +5,6 @@
 
 #include <stdarg.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 
 #define REPR_SIZE 40
@@ -728,10 +727,15 @@ ato_command ato_controller_demands(ato_controller *c, double t, const double *in
     }
     ato_command cmd;
     rc_error err;
-    if (step(c, t, vals, &cmd, &err) != RC_OK) {
-        /* Python's except Exception: the safe brake, the error named once */
+    rc_status rc = step(c, t, vals, &cmd, &err);
+    if (rc != RC_OK) {
+        /* Python's except Exception: the safe brake, the error named once. What raises: int() of
+         * a NaN stage count (ValueError) or of an infinite one, fpmath.square (OverflowError);
+         * RC_ATO_INTERNAL is the C planner's own (a capacity its sizing never misses). None is
+         * reached by inputs the supervisor passes (speeds <= 200 m/s, finite). */
         char text[ATO_TEXT_SIZE];
-        const char *kind = strstr(err.msg, "NaN") != NULL ? "ValueError" : "OverflowError";
+        const char *kind = rc == RC_ATO_INTERNAL ? "RuntimeError"
+                           : strstr(err.msg, "NaN") != NULL ? "ValueError" : "OverflowError";
         snprintf(text, sizeof text, "internal error %s: %s: safe brake", kind, err.msg);
         log_once(c, NAN, ATO_KEY_INTERNAL, ATO_EV_INTERNAL, text);
         ato_supervisor_note_command(sup, 0.0);

@@ -418,6 +418,29 @@ def test_seeded_perturbed_inputs_and_tunings_open_loop_are_python_s(lib, recorde
     assert any(call[2][2] == 9 for call in run["calls"])          # the NaNs were met
 
 
+def test_failing_re_plans_keep_the_last_plan_as_python_does(lib, recorded):
+    """A 120 permille climb and est.mass three times the configured (heavier_mass takes it, to
+    mass_band, even before est.* get weight): the re-plans fail (the car would stall) and the
+    last plan is kept, open loop on ato_nominal's inputs."""
+    base = recorded["ato_nominal"][0]
+    car = base["car"]
+    span = Span(2200.0, 200.0, stop=2150.0,
+                grade=GradeProfile((0.0, 1200.0, 1700.0), (0.0, 120.0, 0.0)))
+    py = AtoController(span, car)
+    run = {"span": span, "car": car, "tuning": py.tuning, "events": py.events, "calls": []}
+    for t, inputs, *_ in base["calls"]:
+        x = list(inputs)
+        x[ALL_INPUTS.index("est.mass")] = 3.0 * car.mass
+        x[ALL_INPUTS.index("est.mass_std")] = 0.01
+        cmd = py.demands(t, dict(zip(ALL_INPUTS, x)))
+        run["calls"].append((t, x, (cmd.traction, cmd.brake, int(cmd.mode), cmd.planned_speed,
+                                    int(cmd.ep_stage)), py.finished, len(py.events)))
+    failed = [e for _, e in py.events if e.startswith("re-plan failed (no holding speed")]
+    assert len(failed) > 10
+    assert any(e.startswith("re-plan status early") for _, e in py.events)
+    assert replay_differences(lib, run) == []
+
+
 # ------------------------------------------------------------------ the closed loop on C
 
 # ato_controller.h's ato_event_code of the events AtoController._log records (once per episode)
