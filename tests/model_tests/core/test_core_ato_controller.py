@@ -185,7 +185,7 @@ def record(name: str, faults=None) -> list[dict]:
         cmd = demands(self, t, {n: v for n, v in seen.items() if v is not None})
         run = runs.setdefault(id(self), {"span": self.span, "car": self.car,
                                          "tuning": self.tuning, "calls": [],
-                                         "events": self.events})
+                                         "events": self.events, "ctrl": self})
         run["calls"].append((t, inputs, (cmd.traction, cmd.brake, int(cmd.mode),
                                          cmd.planned_speed, int(cmd.ep_stage)),
                              self.finished, len(self.events)))
@@ -221,7 +221,17 @@ def replay_differences(lib, run: dict, limit: int = 5) -> list[str]:
                 out.append(f"step {k}: event {e} C {(te, text)!r}, Python {events[e]!r}")
         seen = n_events
         if len(out) >= limit:
-            break
+            return out
+    ctrl = run.get("ctrl")
+    if ctrl is not None:                   # the state the run ends in
+        phases = ("run", "brake", "ep", "settle", "hold")
+        want = [phases.index(ctrl.phase), ctrl.replans, ctrl.aim_offset, ctrl._gate,
+                *ctrl.weights, ctrl.using_estimates, ctrl.relay.stop]
+        got = c.state()
+        for j, field in enumerate(("phase", "replans", "aim_offset", "gate", "w_m", "w_r",
+                                   "using_estimates", "relay.stop")):
+            if bits(got[j]) != bits(float(want[j])):
+                out.append(f"at the end: {field} C {got[j]!r}, Python {want[j]!r}")
     return out
 
 
@@ -255,7 +265,7 @@ def test_the_replays_cover_every_phase_and_event_kind(recorded):
     assert any(e.startswith("stopped") for e in texts)
 
 
-# ------------------------------------------------------------------ variants: what the library leaves out
+# ------------------------------------------------------------------ variants: beyond the library
 
 def _faults(t, seen):
     """NaN, est.* garbage the supervisor refuses, est.status flickering, est.A0 far off but sane,
@@ -409,7 +419,7 @@ def test_seeded_perturbed_inputs_and_tunings_open_loop_are_python_s(lib, recorde
     calls = perturbed(rng, base["calls"])
     py = AtoController(base["span"], base["car"], tuning)
     run = {"span": base["span"], "car": base["car"], "tuning": tuning, "events": py.events,
-           "calls": []}
+           "calls": [], "ctrl": py}
     for t, x in calls:
         cmd = py.demands(t, dict(zip(ALL_INPUTS, x)))
         run["calls"].append((t, x, (cmd.traction, cmd.brake, int(cmd.mode), cmd.planned_speed,
@@ -427,7 +437,8 @@ def test_failing_re_plans_keep_the_last_plan_as_python_does(lib, recorded):
     span = Span(2200.0, 200.0, stop=2150.0,
                 grade=GradeProfile((0.0, 1200.0, 1700.0), (0.0, 120.0, 0.0)))
     py = AtoController(span, car)
-    run = {"span": span, "car": car, "tuning": py.tuning, "events": py.events, "calls": []}
+    run = {"span": span, "car": car, "tuning": py.tuning, "events": py.events, "calls": [],
+           "ctrl": py}
     for t, inputs, *_ in base["calls"]:
         x = list(inputs)
         x[ALL_INPUTS.index("est.mass")] = 3.0 * car.mass
