@@ -311,6 +311,11 @@ void ato_controller_free(ato_controller *c)
 
 int ato_controller_finished(const ato_controller *c) { return c->phase == ATO_PHASE_HOLD; }
 
+double ato_controller_predicted_arrival(const ato_controller *c)
+{
+    return c->planner.plan.arrival;
+}
+
 const ato_event *ato_controller_event(const ato_controller *c, long k)
 {
     if (k < 0 || k >= c->n_events || k < c->n_events - ATO_EVENT_RING)

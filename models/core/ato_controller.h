@@ -123,6 +123,11 @@ ato_command ato_controller_demands(ato_controller *c, double t, const double *in
 /* AtoController.finished: the car stands at the stop mark */
 int ato_controller_finished(const ato_controller *c);
 
+/* AtoController.plan.arrival [s]: the arrival the plan in force predicts (the FMU's
+ * ato.predicted_arrival; c->replans and c->using_estimates are its ato.replans and
+ * ato.using_estimates) */
+double ato_controller_predicted_arrival(const ato_controller *c);
+
 /* the event number k (0 .. n_events - 1) if still in the ring, else NULL */
 const ato_event *ato_controller_event(const ato_controller *c, long k);
 

@@ -97,7 +97,8 @@ void shim_free(void *hv)
     free(h);
 }
 
-/* one demands call: out = (traction, brake, mode, planned_speed, ep_stage, finished, n_events) */
+/* one demands call: out = (traction, brake, mode, planned_speed, ep_stage, finished, n_events,
+ * predicted arrival, replans, using_estimates) */
 void shim_demands(void *hv, double t, const double *inputs, double *out)
 {
     shim *h = hv;
@@ -109,6 +110,9 @@ void shim_demands(void *hv, double t, const double *inputs, double *out)
     out[4] = cmd.ep_stage;
     out[5] = ato_controller_finished(&h->ctrl);
     out[6] = (double)h->ctrl.n_events;
+    out[7] = ato_controller_predicted_arrival(&h->ctrl);
+    out[8] = (double)h->ctrl.replans;
+    out[9] = h->ctrl.using_estimates;
 }
 
 /* event k: its t, code and text (ATO_TEXT_SIZE); -1 when it has left the ring */
@@ -346,7 +350,7 @@ int main(int argc, char **argv)
         printf("refused %d %s\n", status, msg);
         return 0;
     }
-    double out[7];
+    double out[10];
     while (p + 1 + ATO_N_ALL_INPUTS <= n) {
         shim_demands(h, buf[p], buf + p + 1, out);
         p += 1 + ATO_N_ALL_INPUTS;

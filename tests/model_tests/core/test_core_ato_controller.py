@@ -136,10 +136,12 @@ class CController:
         self.n_events = 0
 
     def demands(self, t: float, inputs) -> tuple:
-        """(traction, brake, mode, planned_speed, ep_stage, finished, n_events)"""
-        out = (ctypes.c_double * 7)()
+        """(traction, brake, mode, planned_speed, ep_stage, finished, n_events,
+        predicted arrival, replans, using_estimates)"""
+        out = (ctypes.c_double * 10)()
         self.lib.shim_demands(self.h, t, arr(inputs), out)
-        return (out[0], out[1], int(out[2]), out[3], int(out[4]), bool(out[5]), int(out[6]))
+        return (out[0], out[1], int(out[2]), out[3], int(out[4]), bool(out[5]), int(out[6]),
+                out[7], int(out[8]), bool(out[9]))
 
     def event(self, k: int) -> tuple[float, str]:
         return self.coded_event(k)[:2]
@@ -171,6 +173,12 @@ def seen_inputs(outputs) -> list[float]:
     return [math.nan if outputs.get(n) is None else float(outputs.get(n)) for n in ALL_INPUTS]
 
 
+def published(ctrl: AtoController) -> tuple:
+    """What the FMU publishes from the controller besides the command (fmu_src/ato_controller.py
+    _publish): ato.predicted_arrival, ato.replans, ato.using_estimates"""
+    return float(ctrl.plan.arrival), int(ctrl.replans), bool(ctrl.using_estimates)
+
+
 def record(name: str, faults=None) -> list[dict]:
     """The scenario in the Python closed loop; per controller (span order): its span, car, tuning,
     calls [(t, inputs, command tuple, finished, number of events)] and events."""
@@ -188,7 +196,7 @@ def record(name: str, faults=None) -> list[dict]:
                                          "events": self.events, "ctrl": self})
         run["calls"].append((t, inputs, (cmd.traction, cmd.brake, int(cmd.mode),
                                          cmd.planned_speed, int(cmd.ep_stage)),
-                             self.finished, len(self.events)))
+                             self.finished, len(self.events), published(self)))
         return cmd
 
     AtoController.demands = rec
@@ -205,8 +213,10 @@ def replay_differences(lib, run: dict, limit: int = 5) -> list[str]:
     assert c.refusal is None, c.refusal
     out, seen = [], 0
     events = run["events"]
-    for k, (t, inputs, want, finished, n_events) in enumerate(run["calls"]):
+    for k, (t, inputs, want, finished, n_events, *extra) in enumerate(run["calls"]):
         got = c.demands(t, inputs)
+        if extra and (bits(got[7]), got[8], got[9]) != (bits(extra[0][0]), *extra[0][1:]):
+            out.append(f"step {k}: published C {got[7:]}, Python {extra[0]}")
         for j, field in enumerate(("traction", "brake", "mode", "planned_speed", "ep_stage")):
             if bits(got[j]) != bits(want[j]):
                 out.append(f"step {k} (t = {t}): {field} C {got[j]!r}, Python {want[j]!r}")
@@ -423,7 +433,8 @@ def test_seeded_perturbed_inputs_and_tunings_open_loop_are_python_s(lib, recorde
     for t, x in calls:
         cmd = py.demands(t, dict(zip(ALL_INPUTS, x)))
         run["calls"].append((t, x, (cmd.traction, cmd.brake, int(cmd.mode), cmd.planned_speed,
-                                    int(cmd.ep_stage)), py.finished, len(py.events)))
+                                    int(cmd.ep_stage)), py.finished, len(py.events),
+                             published(py)))
     assert replay_differences(lib, run) == [], f"seed {seed} ({name}, {tuning})"
     assert any(call[2][2] == 9 for call in run["calls"])          # the NaNs were met
 
@@ -445,7 +456,8 @@ def test_failing_re_plans_keep_the_last_plan_as_python_does(lib, recorded):
         x[ALL_INPUTS.index("est.mass_std")] = 0.01
         cmd = py.demands(t, dict(zip(ALL_INPUTS, x)))
         run["calls"].append((t, x, (cmd.traction, cmd.brake, int(cmd.mode), cmd.planned_speed,
-                                    int(cmd.ep_stage)), py.finished, len(py.events)))
+                                    int(cmd.ep_stage)), py.finished, len(py.events),
+                             published(py)))
     failed = [e for _, e in py.events if e.startswith("re-plan failed (no holding speed")]
     assert len(failed) > 10
     assert any(e.startswith("re-plan status early") for _, e in py.events)
@@ -789,7 +801,7 @@ def test_the_controller_runs_clean_under_the_sanitizers(sanitized, tmp_path, var
         data += [t, *inputs]
     rows = run_sanitized(sanitized, "span", data, tmp_path)
     assert len(rows) == len(run["calls"])
-    for f, (_, _, want, finished, n_events) in zip(rows, run["calls"]):
+    for f, (_, _, want, finished, n_events, _) in zip(rows, run["calls"]):
         assert (float.fromhex(f[0]), float.fromhex(f[1]), int(f[2]), float.fromhex(f[3]),
                 int(f[4])) == want
         assert (bool(int(f[5])), int(f[6])) == (finished, n_events)
