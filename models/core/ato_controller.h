@@ -10,7 +10,14 @@
  * must outlive the controller.
  *
  * Python's events list is a ring of the latest ATO_EVENT_RING (t, reason, text) with the count of
- * all events so far; replan_seconds (wall-clock) is left out, the re-plans are counted.
+ * all events so far (a step adds a few at most: a host reads them after each step); the codes
+ * ATO_EV_INPUT, _RECOVERY, _ESTIMATES, _OVERSPEED and _INTERNAL are the ones AtoController._log
+ * also logs (logger models.ato.controller, "ATO at t = %.2f s: <text>"). replan_seconds
+ * (wall-clock) is left out, the re-plans are counted (replans).
+ *
+ * One difference by design: the host gives every input as a double, NaN where it has none, so an
+ * input Python's demands finds missing ("<name> is missing: safe brake") is a NaN here ("<name> =
+ * nan is not finite: safe brake"); the FMU always has every input.
  * Units: s [m], V [m/s], t [s], force [N], mass [t], grade [permille].
  */
 #ifndef RAILCAR_ATO_CONTROLLER_H
