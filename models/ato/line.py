@@ -60,6 +60,15 @@ class LineStep:
     payload_change: float = 0.0
 
 
+def _finite(x) -> float | None:
+    """``x`` as a finite float, else None (missing, not a number, NaN or infinite)."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
 class _Shifted(Mapping):
     """The outputs with filter.position less ``offset`` [m] (module docstring)."""
 
@@ -143,10 +152,15 @@ class LineController:
                 boarding = 0.0 if self._boarded else nxt.boarding_t
                 self._boarded = True
                 return LineStep(t, self.k, cmd, dwell=True, payload_change=boarding)
+            position = _finite(outputs.get("filter.position") if hasattr(outputs, "get") else None)
+            if position is None:       # the shift needs a position: no departure until one
+                cmd = AtoCommand(0.0, ctrl.tuning.hold_brake * ctrl.car.brake_force_max,
+                                 int(AtoMode.HOLD), 0.0)
+                return LineStep(t, self.k, cmd, dwell=True, payload_change=0.0)
             self._dwell_from, self._boarded = None, False
             self.k += 1
             ctrl = self.controllers[self.k]
-            self._offset = float(outputs["filter.position"])
+            self._offset = position
         view = outputs
         if self._offset is not None:
             if self._restarted(outputs):

@@ -108,6 +108,15 @@ ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
             line->boarded = 1;
             return line_step(t, line->k, cmd, 1, boarding);
         }
+        if (!isfinite(inputs[ATO_IN_POSITION])) {   /* the shift needs a position: hold on */
+            ato_command cmd;
+            cmd.traction = 0.0;
+            cmd.brake = ctrl->tuning.hold_brake * ctrl->car->brake_force_max;
+            cmd.mode = ATO_MODE_HOLD;
+            cmd.planned_speed = 0.0;
+            cmd.ep_stage = 0;
+            return line_step(t, line->k, cmd, 1, 0.0);
+        }
         line->has_dwell_from = 0;
         line->boarded = 0;
         line->k += 1;

@@ -116,6 +116,29 @@ def test_a_missing_station_count_keeps_the_shift():
     assert second.seen == [(0.2, 0.0), (0.3, 20.0), (0.4, 20.0)]
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), None, "x"])
+def test_no_departure_without_a_position_to_shift_by(bad):
+    """filter.position missing or not a finite number when the dwell ends: the line holds the
+    car (HOLD, no boarding again) until a position comes, then departs from it; it once took a
+    NaN as the shift (the safe brake for ever, the line never finished) or raised KeyError."""
+    line, (_, second) = _stand_in_line(dwell=0.2, boarding=4.0)
+    line.demands(0.0, _outputs(0.0, 850.0, 0))       # finishes
+    assert line.demands(0.1, _outputs(0.0, 850.0, 0)).payload_change == 4.0   # the dwell call
+    for t in (0.2, 0.3):
+        out = _outputs(0.0, 850.0, 0)
+        if bad is None:
+            del out["filter.position"]
+        else:
+            out["filter.position"] = bad
+        step = line.demands(t, out)
+        assert step.dwell and step.span == 0 and step.payload_change == 0.0
+        assert step.command.mode == AtoMode.HOLD and step.command.traction == 0.0
+    depart = line.demands(0.4, _outputs(0.0, 850.5, 0))
+    assert not depart.dwell and depart.span == 1 and line.departures == [0.0, 0.4]
+    line.demands(0.5, _outputs(1.0, 851.0, 0))
+    assert second.seen == [(0.4, 0.0), (0.5, 0.5)]
+
+
 def test_the_last_span_finishes_the_line_and_a_one_span_line_is_one_controller():
     """One span: the line's commands are a bare AtoController's, and the line is finished
     exactly when the controller is."""
