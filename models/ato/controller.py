@@ -366,8 +366,9 @@ class AtoController:
         self.weights = (w_m, w_r)
         c = self.configured
         plan = key if (key is not None and using) else (c.mass, c.A0, c.A1, c.A2)
-        plan = (heavier_mass(plan[0], est[0], int(est[4]) in EST_USABLE, c.mass, tn.mass_band),
-                *plan[1:])
+        if tn.use_estimates:         # off: the configured car alone, as the tuning says
+            plan = (heavier_mass(plan[0], est[0], int(est[4]) in EST_USABLE, c.mass, tn.mass_band),
+                    *plan[1:])
         brake_mass = braking_mass(plan[0], c.mass)
         if plan == (c.mass, c.A0, c.A1, c.A2) and brake_mass == c.brake_mass:
             self._car_now = c
@@ -376,7 +377,8 @@ class AtoController:
         self._last_key = (plan, brake_mass)
         return self._car_now
 
-    def _replan(self, tau: float, s: float, v: float, car: PlanCar):
+    def _replan(self, t: float, tau: float, s: float, v: float, car: PlanCar):
+        """Re-plan from (s, v) at ``tau`` [s] after departure; events at the call's time ``t``."""
         t0 = _time.perf_counter()
         try:
             # while est.* and the configured car disagree (one is wrong: the error may show
@@ -387,12 +389,13 @@ class AtoController:
                        * left * left / self.span.schedule)
             plan = self.planner.plan(car, s, v, tau, self.span.schedule - reserve)
         except ValueError as e:
-            self.events.append((tau, f"re-plan failed ({e}): the last plan is kept"))
+            self._log(t, f"re-plan failed ({e}): the last plan is kept", "replan")
             return
+        self._clear("replan")
         self.replan_seconds.append(_time.perf_counter() - t0)
         self.replans += 1
         if plan.status != self._last_status:
-            self.events.append((tau, f"re-plan status {plan.status}: arrival planned "
+            self.events.append((t, f"re-plan status {plan.status}: arrival planned "
                                      f"{plan.arrival - self.span.schedule:+.2f} s off schedule"))
             self._last_status = plan.status
         self.plan = plan
@@ -430,7 +433,7 @@ class AtoController:
             return self._stop_ep(t, s, v, sd, self.relay.stop - s, car, g)
         if self.phase == RUN and tn.replan and tau - self._last_replan >= tn.replan_period - 1e-9:
             self._last_replan = tau
-            self._replan(tau, s, v, car)
+            self._replan(t, tau, s, v, car)
         plan = self.plan
         # on the final braking curve, the curve ends at the aim point: U is read aim_offset on
         u, a_u = self._ceiling(s, sd, self.aim_offset if self.phase == BRAKE else 0.0)

@@ -393,7 +393,8 @@ static void params(ato_controller *c, double t, const double *est, const double 
         plan[2] = cf->A1;
         plan[3] = cf->A2;
     }
-    plan[0] = rc_ato_heavier_mass(plan[0], est[0], identifying, cf->mass, tn->mass_band);
+    if (tn->use_estimates)        /* off: the configured car alone */
+        plan[0] = rc_ato_heavier_mass(plan[0], est[0], identifying, cf->mass, tn->mass_band);
     double brake_mass = rc_ato_braking_mass(plan[0], cf->mass);
     double key[5] = {plan[0], plan[1], plan[2], plan[3], brake_mass};
     int same_key = c->has_last_key;
@@ -415,7 +416,7 @@ static const char *status_name(int status)
 }
 
 /* _replan; RC_MATH (with err) where Python raises other than ValueError */
-static rc_status replan(ato_controller *c, double tau, double s, double v, rc_error *err)
+static rc_status replan(ato_controller *c, double t, double tau, double s, double v, rc_error *err)
 {
     const rc_ato_span *span = c->span;
     const rc_ato_plancar *car = &c->car_now;
@@ -424,17 +425,19 @@ static rc_status replan(ato_controller *c, double tau, double s, double v, rc_er
     rc_status rc = rc_ato_plan_run(&c->planner, car, s, v, tau, span->schedule - reserve, NULL,
                                    err);
     if (rc == RC_BAD_CONFIG) {
-        add_event(c, tau, ATO_EV_REPLAN_FAILED, "re-plan failed (%s): the last plan is kept",
-                  err->msg);
+        char text[ATO_TEXT_SIZE];
+        snprintf(text, sizeof text, "re-plan failed (%s): the last plan is kept", err->msg);
+        log_once(c, t, ATO_KEY_REPLAN, ATO_EV_REPLAN_FAILED, text);
         return RC_OK;
     }
     if (rc != RC_OK)
         return rc;
+    c->episodes[ATO_KEY_REPLAN] = 0;
     const rc_ato_plan *pl = &c->planner.plan;
     memcpy(c->qU, pl->qU, sizeof(double) * (size_t)c->course.n);
     c->replans++;
     if (pl->status != c->last_status) {
-        add_event(c, tau, ATO_EV_REPLAN_STATUS, "re-plan status %s: arrival planned %+.2f s off "
+        add_event(c, t, ATO_EV_REPLAN_STATUS, "re-plan status %s: arrival planned %+.2f s off "
                   "schedule", status_name(pl->status), pl->arrival - span->schedule);
         c->last_status = pl->status;
     }
@@ -661,7 +664,7 @@ static rc_status step(ato_controller *c, double t, const double *vals, ato_comma
     if (c->phase == ATO_PHASE_RUN && tn->replan
         && tau - c->last_replan >= tn->replan_period - 1e-9) {
         c->last_replan = tau;
-        rc_status rc = replan(c, tau, s, v, err);
+        rc_status rc = replan(c, t, tau, s, v, err);
         if (rc != RC_OK)
             return rc;
     }

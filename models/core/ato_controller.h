@@ -43,7 +43,7 @@ typedef enum {
     ATO_EV_RELEASED = 2,       /* ... and released */
     ATO_EV_ESTIMATES = 3,      /* est.* not usable / gated out (once per episode) */
     ATO_EV_EST_USABLE = 4,     /* est.* get weight for the first time */
-    ATO_EV_REPLAN_FAILED = 5,  /* a re-plan's ValueError: the last plan is kept */
+    ATO_EV_REPLAN_FAILED = 5,  /* a re-plan's ValueError: the last plan is kept (once per episode) */
     ATO_EV_REPLAN_STATUS = 6,  /* a re-plan's status changed */
     ATO_EV_ONE_STOP = 7,       /* _refine_aim: no settling after all */
     ATO_EV_SETTLED = 8,
@@ -68,7 +68,7 @@ typedef struct {
 
 /* the once-per-episode keys: the inputs' subjects, then these */
 enum { ATO_KEY_TIME = ATO_N_ALL_INPUTS, ATO_KEY_CONSISTENCY, ATO_KEY_RECOVERY,
-       ATO_KEY_ESTIMATES, ATO_KEY_OVERSPEED, ATO_KEY_INTERNAL, ATO_N_KEYS };
+       ATO_KEY_ESTIMATES, ATO_KEY_OVERSPEED, ATO_KEY_INTERNAL, ATO_KEY_REPLAN, ATO_N_KEYS };
 
 typedef struct {
     const rc_ato_span *span;
