@@ -70,8 +70,8 @@ is counted as "no final coast" and left out of the shares.
               (7.81; honest: 95 %), A' = (A0 + A2 Vw^2, A1 + 2 A2 Vw, A2) the quadratic the wind
               makes of eq. (1) (harness.metrics.estimation.true_theta). The most sensitive of the
               three (it weighs the least-known direction of C fully): a run's 2nd span, the first
-              after est.method 2's prior reweighting at a mass restart, is its tail (60 seeds:
-              13 % of 2nd spans above 7.81, 5 % of the others).
+              after est.method 2's prior reweighting at a mass restart, is its tail (seeds
+              1-180: 12 % of 2nd spans above 7.81, 4-7 % of the later ones).
               With 300 spans a share of 95 % has a binomial standard error of 1.3 pp (2.2 pp at
               100 spans).
 
