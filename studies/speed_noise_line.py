@@ -1,21 +1,21 @@
 """Which estimator to ship under a speed sensor with relative noise: mass and w0 at the start
 of each span's final coast, per configuration (a study, not a test; issue 27).
 
-    python studies/speed_noise_line.py [--seeds 20] [--spans 5] [--ato-seeds 10]
+    python studies/speed_noise_line.py [--seeds 60] [--spans 5] [--ato-seeds 10]
                                        [--with NAME=VALUE[,NAME=VALUE] ...] [--processes 2]
                                        [--cruise-probability 0.7]
 
 Issue 27's target: under sensor.speed_std_rel = 1 % (Meleshin's 2 % as 2 sigma), at the start
 of each span's final coast, |est.mass - true mass| <= 2 t and |w0_est(V) - w0_true(V)| <= 1 N/kN
 over the span's speed range in >= 95 % of spans, and the stated +-2 sigma covering the error in
-90-98 % of them. Every run uses sensor.speed_std = 0.01 m/s (a pulse counter's floor at rest)
-plus sensor.speed_std_rel = 0.01 (1 % of the speed as 1 sigma), as scenarios/library/
-ato_speed_noise.toml does.
+90-98 % of them (w0's: pointwise, see "coverage" below). Every run uses sensor.speed_std = 0.01
+m/s (a pulse counter's floor at rest) plus sensor.speed_std_rel = 0.01 (1 % of the speed as 1
+sigma), as scenarios/library/ato_speed_noise.toml does.
 
 Cases (each a table):
 
-  line  a generated line per seed (seeds 1..N): ``--spans`` spans of 0.7-2.5 km, each driven by
-        harness.run.phases.PhaseDriver (the harness's [[driver]] phases, true speed and distance):
+  line  a generated line per seed (seeds 1..N, default 60): ``--spans`` spans of 0.7-2.5 km,
+        each driven by harness.run.phases.PhaseDriver (the harness's [[driver]] phases, true speed and distance):
         traction with the car's limit force to the span's cruise speed (40-80 km/h, capped so
         that traction, the final coast and the braking fit the span), a cruise (speed held) on
         70 % of the spans (``--cruise-probability``) up to 15-30 % of the span before the
@@ -53,17 +53,38 @@ is counted as "no final coast" and left out of the shares.
               V + Vw > 0, where the wind moves A0 and A1; below, with a tailwind, the plant's
               sign). Stated sigma: sqrt(h C h^T), h = (1, V, V^2), C from est.A*_std and
               est.cov_A*_A* at the V where the error is largest.
-  coverage    share of spans with |error| <= 2 stated sigma.
+  coverage    mass: share of spans with |error| <= 2 stated sigma (honest: 95.4 %).
+              w0, pointwise: share of the (span, V of the grid) pairs with |err(V)| <= 2 sigma(V),
+              sigma(V) = sqrt(h(V) C h(V)^T) (honest: 95.4 %, every span weighing its W0_GRID
+              speeds alike). THE TARGET'S FIGURE: the stated +-2 sigma of w0 is a pointwise band
+              (est.A*'s covariance gives w0's std at one speed, and an ATO asks w0 at the speed it
+              plans for), so "the stated +-2 sigma covering the error in 90-98 %" is judged here.
+              w0, at the worst V: the span's largest |err| over the range against 2 sigma at that
+              speed, printed with its honest value in brackets: the same test scored on errors
+              of the A's drawn (HONEST_DRAWS per span, seeded) from each span's own stated C. That
+              value is ~91 %, not 95 %: taking the speed where the error is largest picks the
+              direction in which a 3-dimensional error is largest, and a band that holds over
+              every speed at once is simultaneous (2.80 sigma for a full-rank C, sqrt of chi2(3)'s
+              95 % point), not 2 sigma. Kept so that nobody reads its ~90 % as a miss.
+              The A's: share of spans with d^2 = (A - A')^T C^-1 (A - A') <= chi2(3)'s 95 % point
+              (7.81; honest: 95 %), A' = (A0 + A2 Vw^2, A1 + 2 A2 Vw, A2) the quadratic the wind
+              makes of eq. (1) (harness.metrics.estimation.true_theta). The most sensitive of the
+              three (it weighs the least-known direction of C fully): a run's 2nd span, the first
+              after est.method 2's prior reweighting at a mass restart, is its tail (seeds
+              1-180: 12 % of 2nd spans above 7.81, 4-7 % of the later ones).
+              With 300 spans a share of 95 % has a binomial standard error of 1.3 pp (2.2 pp at
+              100 spans).
 
 Columns per configuration: spans (without a final coast), shares within the targets (mass,
 w0, both, both from the second span of a run on: the first coast of a run sees one span's
-data), median and worst |errors|, +-2 sigma coverages, and the median of |error| / stated
-sigma (0.674 if the sigma is the error's true spread and the error Gaussian: below, the sigma
-is overstated; above, understated). The tables go to the terminal and, as
-markdown, to out/speed_noise/table.md, with a per-scenario line for the ATO case. Seeded: the
-numbers repeat. Runtime of the default (20 x 5 line spans, 10 seeds per ATO scenario, six
-configurations): 45 s on 2 cores (110 s with the cores shared), ~90 % of it the ATO runs
-(the ATO is Python; the line alone, --ato-seeds 0: 10 s on one core).
+data), median and worst |errors|, the +-2 sigma coverages above, and the median of |error| /
+stated sigma (for w0 over every (span, V of the grid)); 0.674 if the sigma is the error's
+true spread and the error Gaussian: below, the sigma is overstated; above, understated. The
+tables go to the terminal and, as markdown, to out/speed_noise/table.md, with a per-scenario
+line for the ATO case. Seeded: the numbers repeat. Runtime of the default (60 x 5 line spans,
+10 seeds per ATO scenario, six configurations): 100 s on 2 cores shared with other work,
+~70 % of it the ATO runs (the ATO is Python; the line alone, --ato-seeds 0: 30 s; the honest
+references' draws ~2 s).
 """
 from __future__ import annotations
 
@@ -72,7 +93,7 @@ import math
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -84,6 +105,7 @@ import numpy as np  # noqa: E402
 
 from fmu_src.variables import FORMER_DEFAULTS  # noqa: E402
 from harness.run.driver import chain_result  # noqa: E402
+from harness.metrics.estimation import true_theta  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, load_scenario, scenario_from_dict  # noqa: E402
 from models.plant.dynamics import COASTING, resistance_eq1  # noqa: E402
 
@@ -91,12 +113,20 @@ LIBRARY = ROOT / "scenarios" / "library"
 OUT = ROOT / "out" / "speed_noise"
 SPEED_NOISE = {"sensor.speed_std": 0.01, "sensor.speed_std_rel": 0.01}   # [m/s], [-]
 
+DEFAULT_SEEDS = 60           # generated lines: 300 spans, a share's standard error 1.3 pp (20: 2.2)
 MASS_TARGET_T = 2.0          # [t]
 W0_TARGET = 1.0              # [N/kN]
 SPEED_RANGE_LOW = 0.3        # the span's speed range starts at this share of its top speed
 W0_GRID = 60                 # speeds sampled in that range
 MIN_COAST_S = 2.0            # [s] a shorter block of coasting rows is a transition, not a coast
 STEP_S = 0.1                 # [s] communication step (= sensor.sample_period)
+
+# the coverages' honest values: what an error drawn from the stated covariance itself scores
+POINTWISE_HONEST = math.erf(2.0 / math.sqrt(2.0))   # P(|z| <= 2) = 0.9545 for each (span, V)
+CHI2_3_95 = 7.814727903251179                      # chi2(3)'s 95 % point (scipy.stats.chi2.ppf(0.95, 3))
+Z_MEDIAN_HONEST = 0.6744897501960817               # median |z| of a standard normal
+HONEST_DRAWS = 2000          # errors drawn per span for the worst-speed test's honest value
+HONEST_SEED = 27             # their generator's seed (the draws repeat)
 
 # the generated line (numbers drawn per seed)
 SPAN_LENGTH_M = (700.0, 2500.0)
@@ -265,6 +295,10 @@ class SpanScore:
     v_worst_mps: float = math.nan    # that speed [m/s]
     v_max_mps: float = math.nan      # the span's top speed [m/s]
     coast_at_m: float = math.nan     # where the final coast starts, from the station [m]
+    w0_cover_pointwise: float = math.nan   # share of the W0_GRID speeds with |err(V)| <= 2 sigma(V)
+    w0_z: tuple = ()                 # |err(V)| / sigma(V) at the W0_GRID speeds [-]
+    a_d2: float = math.nan           # (A - A')^T C^-1 (A - A'): the A's against chi2(3) [-]
+    a_cov: tuple = ()                # C, est.A*'s stated covariance, as 3 rows
 
     @property
     def mass_ok(self) -> bool:
@@ -273,6 +307,35 @@ class SpanScore:
     @property
     def w0_ok(self) -> bool:
         return self.w0_err <= W0_TARGET
+
+
+def speed_grid(v_max: float) -> np.ndarray:
+    """The W0_GRID speeds [m/s] of a span's speed range [SPEED_RANGE_LOW v_max, v_max]."""
+    return np.linspace(SPEED_RANGE_LOW * v_max, v_max, W0_GRID)
+
+
+def w0_sigma(cov: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+    """w0_est's stated std sqrt(h C h^T), h = (1, V, V^2), at ``speeds`` [N/kN]."""
+    h = np.vstack([np.ones_like(speeds), speeds, speeds * speeds])      # 3 x grid
+    return np.sqrt(np.maximum(np.einsum("ig,ij,jg->g", h, cov, h), 0.0))
+
+
+def honest_worst_speed_cover(cov: np.ndarray, v_max: float, rng: np.random.Generator,
+                             draws: int = HONEST_DRAWS) -> float:
+    """What the worst-speed w0 test (the largest |err| over the span's speed range against 2 sigma
+    at that speed) scores for a covariance that is exactly right: the share of ``draws`` errors
+    of the A's drawn from N(0, ``cov``) that pass it on the grid of ``v_max`` [m/s].
+
+    Below 95 %: the largest of a 3-dimensional error's values over the range picks the direction
+    in which that error is largest, so the band it needs is simultaneous (2.80 sigma for a full
+    rank C, sqrt of chi2(3)'s 95 % point); with C of rank 1 in A0 alone it is the pointwise 95.4 %."""
+    speeds = speed_grid(v_max)
+    h = np.vstack([np.ones_like(speeds), speeds, speeds * speeds])      # 3 x grid
+    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = vectors * np.sqrt(np.maximum(values, 0.0))                   # root @ root^T = C
+    errors = np.abs(rng.standard_normal((draws, 3)) @ root.T @ h)       # draws x grid
+    worst = np.argmax(errors, axis=1)
+    return float(np.mean(errors[np.arange(draws), worst] <= 2.0 * w0_sigma(cov, speeds)[worst]))
 
 
 def span_bounds(result) -> list[tuple[int, int]]:
@@ -309,6 +372,30 @@ def final_coast_start(result, first: int, arrival: int, min_rows: int) -> int | 
     return start
 
 
+def score_w0(span: SpanScore, A: np.ndarray, cov: np.ndarray, v_max: float, still_air_A: tuple,
+             wind: float) -> SpanScore:
+    """``span`` with its w0 and A fields filled in: est.A0..A2 ``A`` and their stated covariance
+    ``cov`` against the car's ``still_air_A`` (A0, A1, A2) in the ``wind`` [m/s], over the speed
+    range of ``v_max`` [m/s]."""
+    speeds = speed_grid(v_max)
+    truth = resistance_eq1(speeds, *still_air_A, wind)                  # what the car meets
+    h = np.vstack([np.ones_like(speeds), speeds, speeds * speeds])      # 3 x grid
+    err = np.abs(A @ h - truth)
+    worst = int(np.argmax(err))
+    sigma = w0_sigma(cov, speeds)
+    # the A's against the quadratic the wind makes of the plant's eq. (1): A0', A1', A2
+    a_err = A - true_theta(1.0, still_air_A, wind)[1:]
+    try:
+        d2 = float(a_err @ np.linalg.solve(cov, a_err))
+    except np.linalg.LinAlgError:
+        d2 = math.nan
+    return replace(span, w0_err=float(err[worst]), w0_std=float(sigma[worst]),
+                   v_worst_mps=float(speeds[worst]), v_max_mps=v_max,
+                   w0_cover_pointwise=float(np.mean(err <= 2.0 * sigma)),
+                   w0_z=tuple(float(z) for z in err / sigma), a_d2=d2,
+                   a_cov=tuple(tuple(float(x) for x in row) for row in cov))
+
+
 def score_spans(result, vehicle, name: str) -> list[SpanScore]:
     """Every span of a run (``result``: harness RunResult of the chain; ``vehicle``: the true car,
     models.plant.dynamics.VehicleParams) scored at the start of its final coast."""
@@ -321,24 +408,16 @@ def score_spans(result, vehicle, name: str) -> list[SpanScore]:
             scores.append(SpanScore(name, i, False))
             continue
         v_max = float(np.max(v[first:arrival + 1]))
-        speeds = np.linspace(SPEED_RANGE_LOW * v_max, v_max, W0_GRID)
-        wind = result.scenario.wind_at(float(result.time[c]))
-        truth = resistance_eq1(speeds, vehicle.A0, vehicle.A1, vehicle.A2, wind)
         A = np.array([float(result[f"est.A{j}"][c]) for j in range(3)])
-        h = np.vstack([np.ones_like(speeds), speeds, speeds * speeds])      # 3 x grid
-        err = np.abs(A @ h - truth)
-        worst = int(np.argmax(err))
         cov = np.diag([float(result[f"est.A{j}_std"][c]) ** 2 for j in range(3)])
         for (p, q), col in {(0, 1): "est.cov_A0_A1", (0, 2): "est.cov_A0_A2", (1, 2): "est.cov_A1_A2"}.items():
             cov[p, q] = cov[q, p] = float(result[col][c])
-        hw = h[:, worst]
-        scores.append(SpanScore(
-            name, i, True,
-            mass_err_t=float(result["est.mass"][c] - result["car.total_mass"][c]),
-            mass_std_t=float(result["est.mass_std"][c]),
-            w0_err=float(err[worst]), w0_std=float(math.sqrt(max(hw @ cov @ hw, 0.0))),
-            v_worst_mps=float(speeds[worst]), v_max_mps=v_max,
-            coast_at_m=float(result["car.position"][c])))
+        scores.append(score_w0(
+            SpanScore(name, i, True,
+                      mass_err_t=float(result["est.mass"][c] - result["car.total_mass"][c]),
+                      mass_std_t=float(result["est.mass_std"][c]),
+                      coast_at_m=float(result["car.position"][c])),
+            A, cov, v_max, (vehicle.A0, vehicle.A1, vehicle.A2), result.scenario.wind_at(float(result.time[c]))))
     return scores
 
 
@@ -384,7 +463,7 @@ def jobs_for(configs, seeds: int, spans: int, ato_seeds: int,
     return jobs
 
 
-def compute(configs, seeds: int = 20, spans: int = 5, ato_seeds: int = 10,
+def compute(configs, seeds: int = DEFAULT_SEEDS, spans: int = 5, ato_seeds: int = 10,
             processes: int = 2, cruise_probability: float = CRUISE_PROBABILITY) -> dict:
     """{(case, config index): (span scores, engines)} over every job."""
     jobs = jobs_for(configs, seeds, spans, ato_seeds, cruise_probability)
@@ -407,8 +486,9 @@ def compute(configs, seeds: int = 20, spans: int = 5, ato_seeds: int = 10,
 
 HEADER = ("configuration", "spans (no final coast)", "mass err within 2 t [%]", "w0 err within 1 N/kN [%]",
           "both [%]", "both, 2nd+ span [%]", "abs mass err median / worst [t]",
-          "w0 err median / worst [N/kN]", "mass ±2σ cover [%]", "w0 ±2σ cover [%]",
-          "median err/σ mass / w0 (honest: 0.67)")
+          "w0 err median / worst [N/kN]", "mass ±2σ cover [%]", "w0 ±2σ cover pointwise [%] (honest 95.4)",
+          "w0 ±2σ cover at the worst V [%] (honest σ)", "A's d² within χ²₃ 95 % [%] (honest 95)",
+          "median err/σ mass / w0 pointwise (honest: 0.67)")
 """The table's columns (no "|" in a name: the markdown copy splits cells at it)."""
 
 
@@ -426,19 +506,24 @@ class Summary:
     w0_median: float               # [N/kN]
     w0_worst: float
     mass_cover: float
-    w0_cover: float
+    w0_cover: float                # the worst speed's |error| within 2 sigma there
     mass_z_median: float           # median |error| / stated sigma [-]: 0.674 for an honest Gaussian
-    w0_z_median: float
+    w0_z_median: float             # the same over every (span, speed of the grid)
+    w0_cover_pointwise: float      # share of (span, speed of the grid) with |error| <= 2 sigma: 0.954 honest
+    w0_cover_honest: float         # what w0_cover would be for errors drawn from each span's stated C
+    a_chi2_cover: float            # share of spans with the A's d^2 <= chi2(3)'s 95 % point: 0.95 honest
 
 
 def summarise(scores: list[SpanScore]) -> Summary:
     ok = [s for s in scores if s.coast]
     if not ok:
         n = math.nan
-        return Summary(len(scores), len(scores), n, n, n, n, n, n, n, n, n, n, n, n)
+        return Summary(len(scores), len(scores), *([n] * 15))
     later = [s for s in ok if s.span > 0]
     mass = np.abs([s.mass_err_t for s in ok])
     w0 = np.array([s.w0_err for s in ok])
+    rng = np.random.default_rng(HONEST_SEED)            # the same draws for every configuration
+    honest = [honest_worst_speed_cover(np.array(s.a_cov), s.v_max_mps, rng) for s in ok]
     return Summary(
         len(scores), len(scores) - len(ok),
         float(np.mean([s.mass_ok for s in ok])), float(np.mean([s.w0_ok for s in ok])),
@@ -448,7 +533,10 @@ def summarise(scores: list[SpanScore]) -> Summary:
         float(np.mean([abs(s.mass_err_t) <= 2.0 * s.mass_std_t for s in ok])),
         float(np.mean([s.w0_err <= 2.0 * s.w0_std for s in ok])),
         float(np.median([abs(s.mass_err_t) / s.mass_std_t for s in ok])),
-        float(np.median([s.w0_err / s.w0_std for s in ok])))
+        float(np.median(np.concatenate([s.w0_z for s in ok]))),
+        float(np.mean([s.w0_cover_pointwise for s in ok])),     # every span has W0_GRID speeds
+        float(np.mean(honest)),
+        float(np.mean([s.a_d2 <= CHI2_3_95 for s in ok])))
 
 
 def _pct(x: float) -> str:
@@ -471,7 +559,8 @@ def table_cells(configs, results: dict, case: str) -> list[list[str]]:
                       _pct(s.both_ok_later),
                       f"{_num(s.mass_median, '{:.2f}')} / {_num(s.mass_worst, '{:.2f}')}",
                       f"{_num(s.w0_median, '{:.2f}')} / {_num(s.w0_worst, '{:.2f}')}",
-                      _pct(s.mass_cover), _pct(s.w0_cover),
+                      _pct(s.mass_cover), _pct(s.w0_cover_pointwise),
+                      f"{_pct(s.w0_cover)} ({_pct(s.w0_cover_honest)})", _pct(s.a_chi2_cover),
                       f"{_num(s.mass_z_median, '{:.2f}')} / {_num(s.w0_z_median, '{:.2f}')}"])
     return cells
 
@@ -507,7 +596,9 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
     parts = ["# Mass and w0 at the start of each span's final coast under relative speed noise", "",
              f"{noise}; targets |mass err| <= {MASS_TARGET_T:g} t and w0 err <= {W0_TARGET:g} N/kN "
              f"(max over [{SPEED_RANGE_LOW:g} Vmax, Vmax] of the span) in >= 95 % of spans, ±2σ "
-             "covering the error in 90-98 %. Models chain, C core unless a row says otherwise."]
+             "covering the error in 90-98 % (w0's: pointwise, over every span and speed of its range; "
+             "at the worst V the bracket gives what an honest σ scores, ~91 %). "
+             "Models chain, C core unless a row says otherwise."]
     if command:
         parts += ["", f"    {command}"]
     for case, title in (("line", f"Generated line: {seeds} seeds x {spans} spans, mass ±20 %, wind ±5 m/s, "
@@ -528,7 +619,8 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=20, help="generated lines (seeds 1..N), default 20")
+    ap.add_argument("--seeds", type=int, default=DEFAULT_SEEDS,
+                    help=f"generated lines (seeds 1..N), default {DEFAULT_SEEDS}")
     ap.add_argument("--spans", type=int, default=5, help="spans per generated line, default 5")
     ap.add_argument("--ato-seeds", type=int, default=10, help="seeds per ATO scenario, default 10 (0: no ATO table)")
     ap.add_argument("--with", dest="configs", action="append", default=[], metavar="NAME=VALUE[,NAME=VALUE]",
