@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -217,3 +219,66 @@ def test_the_binary_needs_no_python_symbol(native_ato):
 
 def test_the_table_header_is_current():
     assert ATO_TABLE_HEADER.read_text(encoding="utf-8") == generate_ato_header()
+
+
+# ------------------------------------------------------------------ no call sequence crashes
+
+CALLS = ("setupExperiment", "enterInitializationMode", "exitInitializationMode", "doStep",
+         "doStepNaN", "setNaN", "setParameter", "getAll", "reset", "terminate", "getFMUstate")
+
+
+def _random_calls(fmu_path: str, unzipdir: str, seed: int, n: int) -> list[int]:
+    """``n`` calls drawn at random (seeded) on one instance, whatever its state; their statuses.
+    Run in a child process (test below): a crash is its exit code, not pytest's."""
+    import random
+    fmu = FmuFile("AtoController", Path(fmu_path), read_model_description(fmu_path), unzipdir)
+    rng = random.Random(seed)
+    s = Slave(fmu, "calls")
+    statuses, t = [], 0.0
+    for _ in range(n):
+        call = rng.choice(CALLS)
+        if call == "setupExperiment":
+            status = s.call("setupExperiment", None, 0.0)
+        elif call == "doStep":
+            status = s.do_step(t, STEP)
+            t = t + STEP if status <= 1 else t
+        elif call == "doStepNaN":
+            status = s.do_step(t, math.nan)
+        elif call == "setNaN":
+            status = s.call("setReal", [fmu.vr["filter.speed"], fmu.vr["span.stop"]],
+                            [math.nan, math.nan])
+        elif call == "setParameter":
+            status = s.call("setReal", [fmu.vr["span.stop"]], [rng.choice([1500.0, -1.0, 2000.0])])
+        elif call == "getAll":
+            status = max(s.call("getReal", [v.valueReference for v in fmu.md.modelVariables
+                                            if v.type == "Real"]),
+                         s.call("getString", [fmu.vr["span.grade_profile"]]))
+        elif call == "reset":
+            status = s.call("reset")
+            t = 0.0
+        elif call == "getFMUstate":
+            status = s.call("getFMUstate")
+        else:
+            status = s.call(call)
+        statuses.append(status)
+        if status == 4:         # fmi2Fatal: FMI 2 allows no further call
+            break
+    statuses += [s.call("terminate"), s.call("freeInstance")]    # whatever the state
+    s.freed = True
+    return statuses
+
+
+def test_no_call_sequence_crashes_the_host(native_ato):
+    code = ("import json, sys; sys.path.insert(0, sys.argv[1]); import test_native_ato_fmu as t; "
+            "print(json.dumps([t._random_calls(sys.argv[2], sys.argv[3], seed, 150) "
+            "for seed in range(20)]))")
+    here = Path(__file__).resolve().parent
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(here.parents[1]), str(here.parent)]))
+    proc = subprocess.run([sys.executable, "-c", code, str(here), str(native_ato.path),
+                           native_ato.unzipdir], capture_output=True, text=True, timeout=600,
+                          cwd=here, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    statuses = [s for run in runs for s in run]
+    assert len(runs) == 20 and 4 not in statuses            # never fatal
+    assert statuses.count(0) > 200 and statuses.count(3) > 50   # both successes and refusals met
