@@ -1,9 +1,12 @@
-"""The native RailCar and RailCarEstimator FMUs (issue 18): the C core behind our FMI 2.0 glue.
+"""The native RailCar, RailCarEstimator (issue 18) and AtoController (issue 30) FMUs: the C core
+behind our FMI 2.0 glue.
+Over 600 lines: the three FMUs' table generators and builds share this module's helpers.
 
-    python -m fmu_src.build.native            write fmu_src/c/native_railcar_table.h and
-                                              fmu_src/c/native_estimator_table.h
+    python -m fmu_src.build.native            write fmu_src/c/native_railcar_table.h,
+                                              native_estimator_table.h and native_ato_table.h
     python -m fmu_src.build.native --check    exit 1 if one of them is out of date
     python -m fmu_src.build.native --build D  build D/RailCarNative.fmu and D/RailCarEstimatorNative.fmu
+                                              and D/AtoControllerNative.fmu
 
 Each FMU is a ``NativeSpec`` (RAILCAR_SPEC, ESTIMATOR_SPEC). Its header is generated from the
 one variable table (``fmu_src/variables.py``) and from the Python chain's own configuration
@@ -448,9 +451,10 @@ def build_native_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
 
 
 # ------------------------------------------------------------- the native AtoController (issue 30)
-# It has no flat configuration: fmu_src/c/native_ato.c reads its parameters by value reference
-# (the generated NAT_VR_* names) and builds models/core/ato_line.h's LineController itself, so it
-# has its own table header, sources and build, and no native_common.c.
+# fmu_src/c/native_ato.c, the C core's LineController (models/core/ato_line.h) behind the FMI 2.0
+# glue. It has no flat configuration (NativeSpec): native_ato.c reads its parameters by value
+# reference (the generated NAT_VR_* names) and builds the controller itself, so it has its own
+# table header, sources (no native_common.c, native_state.c: no FMU states) and build.
 
 ATO_NATIVE_NAME = "AtoControllerNative"
 ATO_TABLE_HEADER = C_DIR / "native_ato_table.h"
