@@ -216,6 +216,18 @@ def test_a_line_is_refused_by_name_and_runs_on_the_pythonfmu_fmu(native_ato, tmp
     assert uncovered(ATO, {"span.stop": 1500.0}) is None
 
 
+def test_fmu_auto_picks_the_native_fmu_unless_a_line_is_set(tmp_path):
+    from harness.run.fmus import choose
+    (tmp_path / "native").mkdir()
+    (tmp_path / "AtoController.fmu").write_bytes(b"")
+    assert choose("auto", ATO, tmp_path, [("one span", {})]).kind == "python"   # no native FMU
+    (tmp_path / "native" / f"{ATO_NATIVE_NAME}.fmu").write_bytes(b"")
+    one = choose("auto", ATO, tmp_path, [("one span", {"span.stop": 1500.0})])
+    assert one.kind == "native" and one.path.name == f"{ATO_NATIVE_NAME}.fmu"
+    line = choose("auto", ATO, tmp_path, [("a line", {"line.profile": "line.csv"})])
+    assert line.kind == "python" and "line.profile = 'line.csv'" in line.why
+
+
 # ------------------------------------------------------------------ the binary and its header
 
 def test_fmpy_validates_the_fmu_and_it_states_what_it_is(native_ato):
