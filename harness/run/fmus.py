@@ -55,11 +55,19 @@ COVERED_VALUES = {"est.method": (0, 2)}
 rest): a refusal names the options set outside them."""
 
 
+ATO_NOT_COVERED = ("line.profile", "line.speed_limit_profile")
+"""The AtoController's parameters its native FMU refuses when set (a line of several spans:
+fmu_src/c/native_ato.c runs one)."""
+
+
 def uncovered(model: str, parameters: dict) -> str | None:
     """Why the native ``model`` FMU would refuse these parameter values (None: it runs them). Decided by models.compiled (not_covered), the rule the C core is built to; the reason
     names the parameters and values. Unset parameters take the FMU's start values."""
     from fmu_src.adapter import chain_config, estimator_settings
-    from fmu_src.variables import RAILCAR, variables_for
+    from fmu_src.variables import ATO, RAILCAR, variables_for
+    if model == ATO:
+        named = [f"{n} = {parameters[n]!r}" for n in ATO_NOT_COVERED if parameters.get(n)]
+        return ", ".join(named) or None
     from models.compiled import estimator_not_covered, not_covered
     v = {x.name: x.start for x in variables_for(model) if x.causality == "parameter"}
     v.update(parameters)
@@ -89,6 +97,13 @@ class FmuChoice:
         return f"fmu: {self.describe()}"
 
 
+def _native_fmu(model: str, dist: Path) -> Path:
+    """native_path, and DIST/native/AtoControllerNative.fmu (not in fmu_src.build.dist's names
+    yet: build.py does not build it, fmu_src.build.native.build_native_ato does)."""
+    from fmu_src.variables import ATO
+    return Path(dist) / "native" / "AtoControllerNative.fmu" if model == ATO else native_path(model, dist)
+
+
 def choose(asked: str, model: str, dist: Path, parameter_sets) -> FmuChoice:
     """The FMU of ``model`` to run for ``parameter_sets`` ((label, parameters) pairs: a scenario,
     or every run of a sweep). ``auto``: the native FMU unless one set is not covered by it
@@ -97,7 +112,7 @@ def choose(asked: str, model: str, dist: Path, parameter_sets) -> FmuChoice:
     if asked not in KINDS:
         raise InputError(f"--fmu {asked}: expected one of {', '.join(KINDS)}")
     dist = Path(dist)
-    python, native = dist / f"{model}.fmu", native_path(model, dist)
+    python, native = dist / f"{model}.fmu", _native_fmu(model, dist)
     if asked == "python":
         return FmuChoice("python", python, asked, "the pythonfmu FMU, as asked")
     gap = next(((label, why) for label, params in parameter_sets

@@ -1,0 +1,788 @@
+/* native_ato.c -- the glue's backend for an AtoController FMU without Python (issue 30): the
+ * model_* functions of fmi2_glue.h on the C core's LineController (models/core/ato_line.h, one
+ * span: ato_controller.h), bit-identical to models/ato.
+ *
+ * It behaves as the pythonfmu slave fmu_src/ato_controller.py behind pyslave.c does:
+ * - every variable holds its start value (native_ato_table.h, generated from
+ *   fmu_src/variables.py) after fmi2Instantiate and fmi2Reset;
+ * - fmi2ExitInitializationMode checks and builds as ato_controller.py's _build does, in its
+ *   order and with its messages: check_span_parameters (span.stop, span.length, span.schedule,
+ *   the profile file names), open_ato (span.grade_profile as RailCar reads a grade profile,
+ *   span.speed_limit_profile, then Span's, CarTraction's and AtoTuning's checks and the
+ *   controller's construction; models' names translated as adapter._fmu_names does: "tuning."
+ *   is "ato.", span.limit_speeds[k] the profile's row k + 1 or span.speed_limit). A failure is
+ *   fmi2Error with "initialisation failed: <message>". Then the outputs are the holding brake;
+ * - fmi2DoStep checks the step (models.chain.check_step and the time continuing the last
+ *   step's end: fmi2Discard "step discarded: ...", nothing changed), asks the line for the
+ *   command, publishes it and logs the controller's new events as warnings ("t = %.3f s:
+ *   <text>"); fmi2Warning when the command is the safe brake (ato.mode 9).
+ *
+ * Not covered (refused at initialisation naming the parameter, "use AtoController.fmu"): a line
+ * of several spans (line.profile, line.speed_limit_profile not empty). No FMU states (the
+ * description says canGetAndSetFMUstate="false"; the glue answers "not supported").
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#ifdef _MSC_VER
+#include <direct.h>
+#define getcwd _getcwd
+#define S_ISREG(mode) (((mode) & _S_IFMT) == _S_IFREG)
+#else
+#include <unistd.h>
+#endif
+
+#include "ato_line.h"
+#include "fmi2_glue.h"
+#include "native_ato_table.h"
+#include "plant.h"
+#include "profile.h"
+#include "rc_common.h"
+
+#define MSG_SIZE ATO_TEXT_SIZE
+#define REPR_SIZE 40
+#define NAT_MAX_SPEED 200.0      /* [m/s] models.plant.track.MAX_SPEED, Span's limit bound */
+#define NAT_MAX_STEP 3600.0      /* [s] models.chain.MAX_STEP */
+#define NAT_CAR_FIELDS 18
+
+GLUE_EXPORT const char *railcar_fmu_binary_id(void) {
+    return "railcar-fmu fmi2 binary 1: C99 FMI 2.0 glue + native C core backend";
+}
+
+typedef struct {
+    double real[NAT_NVARS];          /* Real variables by vr */
+    fmi2Integer integer[NAT_NVARS];  /* Integer and Boolean variables by vr */
+    char *string[NAT_NVARS];         /* malloc'd; NULL: the start value */
+    double start_time;               /* fmi2SetupExperiment's */
+    double time;                     /* [s] the end of the last step taken */
+    int input_vr[ATO_N_ALL_INPUTS];  /* ALL_INPUTS order -> vr */
+    /* the line, after a successful initialisation (built) */
+    int built;
+    double *grade_block;             /* the grade's distances, grades and integral */
+    double *limit_block;             /* the limits' distances and speeds */
+    rc_ato_span span;
+    rc_ato_car car;
+    double dwell, boarding, departure;
+    ato_controller *controller;
+    ato_line line;
+    long logged;                     /* the controller's events logged so far */
+} nat_instance;
+
+#define MODEL(g) ((nat_instance *)(g)->model)
+
+static const char *string_of(const nat_instance *m, int vr) {
+    return m->string[vr] ? m->string[vr] : NAT_VARS[vr].start_string;
+}
+
+static void start_values(nat_instance *m) {
+    int vr;
+    for (vr = 0; vr < NAT_NVARS; vr++) {
+        free(m->string[vr]);
+        m->string[vr] = NULL;
+        m->real[vr] = NAT_VARS[vr].type == GLUE_REAL ? NAT_VARS[vr].start : 0.0;
+        m->integer[vr] = NAT_VARS[vr].type == GLUE_INTEGER || NAT_VARS[vr].type == GLUE_BOOLEAN
+                             ? (fmi2Integer)NAT_VARS[vr].start : 0;
+    }
+    m->start_time = 0.0;
+    m->time = 0.0;
+}
+
+static void drop_line(nat_instance *m) {
+    if (m->built) ato_line_free(&m->line);
+    m->built = 0;
+    free(m->controller);
+    free(m->grade_block);
+    free(m->limit_block);
+    m->controller = NULL;
+    m->grade_block = NULL;
+    m->limit_block = NULL;
+    m->logged = 0;
+}
+
+/* --------------------------------------------------------------------------- lifecycle */
+
+fmi2Status model_instantiate(GlueInstance *g) {
+    nat_instance *m = calloc(1, sizeof *m);
+    int vr, k;
+    g->model = m;
+    g->state_ops = NULL;                       /* no FMU states */
+    if (!m || !glue_set_model_name(g, "AtoController") || !glue_alloc_vars(g, NAT_NVARS)) {
+        glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+        return fmi2Error;
+    }
+    for (vr = 0; vr < NAT_NVARS; vr++) {
+        GlueVar *gv = &g->vars[vr];
+        size_t len = strlen(NAT_VARS[vr].name) + 1;
+        if (!(gv->name = malloc(len))) {
+            glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+            return fmi2Error;
+        }
+        memcpy(gv->name, NAT_VARS[vr].name, len);
+        gv->type = NAT_VARS[vr].type;
+        gv->causality = NAT_VARS[vr].causality;
+        gv->variability = NAT_VARS[vr].variability;
+        gv->settable = gv->causality == GLUE_PARAMETER || gv->causality == GLUE_INPUT;
+    }
+    for (k = 0; k < NAT_NCATEGORIES; k++)
+        if (!glue_add_category(g, NAT_LOG_CATEGORIES[k])) {
+            glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+            return fmi2Error;
+        }
+    for (k = 0; k < ATO_N_ALL_INPUTS; k++) {   /* interface.ALL_INPUTS are the FMU's inputs */
+        m->input_vr[k] = -1;
+        for (vr = 0; vr < NAT_NVARS; vr++)
+            if (NAT_VARS[vr].causality == GLUE_INPUT && !strcmp(NAT_VARS[vr].name, ato_input_name(k)))
+                m->input_vr[k] = vr;
+        if (m->input_vr[k] < 0) {
+            glue_log(g, fmi2Error, "logStatusError", "fmi2Instantiate: the C core's input %s is "
+                     "not a variable of this FMU (rebuild it)", ato_input_name(k));
+            return fmi2Error;
+        }
+    }
+    start_values(m);
+    return fmi2OK;
+}
+
+void model_free(GlueInstance *g) {
+    nat_instance *m = g->model;
+    int vr;
+    if (!m) return;
+    drop_line(m);
+    for (vr = 0; vr < NAT_NVARS; vr++) free(m->string[vr]);
+    free(m);
+    g->model = NULL;
+}
+
+fmi2Status model_reset(GlueInstance *g) {
+    nat_instance *m = MODEL(g);
+    drop_line(m);
+    start_values(m);
+    return fmi2OK;
+}
+
+fmi2Status model_setup_experiment(GlueInstance *g, int tolerance_defined, double tolerance,
+                                  double start_time, int stop_time_defined, double stop_time) {
+    (void)tolerance_defined;
+    (void)tolerance;
+    (void)stop_time_defined;
+    (void)stop_time;
+    MODEL(g)->start_time = start_time;
+    return fmi2OK;
+}
+
+fmi2Status model_enter_initialization_mode(GlueInstance *g) {
+    (void)g;
+    return fmi2OK;
+}
+
+fmi2Status model_terminate(GlueInstance *g) {
+    (void)g;
+    return fmi2OK;
+}
+
+fmi2Status model_get(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
+                     void *values) {
+    nat_instance *m = MODEL(g);
+    size_t i, total = 0;
+    char *space;
+    switch (type) {
+    case GLUE_REAL:
+        for (i = 0; i < nvr; i++) ((fmi2Real *)values)[i] = m->real[vr[i]];
+        return fmi2OK;
+    case GLUE_INTEGER:
+        for (i = 0; i < nvr; i++) ((fmi2Integer *)values)[i] = m->integer[vr[i]];
+        return fmi2OK;
+    case GLUE_BOOLEAN:
+        for (i = 0; i < nvr; i++) ((fmi2Boolean *)values)[i] = m->integer[vr[i]] ? fmi2True : fmi2False;
+        return fmi2OK;
+    case GLUE_STRING:
+        for (i = 0; i < nvr; i++) total += strlen(string_of(m, (int)vr[i])) + 1;
+        if (!(space = glue_string_space(g, total ? total : 1))) {
+            glue_log(g, fmi2Error, "logStatusError", "fmi2GetString: out of memory");
+            return fmi2Error;
+        }
+        for (i = 0; i < nvr; i++) {   /* valid until the next call on this instance */
+            const char *s = string_of(m, (int)vr[i]);
+            size_t n = strlen(s) + 1;
+            memcpy(space, s, n);
+            ((fmi2String *)values)[i] = space;
+            space += n;
+        }
+        return fmi2OK;
+    }
+    return fmi2Error;
+}
+
+fmi2Status model_set(GlueInstance *g, GlueType type, const fmi2ValueReference vr[], size_t nvr,
+                     const void *values) {
+    nat_instance *m = MODEL(g);
+    size_t i;
+    switch (type) {
+    case GLUE_REAL:
+        for (i = 0; i < nvr; i++) m->real[vr[i]] = ((const fmi2Real *)values)[i];
+        return fmi2OK;
+    case GLUE_INTEGER:
+        for (i = 0; i < nvr; i++) m->integer[vr[i]] = ((const fmi2Integer *)values)[i];
+        return fmi2OK;
+    case GLUE_BOOLEAN:
+        for (i = 0; i < nvr; i++) m->integer[vr[i]] = ((const fmi2Boolean *)values)[i] != fmi2False;
+        return fmi2OK;
+    case GLUE_STRING:
+        for (i = 0; i < nvr; i++) {
+            const char *s = ((const fmi2String *)values)[i];
+            size_t n = strlen(s) + 1;
+            char *copy = malloc(n);
+            if (!copy) {
+                glue_log(g, fmi2Error, "logStatusError", "fmi2SetString: out of memory");
+                return fmi2Error;
+            }
+            memcpy(copy, s, n);
+            free(m->string[vr[i]]);
+            m->string[vr[i]] = copy;
+        }
+        return fmi2OK;
+    }
+    return fmi2Error;
+}
+
+/* ------------------------------------------------------------------------- messages */
+
+/* msg[MSG_SIZE] = the formatted text; returns 0 (a refusal) */
+static int refuse(char *msg, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+static int refuse(char *msg, const char *fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, MSG_SIZE, fmt, ap);
+    va_end(ap);
+    return 0;
+}
+
+static const char *repr(double x, char *buf) {
+    rc_repr(x, buf, REPR_SIZE);
+    return buf;
+}
+
+/* adapter._fmu_names: "span.limit_speeds[k]" / "span.limit_distances[k]" -> "span.speed_limit_profile
+   row k+1" (the limits came from the profile) or "span.speed_limit"; "tuning." -> "ato." */
+static void fmu_names(char *msg, int from_profile) {
+    char out[MSG_SIZE];
+    size_t o = 0;
+    const char *p = msg;
+    while (*p && o + 1 < sizeof out) {
+        const char *rest = NULL;
+        long k = -1;
+        if (!strncmp(p, "span.limit_speeds[", 18)) rest = p + 18;
+        else if (!strncmp(p, "span.limit_distances[", 21)) rest = p + 21;
+        if (rest && *rest >= '0' && *rest <= '9') {
+            char *end;
+            k = strtol(rest, &end, 10);
+            if (*end == ']') {
+                char with[64];
+                if (from_profile) snprintf(with, sizeof with, "span.speed_limit_profile row %ld", k + 1);
+                else snprintf(with, sizeof with, "span.speed_limit");
+                o += (size_t)snprintf(out + o, sizeof out - o, "%s", with);
+                if (o >= sizeof out) o = sizeof out - 1;
+                p = end + 1;
+                continue;
+            }
+        }
+        if (!strncmp(p, "tuning.", 7)) {
+            o += (size_t)snprintf(out + o, sizeof out - o, "ato.");
+            if (o >= sizeof out) o = sizeof out - 1;
+            p += 7;
+            continue;
+        }
+        out[o++] = *p++;
+    }
+    out[o] = '\0';
+    memcpy(msg, out, o + 1);
+}
+
+/* ------------------------------------------------------------------------- profile files */
+
+static char *join_path(const char *a, const char *b) {
+    size_t na = strlen(a), nb = strlen(b);
+    char *p = malloc(na + 1 + nb + 1);
+    if (!p) return NULL;
+    memcpy(p, a, na);
+    p[na] = '/';
+    memcpy(p + na + 1, b, nb + 1);
+    return p;
+}
+
+static int is_file(const char *path) {
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* adapter.resolve_profile_path: absolute as it is; else resources/<raw> if that is a file;
+   else <cwd>/<raw>. malloc'd; NULL when out of memory. */
+static char *resolve_path(const char *raw, const char *resources) {
+    char *candidate, *cwd;
+    size_t size;
+    if (gc_is_absolute_path(raw)) {
+        size = strlen(raw) + 1;
+        candidate = malloc(size);
+        if (candidate) memcpy(candidate, raw, size);
+        return candidate;
+    }
+    if (resources && resources[0]) {
+        candidate = join_path(resources, raw);
+        if (!candidate || is_file(candidate)) return candidate;
+        free(candidate);
+    }
+    for (size = 256;; size *= 2) {
+        if (!(cwd = malloc(size))) return NULL;
+        if (getcwd(cwd, size)) break;
+        free(cwd);
+        if (size > 1 << 20) return join_path(".", raw);
+    }
+    candidate = join_path(cwd, raw);
+    free(cwd);
+    return candidate;
+}
+
+/* str(pathlib.Path(path)) of a POSIX path: repeated '/' and "." parts dropped, no trailing '/' */
+static void path_str(const char *path, char *out, size_t size) {
+    size_t o = 0;
+    const char *p = path;
+    int absolute = *p == '/';
+    if (absolute && o + 1 < size) out[o++] = '/';
+    while (*p) {
+        const char *e;
+        size_t n;
+        while (*p == '/') p++;
+        e = p;
+        while (*e && *e != '/') e++;
+        n = (size_t)(e - p);
+        if (n && !(n == 1 && *p == '.')) {
+            if (o > (size_t)absolute && o + 1 < size) out[o++] = '/';
+            if (o + n >= size) n = size - o - 1;
+            memcpy(out + o, p, n);
+            o += n;
+        }
+        p = e;
+    }
+    if (o == 0 && size > 1) out[o++] = '.';
+    out[o] = '\0';
+}
+
+/* check_span_parameters' file-name check: a name the file system refuses names the parameter */
+static int usable_name(GlueInstance *g, const nat_instance *m, int vr, char *msg) {
+    const char *raw = string_of(m, vr);
+    char *path;
+    struct stat st;
+    int bad = 0, code = 0;
+    if (!raw[0]) return 1;
+    if (!(path = resolve_path(raw, g->resources))) return refuse(msg, "out of memory");
+    if (stat(path, &st) != 0) {
+        code = errno;             /* pathlib's is_file() lets only these through */
+        bad = code != ENOENT && code != ENOTDIR && code != EBADF && code != ELOOP;
+    }
+    free(path);
+    if (!bad) return 1;
+    {
+        size_t chars = 0, cut = 0;
+        const unsigned char *s = (const unsigned char *)raw;
+        size_t i;
+        for (i = 0; s[i]; i++)
+            if ((s[i] & 0xC0) != 0x80) {
+                if (chars == 60) cut = i;
+                chars++;
+            }
+        if (chars <= 80)
+            return refuse(msg, "%s: cannot use '%s' as a file name: %s", NAT_VARS[vr].name, raw,
+                          strerror(code));
+        return refuse(msg, "%s: cannot use '%.*s...(%lu characters)' as a file name: %s",
+                      NAT_VARS[vr].name, (int)cut, raw, (unsigned long)chars, strerror(code));
+    }
+}
+
+/* read_grade: the grade profile of span.grade_profile (level if empty), its integral ready */
+static int read_grade(GlueInstance *g, nat_instance *m, char *msg) {
+    static const double level = 0.0;
+    const char *raw = string_of(m, NAT_VR_SPAN_GRADE_PROFILE);
+    const double *d = &level, *gr = &level;
+    long n = 1;
+    rc_profile prof;
+    memset(&prof, 0, sizeof prof);
+    if (raw[0]) {
+        char *path = resolve_path(raw, g->resources);
+        int status;
+        if (!path) return refuse(msg, "out of memory");
+        status = rc_profile_read_file(path, "span.grade_profile", raw, RC_PROFILE_GRADE, &prof);
+        free(path);
+        if (status != RC_OK) {
+            refuse(msg, "%s", prof.message ? prof.message : prof.err.msg);
+            rc_profile_free(&prof);
+            return 0;
+        }
+        d = prof.distances;
+        gr = prof.values;
+        n = prof.n;
+    }
+    if (!(m->grade_block = malloc(3 * (size_t)n * sizeof(double)))) {
+        rc_profile_free(&prof);
+        return refuse(msg, "out of memory");
+    }
+    memcpy(m->grade_block, d, (size_t)n * sizeof(double));
+    memcpy(m->grade_block + n, gr, (size_t)n * sizeof(double));
+    rc_profile_free(&prof);
+    m->span.grade.n = (int)n;
+    m->span.grade.distances = m->grade_block;
+    m->span.grade.grades = m->grade_block + n;
+    m->span.grade.cum = m->grade_block + 2 * n;
+    rc_ato_grade_init(&m->span.grade);
+    return 1;
+}
+
+/* the whole file (a regular file of at most RC_PROFILE_MAX_BYTES: rc_profile_read_file said so);
+   malloc'd, NULL on failure */
+static char *read_bytes(const char *path, size_t *len) {
+    FILE *f = fopen(path, "rb");
+    char *data;
+    size_t n = 0, got;
+    if (!f) return NULL;
+    data = malloc((size_t)RC_PROFILE_MAX_BYTES + 1);
+    if (data)
+        while ((got = fread(data + n, 1, (size_t)RC_PROFILE_MAX_BYTES + 1 - n, f)) > 0) n += got;
+    fclose(f);
+    *len = n;
+    return data;
+}
+
+/* open_ato's limits: span.speed_limit_profile (parse_profile_csv with columns distance_m,
+   speed_limit_mps) or the one limit span.speed_limit. The file is read by
+   rc_profile_read_file first, for read_profile_text's messages (a file that cannot be read, is
+   not a regular file, too big, not UTF-8); its table is then parsed with the limit columns. */
+static int read_limits(GlueInstance *g, nat_instance *m, int *from_profile, char *msg) {
+    const char *raw = string_of(m, NAT_VR_SPAN_SPEED_LIMIT_PROFILE);
+    rc_profile prof, lim;
+    char *path, *text, source[4096];
+    size_t len = 0;
+    int status;
+    *from_profile = raw[0] != '\0';
+    if (!raw[0]) {
+        if (!(m->limit_block = malloc(2 * sizeof(double)))) return refuse(msg, "out of memory");
+        m->limit_block[0] = 0.0;
+        m->limit_block[1] = m->real[NAT_VR_SPAN_SPEED_LIMIT];
+        m->span.n_limits = 1;
+        m->span.limit_distances = m->limit_block;
+        m->span.limit_speeds = m->limit_block + 1;
+        return 1;
+    }
+    if (!(path = resolve_path(raw, g->resources))) return refuse(msg, "out of memory");
+    memset(&prof, 0, sizeof prof);
+    status = rc_profile_read_file(path, "span.speed_limit_profile", raw, RC_PROFILE_SPEED, &prof);
+    if (status != RC_OK && prof.message &&
+        (!strncmp(prof.message, "span.speed_limit_profile: cannot read '", 39) ||
+         strstr(prof.message, ": not UTF-8 text (byte offset "))) {
+        refuse(msg, "%s", prof.message);                  /* the file itself */
+        rc_profile_free(&prof);
+        free(path);
+        return 0;
+    }
+    rc_profile_free(&prof);
+    path_str(path, source, sizeof source);
+    text = read_bytes(path, &len);
+    free(path);
+    if (!text) return refuse(msg, "span.speed_limit_profile: cannot read '%s'", raw);
+    memset(&lim, 0, sizeof lim);
+    status = rc_profile_parse(text, len, source, "distance_m", "speed_limit_mps", 0, INFINITY, &lim);
+    free(text);
+    if (status != RC_OK) {
+        refuse(msg, "span.speed_limit_profile: %s", lim.message ? lim.message : lim.err.msg);
+        rc_profile_free(&lim);
+        return 0;
+    }
+    if (!(m->limit_block = malloc(2 * (size_t)lim.n * sizeof(double)))) {
+        rc_profile_free(&lim);
+        return refuse(msg, "out of memory");
+    }
+    memcpy(m->limit_block, lim.distances, (size_t)lim.n * sizeof(double));
+    memcpy(m->limit_block + lim.n, lim.values, (size_t)lim.n * sizeof(double));
+    m->span.n_limits = (int)lim.n;
+    m->span.limit_distances = m->limit_block;
+    m->span.limit_speeds = m->limit_block + lim.n;
+    rc_profile_free(&lim);
+    return 1;
+}
+
+/* ------------------------------------------------------------------------- the checks */
+
+/* check_span_parameters */
+static int check_span_parameters(GlueInstance *g, const nat_instance *m, char *msg) {
+    static const int profiles[] = {NAT_VR_SPAN_GRADE_PROFILE, NAT_VR_SPAN_SPEED_LIMIT_PROFILE,
+                                   NAT_VR_LINE_PROFILE, NAT_VR_LINE_SPEED_LIMIT_PROFILE};
+    double stop = m->real[NAT_VR_SPAN_STOP], length = m->real[NAT_VR_SPAN_LENGTH];
+    double schedule = m->real[NAT_VR_SPAN_SCHEDULE];
+    char r[REPR_SIZE];
+    size_t k;
+    if (!(isfinite(stop) && stop > 0.0))
+        return refuse(msg, "span.stop = %s m must be finite and > 0 (the stop mark's distance "
+                      "from the departure station)", repr(stop, r));
+    if (!(isfinite(length) && length >= 0.0))
+        return refuse(msg, "span.length = %s m must be finite and >= 0 (0: span.stop)",
+                      repr(length, r));
+    if (!(isfinite(schedule) && schedule > 0.0))
+        return refuse(msg, "span.schedule = %s s must be finite and > 0", repr(schedule, r));
+    for (k = 0; k < sizeof profiles / sizeof profiles[0]; k++)
+        if (!usable_name(g, m, profiles[k], msg)) return 0;
+    return 1;
+}
+
+/* Span.__post_init__ on what open_ato gives it (the values check_span_parameters passed) */
+static int check_span(const rc_ato_span *s, char *msg) {
+    char a[REPR_SIZE], b[REPR_SIZE], c[REPR_SIZE];
+    int k;
+    if (s->stop > s->length)
+        return refuse(msg, "span.stop = %s m is beyond the span (span.length = %s m)",
+                      repr(s->stop, a), repr(s->length, b));
+    for (k = 0; k < s->n_limits; k++)
+        if (!isfinite(s->limit_distances[k]))
+            return refuse(msg, "span.limit_distances[%d] must be finite, got %s", k,
+                          repr(s->limit_distances[k], a));
+    for (k = 0; k < s->n_limits; k++)
+        if (!isfinite(s->limit_speeds[k]))
+            return refuse(msg, "span.limit_speeds[%d] must be finite, got %s", k,
+                          repr(s->limit_speeds[k], a));
+    if (s->limit_distances[0] != 0.0)
+        return refuse(msg, "span.limit_distances[0] must be 0, got %s",
+                      repr(s->limit_distances[0], a));
+    for (k = 1; k < s->n_limits; k++)
+        if (!(s->limit_distances[k - 1] < s->limit_distances[k] &&
+              s->limit_distances[k] < s->length))
+            return refuse(msg, "span.limit_distances[%d] = %s must increase and lie inside the "
+                          "span [0, %s)", k, repr(s->limit_distances[k], a), repr(s->length, b));
+    for (k = 0; k < s->n_limits; k++)
+        if (!(0.0 < s->limit_speeds[k] && s->limit_speeds[k] <= NAT_MAX_SPEED))
+            return refuse(msg, "span.limit_speeds[%d] = %s m/s (from s = %s m) must be in (0, %s]",
+                          k, repr(s->limit_speeds[k], a), repr(s->limit_distances[k], b),
+                          repr(NAT_MAX_SPEED, c));
+    return 1;                   /* the grades: the profile reader bounds them as Span does */
+}
+
+/* CarTraction.__post_init__ (its fields: car.* in the table's order) */
+static int read_car(const nat_instance *m, rc_ato_car *car, char *msg) {
+    static const char *const names[NAT_CAR_FIELDS] = {
+        "mass", "A0", "A1", "A2", "gamma", "length", "traction_force_max", "traction_power_max",
+        "brake_force_max", "regen_force_max", "regen_power_max", "regen_fade_speed",
+        "regen_off_speed", "mech_force_max", "adhesion_mass_fraction", "adhesion_factor", "eta_f",
+        "eta"};
+    double *fields[NAT_CAR_FIELDS];
+    char a[REPR_SIZE], b[REPR_SIZE];
+    rc_vehicle vehicle;
+    rc_error err;
+    int k;
+    fields[0] = &car->mass; fields[1] = &car->A0; fields[2] = &car->A1; fields[3] = &car->A2;
+    fields[4] = &car->gamma; fields[5] = &car->length; fields[6] = &car->traction_force_max;
+    fields[7] = &car->traction_power_max; fields[8] = &car->brake_force_max;
+    fields[9] = &car->regen_force_max; fields[10] = &car->regen_power_max;
+    fields[11] = &car->regen_fade_speed; fields[12] = &car->regen_off_speed;
+    fields[13] = &car->mech_force_max; fields[14] = &car->adhesion_mass_fraction;
+    fields[15] = &car->adhesion_factor; fields[16] = &car->eta_f; fields[17] = &car->eta;
+    for (k = 0; k < NAT_CAR_FIELDS; k++) {
+        double x = m->real[NAT_VR_CAR_MASS + k];
+        if (strcmp(NAT_VARS[NAT_VR_CAR_MASS + k].name + 4, names[k]))
+            return refuse(msg, "car.%s is not where this FMU expects it (rebuild it)", names[k]);
+        if (!isfinite(x))
+            return refuse(msg, "car.%s must be finite, got %s", names[k], repr(x, a));
+        *fields[k] = x;
+    }
+    if (car->regen_force_max < 0)
+        return refuse(msg, "car.regen_force_max must be >= 0, got %s", repr(car->regen_force_max, a));
+    if (car->regen_power_max < 0 || car->regen_power_max == 0)
+        return refuse(msg, "car.regen_power_max must be > 0, got %s", repr(car->regen_power_max, a));
+    if (car->mech_force_max < 0)
+        return refuse(msg, "car.mech_force_max must be >= 0, got %s", repr(car->mech_force_max, a));
+    if (!(0.0 <= car->regen_off_speed && car->regen_off_speed <= car->regen_fade_speed))
+        return refuse(msg, "car.regen_off_speed must be in [0, car.regen_fade_speed = %s], got %s",
+                      repr(car->regen_fade_speed, a), repr(car->regen_off_speed, b));
+    if (!(0.0 < car->eta_f && car->eta_f <= 1.0))
+        return refuse(msg, "car.eta_f must be in (0, 1], got %s", repr(car->eta_f, a));
+    if (!(0.0 <= car->eta && car->eta <= 1.0))
+        return refuse(msg, "car.eta must be in [0, 1], got %s", repr(car->eta, a));
+    memset(&vehicle, 0, sizeof vehicle);
+    vehicle.mass = car->mass;
+    vehicle.A0 = car->A0;
+    vehicle.A1 = car->A1;
+    vehicle.A2 = car->A2;
+    vehicle.gamma = car->gamma;
+    vehicle.length = car->length;
+    vehicle.traction_force_max = car->traction_force_max;
+    vehicle.traction_power_max = car->traction_power_max;
+    vehicle.brake_force_max = car->brake_force_max;
+    vehicle.adhesion_mass_fraction = car->adhesion_mass_fraction;
+    vehicle.adhesion_factor = car->adhesion_factor;
+    /* VehicleParams.validate("car."); a step and noise it accepts: only the car is checked */
+    if (rc_plant_validate(&vehicle, 0.01, 0.0, &err) != RC_OK) return refuse(msg, "%s", err.msg);
+    return 1;
+}
+
+/* AtoTuning from the ato.<field> parameters */
+static int read_tuning(const nat_instance *m, ato_tuning *tn, char *msg) {
+    int k, vr;
+    ato_tuning_defaults(tn);
+    for (k = 0; k < ATO_N_TUNING_FIELDS; k++) {
+        const ato_tuning_field *f = ato_tuning_field_at(k);
+        char *at = (char *)tn + f->offset;
+        for (vr = 0; vr < NAT_NVARS; vr++)
+            if (NAT_VARS[vr].causality == GLUE_PARAMETER && !strncmp(NAT_VARS[vr].name, "ato.", 4)
+                && !strcmp(NAT_VARS[vr].name + 4, f->name))
+                break;
+        if (vr == NAT_NVARS)
+            return refuse(msg, "ato.%s is not a parameter of this FMU (rebuild it)", f->name);
+        if (f->kind == ATO_FIELD_REAL) *(double *)(void *)at = m->real[vr];
+        else *(int *)(void *)at = (int)m->integer[vr];
+    }
+    return 1;
+}
+
+/* ------------------------------------------------------------------------- building */
+
+/* the command as AtoController._publish writes it */
+static void publish(nat_instance *m, double traction, double brake, int mode, double planned,
+                    int stage) {
+    const ato_controller *c = &m->line.controllers[m->line.k];
+    m->real[NAT_VR_TRACTION_FORCE_DEMAND] = traction;
+    m->real[NAT_VR_BRAKE_FORCE_DEMAND] = brake;
+    m->integer[NAT_VR_ATO_MODE] = mode;
+    m->real[NAT_VR_ATO_PLANNED_SPEED] = planned;
+    m->integer[NAT_VR_ATO_EP_STAGE] = stage;
+    m->integer[NAT_VR_ATO_FINISHED] = ato_controller_finished(c) != 0;
+    m->integer[NAT_VR_ATO_REPLANS] = (fmi2Integer)c->replans;
+    m->integer[NAT_VR_ATO_USING_ESTIMATES] = c->using_estimates != 0;
+    m->real[NAT_VR_ATO_PREDICTED_ARRIVAL] = ato_controller_predicted_arrival(c);
+}
+
+static const char NOT_COVERED[] = "not covered by the native AtoController (it runs one span): "
+                                  "use AtoController.fmu";
+
+/* _build: 1, or 0 with the refusal in msg */
+static int build(GlueInstance *g, nat_instance *m, char *msg) {
+    ato_tuning tuning;
+    int from_profile = 0;
+    double length;
+    if (!check_span_parameters(g, m, msg) || !read_grade(g, m, msg) ||
+        !read_limits(g, m, &from_profile, msg))
+        return 0;
+    length = m->real[NAT_VR_SPAN_LENGTH];
+    m->span.stop = m->real[NAT_VR_SPAN_STOP];
+    m->span.length = length != 0.0 ? length : m->span.stop;
+    m->span.schedule = m->real[NAT_VR_SPAN_SCHEDULE];
+    if (!check_span(&m->span, msg) || !read_car(m, &m->car, msg) || !read_tuning(m, &tuning, msg)) {
+        fmu_names(msg, from_profile);
+        return 0;
+    }
+    {
+        rc_error err;
+        if (ato_tuning_validate(&tuning, "ato.", &err) != RC_OK) return refuse(msg, "%s", err.msg);
+    }
+    if (!(m->controller = malloc(sizeof *m->controller))) return refuse(msg, "out of memory");
+    m->dwell = 0.0;           /* LineSpan(span): the first span has no dwell nor boarding */
+    m->boarding = 0.0;
+    if (ato_line_init(&m->line, 1, &m->span, &m->dwell, &m->boarding, &m->car, &tuning,
+                      m->controller, &m->departure, msg) != RC_OK) {
+        /* open_ato builds the AtoController itself: its ValueError without LineError's span */
+        if (!strncmp(msg, "span 1: ", 8)) memmove(msg, msg + 8, strlen(msg + 8) + 1);
+        fmu_names(msg, from_profile);
+        return 0;
+    }
+    m->built = 1;
+    if (string_of(m, NAT_VR_LINE_PROFILE)[0])
+        return refuse(msg, "line.profile: %s", NOT_COVERED);
+    if (string_of(m, NAT_VR_LINE_SPEED_LIMIT_PROFILE)[0])
+        return refuse(msg, "line.speed_limit_profile: %s", NOT_COVERED);
+    m->real[NAT_VR_ATO_PAYLOAD] = 0.0;
+    m->integer[NAT_VR_ATO_SPAN] = 1;
+    publish(m, 0.0, tuning.hold_brake * m->car.brake_force_max, ATO_MODE_HOLD, 0.0, 0);
+    return 1;
+}
+
+fmi2Status model_exit_initialization_mode(GlueInstance *g) {
+    nat_instance *m = MODEL(g);
+    char msg[MSG_SIZE];
+    msg[0] = '\0';
+    drop_line(m);
+    memset(&m->span, 0, sizeof m->span);
+    if (!build(g, m, msg)) {
+        drop_line(m);
+        glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: initialisation "
+                 "failed: %s", msg);
+        return fmi2Error;
+    }
+    m->time = m->start_time;
+    m->logged = 0;
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------------- stepping */
+
+fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size) {
+    nat_instance *m = MODEL(g);
+    double inputs[ATO_N_ALL_INPUTS];
+    char a[REPR_SIZE], b[REPR_SIZE];
+    const ato_controller *c;
+    ato_line_step step;
+    int k;
+    long e;
+    if (!m->built) {
+        glue_log(g, fmi2Error, "logStatusError", "doStep refused: the instance is not "
+                 "initialised (call exitInitializationMode first; after a failed "
+                 "initialisation, reset or free the instance)");
+        return fmi2Error;
+    }
+    /* AtoController._check_step: models.chain.check_step, then the time continuing */
+    if (!(isfinite(step_size) && step_size > 0.0)) {
+        glue_log(g, fmi2Discard, "logStatusDiscard", "step discarded: communication step size "
+                 "must be > 0 [s], got %s", repr(step_size, a));
+        return fmi2Discard;
+    }
+    if (step_size > NAT_MAX_STEP) {
+        glue_log(g, fmi2Discard, "logStatusDiscard", "step discarded: communication step size "
+                 "must be <= 3600 s, got %s", repr(step_size, a));
+        return fmi2Discard;
+    }
+    if (!isfinite(current_time)) {
+        glue_log(g, fmi2Discard, "logStatusDiscard", "step discarded: current time must be "
+                 "finite [s], got %s", repr(current_time, a));
+        return fmi2Discard;
+    }
+    if (fabs(current_time - m->time) > 1e-9 * fmax(1.0, fabs(current_time))) {
+        glue_log(g, fmi2Discard, "logStatusDiscard", "step discarded: current time %s s does "
+                 "not continue the FMU's time %s s", repr(current_time, a), repr(m->time, b));
+        return fmi2Discard;
+    }
+    for (k = 0; k < ATO_N_ALL_INPUTS; k++) {
+        int vr = m->input_vr[k];
+        inputs[k] = NAT_VARS[vr].type == GLUE_REAL ? m->real[vr] : (double)m->integer[vr];
+    }
+    step = ato_line_demands(&m->line, current_time, inputs,
+                            (double)m->integer[NAT_VR_EST_STATION_STOPS]);
+    m->real[NAT_VR_ATO_PAYLOAD] += step.payload_change;
+    m->integer[NAT_VR_ATO_SPAN] = step.span + 1;
+    publish(m, step.command.traction, step.command.brake, step.command.mode,
+            step.command.planned_speed, step.command.ep_stage);
+    c = &m->line.controllers[0];
+    if (c->n_events - m->logged > ATO_EVENT_RING)
+        glue_log(g, fmi2Warning, "logStatusWarning", "t = %.3f s: %ld events not logged (more "
+                 "than %d in one step)", current_time, c->n_events - m->logged - ATO_EVENT_RING,
+                 ATO_EVENT_RING);
+    for (e = m->logged; e < c->n_events; e++) {
+        const ato_event *ev = ato_controller_event(c, e);
+        if (ev) glue_log(g, fmi2Warning, "logStatusWarning", "t = %.3f s: %s", ev->t, ev->text);
+    }
+    m->logged = c->n_events;
+    m->time = current_time + step_size;
+    return step.command.mode == ATO_MODE_SAFE ? fmi2Warning : fmi2OK;
+}
