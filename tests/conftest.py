@@ -124,11 +124,12 @@ def built_fmus(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="session")
 def native_fmus(built_fmus) -> dict[str, Path]:
-    """The four native FMUs build.py put in dist/native/ of that same build (the same sources
+    """The five native FMUs build.py put in dist/native/ of that same build (the same sources
     and flags as fmu_src.build.native's functions): built once, not once per test module."""
     folder = built_fmus["RailCar"].parent / "native"
     paths = {n: folder / f"{n}.fmu" for n in ("RailCarNative", "RailCarEstimatorNative",
-                                              "RailCarNative3", "RailCarEstimatorNative3")}
+                                              "RailCarNative3", "RailCarEstimatorNative3",
+                                              "AtoControllerNative")}
     for path in paths.values():
         assert path.is_file(), f"build.py did not produce {path}"
     return paths

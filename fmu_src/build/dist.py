@@ -22,7 +22,8 @@ DIST = ROOT / "dist"
 # and the harness imports this module to ask whether its FMUs are current.
 NAMES = ("RailCar", "RailCarEstimator")
 """The FMUs that have a native twin."""
-NATIVE_NAMES = {"RailCar": "RailCarNative", "RailCarEstimator": "RailCarEstimatorNative"}
+NATIVE_NAMES = {"RailCar": "RailCarNative", "RailCarEstimator": "RailCarEstimatorNative",
+                "AtoController": "AtoControllerNative"}
 
 
 class BuildError(RuntimeError):

@@ -436,6 +436,8 @@ def native_is_stale(name: str, dist: Path = DIST) -> bool:
     xml = description_of(Path(dist) / f"{name}.fmu")
     if xml is None:
         return True
+    if name == ATO:
+        return fmu_guid(native_path(name, dist)) != native_ato_guid(xml, available_targets(report=False))
     spec = {s.fmu: s for s in SPECS}[name]
     return fmu_guid(native_path(name, dist)) != native_guid(xml, spec)
 

@@ -97,13 +97,6 @@ class FmuChoice:
         return f"fmu: {self.describe()}"
 
 
-def _native_fmu(model: str, dist: Path) -> Path:
-    """native_path, and DIST/native/AtoControllerNative.fmu (not in fmu_src.build.dist's names
-    yet: build.py does not build it, fmu_src.build.native.build_native_ato does)."""
-    from fmu_src.variables import ATO
-    return Path(dist) / "native" / "AtoControllerNative.fmu" if model == ATO else native_path(model, dist)
-
-
 def choose(asked: str, model: str, dist: Path, parameter_sets) -> FmuChoice:
     """The FMU of ``model`` to run for ``parameter_sets`` ((label, parameters) pairs: a scenario,
     or every run of a sweep). ``auto``: the native FMU unless one set is not covered by it
@@ -112,7 +105,7 @@ def choose(asked: str, model: str, dist: Path, parameter_sets) -> FmuChoice:
     if asked not in KINDS:
         raise InputError(f"--fmu {asked}: expected one of {', '.join(KINDS)}")
     dist = Path(dist)
-    python, native = dist / f"{model}.fmu", _native_fmu(model, dist)
+    python, native = dist / f"{model}.fmu", native_path(model, dist)
     if asked == "python":
         return FmuChoice("python", python, asked, "the pythonfmu FMU, as asked")
     gap = next(((label, why) for label, params in parameter_sets

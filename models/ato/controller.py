@@ -367,8 +367,7 @@ class AtoController:
         c = self.configured
         plan = key if (key is not None and using) else (c.mass, c.A0, c.A1, c.A2)
         if tn.use_estimates:         # off: the configured car alone, as the tuning says
-            plan = (heavier_mass(plan[0], est[0], int(est[4]) in EST_USABLE, c.mass, tn.mass_band),
-                    *plan[1:])
+            plan = (heavier_mass(plan[0], est[0], int(est[4]) in EST_USABLE, c.mass, tn.mass_band), *plan[1:])
         brake_mass = braking_mass(plan[0], c.mass)
         if plan == (c.mass, c.A0, c.A1, c.A2) and brake_mass == c.brake_mass:
             self._car_now = c
@@ -377,8 +376,7 @@ class AtoController:
         self._last_key = (plan, brake_mass)
         return self._car_now
 
-    def _replan(self, t: float, tau: float, s: float, v: float, car: PlanCar):
-        """Re-plan from (s, v) at ``tau`` [s] after departure; events at the call's time ``t``."""
+    def _replan(self, t: float, tau: float, s: float, v: float, car: PlanCar):   # tau: since departure
         t0 = _time.perf_counter()
         try:
             # while est.* and the configured car disagree (one is wrong: the error may show
@@ -389,14 +387,13 @@ class AtoController:
                        * left * left / self.span.schedule)
             plan = self.planner.plan(car, s, v, tau, self.span.schedule - reserve)
         except ValueError as e:
-            self._log(t, f"re-plan failed ({e}): the last plan is kept", "replan")
-            return
+            return self._log(t, f"re-plan failed ({e}): the last plan is kept", "replan")
         self._clear("replan")
         self.replan_seconds.append(_time.perf_counter() - t0)
         self.replans += 1
         if plan.status != self._last_status:
             self.events.append((t, f"re-plan status {plan.status}: arrival planned "
-                                     f"{plan.arrival - self.span.schedule:+.2f} s off schedule"))
+                                   f"{plan.arrival - self.span.schedule:+.2f} s off schedule"))
             self._last_status = plan.status
         self.plan = plan
         self._final_start = self._final_stretch_start(plan.qU)

@@ -26,7 +26,7 @@ import pytest
 from fmpy import extract, read_model_description
 
 from conftest import OK, FmuFile, Slave
-from fmu_src.build.native import (ATO_NATIVE_NAME, ATO_TABLE_HEADER, build_native_ato,
+from fmu_src.build.native import (ATO_NATIVE_NAME, ATO_TABLE_HEADER,
                                   generate_ato_header)
 from fmu_src.variables import ATO, variables_for
 
@@ -39,9 +39,10 @@ PARAMETER_STARTS = {v.name: v.start for v in variables_for(ATO) if v.causality =
 
 
 @pytest.fixture(scope="module")
-def native_ato(built_fmus, tmp_path_factory) -> FmuFile:
+def native_ato(native_fmus, tmp_path_factory) -> FmuFile:
+    """build.py's AtoControllerNative.fmu (the session's build: build_native_ato's recipe)."""
     folder = tmp_path_factory.mktemp("native_ato")
-    path = build_native_ato(folder, built_fmus["AtoController"])
+    path = native_fmus["AtoControllerNative"]
     unzipdir = extract(str(path), unzipdir=str(folder / "unzip"))
     return FmuFile("AtoController", path, read_model_description(str(path)), unzipdir)
 
