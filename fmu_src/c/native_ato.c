@@ -441,8 +441,8 @@ static int read_grade(GlueInstance *g, nat_instance *m, char *msg) {
     m->span.grade.n = (int)n;
     m->span.grade.distances = m->grade_block;
     m->span.grade.grades = m->grade_block + n;
+    rc_grade_cumulate(m->grade_block, m->grade_block + n, n, m->grade_block + 2 * n);
     m->span.grade.cum = m->grade_block + 2 * n;
-    rc_ato_grade_init(&m->span.grade);
     return 1;
 }
 

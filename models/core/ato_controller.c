@@ -166,7 +166,7 @@ static rc_status check_grid(const rc_ato_span *span, const rc_ato_car *car,
 static rc_status check_ep(const rc_ato_span *span, const rc_ato_car *car, const ato_tuning *tn,
                           char *msg)
 {
-    double g = rc_ato_grade_average(&span->grade, span->stop, car->length);
+    double g = rc_grade_average(&span->grade, span->stop, car->length);
     double need = 1000.0 * car->mass * (1.0 + car->gamma) * tn->a_ep
                   - car->mass * RC_G * (car->A0 + g);
     if (need > car->mech_force_max) {
@@ -647,7 +647,7 @@ static rc_status step(ato_controller *c, double t, const double *vals, ato_comma
         *out = settle_step(c, t, s);
         return RC_OK;
     }
-    double g = rc_ato_grade_average(&c->span->grade, s, c->car->length);
+    double g = rc_grade_average(&c->span->grade, s, c->car->length);
     if (c->phase == ATO_PHASE_BRAKE)
         set_aim(c, sd);
     double d = c->relay.stop - s;

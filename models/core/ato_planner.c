@@ -140,7 +140,7 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
     c->qlim = block + 2 * total;
     double L = car->length;
     for (int k = 0; k + 1 < kept; k++)
-        c->g[k] = rc_ato_grade_average(&span->grade, 0.5 * (s[k] + s[k + 1]), L);
+        c->g[k] = rc_grade_average(&span->grade, 0.5 * (s[k] + s[k + 1]), L);
     for (int k = 0; k < kept; k++) {
         double u = rc_ato_v_lim_at_node(span, s[k]) - limit_margin;
         c->qlim[k] = u * u;
@@ -1069,7 +1069,7 @@ rc_status rc_ato_plan_setup(rc_ato_course *course, rc_ato_planner *planner,
                             double time_tol, double a_ep, int ep_stages, double mass_reserve,
                             double brake_share, int max_nodes, rc_error *err)
 {
-    double g = rc_ato_grade_average(&span->grade, span->stop, car->length);
+    double g = rc_grade_average(&span->grade, span->stop, car->length);
     double a = rc_ato_ep_deceleration(car, a_ep, ep_stages, mass_reserve, g);
     rc_status rc = rc_ato_course_init(course, span, car, grid_step, limit_margin,
                                       car->regen_fade_speed, a, max_nodes, err);

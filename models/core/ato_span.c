@@ -21,34 +21,6 @@ int rc_ato_bisect_right(const double *a, int n, double x)
     return lo;
 }
 
-void rc_ato_grade_init(rc_ato_grade *g)
-{
-    g->cum[0] = 0.0;
-    for (int k = 1; k < g->n; k++)
-        g->cum[k] = g->cum[k - 1] + g->grades[k - 1] * (g->distances[k] - g->distances[k - 1]);
-}
-
-double rc_ato_grade_at(const rc_ato_grade *g, double x)
-{
-    int k = rc_ato_bisect_right(g->distances, g->n, x) - 1;
-    return g->grades[k >= 0 ? k : 0];
-}
-
-static double grade_integral(const rc_ato_grade *g, double x)
-{
-    int k = rc_ato_bisect_right(g->distances, g->n, x) - 1;
-    if (k < 0)
-        return g->grades[0] * (x - g->distances[0]);
-    return g->cum[k] + g->grades[k] * (x - g->distances[k]);
-}
-
-double rc_ato_grade_average(const rc_ato_grade *g, double x, double length)
-{
-    if (length <= 0.0)
-        return rc_ato_grade_at(g, x);
-    return (grade_integral(g, x) - grade_integral(g, x - length)) / length;
-}
-
 double rc_ato_v_lim(const rc_ato_span *span, double s)
 {
     int k = rc_ato_bisect_right(span->limit_distances, span->n_limits, s) - 1;
@@ -165,7 +137,7 @@ rc_status rc_ato_check_span_for_car(const rc_ato_span *span, const rc_ato_car *c
 {
     char a[40], b[40], c[40];
     double w = car->mass * RC_G;
-    double i0 = rc_ato_grade_average(&span->grade, 0.0, car->length);
+    double i0 = rc_grade_average(&span->grade, 0.0, car->length);
     if (rc_ato_f_max(car, 0.0) <= w * (car->A0 + i0)) {
         if (err) {
             rc_repr(i0, a, sizeof a);
@@ -187,10 +159,10 @@ rc_status rc_ato_check_span_for_car(const rc_ato_span *span, const rc_ato_car *c
     for (int k = 0; k < span->n_limits; k++) {
         double v = lim[k];
         double lo = d[k], hi = k + 1 < span->n_limits ? d[k + 1] : span->stop;
-        double steepest = rc_ato_grade_average(&span->grade, lo, car->length);
+        double steepest = rc_grade_average(&span->grade, lo, car->length);
         for (int j = 0; j < np; j++)
             if (lo <= pts[j] && pts[j] < hi)
-                steepest = rc_min(steepest, rc_ato_grade_average(&span->grade, pts[j], car->length));
+                steepest = rc_min(steepest, rc_grade_average(&span->grade, pts[j], car->length));
         double va = v + 0.0;      /* main_resistance(v, wind 0) */
         double need = -w * (car->A0 + car->A1 * v + car->A2 * va * fabs(va) + steepest);
         double have = rc_min(rc_ato_r_max(car, v) + car->mech_force_max,

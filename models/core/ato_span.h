@@ -1,6 +1,6 @@
 /* ato_span.h -- a span between two stations and the car's traction/brake characteristic, as the
  * ATO's re-planner sees them: the C twin of models/planning/span.py (Span, CarTraction's
- * characteristic, check_span_for_car) and of GradeProfile's lookups (models/plant/track.py).
+ * characteristic, check_span_for_car); its grade is track.h's GradeProfile (one copy of it).
  *
  * The caller fills the structs; arrays are the caller's and must outlive every use. Units:
  * s [m], V [m/s], force [N], power [W], mass [t], grade [permille]. */
@@ -8,20 +8,13 @@
 #define RAILCAR_ATO_SPAN_H
 
 #include "rc_common.h"
+#include "track.h"
 
-/* GradeProfile: grade i(x) piecewise constant from each distance on (the first grade before
- * the first distance). cum: the caller's buffer of n doubles, filled by rc_ato_grade_init. */
-typedef struct {
-    int n;
-    const double *distances;      /* [m], increasing */
-    const double *grades;         /* [permille] */
-    double *cum;                  /* integral of the grade at each distance [permille m] */
-} rc_ato_grade;
 
 /* Span: the limits V_lim(s) piecewise constant from each limit distance on (the first is 0). */
 typedef struct {
     double length, schedule, stop;             /* [m], [s], [m] */
-    rc_ato_grade grade;
+    rc_grade_profile grade;                    /* track.h: the plant's GradeProfile, one copy */
     int n_limits;
     const double *limit_distances;             /* [m] */
     const double *limit_speeds;                /* [m/s] */
@@ -35,11 +28,6 @@ typedef struct {
     double mech_force_max, adhesion_mass_fraction, adhesion_factor, eta_f, eta;
 } rc_ato_car;
 
-/* The cumulative integral GradeProfile.__post_init__ computes. */
-void rc_ato_grade_init(rc_ato_grade *g);
-double rc_ato_grade_at(const rc_ato_grade *g, double x);
-/* Grade averaged over [x - length, x] (point grade for length <= 0). */
-double rc_ato_grade_average(const rc_ato_grade *g, double x, double length);
 
 /* bisect.bisect_right(a[0:n], x) */
 int rc_ato_bisect_right(const double *a, int n, double x);

@@ -57,8 +57,8 @@ void *shim_new(const double *span3, const double *grade_d, const double *grade_g
     h->span.grade.n = n_grade;
     h->span.grade.distances = h->grade_d;
     h->span.grade.grades = h->grade_g;
+    rc_grade_cumulate(h->grade_d, h->grade_g, n_grade, h->grade_cum);
     h->span.grade.cum = h->grade_cum;
-    rc_ato_grade_init(&h->span.grade);
     h->span.n_limits = n_lim;
     h->span.limit_distances = h->lim_d;
     h->span.limit_speeds = h->lim_v;
@@ -216,8 +216,8 @@ void *shim_line_new(int n, const double *flat, int n_flat, const double *car,
         s->grade.n = ng;
         s->grade.distances = a + p;
         s->grade.grades = a + p + ng;
+        rc_grade_cumulate(a + p, a + p + ng, ng, cum + p);
         s->grade.cum = cum + p;
-        rc_ato_grade_init(&s->grade);
         p += 2 * ng;
         int nl = (int)a[p++];
         s->n_limits = nl;

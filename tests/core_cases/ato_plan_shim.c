@@ -80,8 +80,8 @@ void *shim_new(const double *span3, const double *grade_d, const double *grade_g
     h->span.grade.n = n_grade;
     h->span.grade.distances = h->grade_d;
     h->span.grade.grades = h->grade_g;
+    rc_grade_cumulate(h->grade_d, h->grade_g, n_grade, h->grade_cum);
     h->span.grade.cum = h->grade_cum;
-    rc_ato_grade_init(&h->span.grade);
     h->span.n_limits = n_lim;
     h->span.limit_distances = h->lim_d;
     h->span.limit_speeds = h->lim_v;
@@ -210,8 +210,8 @@ int shim_span_lookups(void *hv, const double *xs, int n, double *out)
     shim *h = hv;
     for (int k = 0; k < n; k++) {
         double x = xs[k], *o = out + 10 * k;
-        o[0] = rc_ato_grade_at(&h->span.grade, x);
-        o[1] = rc_ato_grade_average(&h->span.grade, x, h->car.length);
+        o[0] = rc_grade_at(&h->span.grade, x);
+        o[1] = rc_grade_average(&h->span.grade, x, h->car.length);
         o[2] = rc_ato_v_lim(&h->span, x);
         o[3] = rc_ato_v_lim_at_node(&h->span, x);
         o[4] = rc_ato_f_max(&h->car, x);

@@ -49,7 +49,7 @@ from models.planning.span import CarTraction, Span, check_span_for_car
 ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "ato_plan_shim.c"
-SOURCES = ["ato_span.c", "ato_motion.c", "ato_stopping.c", "ato_planner.c", "repr.c"]
+SOURCES = ["ato_span.c", "track.c", "ato_motion.c", "ato_stopping.c", "ato_planner.c", "repr.c"]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 MAX_NODES = 10_003          # models.ato.controller.MAX_GRID_NODES + 3 (ato_planner.h)
 D = ctypes.POINTER(ctypes.c_double)
@@ -719,7 +719,7 @@ def plan_mismatches(lib, states=12) -> int:
 @pytest.mark.parametrize("mutation", MUTATIONS)
 def test_a_one_ulp_mutation_of_the_planner_is_caught(mutation, tmp_path):
     target, replacement = MUTATIONS[mutation]
-    for name in SOURCES + ["ato_span.h", "ato_motion.h", "ato_stopping.h", "ato_planner.h",
+    for name in SOURCES + ["ato_span.h", "track.h", "ato_motion.h", "ato_stopping.h", "ato_planner.h",
                            "rc_common.h", "rc_fp_contract.h"]:
         shutil.copy(CORE / name, tmp_path / name)
     source = tmp_path / "ato_planner.c"
