@@ -120,7 +120,7 @@ def test_a_log_with_the_interval_forces_replays_to_the_runs_estimates_bit_for_bi
     run = chain_run_with_interval_forces(load_scenario(ROOT / "scenarios" / "default.toml"))
     log = write_log(tmp_path / "run.csv", run)
     items, forces = read_log_parameters(log)
-    assert forces == "interval_mean" and "sensor.speed_std=0.05" in items and len(items) == 35
+    assert forces == "interval_mean" and "sensor.speed_std=0.05" in items and len(items) == 37
     dist = str(built_fmus["RailCar"].parent)
     assert main(["replay", str(log), "--out", str(tmp_path / "o"), "--dist", dist, "--fmu", "native"]) == 0
     out = capsys.readouterr().out
