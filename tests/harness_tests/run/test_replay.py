@@ -124,7 +124,7 @@ def test_a_log_with_the_interval_forces_replays_to_the_runs_estimates_bit_for_bi
     dist = str(built_fmus["RailCar"].parent)
     assert main(["replay", str(log), "--out", str(tmp_path / "o"), "--dist", dist, "--fmu", "native"]) == 0
     out = capsys.readouterr().out
-    assert "parameters: run.params (35), then --param" in out
+    assert "parameters: run.params (37), then --param" in out
     assert "est.* vs the run's own  bit for bit" in out, out
     replayed = read_estimates(tmp_path / "o" / "estimates.csv")
     for name in RUN_ESTIMATES:
