@@ -414,20 +414,28 @@ def build_native(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> P
                     for t in targets}
         python_xml, profiles = read_pythonfmu(python_fmu, spec)
         xml = native_model_description(native_guid(python_xml, spec, targets), spec)
-        tmp_fmu = Path(tmp) / target.name
-        with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", xml)
-            for name, binary in binaries.items():
-                z.writestr(name, binary.read_bytes())
-            z.writestr("documentation/_main.html", platforms_page(
-                f"{spec.native_name}.fmu (FMI 2.0)", [t.fmi2_folder for t in targets],
-                SOURCES_NOTE))
-            for p in [*c_sources(spec), *c_headers(spec)]:
-                z.writestr(f"sources/{p.name}", p.read_bytes())
-            for name, data in profiles:          # relative profile paths resolve here first
-                z.writestr(name, data)
-        target.write_bytes(tmp_fmu.read_bytes())
+        write_fmu2(target, Path(tmp), xml, binaries, spec.native_name, targets,
+                   [*c_sources(spec), *c_headers(spec)], profiles)
     return target
+
+
+def write_fmu2(target: Path, tmp: Path, xml, binaries: dict, native_name: str, targets,
+               files: list, profiles) -> None:
+    """A native FMI 2.0 FMU at ``target`` (zipped in ``tmp`` first): its description, the
+    ``binaries`` (member -> compiled file), the platforms page, ``files`` under sources/ and the
+    ``profiles`` (member, bytes: relative profile paths resolve there first)."""
+    tmp_fmu = tmp / target.name
+    with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("modelDescription.xml", xml)
+        for name, binary in binaries.items():
+            z.writestr(name, binary.read_bytes())
+        z.writestr("documentation/_main.html", platforms_page(
+            f"{native_name}.fmu (FMI 2.0)", [t.fmi2_folder for t in targets], SOURCES_NOTE))
+        for p in files:
+            z.writestr(f"sources/{p.name}", p.read_bytes())
+        for name, data in profiles:
+            z.writestr(name, data)
+    target.write_bytes(tmp_fmu.read_bytes())
 
 
 def native_is_stale(name: str, dist: Path = DIST) -> bool:
@@ -567,19 +575,8 @@ def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
                     compile_for(t, sources, Path(tmp) / f"{t.tuple}{t.extension}",
                                 f"the native FMU {ATO_NATIVE_NAME}")
                     for t in targets}
-        tmp_fmu = Path(tmp) / target.name
-        with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", xml)
-            for name, binary in binaries.items():
-                z.writestr(name, binary.read_bytes())
-            z.writestr("documentation/_main.html", platforms_page(
-                f"{ATO_NATIVE_NAME}.fmu (FMI 2.0)", [t.fmi2_folder for t in targets],
-                SOURCES_NOTE))
-            for p in [*sources, *ato_c_headers()]:
-                z.writestr(f"sources/{p.name}", p.read_bytes())
-            for name, data in profiles:
-                z.writestr(name, data)
-        target.write_bytes(tmp_fmu.read_bytes())
+        write_fmu2(target, Path(tmp), xml, binaries, ATO_NATIVE_NAME, targets,
+                   [*sources, *ato_c_headers()], profiles)
     return target
 
 

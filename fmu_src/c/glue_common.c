@@ -18,6 +18,15 @@
 
 #include "glue_common.h"
 
+#include <sys/stat.h>
+#ifdef _MSC_VER
+#include <direct.h>
+#define getcwd _getcwd
+#define S_ISREG(mode) (((mode) & _S_IFMT) == _S_IFREG)
+#else
+#include <unistd.h>
+#endif
+
 /* The registry's lock: a slim reader/writer lock on Windows (kernel32 since Vista, statically
    initialised, no thread library to ship), a POSIX mutex elsewhere. */
 #ifdef _WIN32
@@ -997,4 +1006,47 @@ int gc_deserialize_state(const GlueStandard *standard, void *handle, const char 
     }
     memcpy(bytes, in, size);
     return keep_state(g, function, state, bytes, size) ? GLUE_STATUS_OK : GLUE_STATUS_ERROR;
+}
+
+/* ------------------------------------------------------------------------------ profiles */
+
+static char *join_path(const char *a, const char *b) {
+    size_t na = strlen(a), nb = strlen(b);
+    char *p = malloc(na + 1 + nb + 1);
+    if (!p) return NULL;
+    memcpy(p, a, na);
+    p[na] = '/';
+    memcpy(p + na + 1, b, nb + 1);
+    return p;
+}
+
+static int is_file(const char *path) {
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+char *gc_resolve_profile_path(const char *raw, const char *resources) {
+    char *candidate, *cwd;
+    size_t size;
+    if (gc_is_absolute_path(raw)) {
+        size = strlen(raw) + 1;
+        candidate = malloc(size);
+        if (candidate) memcpy(candidate, raw, size);
+        return candidate;
+    }
+    if (resources && resources[0]) {
+        candidate = join_path(resources, raw);
+        if (!candidate || is_file(candidate)) return candidate;
+        free(candidate);
+    }
+    for (size = 256;; size *= 2) {
+        cwd = malloc(size);
+        if (!cwd) return NULL;
+        if (getcwd(cwd, size)) break;
+        free(cwd);
+        if (size > 1 << 20) return join_path(".", raw);   /* no working directory to name */
+    }
+    candidate = join_path(cwd, raw);
+    free(cwd);
+    return candidate;
 }

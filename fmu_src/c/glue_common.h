@@ -242,6 +242,9 @@ int gc_check_refs(GlueInstance *g, const char *function, int type, const char *t
 int gc_is_drive_path(const char *p);
 /* An absolute path on this machine: "/..." (on Windows also "\\...", "C:/...", "C:\\..."). */
 int gc_is_absolute_path(const char *p);
+/* fmu_src/adapter.py's resolve_profile_path: an absolute path as it is; else resources/<raw> if
+   that is a file; else <cwd>/<raw>. malloc'd; NULL when out of memory. */
+char *gc_resolve_profile_path(const char *raw, const char *resources);
 /* A resource location -> a malloc'd path without trailing '/', or NULL if it is not a local
    absolute path: "file:///p", "file://localhost/p", "file:/p" or "/p"; with `decode`, %XX
    escapes are decoded (FMI 2's URI; FMI 3 passes a path). On Windows also "file:///C:/p",

@@ -30,13 +30,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#ifdef _MSC_VER
-#include <direct.h>
-#define getcwd _getcwd
-#define S_ISREG(mode) (((mode) & _S_IFMT) == _S_IFREG)
-#else
-#include <unistd.h>
-#endif
 
 #include "ato_line.h"
 #include "fmi2_glue.h"
@@ -310,48 +303,6 @@ static void fmu_names(char *msg, int from_profile) {
 
 /* ------------------------------------------------------------------------- profile files */
 
-static char *join_path(const char *a, const char *b) {
-    size_t na = strlen(a), nb = strlen(b);
-    char *p = malloc(na + 1 + nb + 1);
-    if (!p) return NULL;
-    memcpy(p, a, na);
-    p[na] = '/';
-    memcpy(p + na + 1, b, nb + 1);
-    return p;
-}
-
-static int is_file(const char *path) {
-    struct stat st;
-    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
-}
-
-/* adapter.resolve_profile_path: absolute as it is; else resources/<raw> if that is a file;
-   else <cwd>/<raw>. malloc'd; NULL when out of memory. */
-static char *resolve_path(const char *raw, const char *resources) {
-    char *candidate, *cwd;
-    size_t size;
-    if (gc_is_absolute_path(raw)) {
-        size = strlen(raw) + 1;
-        candidate = malloc(size);
-        if (candidate) memcpy(candidate, raw, size);
-        return candidate;
-    }
-    if (resources && resources[0]) {
-        candidate = join_path(resources, raw);
-        if (!candidate || is_file(candidate)) return candidate;
-        free(candidate);
-    }
-    for (size = 256;; size *= 2) {
-        if (!(cwd = malloc(size))) return NULL;
-        if (getcwd(cwd, size)) break;
-        free(cwd);
-        if (size > 1 << 20) return join_path(".", raw);
-    }
-    candidate = join_path(cwd, raw);
-    free(cwd);
-    return candidate;
-}
-
 /* str(pathlib.Path(path)) of a POSIX path: repeated '/' and "." parts dropped, no trailing '/' */
 static void path_str(const char *path, char *out, size_t size) {
     size_t o = 0;
@@ -384,7 +335,7 @@ static int usable_name(GlueInstance *g, const nat_instance *m, int vr, char *msg
     struct stat st;
     int bad = 0, code = 0;
     if (!raw[0]) return 1;
-    if (!(path = resolve_path(raw, g->resources))) return refuse(msg, "out of memory");
+    if (!(path = gc_resolve_profile_path(raw, g->resources))) return refuse(msg, "out of memory");
     if (stat(path, &st) != 0) {
         code = errno;             /* pathlib's is_file() lets only these through */
         bad = code != ENOENT && code != ENOTDIR && code != EBADF && code != ELOOP;
@@ -417,7 +368,7 @@ static int read_grade(GlueInstance *g, nat_instance *m, char *msg) {
     rc_profile prof;
     memset(&prof, 0, sizeof prof);
     if (raw[0]) {
-        char *path = resolve_path(raw, g->resources);
+        char *path = gc_resolve_profile_path(raw, g->resources);
         int status;
         if (!path) return refuse(msg, "out of memory");
         status = rc_profile_read_file(path, "span.grade_profile", raw, RC_PROFILE_GRADE, &prof);
@@ -481,7 +432,7 @@ static int read_limits(GlueInstance *g, nat_instance *m, int *from_profile, char
         m->span.limit_speeds = m->limit_block + 1;
         return 1;
     }
-    if (!(path = resolve_path(raw, g->resources))) return refuse(msg, "out of memory");
+    if (!(path = gc_resolve_profile_path(raw, g->resources))) return refuse(msg, "out of memory");
     memset(&prof, 0, sizeof prof);
     status = rc_profile_read_file(path, "span.speed_limit_profile", raw, RC_PROFILE_SPEED, &prof);
     if (status != RC_OK && prof.message &&

@@ -8,14 +8,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#ifdef _MSC_VER
-#include <direct.h>
-#define getcwd _getcwd
-#define S_ISREG(mode) (((mode) & _S_IFMT) == _S_IFREG)
-#else
-#include <unistd.h>
-#endif
 
 GLUE_EXPORT const char *railcar_fmu_binary_id(void) { return NATIVE_BINARY_ID; }
 
@@ -157,49 +149,6 @@ void native_store_outputs(native_values *v, const double *outputs) {
 
 /* ------------------------------------------------------------------------------ profiles */
 
-static char *join_path(const char *a, const char *b) {
-    size_t na = strlen(a), nb = strlen(b);
-    char *p = malloc(na + 1 + nb + 1);
-    if (!p) return NULL;
-    memcpy(p, a, na);
-    p[na] = '/';
-    memcpy(p + na + 1, b, nb + 1);
-    return p;
-}
-
-static int is_file(const char *path) {
-    struct stat st;
-    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
-}
-
-/* adapter.resolve_profile_path: absolute as it is; else resources/<raw> if that is a file;
-   else <cwd>/<raw>. malloc'd; NULL when out of memory. */
-static char *resolve_profile_path(const char *raw, const char *resources) {
-    char *candidate, *cwd;
-    size_t size;
-    if (gc_is_absolute_path(raw)) {
-        size = strlen(raw) + 1;
-        candidate = malloc(size);
-        if (candidate) memcpy(candidate, raw, size);
-        return candidate;
-    }
-    if (resources && resources[0]) {
-        candidate = join_path(resources, raw);
-        if (!candidate || is_file(candidate)) return candidate;
-        free(candidate);
-    }
-    for (size = 256;; size *= 2) {
-        cwd = malloc(size);
-        if (!cwd) return NULL;
-        if (getcwd(cwd, size)) break;
-        free(cwd);
-        if (size > 1 << 20) return join_path(".", raw);   /* no working directory to name */
-    }
-    candidate = join_path(cwd, raw);
-    free(cwd);
-    return candidate;
-}
-
 /* load_profiles' reading of one parameter: RC_OK with the profile (n 0: the parameter is empty),
    or RC_BAD_CONFIG with the profile's message. */
 static int read_profile(GlueInstance *g, const native_values *v, int vr, rc_profile_kind kind,
@@ -210,7 +159,7 @@ static int read_profile(GlueInstance *g, const native_values *v, int vr, rc_prof
     int status;
     memset(out, 0, sizeof *out);
     if (!raw[0]) return RC_OK;
-    path = resolve_profile_path(raw, g->resources);
+    path = gc_resolve_profile_path(raw, g->resources);
     if (!path) {
         snprintf(out->err.msg, sizeof out->err.msg, "%s: out of memory", name);
         return RC_BAD_CONFIG;

@@ -146,17 +146,15 @@ class LineController:
         ctrl = self.controllers[self.k]
         if self._dwell_from is not None:             # standing at a station between spans
             nxt = self.spans[self.k + 1]
+            hold = AtoCommand(0.0, ctrl.tuning.hold_brake * ctrl.car.brake_force_max,
+                              int(AtoMode.HOLD), 0.0)
             if t - self._dwell_from < nxt.dwell_s - 1e-9:
-                cmd = AtoCommand(0.0, ctrl.tuning.hold_brake * ctrl.car.brake_force_max,
-                                 int(AtoMode.HOLD), 0.0)
                 boarding = 0.0 if self._boarded else nxt.boarding_t
                 self._boarded = True
-                return LineStep(t, self.k, cmd, dwell=True, payload_change=boarding)
+                return LineStep(t, self.k, hold, dwell=True, payload_change=boarding)
             position = _finite(outputs.get("filter.position") if hasattr(outputs, "get") else None)
             if position is None:       # the shift needs a position: no departure until one
-                cmd = AtoCommand(0.0, ctrl.tuning.hold_brake * ctrl.car.brake_force_max,
-                                 int(AtoMode.HOLD), 0.0)
-                return LineStep(t, self.k, cmd, dwell=True, payload_change=0.0)
+                return LineStep(t, self.k, hold, dwell=True, payload_change=0.0)
             self._dwell_from, self._boarded = None, False
             self.k += 1
             ctrl = self.controllers[self.k]

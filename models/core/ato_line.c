@@ -87,6 +87,18 @@ static ato_line_step line_step(double t, int span, ato_command cmd, int dwell, d
     return st;
 }
 
+/* the holding brake at a station: AtoCommand(0, hold_brake x brake_force_max, HOLD, 0) */
+static ato_command hold(const ato_controller *ctrl)
+{
+    ato_command cmd;
+    cmd.traction = 0.0;
+    cmd.brake = ctrl->tuning.hold_brake * ctrl->car->brake_force_max;
+    cmd.mode = ATO_MODE_HOLD;
+    cmd.planned_speed = 0.0;
+    cmd.ep_stage = 0;
+    return cmd;
+}
+
 ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
                                double station_stops)
 {
@@ -98,25 +110,12 @@ ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
     if (line->has_dwell_from) {                 /* standing at a station between spans */
         int next = line->k + 1;
         if (t - line->dwell_from < line->dwell_s[next] - 1e-9) {
-            ato_command cmd;
-            cmd.traction = 0.0;
-            cmd.brake = ctrl->tuning.hold_brake * ctrl->car->brake_force_max;
-            cmd.mode = ATO_MODE_HOLD;
-            cmd.planned_speed = 0.0;
-            cmd.ep_stage = 0;
             double boarding = line->boarded ? 0.0 : line->boarding_t[next];
             line->boarded = 1;
-            return line_step(t, line->k, cmd, 1, boarding);
+            return line_step(t, line->k, hold(ctrl), 1, boarding);
         }
-        if (!isfinite(inputs[ATO_IN_POSITION])) {   /* the shift needs a position: hold on */
-            ato_command cmd;
-            cmd.traction = 0.0;
-            cmd.brake = ctrl->tuning.hold_brake * ctrl->car->brake_force_max;
-            cmd.mode = ATO_MODE_HOLD;
-            cmd.planned_speed = 0.0;
-            cmd.ep_stage = 0;
-            return line_step(t, line->k, cmd, 1, 0.0);
-        }
+        if (!isfinite(inputs[ATO_IN_POSITION]))      /* the shift needs a position: hold on */
+            return line_step(t, line->k, hold(ctrl), 1, 0.0);
         line->has_dwell_from = 0;
         line->boarded = 0;
         line->k += 1;
