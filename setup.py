@@ -16,4 +16,5 @@ FLAGS = ["-O3", "-flto", "-ffp-contract=off", "-fno-fast-math"]
 setup(ext_modules=[
     Extension("models._railcar", ["models/_railcar.c", *CORE], optional=True,
               extra_compile_args=["-std=c99", *FLAGS], extra_link_args=FLAGS),
+    Extension("models._batch", ["models/_batch.c", *CORE], optional=True, extra_compile_args=["-std=c99", *FLAGS], extra_link_args=FLAGS),
 ])

@@ -1,0 +1,98 @@
+"""Scripted scenarios run whole in the C core, many per call (issue 31): the batch engine's
+harness side.
+
+``run_batch(scenarios, overrides)`` gives, for each scenario, the RunResult that
+harness.run.driver.run_on_chain(scenario, overrides) gives -- the same arrays bit for bit
+(tests/harness_tests/run/test_batch_runs.py) -- but the driver, the wind, the payload and the chain
+step in C (models.batch, models/core/scenario_driver.c) without returning to Python per step.
+Here a Scenario becomes the C driver's script (``script_of``: its phases or time table as
+Scenario.new_driver builds them, its wind schedule, step, duration and stop_after_last_phase) and
+the C arrays become RunResults. Span scenarios (the ATO drives) are not covered yet; a run the C
+core cannot take (a span scenario, an estimator it does not cover, no compiled models._batch)
+runs on run_on_chain, the Python loop, with the same result.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from models import batch
+from models.compiled import INTEGER_OUTPUTS, OUTPUT_NAMES, core_not_covered
+
+from harness.run.driver import run_on_chain
+from harness.run.phases import ACTIONS, INPUTS, PhaseDriver, TimeTable
+from harness.run.result import RunResult
+from harness.run.scenario import Scenario
+
+assert batch.ACTIONS == ACTIONS, "models.batch.ACTIONS must list harness.run.phases.ACTIONS in order"
+
+
+def script_of(scenario: Scenario) -> np.ndarray:
+    """The scenario's driver, wind schedule and run length as the C driver's flat script
+    (models.batch.script_values). ValueError naming the scenario for a span scenario."""
+    driver = scenario.new_driver()
+    common = dict(step_s=scenario.step_s, duration_s=scenario.duration_s,
+                  stop_after_last_phase=scenario.stop_after_last_phase,
+                  wind=[(w.time_s, w.speed_mps) for w in scenario.wind])
+    if isinstance(driver, PhaseDriver):
+        phases = [{name: getattr(p, name) for name in batch.PHASE_FIELDS} for p in driver.phases]
+        return batch.script_values(mass_t=driver.mass_t, traction_force_max=driver.f_max,
+                                   brake_force_max=driver.b_max, phases=phases, **common)
+    if isinstance(driver, TimeTable):
+        return batch.script_values(mass_t=0.0, traction_force_max=0.0, brake_force_max=0.0,
+                                   table=(driver.time_s, driver.traction_N, driver.brake_N), **common)
+    raise ValueError(f"{scenario.name}: the batch engine runs scripted scenarios ([[driver]] phases, "
+                     f"[driver_table]); this one's driver is {type(driver).__name__}")
+
+
+def not_covered(scenario: Scenario, setup=None) -> str | None:
+    """Why the C batch engine does not run this scenario (then run_batch runs it on
+    run_on_chain), or None when it does; ``setup``: its chain's (fmu_src.adapter.ChainSetup),
+    default the scenario's own."""
+    if not batch.available():
+        return "the C scenario runner (models._batch) is not compiled"
+    if scenario.ato is not None:
+        return "a span scenario (the ATO drives)"
+    return core_not_covered((setup or scenario.chain_setup()).config.identifier)
+
+
+def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | None = None
+              ) -> list[RunResult]:
+    """run_on_chain(scenarios[i], overrides[i]) for every i, the covered ones (``not_covered``) in C in
+    one call. ``overrides``: RailCar parameters by FMU name per run (e.g. {"seed": 5}), as
+    run_on_chain takes them: they configure the chain, the driver is the scenario's own.
+    Raises as run_on_chain: ValueError naming the parameter, StepRejected naming the run and
+    the step."""
+    overrides = list(overrides) if overrides is not None else [None] * len(scenarios)
+    if len(overrides) != len(scenarios):
+        raise ValueError(f"overrides: one per scenario ({len(scenarios)}), got {len(overrides)}")
+    results: list[RunResult | None] = [None] * len(scenarios)
+    todo, runs = [], []
+    for i, (sc, ov) in enumerate(zip(scenarios, overrides)):
+        setup = sc.chain_setup(ov)
+        if not_covered(sc, setup) is not None:
+            results[i] = run_on_chain(sc, ov)
+            continue
+        todo.append(i)
+        runs.append((setup.config, setup.grade, setup.speed, script_of(sc)))
+    if runs:
+        done = batch.run_scripts(runs)
+        for r, i in enumerate(todo):
+            results[i] = result_of(scenarios[i], done, r)
+    return results
+
+
+def result_of(scenario: Scenario, done: batch.BatchRuns, r: int) -> RunResult:
+    """Run ``r`` of ``done`` as drive()'s Trace.result makes it: its own copies of the rows
+    written, the integer outputs as integers, the last step's inputs repeated on the last row."""
+    rows = int(done.rows[r])
+    columns = done.outputs[r, :rows].T.copy()
+    signals = {name: (columns[j].astype(np.int64) if name in INTEGER_OUTPUTS else columns[j])
+               for j, name in enumerate(OUTPUT_NAMES)}
+    u = done.inputs[r, :rows - 1]
+    u = np.vstack([u, u[-1:]]) if len(u) else np.zeros((1, len(INPUTS)))
+    h = scenario.step_s
+    return RunResult(scenario, np.arange(rows) * h, signals, {},
+                     inputs={n: u[:, j].copy() for j, n in enumerate(INPUTS)},
+                     driver_steps=None, driver_log=[])

@@ -1,0 +1,134 @@
+"""Whole scripted runs in the C core, many per call (issue 31): the Python face of models/_batch.c.
+
+A *script* is a scripted driver, its wind schedule and the run's length, as flat numbers
+(models/core/scenario_driver.h gives the layout; ``script_values`` writes it). ``run_scripts``
+runs one script per chain configuration in C -- the driver (phases or a time table), the wind,
+the payload boarded, stop_after_last_phase and the chain -- without returning to Python per step,
+and gives every run's outputs and inputs. It is the C twin of harness.run.driver.drive on a
+models chain; harness.run.batch turns scenarios into scripts and the arrays into RunResults.
+Nothing here knows a scenario: the layer above owns that.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from models.chain import ChainConfig, StepRejected
+from models.compiled import OUTPUT_NAMES, _config_values, core_not_covered, validate
+from models.plant.track import GradeProfile, SpeedProfile
+
+try:
+    from . import _batch
+except ImportError:          # not compiled (no compiler at install, or another Python)
+    _batch = None
+
+ACTIONS = ("traction", "coast", "cruise", "brake", "brake_to_stop", "hold")
+"""A phase's action codes 0..5 (scenario_driver.h RC_ACTION_*)."""
+PHASE_FIELDS = ("action", "force_N", "until_speed_mps", "until_distance_m", "until_time_s",
+                "until_brake_curve", "stop_at_m", "decel_mps2", "mass_change_t", "target_speed_mps")
+"""A phase's numbers in the script, in this order (scenario_driver.h RC_PHASE_*); None -> NaN."""
+HEADER = 10
+INPUTS = 4
+"""Per step: traction and brake demand [N], wind [m/s], payload boarded so far [t]."""
+KIND_PHASES, KIND_TABLE = 0, 1
+
+
+def available() -> bool:
+    """True when the C scenario runner (models._batch) is compiled."""
+    return _batch is not None
+
+
+def script_values(*, step_s: float, duration_s: float, stop_after_last_phase: bool, mass_t: float,
+                  traction_force_max: float, brake_force_max: float,
+                  phases: Sequence[Mapping[str, float | bool | str | None]] = (),
+                  table: tuple[Sequence[float], Sequence[float], Sequence[float]] | None = None,
+                  wind: Sequence[tuple[float, float]] = ()) -> np.ndarray:
+    """The flat script (scenario_driver.h) of a phase driver (``phases``: each a mapping of
+    PHASE_FIELDS, ``action`` by name, a missing or None value -> NaN) or a time table (``table``:
+    time [s], traction [N], brake [N]), the wind schedule (``wind``: (time [s], speed [m/s]) in
+    the order Scenario.wind_at reads them), the run's step and duration [s], and the phase
+    driver's car: mass [t] and force limits [N]. The C side checks the values (rc_script_init)."""
+    if bool(phases) == (table is not None):
+        raise ValueError("script: give phases or a time table, one of the two")
+    rows = []
+    for i, p in enumerate(phases):
+        action = p.get("action")
+        if action not in ACTIONS:
+            raise ValueError(f"driver[{i}].action: must be one of {', '.join(ACTIONS)}, got {action!r}")
+        row = [float(ACTIONS.index(action))]
+        for name in PHASE_FIELDS[1:]:
+            value = p.get(name)
+            row.append(math.nan if value is None else float(value))
+        rows.append(row)
+    t, f, b = table if table is not None else ((), (), ())
+    if not len(t) == len(f) == len(b):
+        raise ValueError("driver_table: time_s, traction_N and brake_N must have one length")
+    header = [KIND_PHASES if phases else KIND_TABLE, step_s, duration_s,
+              1.0 if stop_after_last_phase else 0.0, mass_t, traction_force_max, brake_force_max,
+              len(rows), len(t), len(wind)]
+    body = [x for row in rows for x in row] + [x for r in zip(t, f, b) for x in r] + \
+        [float(x) for w in wind for x in w]
+    return np.array(header + body, dtype=float)
+
+
+def steps_of(script: np.ndarray) -> int:
+    """The script's number of steps, int(round(duration_s / step_s)) as drive() counts them, to
+    size the arrays (the C side counts them again and checks they fit); 0 for a header it will
+    refuse (it names the value then)."""
+    if len(script) < HEADER or not (script[1] > 0 and script[2] >= 0):
+        return 0
+    steps = float(script[2]) / float(script[1])
+    return int(round(steps)) if math.isfinite(steps) else 0
+
+
+@dataclass
+class BatchRuns:
+    """What ``run_scripts`` gives: for run r, ``outputs[r, :rows[r]]`` (OUTPUT_NAMES columns: at
+    t = 0 and after every step) and ``inputs[r, :rows[r] - 1]`` (INPUTS columns, held over each
+    step); ``finished[r]``: the run ended early, its driver done and stop_after_last_phase."""
+    outputs: np.ndarray
+    inputs: np.ndarray
+    rows: np.ndarray
+    finished: np.ndarray
+
+
+def chain_arrays(cfg: ChainConfig, grade: GradeProfile, speed: SpeedProfile | None) -> tuple:
+    """The C chain's flat configuration and profiles (as models.compiled.CompiledChain hands
+    them to the core). ValueError naming the setting if the configuration is invalid or the C
+    core does not cover it."""
+    cfg = validate(cfg, speed, 0.0)
+    why = core_not_covered(cfg.identifier)
+    if why:
+        raise ValueError(f"the C core does not cover {why}")
+    config = np.array([*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], dtype=float)
+    sd, sv = (speed.distances, speed.speeds) if speed is not None else ((), ())
+    return (config, np.ascontiguousarray(grade.distances, dtype=float),
+            np.ascontiguousarray(grade.grades, dtype=float), np.array(sd, dtype=float),
+            np.array(sv, dtype=float))
+
+
+def run_scripts(runs: Sequence[tuple[ChainConfig, GradeProfile, SpeedProfile | None, np.ndarray]]
+                ) -> BatchRuns:
+    """Each run (chain configuration, grade profile, speed profile or None, script) whole in C,
+    on a fresh chain each. Everything is checked before the first run starts (ValueError naming
+    the run and the value); a step the chain rejects raises StepRejected naming the run and the
+    step. RuntimeError if models._batch is not compiled."""
+    if _batch is None:
+        raise RuntimeError("the C scenario runner (models._batch) is not compiled")
+    flat = []
+    for r, (cfg, grade, speed, script) in enumerate(runs):
+        try:
+            arrays = chain_arrays(cfg, grade, speed)
+        except ValueError as e:
+            raise ValueError(f"run {r}: {e}") from None
+        flat.append((*arrays, np.ascontiguousarray(script, dtype=float)))
+    steps = max((steps_of(s[-1]) for s in flat), default=0)
+    outputs = np.empty((len(flat), steps + 1, len(OUTPUT_NAMES)))
+    inputs = np.empty((len(flat), steps, INPUTS))
+    done = _batch.run(flat, outputs, inputs, StepRejected)
+    rows = np.array([n for n, _ in done], dtype=np.int64)
+    finished = np.array([f for _, f in done], dtype=bool)
+    return BatchRuns(outputs, inputs, rows, finished)
