@@ -30,6 +30,8 @@ ACTIONS = ("traction", "coast", "cruise", "brake", "brake_to_stop", "hold")
 PHASE_FIELDS = ("action", "force_N", "until_speed_mps", "until_distance_m", "until_time_s",
                 "until_brake_curve", "stop_at_m", "decel_mps2", "mass_change_t", "target_speed_mps")
 """A phase's numbers in the script, in this order (scenario_driver.h RC_PHASE_*); None -> NaN."""
+REQUIRED_FIELDS = ("until_brake_curve", "decel_mps2", "mass_change_t")
+"""The phase's numbers that are never None (the others may be: not given)."""
 HEADER = 10
 INPUTS = 4
 """Per step: traction and brake demand [N], wind [m/s], payload boarded so far [t]."""
@@ -47,7 +49,7 @@ def script_values(*, step_s: float, duration_s: float, stop_after_last_phase: bo
                   table: tuple[Sequence[float], Sequence[float], Sequence[float]] | None = None,
                   wind: Sequence[tuple[float, float]] = ()) -> np.ndarray:
     """The flat script (scenario_driver.h) of a phase driver (``phases``: each a mapping of
-    PHASE_FIELDS, ``action`` by name, a missing or None value -> NaN) or a time table (``table``:
+    PHASE_FIELDS, ``action`` by name, an optional one missing or None -> NaN) or a time table (``table``:
     time [s], traction [N], brake [N]), the wind schedule (``wind``: (time [s], speed [m/s]) in
     the order Scenario.wind_at reads them), the run's step and duration [s], and the phase
     driver's car: mass [t] and force limits [N]. The C side checks the values (rc_script_init)."""
@@ -61,6 +63,8 @@ def script_values(*, step_s: float, duration_s: float, stop_after_last_phase: bo
         row = [float(ACTIONS.index(action))]
         for name in PHASE_FIELDS[1:]:
             value = p.get(name)
+            if value is None and name in REQUIRED_FIELDS:
+                raise ValueError(f"driver[{i}] ({action}).{name}: missing (DriverPhase always has it)")
             row.append(math.nan if value is None else float(value))
         rows.append(row)
     t, f, b = table if table is not None else ((), (), ())
