@@ -1,0 +1,127 @@
+"""A one-ulp change in the C scenario driver (models/core/scenario_driver.c) fails the bit-identity
+test of whole runs against the Python loop (harness.run.driver.run_on_chain).
+
+The batch extension (models/_batch.c with the core) is built here twice more, the same way: with
+the driver as it is, and with one expression of it changed by one ulp (an operand times
+(1 + 2**-52)) -- the brake_to_stop demand, the cruise demand, the time table's interpolation, the
+wind held over a step. The unchanged build gives run_on_chain's rows exactly; each mutant makes
+them differ. The core's other files are compiled once, to objects, with -Wall -Wextra -Werror
+(the binding against the Python headers included, as tests/model_tests/core/test_core_build.py
+does for models/_railcar.c).
+"""
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import subprocess
+import sysconfig
+from pathlib import Path
+
+import pytest
+
+from harness.run import batch as harness_batch
+from harness.run.driver import run_on_chain
+from harness.run.scenario import load_scenario, scenario_from_dict
+from models import batch
+
+ROOT = Path(__file__).resolve().parents[3]
+CORE = ROOT / "models" / "core"
+DRIVER = CORE / "scenario_driver.c"
+LIBRARY = ROOT / "scenarios" / "library"
+FLAGS = ["-std=c99", "-O1", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-Wall", "-Wextra",
+         "-Werror"]
+ONE_ULP = "(1.0 + 2.220446049250313e-16)"
+
+CRUISE_AND_TABLE = [
+    {"name": "cruise", "step_s": 0.1, "duration_s": 120.0,
+     "parameters": {"car.mass": 30.0, "seed": 4},
+     "driver": [{"action": "traction", "until_speed_kmh": 30.0},
+                {"action": "cruise", "target_speed_kmh": 40.0, "until_time_s": 60.0},
+                {"action": "brake", "until_speed_mps": 0.5}]},
+    {"name": "table", "step_s": 0.1, "duration_s": 80.0, "parameters": {"seed": 6},
+     "driver_table": {"time_s": [0.0, 30.0, 50.0, 70.0], "traction_N": [10000.0, 30000.0, 0.0, 0.0],
+                      "brake_N": [0.0, 0.0, 0.0, 25000.0]}},
+]
+
+
+def scenarios() -> dict:
+    out = {n: load_scenario(LIBRARY / f"{n}.toml") for n in ("level_run", "headwind_change")}
+    out.update({d["name"]: scenario_from_dict(d, f"<{d['name']}>", LIBRARY) for d in CRUISE_AND_TABLE})
+    return out
+
+
+MUTATIONS = {
+    "brake_to_stop": ("level_run", "double need = speed * speed / (2.0 * left);",
+                      f"double need = speed * speed / (2.0 * left) * {ONE_ULP};"),
+    "cruise": ("cruise", "double demand = 1000.0 * s->mass_t * CRUISE_GAIN * (p->target_speed_mps - speed);",
+               f"double demand = 1000.0 * s->mass_t * CRUISE_GAIN * (p->target_speed_mps - speed) * {ONE_ULP};"),
+    "time_table": ("table", "return demands(r0[1] + w * (r1[1] - r0[1]),",
+                   f"return demands((r0[1] + w * (r1[1] - r0[1])) * {ONE_ULP},"),
+    "wind": ("headwind_change", "            w = s->wind[2 * k + 1];",
+             f"            w = s->wind[2 * k + 1] * {ONE_ULP};"),
+}
+"""name: (the scenario it shows on, the expression in scenario_driver.c, its one-ulp change)"""
+
+
+def gcc() -> str:
+    path = shutil.which("gcc")
+    assert path, "gcc is needed (it builds the C core on every supported machine)"
+    return path
+
+
+@pytest.fixture(scope="module")
+def objects(tmp_path_factory) -> list[Path]:
+    """The binding and every core source but the driver, compiled once."""
+    directory = tmp_path_factory.mktemp("batch_objects")
+    sources = [ROOT / "models" / "_batch.c", *(p for p in sorted(CORE.glob("*.c")) if p != DRIVER)]
+    proc = subprocess.run([gcc(), *FLAGS, f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}", "-c",
+                           *map(str, sources)], cwd=directory, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return sorted(directory.glob("*.o"))
+
+
+def build(objects: list[Path], driver_source: str, directory: Path):
+    """models._batch with ``driver_source`` as scenario_driver.c, imported from ``directory``."""
+    directory.mkdir()
+    source = directory / "scenario_driver.c"
+    source.write_text(driver_source)
+    so = directory / f"_batch{sysconfig.get_config_var('EXT_SUFFIX')}"
+    proc = subprocess.run([gcc(), *FLAGS, "-shared", f"-I{CORE}", str(source), *map(str, objects),
+                           "-lm", "-o", str(so)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    spec = importlib.util.spec_from_file_location("_batch", so)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def differing_outputs(scenario, module, monkeypatch) -> list[str]:
+    """The outputs and inputs whose bits differ between run_on_chain and the batch run on
+    ``module``."""
+    expected = run_on_chain(scenario)
+    monkeypatch.setattr(batch, "_batch", module)
+    [got] = harness_batch.run_batch([scenario])
+    monkeypatch.undo()
+    if len(got.time) != len(expected.time):
+        return [f"rows: {len(got.time)} != {len(expected.time)}"]
+    pairs = [*((n, expected.signals[n], got.signals[n]) for n in expected.signals),
+             *((f"input {n}", expected.inputs[n], got.inputs[n]) for n in expected.inputs)]
+    return [n for n, a, b in pairs if a.tobytes() != b.tobytes()]
+
+
+def test_the_unchanged_driver_built_here_gives_the_python_rows(objects, tmp_path, monkeypatch):
+    module = build(objects, DRIVER.read_text(), tmp_path / "unchanged")
+    for name, scenario in scenarios().items():
+        assert differing_outputs(scenario, module, monkeypatch) == [], name
+
+
+@pytest.mark.parametrize("mutation", MUTATIONS)
+def test_a_one_ulp_change_in_the_driver_is_caught(mutation, objects, tmp_path, monkeypatch):
+    scenario_name, expression, changed = MUTATIONS[mutation]
+    text = DRIVER.read_text()
+    assert text.count(expression) == 1, f"{expression!r} is not once in {DRIVER.name}"
+    module = build(objects, text.replace(expression, changed), tmp_path / mutation)
+    scenario = scenarios()[scenario_name]
+    differ = differing_outputs(scenario, module, monkeypatch)
+    assert differ, f"{mutation}: the one-ulp change left every row of {scenario_name} the same"
+    assert "car.speed" in differ or any(d.startswith("input") for d in differ), differ
