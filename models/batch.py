@@ -5,8 +5,9 @@ A *script* is a scripted driver, its wind schedule and the run's length, as flat
 runs one script per chain configuration in C -- the driver (phases or a time table), the wind,
 the payload boarded, stop_after_last_phase and the chain -- without returning to Python per step,
 and gives every run's outputs and inputs. It is the C twin of harness.run.driver.drive on a
-models chain; harness.run.batch turns scenarios into scripts and the arrays into RunResults.
-Nothing here knows a scenario: the layer above owns that.
+models chain; harness.run.batch turns scenarios and their chains' configurations into these
+flat arrays and the results into RunResults. Only numbers here: this module sits in the models
+base layer (docs/architecture.md), importing nothing of ours but its extension.
 """
 from __future__ import annotations
 
@@ -15,10 +16,6 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
-
-from models.chain import ChainConfig, StepRejected
-from models.compiled import OUTPUT_NAMES, _config_values, core_not_covered, validate
-from models.plant.track import GradeProfile, SpeedProfile
 
 try:
     from . import _batch
@@ -33,6 +30,8 @@ PHASE_FIELDS = ("action", "force_N", "until_speed_mps", "until_distance_m", "unt
 REQUIRED_FIELDS = ("until_brake_curve", "decel_mps2", "mass_change_t")
 """The phase's numbers that are never None (the others may be: not given)."""
 HEADER = 10
+OUTPUTS = 34
+"""The chain's outputs per row: models.compiled.OUTPUT_NAMES (models/core/railcar.h's order)."""
 INPUTS = 4
 """Per step: traction and brake demand [N], wind [m/s], payload boarded so far [t]."""
 KIND_PHASES, KIND_TABLE = 0, 1
@@ -90,7 +89,7 @@ def steps_of(script: np.ndarray) -> int:
 
 @dataclass
 class BatchRuns:
-    """What ``run_scripts`` gives: for run r, ``outputs[r, :rows[r]]`` (OUTPUT_NAMES columns: at
+    """What ``run_scripts`` gives: for run r, ``outputs[r, :rows[r]]`` (the chain's OUTPUTS: at
     t = 0 and after every step) and ``inputs[r, :rows[r] - 1]`` (INPUTS columns, held over each
     step); ``finished[r]``: the run ended early, its driver done and stop_after_last_phase."""
     outputs: np.ndarray
@@ -99,40 +98,22 @@ class BatchRuns:
     finished: np.ndarray
 
 
-def chain_arrays(cfg: ChainConfig, grade: GradeProfile, speed: SpeedProfile | None) -> tuple:
-    """The C chain's flat configuration and profiles (as models.compiled.CompiledChain hands
-    them to the core). ValueError naming the setting if the configuration is invalid or the C
-    core does not cover it."""
-    cfg = validate(cfg, speed, 0.0)
-    why = core_not_covered(cfg.identifier)
-    if why:
-        raise ValueError(f"the C core does not cover {why}")
-    config = np.array([*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], dtype=float)
-    sd, sv = (speed.distances, speed.speeds) if speed is not None else ((), ())
-    return (config, np.ascontiguousarray(grade.distances, dtype=float),
-            np.ascontiguousarray(grade.grades, dtype=float), np.array(sd, dtype=float),
-            np.array(sv, dtype=float))
-
-
-def run_scripts(runs: Sequence[tuple[ChainConfig, GradeProfile, SpeedProfile | None, np.ndarray]]
+def run_scripts(runs: Sequence[tuple[np.ndarray, ...]], rejected: type[Exception] = ValueError
                 ) -> BatchRuns:
-    """Each run (chain configuration, grade profile, speed profile or None, script) whole in C,
-    on a fresh chain each. Everything is checked before the first run starts (ValueError naming
-    the run and the value); a step the chain rejects raises StepRejected naming the run and the
-    step. RuntimeError if models._batch is not compiled."""
+    """Each run whole in C, on a fresh chain each. A run is six float64 arrays: the C chain's flat
+    configuration (models.compiled's order, est.slope_window after it, as CompiledChain hands it
+    to the core), the grade profile's distances [m] and grades [permille], the speed profile's
+    distances [m] and speeds [m/s] (empty: none), and its script (``script_values``). Everything
+    is checked before the first run starts (ValueError naming the run and the value); a step the
+    chain rejects raises ``rejected`` (harness.run.batch passes models.chain.StepRejected) naming
+    the run and the step. RuntimeError if models._batch is not compiled."""
     if _batch is None:
         raise RuntimeError("the C scenario runner (models._batch) is not compiled")
-    flat = []
-    for r, (cfg, grade, speed, script) in enumerate(runs):
-        try:
-            arrays = chain_arrays(cfg, grade, speed)
-        except ValueError as e:
-            raise ValueError(f"run {r}: {e}") from None
-        flat.append((*arrays, np.ascontiguousarray(script, dtype=float)))
-    steps = max((steps_of(s[-1]) for s in flat), default=0)
-    outputs = np.empty((len(flat), steps + 1, len(OUTPUT_NAMES)))
+    flat = [tuple(np.ascontiguousarray(a, dtype=float) for a in run) for run in runs]
+    steps = max((steps_of(run[-1]) for run in flat), default=0)
+    outputs = np.empty((len(flat), steps + 1, OUTPUTS))
     inputs = np.empty((len(flat), steps, INPUTS))
-    done = _batch.run(flat, outputs, inputs, StepRejected)
+    done = _batch.run(flat, outputs, inputs, rejected)
     rows = np.array([n for n, _ in done], dtype=np.int64)
     finished = np.array([f for _, f in done], dtype=bool)
     return BatchRuns(outputs, inputs, rows, finished)

@@ -18,7 +18,9 @@ from typing import Sequence
 import numpy as np
 
 from models import batch
-from models.compiled import INTEGER_OUTPUTS, OUTPUT_NAMES, core_not_covered
+from models.chain import ChainConfig, StepRejected
+from models.compiled import INTEGER_OUTPUTS, OUTPUT_NAMES, _config_values, core_not_covered, validate
+from models.plant.track import GradeProfile, SpeedProfile
 
 from harness.run.driver import run_on_chain
 from harness.run.phases import ACTIONS, INPUTS, PhaseDriver, TimeTable
@@ -26,6 +28,7 @@ from harness.run.result import RunResult
 from harness.run.scenario import Scenario
 
 assert batch.ACTIONS == ACTIONS, "models.batch.ACTIONS must list harness.run.phases.ACTIONS in order"
+assert batch.OUTPUTS == len(OUTPUT_NAMES), "models.batch.OUTPUTS must count models.compiled.OUTPUT_NAMES"
 
 
 def script_of(scenario: Scenario) -> np.ndarray:
@@ -77,10 +80,38 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
         todo.append(i)
         runs.append((setup.config, setup.grade, setup.speed, script_of(sc)))
     if runs:
-        done = batch.run_scripts(runs)
+        done = run_chains(runs)
         for r, i in enumerate(todo):
             results[i] = result_of(scenarios[i], done, r)
     return results
+
+
+def chain_arrays(cfg: ChainConfig, grade: GradeProfile, speed: SpeedProfile | None) -> tuple:
+    """The C chain's flat configuration and profiles, as models.compiled.CompiledChain hands them
+    to the core. ValueError naming the setting if the configuration is invalid or the C core does
+    not cover it."""
+    cfg = validate(cfg, speed, 0.0)
+    why = core_not_covered(cfg.identifier)
+    if why:
+        raise ValueError(f"the C core does not cover {why}")
+    config = np.array([*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], dtype=float)
+    sd, sv = (speed.distances, speed.speeds) if speed is not None else ((), ())
+    return tuple(np.ascontiguousarray(a, dtype=float)
+                 for a in (config, grade.distances, grade.grades, sd, sv))
+
+
+def run_chains(runs: Sequence[tuple[ChainConfig, GradeProfile, SpeedProfile | None, np.ndarray]]
+               ) -> batch.BatchRuns:
+    """Each run (chain configuration, grade profile, speed profile or None, script) whole in C
+    (models.batch.run_scripts), on a fresh chain each. ValueError naming the run and the setting
+    before any run starts; StepRejected naming the run and the step."""
+    flat = []
+    for r, (cfg, grade, speed, script) in enumerate(runs):
+        try:
+            flat.append((*chain_arrays(cfg, grade, speed), script))
+        except ValueError as e:
+            raise ValueError(f"run {r}: {e}") from None
+    return batch.run_scripts(flat, StepRejected)
 
 
 def result_of(scenario: Scenario, done: batch.BatchRuns, r: int) -> RunResult:

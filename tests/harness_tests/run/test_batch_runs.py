@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.run.batch import not_covered, run_batch, script_of
+from harness.run.batch import chain_arrays, not_covered, run_batch, run_chains, script_of
 from harness.run.driver import ChainStepper, drive, run_on_chain
 from harness.run.scenario import load_scenario, scenario_from_dict
 from models import batch
@@ -139,7 +139,7 @@ def test_early_end_rows_and_finished_flag_match_drive():
     for sc in scenarios:
         setup = sc.chain_setup()
         runs.append((setup.config, setup.grade, setup.speed, script_of(sc)))
-    done = batch.run_scripts(runs)
+    done = run_chains(runs)
     for r, sc in enumerate(scenarios):
         trace = drive(ChainStepper(sc.chain_setup().open()), sc)
         assert done.rows[r] == len(trace.outputs), sc.name
@@ -192,7 +192,7 @@ def test_bad_scripts_are_refused_naming_the_value():
     assert batch.ACTIONS[int(script[batch.HEADER])] == "traction"
     for bad, message in bad_scripts(script):
         with pytest.raises(ValueError) as e:
-            batch.run_scripts([(setup.config, setup.grade, setup.speed, script), (setup.config, setup.grade, setup.speed, bad)])
+            run_chains([(setup.config, setup.grade, setup.speed, script), (setup.config, setup.grade, setup.speed, bad)])
         assert str(e.value).startswith(f"run 1: {message}"), (message, str(e.value))
 
 
@@ -219,7 +219,7 @@ def test_bad_phases_and_tables_are_refused_naming_them():
     ]
     for extra, message in bad:
         with pytest.raises(ValueError) as e:
-            batch.run_scripts([(setup.config, setup.grade, setup.speed, batch.script_values(**base, **extra))])
+            run_chains([(setup.config, setup.grade, setup.speed, batch.script_values(**base, **extra))])
         assert str(e.value).startswith(f"run 0: {message}"), (message, str(e.value))
     with pytest.raises(ValueError, match=r"driver\[0\].action: must be one of traction"):
         batch.script_values(**base, phases=[{"action": "sprint"}])
@@ -242,14 +242,14 @@ def test_a_rejected_step_names_the_run_and_the_step_as_the_python_loop_rejects_i
 
 def test_bad_arrays_are_refused():
     sc, setup, script = level_script()
-    arrays = (*batch.chain_arrays(setup.config, setup.grade, setup.speed), script)
+    arrays = (*chain_arrays(setup.config, setup.grade, setup.speed), script)
     steps = batch.steps_of(script)
-    out, inp = np.empty((1, steps + 1, batch._batch.OUTPUTS)), np.empty((1, steps, batch.INPUTS))
+    out, inp = np.empty((1, steps + 1, batch.OUTPUTS)), np.empty((1, steps, batch.INPUTS))
     with pytest.raises(ValueError, match="outputs must be float64"):
         batch._batch.run([arrays], np.zeros(out.shape, dtype=np.float32), inp, StepRejected)
     with pytest.raises(ValueError, match=r"outputs must be runs x \(steps \+ 1\)"):
         batch._batch.run([arrays], out[:, :-1], inp, StepRejected)
-    short = np.empty((1, steps, batch._batch.OUTPUTS)), np.empty((1, steps - 1, batch.INPUTS))
+    short = np.empty((1, steps, batch.OUTPUTS)), np.empty((1, steps - 1, batch.INPUTS))
     with pytest.raises(ValueError, match=f"run 0: {steps} steps, the arrays have room for {steps - 1}"):
         batch._batch.run([arrays], *short, StepRejected)
     with pytest.raises(ValueError, match="run 0: grades must be a C-contiguous float64 array"):
@@ -268,7 +268,7 @@ def test_uncovered_runs_fall_back_to_the_python_loop():
     assert not_covered(sc, sc.chain_setup(method1)) == "est.method 1 or 3"
     with pytest.raises(ValueError, match="run 0: the C core does not cover est.method 1 or 3"):
         setup = sc.chain_setup(method1)
-        batch.run_scripts([(setup.config, setup.grade, setup.speed, script_of(sc))])
+        run_chains([(setup.config, setup.grade, setup.speed, script_of(sc))])
     fallback, covered_run = run_batch([sc, sc], [method1, None])
     assert_same(run_on_chain(sc, method1), fallback, "est.method 1")
     assert_same(run_on_chain(sc), covered_run, "est.method 2")

@@ -1,0 +1,115 @@
+"""Where a station_day run's time goes, and what the C batch engine gains (issue 31's benchmark).
+
+    python benchmarks/batch_benchmark.py [--scenario scenarios/library/station_day.toml]
+                                         [--runs 50] [--repeat 5]
+
+Measures in one process, on one core, best of --repeat, per run of the scenario (its own seed;
+station_day ends at its last phase after 5,192 of its 9,000 steps):
+  (a) the C chain alone (models.compiled.CompiledChain.run_steps) stepping the run's recorded
+      inputs: the model's floor;
+  (b) harness.run.driver.run_on_chain: the Python driver per step around the C chain (before);
+  (c) the metrics of the RunResult (harness.metrics.run.run_metrics), and of them the oracle
+      filter alone (harness.metrics.estimation.oracle_filter);
+  (d) the C batch engine (harness.run.batch.run_batch, models/core/scenario_driver.c): one run,
+      and --runs runs (seeds 0..runs-1) in one call, per run; (d raw) the C runs alone
+      (harness.run.batch.run_chains: models.batch.run_scripts, no RunResults).
+Prints the table, the engine's time per step over the chain's (issue 31's target <= 3x), and the
+projection for 1,000 runs on 2 workers (issue 31's target <= 5 s, metrics included) from (c)
+and (d). Not run by the test suite; the figures are this machine's, noisy when others share it.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from harness.metrics.estimation import oracle_filter  # noqa: E402
+from harness.metrics.run import run_metrics  # noqa: E402
+from harness.run.batch import run_batch, run_chains, script_of  # noqa: E402
+from harness.run.driver import run_on_chain  # noqa: E402
+from harness.run.phases import INPUTS  # noqa: E402
+from harness.run.scenario import load_scenario  # noqa: E402
+from models import batch  # noqa: E402
+
+TARGET_RUNS, TARGET_WALL_S, TARGET_STEP_RATIO, WORKERS = 1000, 5.0, 3.0, 2
+
+
+def best(fn, repeat: int) -> float:
+    """The shortest of ``repeat`` wall times of fn() [s]."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def recorded_steps(scenario, result) -> np.ndarray:
+    """The run's inputs as CompiledChain.run_steps takes them: time, step, then INPUTS."""
+    n = len(result.time) - 1
+    h = scenario.step_s
+    return np.column_stack([np.arange(n) * h, np.full(n, h)] + [result.inputs[k][:n] for k in INPUTS])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenario", default=str(ROOT / "scenarios" / "library" / "station_day.toml"))
+    ap.add_argument("--runs", type=int, default=50, help="runs per batch call in (d) [default 50]")
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args(argv)
+    if not batch.available():
+        print("models._batch is not compiled: python setup.py build_ext --inplace")
+        return 2
+    sc = load_scenario(args.scenario)
+    setup = sc.chain_setup()
+    result = run_on_chain(sc)
+    steps = len(result.time) - 1
+    inputs = recorded_steps(sc, result)
+    seeds = [{"seed": k} for k in range(args.runs)]
+    many = [sc] * args.runs
+    raw_runs = [(setup.config, setup.grade, setup.speed, script_of(sc))] * args.runs
+
+    [same] = run_batch([sc])
+    assert all(same[n].tobytes() == result[n].tobytes() for n in result.signals), "batch != run_on_chain"
+
+    t = {
+        "a": best(lambda: setup.open().run_steps(inputs), args.repeat),
+        "b": best(lambda: run_on_chain(sc), args.repeat),
+        "c": best(lambda: run_metrics(result), args.repeat),
+        "c oracle": best(lambda: oracle_filter(result, setup), args.repeat),
+        "d": best(lambda: run_batch([sc]), args.repeat),
+        "d many": best(lambda: run_batch(many, seeds), max(1, args.repeat // 2)) / args.runs,
+        "d raw": best(lambda: run_chains(raw_runs), max(1, args.repeat // 2)) / args.runs,
+    }
+    us = 1e6 / steps
+    print(f"{sc.name}: {steps} steps a run (step {sc.step_s} s), best of {args.repeat}, one core\n")
+    print(f"{'':4} {'per run':>10} {'per step':>10}  what")
+    rows = [("a", "C chain alone, recorded inputs (CompiledChain.run_steps)"),
+            ("b", "run_on_chain: Python driver + C chain (before)"),
+            ("c", "metrics of the result (run_metrics), oracle included"),
+            ("c oracle", "  of which the oracle filter"),
+            ("d", "C batch engine, 1 run a call, RunResult built (after)"),
+            ("d many", f"C batch engine, {args.runs} runs a call, per run"),
+            ("d raw", f"  the C runs alone ({args.runs} a call, no RunResults), per run")]
+    for key, what in rows:
+        print(f"{key:8} {1e3 * t[key]:7.2f} ms {us * t[key]:7.3f} us  {what}")
+    print(f"\ndriver loop: run_on_chain / C engine (1 run) = {t['b'] / t['d']:.1f}x")
+    print(f"engine per step / chain per step = {t['d raw'] / t['a']:.2f}x (issue 31 target <= {TARGET_STEP_RATIO:g}x)")
+    for label, run_s in (("before: run_on_chain + metrics", t["b"] + t["c"]),
+                         ("after: C engine + metrics in Python", t["d many"] + t["c"]),
+                         ("after, metrics without the oracle", t["d many"] + t["c"] - t["c oracle"]),
+                         ("after, runs alone", t["d many"])):
+        wall = TARGET_RUNS * run_s / WORKERS
+        print(f"{TARGET_RUNS} runs on {WORKERS} workers, {label}: {wall:6.1f} s "
+              f"(target <= {TARGET_WALL_S:g} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
