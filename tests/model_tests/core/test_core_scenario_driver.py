@@ -1,5 +1,6 @@
-"""A one-ulp change in the C scenario driver (models/core/scenario_driver.c) fails the bit-identity
-test of whole runs against the Python loop (harness.run.driver.run_on_chain).
+"""The C scenario driver (models/core/scenario_driver.c) under the sanitizers, and a one-ulp change
+in it failing the bit-identity test of whole runs against the Python loop
+(harness.run.driver.run_on_chain).
 
 The batch extension (models/_batch.c with the core) is built here twice more, the same way: with
 the driver as it is, and with one expression of it changed by one ulp (an operand times
@@ -7,13 +8,17 @@ the driver as it is, and with one expression of it changed by one ulp (an operan
 wind held over a step. The unchanged build gives run_on_chain's rows exactly; each mutant makes
 them differ. The core's other files are compiled once, to objects, with -Wall -Wextra -Werror
 (the binding against the Python headers included, as tests/model_tests/core/test_core_build.py
-does for models/_railcar.c).
+does for models/_railcar.c). The batch extension is also built with -fsanitize=address,undefined
+and run, in a Python with the sanitizers' runtimes preloaded, over every scripted library scenario,
+a refused script and a rejected step: not a sanitizer report, the rows still run_on_chain's.
 """
 from __future__ import annotations
 
 import importlib.util
+import os
 import shutil
 import subprocess
+import sys
 import sysconfig
 from pathlib import Path
 
@@ -125,3 +130,59 @@ def test_a_one_ulp_change_in_the_driver_is_caught(mutation, objects, tmp_path, m
     differ = differing_outputs(scenario, module, monkeypatch)
     assert differ, f"{mutation}: the one-ulp change left every row of {scenario_name} the same"
     assert "car.speed" in differ or any(d.startswith("input") for d in differ), differ
+
+
+SANITIZED_RUNS = """
+import importlib.util, sys
+spec = importlib.util.spec_from_file_location("_batch", sys.argv[1])
+module = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(module)
+from dataclasses import replace
+from pathlib import Path
+from models import batch
+from models.chain import StepRejected
+from harness.run.batch import run_batch, run_chains, script_of
+from harness.run.driver import run_on_chain
+from harness.run.scenario import load_scenario
+batch._batch = module
+library = [load_scenario(p) for p in sorted(Path(sys.argv[2]).glob("*.toml"))]
+scripted = [sc for sc in library if sc.ato is None]
+differ = [sc.name for sc, got in zip(scripted, run_batch(scripted))
+          if any(got[n].tobytes() != run_on_chain(sc)[n].tobytes() for n in got.signals)]
+sc = next(s for s in scripted if s.name == "level_run")     # its first phase: traction
+setup = sc.chain_setup()
+try:
+    run_chains([(setup.config, setup.grade, setup.speed, script_of(sc)[:-1])])
+except ValueError as e:
+    print("refused:", e)
+strong = replace(sc, phases=(replace(sc.phases[0], force_N=1e9),) + sc.phases[1:])
+try:
+    run_batch([strong])
+except StepRejected as e:
+    print("rejected:", e)
+print("scenarios", len(scripted), "differ", differ)
+"""
+
+
+def test_the_batch_extension_under_the_sanitizers(tmp_path):
+    """ASan and UBSan in the extension, their runtimes preloaded into a fresh Python."""
+    so = tmp_path / f"_batch{sysconfig.get_config_var('EXT_SUFFIX')}"
+    sources = [ROOT / "models" / "_batch.c", *sorted(CORE.glob("*.c"))]
+    proc = subprocess.run([gcc(), *FLAGS, "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
+                           "-shared", f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}",
+                           *map(str, sources), "-lm", "-o", str(so)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    runtimes = [subprocess.run([gcc(), f"-print-file-name={lib}"], capture_output=True, text=True).stdout.strip()
+                for lib in ("libasan.so", "libubsan.so")]
+    assert all(Path(r).is_file() for r in runtimes), runtimes
+    env = dict(os.environ, LD_PRELOAD=":".join(runtimes), PYTHONPATH=str(ROOT),
+               ASAN_OPTIONS="detect_leaks=0:halt_on_error=1",     # the interpreter's own leaks are not ours
+               UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
+    run = subprocess.run([sys.executable, "-c", SANITIZED_RUNS, str(so), str(LIBRARY)], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "Sanitizer" not in run.stderr and "runtime error" not in run.stderr, run.stderr[-3000:]
+    lines = run.stdout.splitlines()
+    assert lines[-1] == "scenarios 12 differ []", run.stdout
+    assert lines[0].startswith("refused: run 0: script: expected"), run.stdout
+    assert lines[1].startswith("rejected: run 0: step 0: traction_force_demand"), run.stdout
