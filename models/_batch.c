@@ -223,7 +223,8 @@ PyMODINIT_FUNC PyInit__batch(void)
     if (PyModule_AddIntConstant(m, "OUTPUTS", RC_CHAIN_OUTPUTS) < 0
             || PyModule_AddIntConstant(m, "INPUTS", RC_SCRIPT_INPUTS) < 0
             || PyModule_AddIntConstant(m, "HEADER", RC_SCRIPT_HEADER) < 0
-            || PyModule_AddIntConstant(m, "PHASE_FIELDS", RC_PHASE_FIELDS) < 0) {
+            || PyModule_AddIntConstant(m, "PHASE_FIELDS", RC_PHASE_FIELDS) < 0
+            || PyModule_AddIntConstant(m, "MAX_STEPS", RC_SCRIPT_MAX_STEPS) < 0) {
         Py_DECREF(m);
         return NULL;
     }

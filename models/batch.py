@@ -35,6 +35,8 @@ OUTPUTS = 34
 INPUTS = 4
 """Per step: traction and brake demand [N], wind [m/s], payload boarded so far [t]."""
 KIND_PHASES, KIND_TABLE = 0, 1
+MAX_STEPS = 1_000_000_000
+"""The most steps a script may have (scenario_driver.h RC_SCRIPT_MAX_STEPS)."""
 
 
 def available() -> bool:
@@ -80,11 +82,11 @@ def script_values(*, step_s: float, duration_s: float, stop_after_last_phase: bo
 def steps_of(script: np.ndarray) -> int:
     """The script's number of steps, int(round(duration_s / step_s)) as drive() counts them, to
     size the arrays (the C side counts them again and checks they fit); 0 for a header it will
-    refuse (it names the value then)."""
+    refuse (it names the value then), a non-finite count or more than MAX_STEPS among them."""
     if len(script) < HEADER or not (script[1] > 0 and script[2] >= 0):
         return 0
     steps = float(script[2]) / float(script[1])
-    return int(round(steps)) if math.isfinite(steps) else 0
+    return int(round(steps)) if math.isfinite(steps) and steps <= MAX_STEPS else 0
 
 
 @dataclass

@@ -8,18 +8,21 @@ step in C (models.batch, models/core/scenario_driver.c) without returning to Pyt
 Here a Scenario becomes the C driver's script (``script_of``: its phases or time table as
 Scenario.new_driver builds them, its wind schedule, step, duration and stop_after_last_phase) and
 the C arrays become RunResults. Span scenarios (the ATO drives) are not covered yet; a run the C
-core cannot take (a span scenario, an estimator it does not cover, no compiled models._batch)
-runs on run_on_chain, the Python loop, with the same result.
+core cannot take (``not_covered``: a span scenario, an estimator it does not cover, no compiled
+models._batch, RAILCAR_PURE_PYTHON set) runs on run_on_chain, the Python loop, with the same
+result; ``ENGINES`` counts the runs each way.
 """
 from __future__ import annotations
 
+import collections
 from typing import Sequence
 
 import numpy as np
 
 from models import batch
 from models.chain import ChainConfig, StepRejected
-from models.compiled import INTEGER_OUTPUTS, OUTPUT_NAMES, _config_values, core_not_covered, validate
+from models.compiled import (INTEGER_OUTPUTS, OUTPUT_NAMES, _config_values, core_not_covered, enabled,
+                             validate)
 from models.plant.track import GradeProfile, SpeedProfile
 
 from harness.run.driver import run_on_chain
@@ -29,6 +32,9 @@ from harness.run.scenario import Scenario
 
 assert batch.ACTIONS == ACTIONS, "models.batch.ACTIONS must list harness.run.phases.ACTIONS in order"
 assert batch.OUTPUTS == len(OUTPUT_NAMES), "models.batch.OUTPUTS must count models.compiled.OUTPUT_NAMES"
+
+ENGINES: collections.Counter = collections.Counter()
+"""Runs made by run_batch per engine: "c" (the batch engine) and "python" (run_on_chain)."""
 
 
 def script_of(scenario: Scenario) -> np.ndarray:
@@ -55,6 +61,8 @@ def not_covered(scenario: Scenario, setup=None) -> str | None:
     default the scenario's own."""
     if not batch.available():
         return "the C scenario runner (models._batch) is not compiled"
+    if not enabled():
+        return "the C core is switched off (RAILCAR_PURE_PYTHON) or not compiled (models._railcar)"
     if scenario.ato is not None:
         return "a span scenario (the ATO drives)"
     return core_not_covered((setup or scenario.chain_setup()).config.identifier)
@@ -76,6 +84,7 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
         setup = sc.chain_setup(ov)
         if not_covered(sc, setup) is not None:
             results[i] = run_on_chain(sc, ov)
+            ENGINES["python"] += 1
             continue
         todo.append(i)
         runs.append((setup.config, setup.grade, setup.speed, script_of(sc)))
@@ -83,6 +92,7 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
         done = run_chains(runs)
         for r, i in enumerate(todo):
             results[i] = result_of(scenarios[i], done, r)
+        ENGINES["c"] += len(runs)
     return results
 
 

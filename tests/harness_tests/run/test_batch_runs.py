@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.run.batch import chain_arrays, not_covered, run_batch, run_chains, script_of
+from harness.run.batch import ENGINES, chain_arrays, not_covered, run_batch, run_chains, script_of
 from harness.run.driver import ChainStepper, drive, run_on_chain
 from harness.run.scenario import load_scenario, scenario_from_dict
 from models import batch
@@ -82,7 +82,9 @@ CASES = cases()
 def batched() -> dict:
     """Every case in one run_batch call (many scenarios, profiles and lengths per call)."""
     assert batch.available(), "models._batch is not compiled: setup.py build_ext --inplace"
+    before = ENGINES.copy()
     results = run_batch([sc for _, sc, _ in CASES], [ov for _, _, ov in CASES])
+    assert ENGINES["c"] - before["c"] == len(CASES) and ENGINES["python"] == before["python"]
     return {cid: r for (cid, _, _), r in zip(CASES, results)}
 
 
@@ -183,8 +185,22 @@ def bad_scripts(script: np.ndarray) -> list[tuple[np.ndarray, str]]:
          f"driver[0] ({first_action}).decel_mps2 must be finite, got nan"),
         (changed(phase_value(script, 0, "mass_change_t"), 1.0),
          f"driver[0] ({first_action}).mass_change_t: passengers board only in a hold phase"),
+        (changed(phase_value(script, 0, "decel_mps2"), 0.0), f"driver[0] ({first_action}).decel_mps2 must be > 0, got 0.0"),
+        (changed(phase_value(script, 0, "target_speed_mps"), -2.0),
+         f"driver[0] ({first_action}).target_speed_mps must be > 0, got -2.0"),
+        (changed(8, 0.5), "script: the number of table rows must be a whole number in 0..10000000, got 0.5"),
+        (changed(2, 1e12), "duration_s / step_s must round to at most 1e9 steps, got 10000000000000.0"),
         (script[:-1], "script: expected"),
+        (script[:9], "script: expected at least 10 values (the header), got 9"),
+        (np.concatenate([changed(8, 1.0), [0.0, 1.0, 0.0]]),
+         "script: a phase script needs phases and no time table (got 4 phases, 1 table rows)"),
     ]
+
+
+def test_the_python_side_knows_the_c_layout():
+    c = batch._batch
+    assert (c.OUTPUTS, c.INPUTS, c.HEADER, c.PHASE_FIELDS, c.MAX_STEPS) == \
+        (batch.OUTPUTS, batch.INPUTS, batch.HEADER, len(batch.PHASE_FIELDS), batch.MAX_STEPS)
 
 
 def test_bad_scripts_are_refused_naming_the_value():
@@ -214,6 +230,7 @@ def test_bad_phases_and_tables_are_refused_naming_them():
         (dict(table=([0.0, 5.0, 5.0], [1.0, 2.0, 3.0], [0.0, 0.0, 0.0])),
          "driver_table row 3: time_s must increase, got 5.0"),
         (dict(table=([0.0, 5.0], [1.0, -2.0], [0.0, 0.0])), "driver_table row 2: traction_N must be >= 0, got -2.0"),
+        (dict(table=([0.0, 5.0], [1.0, 2.0], [0.0, math.inf])), "driver_table row 2: brake_N must be finite, got inf"),
         (dict(table=([0.0], [1.0], [0.0]), wind=[(0.0, 1.0), (math.nan, 2.0)]),
          "wind[1].time_s must be finite, got nan"),
     ]
@@ -262,16 +279,21 @@ def test_bad_arrays_are_refused():
 
 # ---------------------------------------------------------------- what the C engine leaves to Python
 
-def test_uncovered_runs_fall_back_to_the_python_loop():
+def test_uncovered_runs_fall_back_to_the_python_loop(monkeypatch):
     sc = load_scenario(LIBRARY / "coasting_rusich_row3.toml")
     method1 = {"est.method": 1}
     assert not_covered(sc, sc.chain_setup(method1)) == "est.method 1 or 3"
     with pytest.raises(ValueError, match="run 0: the C core does not cover est.method 1 or 3"):
         setup = sc.chain_setup(method1)
         run_chains([(setup.config, setup.grade, setup.speed, script_of(sc))])
+    before = ENGINES.copy()
     fallback, covered_run = run_batch([sc, sc], [method1, None])
+    assert (ENGINES["c"] - before["c"], ENGINES["python"] - before["python"]) == (1, 1)
     assert_same(run_on_chain(sc, method1), fallback, "est.method 1")
     assert_same(run_on_chain(sc), covered_run, "est.method 2")
+    monkeypatch.setenv("RAILCAR_PURE_PYTHON", "1")
+    assert not_covered(sc).startswith("the C core is switched off (RAILCAR_PURE_PYTHON)")
+    monkeypatch.delenv("RAILCAR_PURE_PYTHON")
     span = load_scenario(LIBRARY / "ato_nominal.toml")
     assert not_covered(span) == "a span scenario (the ATO drives)"
     with pytest.raises(ValueError, match="ato_nominal: the batch engine runs scripted scenarios"):
