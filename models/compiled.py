@@ -14,21 +14,29 @@ sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs run the 
 rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
 runs Python always (and a machine without a C compiler installs without the core and does the
 same).
+
+``run_ato_closed_loop`` runs whole ATO closed-loop spans in C (models/core/ato_closed_loop.h: this
+chain driven by the C AtoController, the study's metrics accumulated in C), one call per list of
+seeds: studies/ato_closed_loop.py's native controller.
 """
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import os
 from dataclasses import replace
 
 import numpy as np
 
+from models.ato.interface import AtoTuning
 from models.chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected, TrackSensorConfig,
                     build_estimator)
 from models.estimation.online import StationConfig
 from models.filtering.motion_filter import FilterConfig
 from models.estimation.identification import IdentifierConfig
+from models.planning.span import CarTraction, Span
+from models.plant.dynamics import VehicleParams
 from models.plant.track import GradeProfile, SpeedProfile
 
 try:
@@ -216,3 +224,47 @@ def open_estimator_chain(identifier: IdentifierConfig, filt: FilterConfig, stati
         chain = EstimatorChain(identifier, filt, station, grade_profile, speed_profile, track)
     ENGINES[chain.engine] += 1
     return chain
+
+
+ATO_LOOP_FIELDS = ("arrival", "settle", "stop", "margin", "energy", "interventions", "replans",
+                   "steps", "finished")
+"""run_ato_closed_loop's metrics per run ([s], [s], [m], [m/s], [kWh], [steps], count, count,
+bool; models/core/ato_closed_loop.h ato_loop_result)."""
+_CAR_FIELDS = tuple(f.name for f in dataclasses.fields(CarTraction) if f.init)
+_TUNING_FIELDS = tuple(f.name for f in dataclasses.fields(AtoTuning))
+_VEHICLE_FIELDS = tuple(f.name for f in dataclasses.fields(VehicleParams))
+
+
+def run_ato_closed_loop(cfg: ChainConfig, span: Span, car: CarTraction, tuning: AtoTuning,
+                        truth: VehicleParams, wind: float, step: float, max_steps: int,
+                        seeds) -> list[dict]:
+    """One closed-loop run per seed, all in C: the chain ``cfg`` (its seed replaced by each of
+    ``seeds``; the grade is the span's) under AtoController(span, car, tuning), stepped by ``step``
+    [s] in the wind [m/s] for at most ``max_steps`` steps, as studies/ato_closed_loop.py's
+    python_run steps it; ``truth`` is the car step_work clips the demands with. Returns per seed
+    ATO_LOOP_FIELDS as a dict, bit-identical to the Python loop's metrics. Raises ValueError naming
+    the first bad setting (the chain's, in RailCarChain's words; the controller's, in
+    AtoController's), StepRejected for a step the chain refuses."""
+    if _railcar is None:
+        raise RuntimeError("the C core (models._railcar) is not compiled")
+    seeds = [int(s) for s in seeds]
+    for seed in seeds:
+        validate(replace(cfg, seed=seed), None, 0.0)
+    cfg = validate(cfg, None, 0.0)
+    why = core_not_covered(cfg.identifier)
+    if why:
+        raise ValueError(f"the C core does not cover {why}: run the Python loop")
+    g = span.grade
+    rows = _railcar.ato_closed_loop(
+        [*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], g.distances, g.grades,
+        (span.length, span.schedule, span.stop), span.limit_distances, span.limit_speeds,
+        [float(getattr(car, n)) for n in _CAR_FIELDS],
+        [float(getattr(tuning, n)) for n in _TUNING_FIELDS],
+        [float(getattr(truth, n)) for n in _VEHICLE_FIELDS], float(step), float(wind),
+        int(max_steps), seeds, StepRejected)
+    out = []
+    for row in rows:
+        d = dict(zip(ATO_LOOP_FIELDS, row))
+        d["finished"] = bool(d["finished"])
+        out.append(d)
+    return out
