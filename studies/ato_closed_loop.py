@@ -234,20 +234,29 @@ def _batch(args):
     return run_batch(*args)
 
 
-def references(cases=tuple(CASES)):
-    """Energy [kWh] of the manual driver and of the maximum-principle plan on each case's true
+def reference_key(case: str) -> tuple:
+    """What a case's references depend on: the true car's overrides and the wind."""
+    overrides, wind = CASES[case]
+    return (overrides.get("car.mass"), overrides.get("car.A0"), overrides.get("car.adhesion_factor"),
+            wind)
+
+
+def reference(case: str) -> tuple[float, float]:
+    """Energy [kWh] of the manual driver and of the maximum-principle plan on the case's true
     car (the planners of models/planning/trajectory.py, 5 m steps)."""
     from models.planning.trajectory import manual_driver, synthesize
+    car = true_car(*CASES[case])
+    return manual_driver(SPAN, car).energy_kwh, synthesize(SPAN, car).energy_kwh
+
+
+def references(cases=tuple(CASES)):
+    """reference() of each case, computed once per distinct true car."""
     out = {}
     for case in cases:
-        overrides, wind = CASES[case]
-        key = (overrides.get("car.mass"), overrides.get("car.A0"),
-               overrides.get("car.adhesion_factor"), wind)
+        key = reference_key(case)
         if key not in out:
-            car = true_car(overrides, wind)
-            out[key] = (manual_driver(SPAN, car).energy_kwh, synthesize(SPAN, car).energy_kwh)
-        out[case] = out[key]
-    return {c: out[c] for c in cases}
+            out[key] = reference(case)
+    return {c: out[reference_key(c)] for c in cases}
 
 
 def table(results, refs) -> str:
@@ -278,18 +287,20 @@ def table(results, refs) -> str:
 
 def study(cases, n_seeds: int, workers: int, controller: str | None = None):
     """(runs, references) of every case and variant for seeds 1..n_seeds, over ``workers``
-    processes: the references (Python planners) in one of them while the runs go on."""
+    processes: each distinct true car's references (Python planners, ~1 s each) a job of its own,
+    submitted first, the runs after them."""
     controller = controller or default_controller()
     seeds = list(range(1, n_seeds + 1))
     chunk = max(1, len(seeds) // 4)
     jobs = [(c, v, seeds[i:i + chunk], controller) for c in cases for v in VARIANTS
             for i in range(0, len(seeds), chunk)]
     results = []
+    firsts = {reference_key(c): c for c in reversed(cases)}      # the first case of each car
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        refs_future = pool.submit(references, tuple(cases))
+        ref_futures = {key: pool.submit(reference, case) for key, case in firsts.items()}
         for batch in pool.map(_batch, jobs):
             results.extend(batch)
-        refs = refs_future.result()
+        refs = {c: ref_futures[reference_key(c)].result() for c in cases}
     return results, refs
 
 
