@@ -29,14 +29,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from models.ato.interface import AtoTuning
 from models.chain import (ChainConfig, EstimatorChain, RailCarChain, StepRejected, TrackSensorConfig,
                     build_estimator)
 from models.estimation.online import StationConfig
 from models.filtering.motion_filter import FilterConfig
 from models.estimation.identification import IdentifierConfig
-from models.planning.span import CarTraction, Span
-from models.plant.dynamics import VehicleParams
 from models.plant.track import GradeProfile, SpeedProfile
 
 try:
@@ -230,16 +227,20 @@ ATO_LOOP_FIELDS = ("arrival", "settle", "stop", "margin", "energy", "interventio
                    "steps", "finished")
 """run_ato_closed_loop's metrics per run ([s], [s], [m], [m/s], [kWh], [steps], count, count,
 bool; models/core/ato_closed_loop.h ato_loop_result)."""
-_CAR_FIELDS = tuple(f.name for f in dataclasses.fields(CarTraction) if f.init)
-_TUNING_FIELDS = tuple(f.name for f in dataclasses.fields(AtoTuning))
-_VEHICLE_FIELDS = tuple(f.name for f in dataclasses.fields(VehicleParams))
 
 
-def run_ato_closed_loop(cfg: ChainConfig, span: Span, car: CarTraction, tuning: AtoTuning,
-                        truth: VehicleParams, wind: float, step: float, max_steps: int,
-                        seeds) -> list[dict]:
+def dataclass_values(obj) -> list[float]:
+    """The values of a dataclass's init fields in declaration order, as floats: the order the C
+    core takes CarTraction's (18), AtoTuning's (ATO_N_TUNING_FIELDS) and VehicleParams' (11) in."""
+    return [float(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init]
+
+
+def run_ato_closed_loop(cfg: ChainConfig, span, car, tuning, truth, wind: float, step: float,
+                        max_steps: int, seeds) -> list[dict]:
     """One closed-loop run per seed, all in C: the chain ``cfg`` (its seed replaced by each of
-    ``seeds``; the grade is the span's) under AtoController(span, car, tuning), stepped by ``step``
+    ``seeds``; the grade is the span's) under AtoController(span, car, tuning) (models.planning.span
+    Span and CarTraction, models.ato.interface AtoTuning: not imported here, the layer below them;
+    ``truth`` a models.plant.dynamics.VehicleParams), stepped by ``step``
     [s] in the wind [m/s] for at most ``max_steps`` steps, as studies/ato_closed_loop.py's
     python_run steps it; ``truth`` is the car step_work clips the demands with. Returns per seed
     ATO_LOOP_FIELDS as a dict, bit-identical to the Python loop's metrics. Raises ValueError naming
@@ -258,9 +259,8 @@ def run_ato_closed_loop(cfg: ChainConfig, span: Span, car: CarTraction, tuning: 
     rows = _railcar.ato_closed_loop(
         [*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], g.distances, g.grades,
         (span.length, span.schedule, span.stop), span.limit_distances, span.limit_speeds,
-        [float(getattr(car, n)) for n in _CAR_FIELDS],
-        [float(getattr(tuning, n)) for n in _TUNING_FIELDS],
-        [float(getattr(truth, n)) for n in _VEHICLE_FIELDS], float(step), float(wind),
+        dataclass_values(car), dataclass_values(tuning), dataclass_values(truth), float(step),
+        float(wind),
         int(max_steps), seeds, StepRejected)
     out = []
     for row in rows:

@@ -21,7 +21,6 @@ import shutil
 import struct
 import subprocess
 import sys
-import types
 from dataclasses import replace
 from pathlib import Path
 
@@ -32,7 +31,6 @@ from models import compiled
 from models.ato.controller import AtoController
 from models.ato.interface import ALL_INPUTS, AtoTuning
 from models.chain import ChainConfig
-from models.planning.span import CarTraction
 from models.plant.dynamics import VehicleParams
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -124,9 +122,11 @@ def python_refusal(make) -> str:
 
 
 def test_bad_settings_are_refused_by_name():
-    # the tuning: AtoTuning's own message (a stand-in object carries the value past AtoTuning)
-    fields = {f.name: getattr(AtoTuning(), f.name) for f in dataclasses.fields(AtoTuning)}
-    bad_tuning = types.SimpleNamespace(**{**fields, "replan_period": -1.0})
+    # the tuning: AtoTuning's own message (an AtoTuning built without its checks carries the value)
+    bad_tuning = object.__new__(AtoTuning)
+    for f in dataclasses.fields(AtoTuning):
+        object.__setattr__(bad_tuning, f.name, getattr(AtoTuning(), f.name))
+    object.__setattr__(bad_tuning, "replan_period", -1.0)
     assert refusal(tuning=bad_tuning) == python_refusal(lambda: AtoTuning(replan_period=-1.0))
     assert "replan_period" in refusal(tuning=bad_tuning)
     # the span: a schedule the car cannot keep, AtoController's message
@@ -152,9 +152,8 @@ def test_the_binding_refuses_wrong_lengths_by_name():
     g = study.SPAN.grade
     good = [[*compiled._config_values(a["cfg"], 0.0), 20], g.distances, g.grades,
             (study.SPAN.length, study.SPAN.schedule, study.SPAN.stop), study.SPAN.limit_distances,
-            study.SPAN.limit_speeds, [float(getattr(study.CAR, n)) for n in compiled._CAR_FIELDS],
-            [float(getattr(a["tuning"], n)) for n in compiled._TUNING_FIELDS],
-            [float(getattr(a["truth"], n)) for n in compiled._VEHICLE_FIELDS]]
+            study.SPAN.limit_speeds, compiled.dataclass_values(study.CAR),
+            compiled.dataclass_values(a["tuning"]), compiled.dataclass_values(a["truth"])]
     short_tuning = list(good)
     short_tuning[7] = good[7][:-1]
     with pytest.raises(ValueError, match=f"tuning must have {len(good[7])} values, got {len(good[7]) - 1}"):
@@ -212,9 +211,9 @@ def shim_run(dll, case: str, variant: str, seed: int) -> dict:
     status = dll.shim_run(arr(chain_values), len(chain_values), arr(g.distances), arr(g.grades),
                           len(g.grades), arr([span.length, span.schedule, span.stop]),
                           arr(span.limit_distances), arr(span.limit_speeds), len(span.limit_speeds),
-                          arr(getattr(study.CAR, n) for n in compiled._CAR_FIELDS),
-                          arr(getattr(study.VARIANTS[variant], n) for n in compiled._TUNING_FIELDS),
-                          arr(getattr(truth, n) for n in compiled._VEHICLE_FIELDS), study.STEP, wind,
+                          arr(compiled.dataclass_values(study.CAR)),
+                          arr(compiled.dataclass_values(study.VARIANTS[variant])),
+                          arr(compiled.dataclass_values(truth)), study.STEP, wind,
                           study.MAX_STEPS, out, msg)
     assert status == 0, msg.value.decode()
     row = dict(zip(compiled.ATO_LOOP_FIELDS, out))
