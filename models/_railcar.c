@@ -1,7 +1,9 @@
 /* _railcar.c -- the thin CPython binding of the C model core (models/core/railcar.h).
  *
  * One type, Chain, owns one rc_chain (allocated once; the struct points into itself). It is
- * subclassed by models.compiled.CompiledChain, which gives it RailCarChain's interface. The
+ * subclassed by models.compiled.CompiledChain, which gives it RailCarChain's interface. Estimator
+ * does the same for RailCarEstimator's chain; the function ato_closed_loop runs whole ATO
+ * closed-loop spans (models/core/ato_closed_loop.h), one call per list of seeds. The
  * binding only converts: numbers in, numbers out, the core's messages raised as the exception
  * type given at construction. Why a hand-written extension and not cffi or ctypes: the per-step
  * call is the hot path (three times the old compiled path is the target), cffi would be a new
@@ -11,6 +13,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+#include "core/ato_closed_loop.h"
 #include "core/railcar.h"
 
 /* A sequence of numbers into a new malloc'd array of doubles (*n its length) */
@@ -553,11 +556,171 @@ static PyTypeObject EstimatorType = {
     .tp_methods = estimator_methods,
 };
 
+/* ------------------------------------------------------------------ the ATO closed loop */
+
+/* A sequence of exactly n numbers into out; -1 with ValueError naming `what` */
+static int exact_doubles(PyObject *seq, double *out, Py_ssize_t n, const char *what)
+{
+    Py_ssize_t got;
+    double *x = doubles(seq, &got, what);
+    if (!x)
+        return -1;
+    if (got != n) {
+        PyErr_Format(PyExc_ValueError, "%s must have %zd values, got %zd", what, n, got);
+        PyMem_Free(x);
+        return -1;
+    }
+    memcpy(out, x, sizeof(double) * (size_t)n);
+    PyMem_Free(x);
+    return 0;
+}
+
+/* ato_closed_loop(chain_config, grade_distances, grades, span, limit_distances, limit_speeds, car,
+ * tuning, truth, step, wind, max_steps, seeds, error) -> list of tuples (arrival, settle, stop,
+ * margin, energy, interventions, replans, steps, finished), one per seed: the run of
+ * models/core/ato_closed_loop.h for each seed (the chain configuration's seed replaced), the GIL
+ * released while it runs. span: (length, schedule, stop); car: CarTraction's 18 fields; tuning:
+ * AtoTuning's values in its order; truth: VehicleParams' 11 fields. A refused configuration raises
+ * ValueError with the core's text, a step the chain refuses `error` (models.chain.StepRejected). */
+static PyObject *run_ato_closed_loop(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *values_obj, *gd_obj, *gg_obj, *span_obj, *ld_obj, *lv_obj, *car_obj, *tuning_obj;
+    PyObject *truth_obj, *seeds_obj, *error;
+    double step, wind, span3[3], car_values[18], tuning_values[ATO_N_TUNING_FIELDS], truth[11];
+    long max_steps;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOddlOO:ato_closed_loop", &values_obj, &gd_obj, &gg_obj,
+                          &span_obj, &ld_obj, &lv_obj, &car_obj, &tuning_obj, &truth_obj, &step,
+                          &wind, &max_steps, &seeds_obj, &error))
+        return NULL;
+    if (exact_doubles(span_obj, span3, 3, "span") < 0
+            || exact_doubles(car_obj, car_values, 18, "car") < 0
+            || exact_doubles(tuning_obj, tuning_values, ATO_N_TUNING_FIELDS, "tuning") < 0
+            || exact_doubles(truth_obj, truth, 11, "truth") < 0)
+        return NULL;
+    double *values = NULL, *gd = NULL, *gg = NULL, *ld = NULL, *lv = NULL, *seeds = NULL;
+    double *cum = NULL;
+    ato_closed_loop *run = NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n_values, n_grade, ngg, n_lim, nlv, n_seeds;
+    if (!(values = doubles(values_obj, &n_values, "chain_config must be a sequence of numbers"))
+            || !(gd = doubles(gd_obj, &n_grade, "grade_distances must be a sequence of numbers"))
+            || !(gg = doubles(gg_obj, &ngg, "grades must be a sequence of numbers"))
+            || !(ld = doubles(ld_obj, &n_lim, "limit_distances must be a sequence of numbers"))
+            || !(lv = doubles(lv_obj, &nlv, "limit_speeds must be a sequence of numbers"))
+            || !(seeds = doubles(seeds_obj, &n_seeds, "seeds must be a sequence of numbers")))
+        goto done;
+    if (n_grade != ngg || n_grade < 1 || n_lim != nlv || n_lim < 1) {
+        PyErr_SetString(PyExc_ValueError,
+                        "the grade's and the limits' distances and values must have one length (>= 1)");
+        goto done;
+    }
+    rc_chain_config cfg;
+    memset(&cfg, 0, sizeof cfg);
+    long expected = rc_chain_config_from_values(&cfg, values, (long)n_values);
+    if (expected) {
+        PyErr_Format(PyExc_ValueError, "the C core takes %ld configuration values, got %zd",
+                     expected, n_values);
+        goto done;
+    }
+    cfg.grade_distances = gd;
+    cfg.grades = gg;
+    cfg.grade_n = n_grade;
+    if (!(cum = PyMem_Malloc(sizeof(double) * (size_t)n_grade))
+            || !(run = PyMem_Malloc(sizeof *run))) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    rc_grade_cumulate(gd, gg, (long)n_grade, cum);
+    rc_ato_span span = {span3[0], span3[1], span3[2], {gd, gg, cum, (long)n_grade}, (int)n_lim,
+                        ld, lv};
+    rc_ato_car car;
+    ato_car_from_values(&car, car_values);
+    ato_tuning tuning;
+    ato_tuning_from_values(&tuning, tuning_values);
+    ato_loop_config loop = {step, wind, max_steps,
+                            {truth[0], truth[1], truth[2], truth[3], truth[4], truth[5], truth[6],
+                             truth[7], truth[8], truth[9], truth[10]}};
+    if (!(result = PyList_New(0)))
+        goto done;
+    for (Py_ssize_t i = 0; i < n_seeds; i++) {
+        char msg[ATO_TEXT_SIZE];
+        ato_loop_result r;
+        rc_status st;
+        cfg.seed = (long)seeds[i];
+        Py_BEGIN_ALLOW_THREADS
+        st = ato_closed_loop_init(run, &cfg, &span, &car, &tuning, &loop, msg);
+        if (st == RC_OK) {
+            st = ato_closed_loop_run(run, &r, msg);
+            ato_closed_loop_free(run);
+        }
+        Py_END_ALLOW_THREADS
+        if (st != RC_OK) {
+            PyErr_SetString(st == RC_REJECTED ? error : PyExc_ValueError, msg);
+            Py_CLEAR(result);
+            goto done;
+        }
+        PyObject *row = Py_BuildValue("(dddddllli)", r.arrival, r.settle, r.stop, r.margin,
+                                      r.energy, r.interventions, r.replans, r.steps, r.finished);
+        if (!row || PyList_Append(result, row) < 0) {
+            Py_XDECREF(row);
+            Py_CLEAR(result);
+            goto done;
+        }
+        Py_DECREF(row);
+    }
+done:
+    PyMem_Free(values);
+    PyMem_Free(gd);
+    PyMem_Free(gg);
+    PyMem_Free(ld);
+    PyMem_Free(lv);
+    PyMem_Free(seeds);
+    PyMem_Free(cum);
+    PyMem_Free(run);
+    return result;
+}
+
+/* The chain output each ATO input is read from (ato_closed_loop.h), for the test that holds it
+ * to models/compiled.py's OUTPUT_NAMES */
+static PyObject *ato_input_outputs(void)
+{
+    PyObject *t = PyTuple_New(ATO_N_ALL_INPUTS);
+    if (!t)
+        return NULL;
+    for (int k = 0; k < ATO_N_ALL_INPUTS; k++) {
+        PyObject *x = PyLong_FromLong(ATO_LOOP_INPUT_OUTPUTS[k]);
+        if (!x) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, k, x);
+    }
+    return t;
+}
+
+static PyMethodDef module_methods[] = {
+    {"ato_closed_loop", run_ato_closed_loop, METH_VARARGS,
+     "ato_closed_loop(chain_config, grade_distances, grades, span, limit_distances, limit_speeds, "
+     "car, tuning, truth, step, wind, max_steps, seeds, error) -> [(arrival, settle, stop, margin, "
+     "energy, interventions, replans, steps, finished)] (models.compiled.run_ato_closed_loop)"},
+    {NULL, NULL, 0, NULL},
+};
+
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "models._railcar",
-    "Thin binding of the C model core (models/core/): see models/compiled.py.", -1, NULL,
+    "Thin binding of the C model core (models/core/): see models/compiled.py.", -1, module_methods,
     NULL, NULL, NULL, NULL,
 };
+
+/* PyModule_Add of Python 3.13: add obj (a new reference, or NULL with an exception) and drop it */
+static int add_new_object(PyObject *m, const char *name, PyObject *obj)
+{
+    if (!obj)
+        return -1;
+    int rc = PyModule_AddObjectRef(m, name, obj);
+    Py_DECREF(obj);
+    return rc;
+}
 
 PyMODINIT_FUNC PyInit__railcar(void)
 {
@@ -568,7 +731,8 @@ PyMODINIT_FUNC PyInit__railcar(void)
         return NULL;
     if (PyModule_AddType(m, &ChainType) < 0 || PyModule_AddType(m, &EstimatorType) < 0
             || PyModule_AddIntConstant(m, "OUTPUTS", RC_CHAIN_OUTPUTS) < 0
-            || PyModule_AddIntConstant(m, "ESTIMATOR_OUTPUTS", RC_EST_OUTPUTS) < 0) {
+            || PyModule_AddIntConstant(m, "ESTIMATOR_OUTPUTS", RC_EST_OUTPUTS) < 0
+            || add_new_object(m, "ATO_INPUT_OUTPUTS", ato_input_outputs()) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -14,10 +14,15 @@ sensors; NOT_COVERED runs in Python (core_not_covered). The native FMUs run the 
 rule harness/run/fmus.py picks an FMU by). ``RAILCAR_PURE_PYTHON=1``
 runs Python always (and a machine without a C compiler installs without the core and does the
 same).
+
+``run_ato_closed_loop`` runs whole ATO closed-loop spans in C (models/core/ato_closed_loop.h: this
+chain driven by the C AtoController, the study's metrics accumulated in C), one call per list of
+seeds: studies/ato_closed_loop.py's native controller.
 """
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import os
 from dataclasses import replace
@@ -216,3 +221,50 @@ def open_estimator_chain(identifier: IdentifierConfig, filt: FilterConfig, stati
         chain = EstimatorChain(identifier, filt, station, grade_profile, speed_profile, track)
     ENGINES[chain.engine] += 1
     return chain
+
+
+ATO_LOOP_FIELDS = ("arrival", "settle", "stop", "margin", "energy", "interventions", "replans",
+                   "steps", "finished")
+"""run_ato_closed_loop's metrics per run ([s], [s], [m], [m/s], [kWh], [steps], count, count,
+bool; models/core/ato_closed_loop.h ato_loop_result)."""
+
+
+def dataclass_values(obj) -> list[float]:
+    """The values of a dataclass's init fields in declaration order, as floats: the order the C
+    core takes CarTraction's (18), AtoTuning's (ATO_N_TUNING_FIELDS) and VehicleParams' (11) in."""
+    return [float(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init]
+
+
+def run_ato_closed_loop(cfg: ChainConfig, span, car, tuning, truth, wind: float, step: float,
+                        max_steps: int, seeds) -> list[dict]:
+    """One closed-loop run per seed, all in C: the chain ``cfg`` (its seed replaced by each of
+    ``seeds``; the grade is the span's) under AtoController(span, car, tuning) (models.planning.span
+    Span and CarTraction, models.ato.interface AtoTuning: not imported here, the layer below them;
+    ``truth`` a models.plant.dynamics.VehicleParams), stepped by ``step``
+    [s] in the wind [m/s] for at most ``max_steps`` steps, as studies/ato_closed_loop.py's
+    python_run steps it; ``truth`` is the car step_work clips the demands with. Returns per seed
+    ATO_LOOP_FIELDS as a dict, bit-identical to the Python loop's metrics. Raises ValueError naming
+    the first bad setting (the chain's, in RailCarChain's words; the controller's, in
+    AtoController's), StepRejected for a step the chain refuses."""
+    if _railcar is None:
+        raise RuntimeError("the C core (models._railcar) is not compiled")
+    seeds = [int(s) for s in seeds]
+    for seed in seeds:
+        validate(replace(cfg, seed=seed), None, 0.0)
+    cfg = validate(cfg, None, 0.0)
+    why = core_not_covered(cfg.identifier)
+    if why:
+        raise ValueError(f"the C core does not cover {why}: run the Python loop")
+    g = span.grade
+    rows = _railcar.ato_closed_loop(
+        [*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], g.distances, g.grades,
+        (span.length, span.schedule, span.stop), span.limit_distances, span.limit_speeds,
+        dataclass_values(car), dataclass_values(tuning), dataclass_values(truth), float(step),
+        float(wind),
+        int(max_steps), seeds, StepRejected)
+    out = []
+    for row in rows:
+        d = dict(zip(ATO_LOOP_FIELDS, row))
+        d["finished"] = bool(d["finished"])
+        out.append(d)
+    return out

@@ -1,12 +1,13 @@
 """The ATO in closed loop with the estimator: Monte Carlo over seeds (issue 20's targets).
 
     python studies/ato_closed_loop.py [--seeds 100] [--workers 2] [--case NAME ...]
+                                      [--controller native|python]
 
 The RailCar chain (models.compiled.open_chain: plant, sensors, estimator, configured like the
 RailCar FMU with its default parameters) runs a 2.15 km span (the library's demo grade profile
 extended: level, +15, -10, level, +5 permille; 80 km/h with a 60 km/h zone from 900 to 1300 m;
 stop mark at 2150 m; schedule 135 s, 9.6 % above the minimum-time run) under
-models.ato.controller.AtoController, one communication step of 0.1 s at a time. Per case and variant,
+models.ato.controller.AtoController (or its C twin: --controller), one communication step of 0.1 s at a time. Per case and variant,
 seeds 1..N (the chain's noise seed):
 
   arrival   true time of the final standstill at the stop minus the schedule [s] (as
@@ -54,7 +55,11 @@ and absolute, 2 % of 80 km/h (0.444 m/s) at every speed, the pessimistic reading
                     11x at 7 km/h)
 
 Seeded and deterministic (the chain's seed; the controller has no randomness). Processes:
-concurrent.futures over --workers (2 by default).
+concurrent.futures over --workers (2 by default). --controller native (the default where the C core
+is compiled) runs each whole run in C (models/core/ato_closed_loop.c: the C chain under the C
+AtoController, the metrics accumulated in C, bit-identical to python_run's; ~5 ms a run against
+~200 ms); --controller python runs python_run, the Python AtoController stepped from Python (and
+the only one that times the re-plans). Same table, character for character.
 """
 from __future__ import annotations
 
@@ -123,23 +128,44 @@ def true_car(overrides: dict, wind: float) -> CarTraction:
     return CarTraction(**kw, A1=CAR.A1 + 2.0 * CAR.A2 * wind)
 
 
-def run_one(case: str, variant: str, seed: int) -> dict:
-    """One closed-loop run; the metrics of the module docstring."""
-    from fmu_src.adapter import chain_config
-    from models.compiled import open_chain
+CONTROLLERS = ("native", "python")
+"""native: the whole run in C (models.compiled.run_ato_closed_loop: the C chain under the C
+AtoController, the metrics accumulated in C); python: python_run, the Python AtoController on the
+chain open_chain gives. Their rows are equal (tests/model_tests/core/test_core_ato_closed_loop.py);
+only python's carry the re-plans' wall times."""
+MAX_STEPS = 4000                    # the loop's cap: 400 s, three times the schedule
+
+
+def default_controller() -> str:
+    """native where the C core is compiled and enabled (models.compiled.enabled), else python."""
+    from models import compiled
+    return "native" if compiled.enabled() else "python"
+
+
+def run_setup(case: str, seed: int):
+    """(RailCar's parameter values, the true car step_work clips with, wind [m/s]) of a run."""
     overrides, wind = CASES[case]
     values = railcar_values(seed, overrides)
-    chain = open_chain(chain_config(values), SPAN.grade)
-    ctrl = AtoController(SPAN, CAR, VARIANTS[variant])
     truth = VehicleParams(mass=values["car.mass"], A0=values["car.A0"],
                           adhesion_factor=values["car.adhesion_factor"])
+    return values, truth, wind
+
+
+def python_run(case: str, variant: str, seed: int) -> dict:
+    """One closed-loop run with the Python controller; the metrics of the module docstring (the
+    loop models/core/ato_closed_loop.c runs in C for the native controller: change both)."""
+    from fmu_src.adapter import chain_config
+    from models.compiled import open_chain
+    values, truth, wind = run_setup(case, seed)
+    chain = open_chain(chain_config(values), SPAN.grade)
+    ctrl = AtoController(SPAN, CAR, VARIANTS[variant])
     out = chain.outputs()
     t, k = 0.0, 0
     margin = math.inf
     w_f = w_r = 0.0
     t_stop = t_last = None
     interventions = 0
-    while k < 4000:
+    while k < MAX_STEPS:
         cmd = ctrl.demands(t, out)
         interventions += cmd.mode in INTERVENTIONS
         v0, s0 = out["car.speed"], out["car.position"]
@@ -166,28 +192,71 @@ def run_one(case: str, variant: str, seed: int) -> dict:
             "replan_ms": [1e3 * x for x in ctrl.replan_seconds[1:]]}
 
 
+METRICS = ("arrival", "settle", "stop", "margin", "energy", "interventions", "replans")
+"""A run's metrics (both controllers); besides them a row has case, variant, seed, replan_ms."""
+
+
+def native_runs(case: str, variant: str, seeds) -> list[dict]:
+    """python_run's dicts for each seed, bit for bit, from one call to the C core (the runs differ
+    only by the chain's seed); replan_ms is empty: the C controller does not time its re-plans."""
+    from fmu_src.adapter import chain_config
+    from models.compiled import run_ato_closed_loop
+    seeds = list(seeds)
+    if not seeds:
+        return []
+    values, truth, wind = run_setup(case, seeds[0])
+    runs = run_ato_closed_loop(chain_config(values), SPAN, CAR, VARIANTS[variant], truth, wind,
+                               STEP, MAX_STEPS, seeds)
+    return [{"case": case, "variant": variant, "seed": seed, **{k: m[k] for k in METRICS},
+             "replan_ms": []} for seed, m in zip(seeds, runs)]
+
+
+def run_one(case: str, variant: str, seed: int, controller: str | None = None) -> dict:
+    """One closed-loop run with ``controller`` (CONTROLLERS; None: default_controller())."""
+    return run_batch(case, variant, [seed], controller)[0]
+
+
+def run_batch(case: str, variant: str, seeds, controller: str | None = None) -> list[dict]:
+    """The runs of one case and variant for each seed with ``controller`` (CONTROLLERS; None:
+    default_controller())."""
+    controller = controller or default_controller()
+    if controller == "native":
+        return native_runs(case, variant, seeds)
+    if controller == "python":
+        return [python_run(case, variant, s) for s in seeds]
+    raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
+
+
 def _batch(args):
     # the controller logs each fallback and supervision event (thousands over a study) to
     # stderr; the table counts the interventions, so its log is left out here
     logging.getLogger("models.ato").setLevel(logging.ERROR)
-    case, variant, seeds = args
-    return [run_one(case, variant, s) for s in seeds]
+    return run_batch(*args)
+
+
+def reference_key(case: str) -> tuple:
+    """What a case's references depend on: the true car's overrides and the wind."""
+    overrides, wind = CASES[case]
+    return (overrides.get("car.mass"), overrides.get("car.A0"), overrides.get("car.adhesion_factor"),
+            wind)
+
+
+def reference(case: str) -> tuple[float, float]:
+    """Energy [kWh] of the manual driver and of the maximum-principle plan on the case's true
+    car (the planners of models/planning/trajectory.py, 5 m steps)."""
+    from models.planning.trajectory import manual_driver, synthesize
+    car = true_car(*CASES[case])
+    return manual_driver(SPAN, car).energy_kwh, synthesize(SPAN, car).energy_kwh
 
 
 def references(cases=tuple(CASES)):
-    """Energy [kWh] of the manual driver and of the maximum-principle plan on each case's true
-    car (the planners of models/planning/trajectory.py, 5 m steps)."""
-    from models.planning.trajectory import manual_driver, synthesize
+    """reference() of each case, computed once per distinct true car."""
     out = {}
     for case in cases:
-        overrides, wind = CASES[case]
-        key = (overrides.get("car.mass"), overrides.get("car.A0"),
-               overrides.get("car.adhesion_factor"), wind)
+        key = reference_key(case)
         if key not in out:
-            car = true_car(overrides, wind)
-            out[key] = (manual_driver(SPAN, car).energy_kwh, synthesize(SPAN, car).energy_kwh)
-        out[case] = out[key]
-    return {c: out[c] for c in cases}
+            out[key] = reference(case)
+    return {c: out[reference_key(c)] for c in cases}
 
 
 def table(results, refs) -> str:
@@ -216,33 +285,50 @@ def table(results, refs) -> str:
     return "\n".join(lines)
 
 
+def study(cases, n_seeds: int, workers: int, controller: str | None = None):
+    """(runs, references) of every case and variant for seeds 1..n_seeds, over ``workers``
+    processes: each distinct true car's references (Python planners, ~1 s each) a job of its own,
+    submitted first, the runs after them."""
+    controller = controller or default_controller()
+    seeds = list(range(1, n_seeds + 1))
+    chunk = max(1, len(seeds) // 4)
+    jobs = [(c, v, seeds[i:i + chunk], controller) for c in cases for v in VARIANTS
+            for i in range(0, len(seeds), chunk)]
+    results = []
+    firsts = {reference_key(c): c for c in reversed(cases)}      # the first case of each car
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        ref_futures = {key: pool.submit(reference, case) for key, case in firsts.items()}
+        for batch in pool.map(_batch, jobs):
+            results.extend(batch)
+        refs = {c: ref_futures[reference_key(c)].result() for c in cases}
+    return results, refs
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=100, help="seeds per case and variant")
     ap.add_argument("--workers", type=int, default=2, help="processes")
     ap.add_argument("--case", action="append", choices=list(CASES), metavar="NAME",
                     help="run only this case (repeatable; default: all): " + ", ".join(CASES))
+    ap.add_argument("--controller", choices=CONTROLLERS, default=default_controller(),
+                    help="native: each run in the C core (the default where it is compiled); "
+                         "python: the Python AtoController (also times the re-plans); same table")
     args = ap.parse_args(argv)
     cases = args.case or list(CASES)
     t0 = time.perf_counter()
-    seeds = list(range(1, args.seeds + 1))
-    chunk = max(1, len(seeds) // 4)
-    jobs = [(c, v, seeds[i:i + chunk]) for c in cases for v in VARIANTS
-            for i in range(0, len(seeds), chunk)]
-    results = []
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        refs_future = pool.submit(references, tuple(cases))
-        for batch in pool.map(_batch, jobs):
-            results.extend(batch)
-        refs = refs_future.result()
+    results, refs = study(cases, args.seeds, args.workers, args.controller)
     print(__doc__.split("\n\n")[0].strip())
     print(f"\nspan: {SPAN.stop:g} m, schedule {SPAN.schedule:g} s; {args.seeds} seeds per row; "
-          f"step {STEP} s\n")
+          f"step {STEP} s; controller {args.controller}\n")
     print(table(results, refs))
-    ms = np.concatenate([r["replan_ms"] for r in results if r["replans"]])
-    print(f"re-plan wall time: median {np.median(ms):.1f} ms, 99th percentile "
-          f"{np.percentile(ms, 99):.1f} ms, max {np.max(ms):.1f} ms over {len(ms)} re-plans "
-          f"(one every {VARIANTS['identified + re-plan'].replan_period:g} s); manual-driver "
+    ms = np.concatenate([[], *(r["replan_ms"] for r in results if r["replans"])])
+    if len(ms):
+        timing = (f"re-plan wall time: median {np.median(ms):.1f} ms, 99th percentile "
+                  f"{np.percentile(ms, 99):.1f} ms, max {np.max(ms):.1f} ms over {len(ms)} re-plans")
+    else:
+        timing = (f"re-plans: {sum(r['replans'] for r in results)} (wall time not measured by the "
+                  f"native controller: --controller python)")
+    print(f"{timing} (one every {VARIANTS['identified + re-plan'].replan_period:g} s); manual-driver "
           f"energy per case [kWh]: " + ", ".join(f"{c} {refs[c][0]:.3f}" for c in cases))
     print("columns: arrival err (final standstill) mean +- sd and share within +-2.5 s; settle = mean s "
           "from the first standstill to the final one (short stop, stand, creep); stop err mean +- sd, share "
