@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import random
 import subprocess
 import sys
 import zipfile
@@ -430,6 +431,66 @@ def test_a_line_file_both_fmus_accept_gives_the_same_first_steps(native_ato, ato
     assert outputs[0] == outputs[1]
     assert outputs[0][0][OUTPUTS.index("ato.mode")] == 8
     assert outputs[0][-1][OUTPUTS.index("ato.span")] == 1
+
+
+TOKENS = ("0", "-0", "700", "800", "1e3", "30", "2", "3", "0.5", "250", "-2", "nan", "inf", "",
+          " ", '"5"', "abc", "1_0", "1__0", "\u0663\u0660", "0x1", "+4", "4.", ".5", "1e", "\u00a07")
+"""Cells a random line file is made of: good numbers and every kind float() refuses or reads
+its own way (test_core_profile.py's grammar)."""
+
+
+def _random_line_files(seed: int) -> tuple[str, str | None]:
+    """A line.profile and maybe a line.speed_limit_profile text: the good files with a few
+    cells, rows, separators or line breaks changed at random (seeded; the header rarely)."""
+    rng = random.Random(seed)
+    line = [LINE_HEADER.strip(), "700,0,70,30,4", "800,850,80,30,-2"]
+    limits = [LIMIT_HEADER.strip(), "2,0,20", "2,300,15", "3,0,19"]
+    for text in (line, limits):
+        for _ in range(rng.randint(0, 3)):
+            k = rng.randrange(1, len(text)) if len(text) > 1 and rng.random() < 0.9 else 0
+            cells = text[k].split(",")
+            what = rng.random()
+            if what < 0.6:
+                cells[rng.randrange(len(cells))] = rng.choice(TOKENS)
+            elif what < 0.7:
+                cells.append(rng.choice(TOKENS))
+            elif what < 0.8 and len(cells) > 1:
+                cells.pop()
+            elif what < 0.9:
+                text.insert(k, rng.choice(["", "# note", text[k]]))
+                continue
+            else:
+                del text[k]
+                continue
+            text[k] = ",".join(cells)
+    ending = rng.choice(["\n", "\r\n", "\r", "\n\n"])
+    return (ending.join(line) + ending,
+            ending.join(limits) + ending if rng.random() < 0.7 else None)
+
+
+def test_random_line_files_are_accepted_or_refused_as_the_python_reader_does(native_ato, tmp_path):
+    """200 seeded random variations of a good line: the native FMU initialises exactly when
+    open_line accepts the files, and refuses with its words otherwise."""
+    resources = str(Path(native_ato.unzipdir) / "resources")
+    outcomes = {"accepted": 0, "refused": 0}
+    for seed in range(200):
+        folder = tmp_path / str(seed)
+        folder.mkdir()
+        line, limits = _random_line_files(seed)
+        values = _line_values(folder, line, limits, {})
+        try:
+            expected = _python_refusal(values, resources)
+        except AssertionError:                      # the Python FMU accepts these files
+            expected = None
+        status, errors = _initialisation(native_ato, values)
+        if expected is None:
+            assert status == 0, f"seed {seed}: {line!r} {limits!r}: {errors}"
+            outcomes["accepted"] += 1
+        else:
+            assert status == 3 and any(e.rstrip().endswith(expected) for e in errors), \
+                f"seed {seed}: {expected!r} not in {errors}"
+            outcomes["refused"] += 1
+    assert outcomes["accepted"] >= 20 and outcomes["refused"] >= 100, outcomes   # both met
 
 
 def test_fmu_auto_picks_the_native_fmu_for_one_span_and_a_line(tmp_path):
