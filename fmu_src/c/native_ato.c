@@ -734,15 +734,17 @@ static int build_line(GlueInstance *g, nat_instance *m, const ato_tuning *tuning
 refused_parse:
     refuse(msg, "%s", refusal.message ? refusal.message : refusal.err.msg);
 refused_files:
-    {
+    {                                               /* unless span 1's controller refuses */
         char first[MSG_SIZE];
-        first[0] = '\0';
         drop_spans(m);
-        if (alloc_line(m, 1, first) && init_line(m, tuning, first) == RC_OK)
-            ato_line_free(&m->line);                /* span 1 runs: the line files' refusal */
-        else if (first[0])
+        if (!alloc_line(m, 1, first)) {
             memcpy(msg, first, MSG_SIZE);
-        if (first[0]) refuse_first_span(msg, from_profile);
+        } else if (init_line(m, tuning, first) == RC_OK) {
+            ato_line_free(&m->line);                /* span 1 runs: the files' refusal stands */
+        } else {
+            memcpy(msg, first, MSG_SIZE);
+            refuse_first_span(msg, from_profile);
+        }
     }
 done:
     rc_profile_free(&refusal);
