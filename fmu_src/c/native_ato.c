@@ -1,6 +1,6 @@
 /* native_ato.c -- the glue's backend for an AtoController FMU without Python (issue 30): the
- * model_* functions of fmi2_glue.h on the C core's LineController (models/core/ato_line.h, one
- * span: ato_controller.h), bit-identical to models/ato.
+ * model_* functions of fmi2_glue.h on the C core's LineController (models/core/ato_line.h: one
+ * ato_controller.h per span), bit-identical to models/ato.
  *
  * It behaves as the pythonfmu slave fmu_src/ato_controller.py behind pyslave.c does:
  * - every variable holds its start value (native_ato_table.h, generated from
@@ -8,22 +8,29 @@
  * - fmi2ExitInitializationMode checks and builds as ato_controller.py's _build does, in its
  *   order and with its messages: check_span_parameters (span.stop, span.length, span.schedule,
  *   the profile file names), open_ato (span.grade_profile as RailCar reads a grade profile,
- *   span.speed_limit_profile, then Span's, CarTraction's and AtoTuning's checks and the
- *   controller's construction; models' names translated as adapter._fmu_names does: "tuning."
- *   is "ato.", span.limit_speeds[k] the profile's row k + 1 or span.speed_limit). A failure is
- *   fmi2Error with "initialisation failed: <message>". Then the outputs are the holding brake;
+ *   span.speed_limit_profile, then Span's, CarTraction's and AtoTuning's checks and span 1's
+ *   controller; models' names translated as adapter._fmu_names does: "tuning." is "ato.",
+ *   span.limit_speeds[k] the profile's row k + 1 or span.speed_limit), then open_line: a line
+ *   of several spans when line.profile names a file (one row per later span: stop, length,
+ *   schedule, dwell, boarding; their limits in line.speed_limit_profile; both read by
+ *   models/core/ato_line_profile.c with read_line_profile's and read_line_limits' rules and
+ *   messages), each later span over span.grade_profile, refusals naming the file, the line and
+ *   the span as _line_names does. A failure is fmi2Error with "initialisation failed:
+ *   <message>". Then the outputs are the holding brake of span 1;
  * - fmi2DoStep checks the step (models.chain.check_step and the time continuing the last
  *   step's end: fmi2Discard "step discarded: ...", nothing changed), asks the line for the
- *   command, publishes it and logs the controller's new events as warnings ("t = %.3f s:
- *   <text>"); fmi2Warning when the command is the safe brake (ato.mode 9).
+ *   command (a station's dwell holds the brake, ato.payload adds its boarding, ato.span says
+ *   which span runs), publishes it and logs the controllers' new events as warnings
+ *   ("t = %.3f s: [span k: ]<text>", the span named on a line of several); fmi2Warning when
+ *   the command is the safe brake (ato.mode 9).
  *
- * Not covered (refused at initialisation naming the parameter, "use AtoController.fmu"): a line
- * of several spans (line.profile, line.speed_limit_profile not empty). No FMU states (the
- * description says canGetAndSetFMUstate="false"; the glue answers "not supported").
+ * Not covered: FMU states (the description says canGetAndSetFMUstate="false"; the glue answers
+ * "not supported").
  */
 #define _POSIX_C_SOURCE 200809L
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -32,6 +39,7 @@
 #include <sys/stat.h>
 
 #include "ato_line.h"
+#include "ato_line_profile.h"
 #include "fmi2_glue.h"
 #include "native_ato_table.h"
 #include "plant.h"
@@ -58,13 +66,17 @@ typedef struct {
     /* the line, after a successful initialisation (built) */
     int built;
     double *grade_block;             /* the grade's distances, grades and integral */
-    double *limit_block;             /* the limits' distances and speeds */
-    rc_ato_span span;
+    double *limit_block;             /* span 1's limits: distances and speeds */
+    rc_ato_span span;                /* span 1 (span.*), as open_ato reads it */
     rc_ato_car car;
-    double dwell, boarding, departure;
-    ato_controller *controller;
+    int n_spans;                     /* span 1 and line.profile's rows */
+    rc_ato_span *spans;              /* n_spans; the later ones over span 1's grade */
+    double *line_block;              /* n_spans each: dwells, boardings, departures, and two
+                                        for a later span without limit rows: 0, span.speed_limit */
+    ato_line_limits line_limits;     /* line.speed_limit_profile's */
+    ato_controller *controllers;     /* n_spans */
     ato_line line;
-    long logged;                     /* the controller's events logged so far */
+    long *logged;                    /* n_spans: each controller's events logged so far */
 } nat_instance;
 
 #define MODEL(g) ((nat_instance *)(g)->model)
@@ -89,13 +101,20 @@ static void start_values(nat_instance *m) {
 static void drop_line(nat_instance *m) {
     if (m->built) ato_line_free(&m->line);
     m->built = 0;
-    free(m->controller);
+    free(m->controllers);
     free(m->grade_block);
     free(m->limit_block);
-    m->controller = NULL;
+    free(m->spans);
+    free(m->line_block);
+    free(m->logged);
+    ato_line_limits_free(&m->line_limits);
+    m->controllers = NULL;
     m->grade_block = NULL;
     m->limit_block = NULL;
-    m->logged = 0;
+    m->spans = NULL;
+    m->line_block = NULL;
+    m->logged = NULL;
+    m->n_spans = 0;
 }
 
 /* --------------------------------------------------------------------------- lifecycle */
@@ -265,9 +284,11 @@ static const char *repr(double x, char *buf) {
     return buf;
 }
 
-/* adapter._fmu_names: "span.limit_speeds[k]" / "span.limit_distances[k]" -> "span.speed_limit_profile
-   row k+1" (the limits came from the profile) or "span.speed_limit"; "tuning." -> "ato." */
-static void fmu_names(char *msg, int from_profile) {
+/* adapter._fmu_names / ato_controller._line_names: "span.limit_speeds[k]" and
+   "span.limit_distances[k]" -> "<rows> row k+1" when the limits came from a file (rows: e.g.
+   "span.speed_limit_profile", "line.speed_limit_profile span 3"), else "span.speed_limit";
+   "tuning." -> "ato." */
+static void fmu_names(char *msg, const char *rows) {
     char out[MSG_SIZE];
     size_t o = 0;
     const char *p = msg;
@@ -280,10 +301,8 @@ static void fmu_names(char *msg, int from_profile) {
             char *end;
             k = strtol(rest, &end, 10);
             if (*end == ']') {
-                char with[64];
-                if (from_profile) snprintf(with, sizeof with, "span.speed_limit_profile row %ld", k + 1);
-                else snprintf(with, sizeof with, "span.speed_limit");
-                o += (size_t)snprintf(out + o, sizeof out - o, "%s", with);
+                if (rows) o += (size_t)snprintf(out + o, sizeof out - o, "%s row %ld", rows, k + 1);
+                else o += (size_t)snprintf(out + o, sizeof out - o, "span.speed_limit");
                 if (o >= sizeof out) o = sizeof out - 1;
                 p = end + 1;
                 continue;
@@ -302,31 +321,6 @@ static void fmu_names(char *msg, int from_profile) {
 }
 
 /* ------------------------------------------------------------------------- profile files */
-
-/* str(pathlib.Path(path)) of a POSIX path: repeated '/' and "." parts dropped, no trailing '/' */
-static void path_str(const char *path, char *out, size_t size) {
-    size_t o = 0;
-    const char *p = path;
-    int absolute = *p == '/';
-    if (absolute && o + 1 < size) out[o++] = '/';
-    while (*p) {
-        const char *e;
-        size_t n;
-        while (*p == '/') p++;
-        e = p;
-        while (*e && *e != '/') e++;
-        n = (size_t)(e - p);
-        if (n && !(n == 1 && *p == '.')) {
-            if (o > (size_t)absolute && o + 1 < size) out[o++] = '/';
-            if (o + n >= size) n = size - o - 1;
-            memcpy(out + o, p, n);
-            o += n;
-        }
-        p = e;
-    }
-    if (o == 0 && size > 1) out[o++] = '.';
-    out[o] = '\0';
-}
 
 /* check_span_parameters' file-name check: a name the file system refuses names the parameter */
 static int usable_name(GlueInstance *g, const nat_instance *m, int vr, char *msg) {
@@ -397,30 +391,34 @@ static int read_grade(GlueInstance *g, nat_instance *m, char *msg) {
     return 1;
 }
 
-/* the whole file (a regular file of at most RC_PROFILE_MAX_BYTES: rc_profile_read_file said so);
-   malloc'd, NULL on failure */
-static char *read_bytes(const char *path, size_t *len) {
-    FILE *f = fopen(path, "rb");
-    char *data;
-    size_t n = 0, got;
-    if (!f) return NULL;
-    data = malloc((size_t)RC_PROFILE_MAX_BYTES + 1);
-    if (data)
-        while ((got = fread(data + n, 1, (size_t)RC_PROFILE_MAX_BYTES + 1 - n, f)) > 0) n += got;
-    fclose(f);
-    *len = n;
-    return data;
+/* read_profile_text: the text of the file the parameter `param` (value raw) names, 1 with
+   *text NULL for an empty raw; else 0 with Python's refusal in msg. *text and *where (str(path))
+   malloc'd: the caller frees them. */
+static int read_text(GlueInstance *g, const char *param, const char *raw, char **text,
+                     size_t *len, char **where, char *msg) {
+    rc_profile refusal;
+    char *path;
+    int status;
+    *text = NULL;
+    *where = NULL;
+    *len = 0;
+    if (!raw[0]) return 1;
+    if (!(path = gc_resolve_profile_path(raw, g->resources))) return refuse(msg, "out of memory");
+    status = rc_profile_read_text(path, param, raw, text, len, where, &refusal);
+    free(path);
+    if (status == RC_OK) return 1;
+    refuse(msg, "%s", refusal.message ? refusal.message : refusal.err.msg);
+    rc_profile_free(&refusal);
+    return 0;
 }
 
 /* open_ato's limits: span.speed_limit_profile (parse_profile_csv with columns distance_m,
-   speed_limit_mps) or the one limit span.speed_limit. The file is read by
-   rc_profile_read_file first, for read_profile_text's messages (a file that cannot be read, is
-   not a regular file, too big, not UTF-8); its table is then parsed with the limit columns. */
+   speed_limit_mps, read by read_profile_text) or the one limit span.speed_limit */
 static int read_limits(GlueInstance *g, nat_instance *m, int *from_profile, char *msg) {
     const char *raw = string_of(m, NAT_VR_SPAN_SPEED_LIMIT_PROFILE);
-    rc_profile prof, lim;
-    char *path, *text, source[4096];
-    size_t len = 0;
+    rc_profile lim;
+    char *text, *where;
+    size_t len;
     int status;
     *from_profile = raw[0] != '\0';
     if (!raw[0]) {
@@ -432,25 +430,10 @@ static int read_limits(GlueInstance *g, nat_instance *m, int *from_profile, char
         m->span.limit_speeds = m->limit_block + 1;
         return 1;
     }
-    if (!(path = gc_resolve_profile_path(raw, g->resources))) return refuse(msg, "out of memory");
-    memset(&prof, 0, sizeof prof);
-    status = rc_profile_read_file(path, "span.speed_limit_profile", raw, RC_PROFILE_SPEED, &prof);
-    if (status != RC_OK && prof.message &&
-        (!strncmp(prof.message, "span.speed_limit_profile: cannot read '", 39) ||
-         strstr(prof.message, ": not UTF-8 text (byte offset "))) {
-        refuse(msg, "%s", prof.message);                  /* the file itself */
-        rc_profile_free(&prof);
-        free(path);
-        return 0;
-    }
-    rc_profile_free(&prof);
-    path_str(path, source, sizeof source);
-    text = read_bytes(path, &len);
-    free(path);
-    if (!text) return refuse(msg, "span.speed_limit_profile: cannot read '%s'", raw);
-    memset(&lim, 0, sizeof lim);
-    status = rc_profile_parse(text, len, source, "distance_m", "speed_limit_mps", 0, INFINITY, &lim);
+    if (!read_text(g, "span.speed_limit_profile", raw, &text, &len, &where, msg)) return 0;
+    status = rc_profile_parse(text, len, where, "distance_m", "speed_limit_mps", 0, INFINITY, &lim);
     free(text);
+    free(where);
     if (status != RC_OK) {
         refuse(msg, "span.speed_limit_profile: %s", lim.message ? lim.message : lim.err.msg);
         rc_profile_free(&lim);
@@ -616,8 +599,162 @@ static void publish(nat_instance *m, double traction, double brake, int mode, do
     m->real[NAT_VR_ATO_PREDICTED_ARRIVAL] = ato_controller_predicted_arrival(c);
 }
 
-static const char NOT_COVERED[] = "not covered by the native AtoController (it runs one span): "
-                                  "use AtoController.fmu";
+/* the room of a line of n spans (span 1 copied in): the spans, their dwells, boardings,
+   departures and default limits, the controllers, the events logged; 1, or 0 with msg */
+static int alloc_line(nat_instance *m, int n, char *msg) {
+    m->spans = calloc((size_t)n, sizeof *m->spans);
+    m->line_block = calloc(5 * (size_t)n, sizeof(double));
+    m->controllers = calloc((size_t)n, sizeof *m->controllers);
+    m->logged = calloc((size_t)n, sizeof *m->logged);
+    if (!m->spans || !m->line_block || !m->controllers || !m->logged)
+        return refuse(msg, "out of memory");
+    m->n_spans = n;
+    m->spans[0] = m->span;      /* LineSpan(span): the first span has no dwell nor boarding */
+    return 1;
+}
+
+/* what alloc_line and the line files gave (span 1's own blocks stay) */
+static void drop_spans(nat_instance *m) {
+    free(m->spans);
+    free(m->line_block);
+    free(m->controllers);
+    free(m->logged);
+    ato_line_limits_free(&m->line_limits);
+    m->spans = NULL;
+    m->line_block = NULL;
+    m->controllers = NULL;
+    m->logged = NULL;
+    m->n_spans = 0;
+}
+
+/* LineController(spans, car, tuning) over m->spans: RC_OK, or a LineError's "span k: ..." in msg */
+static rc_status init_line(nat_instance *m, const ato_tuning *tuning, char *msg) {
+    int n = m->n_spans;
+    return ato_line_init(&m->line, n, m->spans, m->line_block, m->line_block + n, &m->car, tuning,
+                         m->controllers, m->line_block + 2 * n, msg);
+}
+
+/* span 1's AtoController refused (open_ato's ValueError): msg without LineError's "span 1: " */
+static int refuse_first_span(char *msg, int from_profile) {
+    if (!strncmp(msg, "span 1: ", 8)) memmove(msg, msg + 8, strlen(msg + 8) + 1);
+    fmu_names(msg, from_profile ? "span.speed_limit_profile" : NULL);
+    return 0;
+}
+
+/* open_line after open_ato's checks: the line files (line.profile's rows, their limits in
+   line.speed_limit_profile), a Span per row over span 1's grade, then the LineController. 1, or
+   0 with Python's refusal in msg. Python builds span 1's AtoController (open_ato) before it
+   reads the line files, so its refusal wins over theirs. */
+static int build_line(GlueInstance *g, nat_instance *m, const ato_tuning *tuning,
+                      int from_profile, char *msg) {
+    char *line_text = NULL, *line_where = NULL, *lim_text = NULL, *lim_where = NULL;
+    size_t line_len = 0, lim_len = 0;
+    ato_line_row *rows = NULL;
+    long n_rows = 0, j;
+    rc_profile refusal;
+    int ok = 0, n;
+    memset(&refusal, 0, sizeof refusal);
+    if (!read_text(g, "line.profile", string_of(m, NAT_VR_LINE_PROFILE), &line_text, &line_len,
+                   &line_where, msg) ||
+        !read_text(g, "line.speed_limit_profile", string_of(m, NAT_VR_LINE_SPEED_LIMIT_PROFILE),
+                   &lim_text, &lim_len, &lim_where, msg))
+        goto refused_files;
+    if (!line_text && lim_text) {
+        refuse(msg, "line.speed_limit_profile: %s: given without line.profile (the spans it "
+               "limits)", lim_where);
+        goto refused_files;
+    }
+    if (line_text) {
+        if (ato_line_profile_parse(line_text, line_len, line_where, &rows, &n_rows, &refusal)
+                != RC_OK)
+            goto refused_parse;
+        if (n_rows >= INT_MAX / 8) {
+            refuse(msg, "line.profile: %s: out of memory (%ld spans)", line_where, n_rows);
+            goto refused_files;
+        }
+        if (lim_text && ato_line_limits_parse(lim_text, lim_len, lim_where, (int)n_rows + 1,
+                                              &m->line_limits, &refusal) != RC_OK)
+            goto refused_parse;
+    }
+    n = (int)n_rows + 1;
+    if (!alloc_line(m, n, msg)) goto done;
+    for (j = 0; j < n_rows; j++) {                  /* span k = j + 2 */
+        const ato_line_row *row = &rows[j];
+        rc_ato_span *s = &m->spans[j + 1];
+        double *fallback = m->line_block + 3 * n + 2 * (j + 1);
+        int k = (int)j + 2, limited = m->line_limits.count && m->line_limits.count[k] > 0;
+        s->length = row->length != 0.0 ? row->length : row->stop;
+        s->schedule = row->schedule;
+        s->stop = row->stop;
+        s->grade = m->span.grade;
+        if (limited) {
+            s->n_limits = (int)m->line_limits.count[k];
+            s->limit_distances = m->line_limits.distances + m->line_limits.first[k];
+            s->limit_speeds = m->line_limits.speeds + m->line_limits.first[k];
+        } else {                                    /* ([0.0], [span.speed_limit]) */
+            fallback[0] = 0.0;
+            fallback[1] = m->real[NAT_VR_SPAN_SPEED_LIMIT];
+            s->n_limits = 1;
+            s->limit_distances = fallback;
+            s->limit_speeds = fallback + 1;
+        }
+        m->line_block[j + 1] = row->dwell;
+        m->line_block[n + j + 1] = row->boarding;
+        if (!check_span(s, msg)) {
+            char rows_of[64];
+            snprintf(rows_of, sizeof rows_of, "line.speed_limit_profile span %d", k);
+            fmu_names(msg, limited ? rows_of : NULL);
+            {
+                char reason[MSG_SIZE];
+                memcpy(reason, msg, MSG_SIZE);
+                refuse(msg, "line.profile: %s: line %ld (span %d): %s", line_where, row->line, k,
+                       reason);
+            }
+            goto refused_files;
+        }
+    }
+    if (init_line(m, tuning, msg) != RC_OK) {
+        char *end = NULL;
+        long k = !strncmp(msg, "span ", 5) ? strtol(msg + 5, &end, 10) : 0;
+        if (k <= 1 || !end || strncmp(end, ": ", 2) || k > n) {
+            refuse_first_span(msg, from_profile);
+        } else {                                    /* AtoController's refusal of span k */
+            char reason[MSG_SIZE], rows_of[64];
+            int limited = m->line_limits.count && m->line_limits.count[k] > 0;
+            snprintf(reason, sizeof reason, "%s", end + 2);
+            snprintf(rows_of, sizeof rows_of, "line.speed_limit_profile span %ld", k);
+            fmu_names(reason, limited ? rows_of : NULL);
+            refuse(msg, "line.profile: %s: line %ld (span %ld): the ATO cannot run this span: %s",
+                   line_where, rows[k - 2].line, k, reason);
+        }
+        goto done;
+    }
+    ok = 1;
+    goto done;
+refused_parse:
+    refuse(msg, "%s", refusal.message ? refusal.message : refusal.err.msg);
+refused_files:
+    {                                               /* unless span 1's controller refuses */
+        char first[MSG_SIZE];
+        drop_spans(m);
+        if (!alloc_line(m, 1, first)) {
+            memcpy(msg, first, MSG_SIZE);
+        } else if (init_line(m, tuning, first) == RC_OK) {
+            ato_line_free(&m->line);                /* span 1 runs: the files' refusal stands */
+        } else {
+            memcpy(msg, first, MSG_SIZE);
+            refuse_first_span(msg, from_profile);
+        }
+    }
+done:
+    rc_profile_free(&refusal);
+    free(rows);
+    free(line_text);
+    free(line_where);
+    free(lim_text);
+    free(lim_where);
+    return ok;
+}
 
 /* _build: 1, or 0 with the refusal in msg */
 static int build(GlueInstance *g, nat_instance *m, char *msg) {
@@ -632,28 +769,15 @@ static int build(GlueInstance *g, nat_instance *m, char *msg) {
     m->span.length = length != 0.0 ? length : m->span.stop;
     m->span.schedule = m->real[NAT_VR_SPAN_SCHEDULE];
     if (!check_span(&m->span, msg) || !read_car(m, &m->car, msg) || !read_tuning(m, &tuning, msg)) {
-        fmu_names(msg, from_profile);
+        fmu_names(msg, from_profile ? "span.speed_limit_profile" : NULL);
         return 0;
     }
     {
         rc_error err;
         if (ato_tuning_validate(&tuning, "ato.", &err) != RC_OK) return refuse(msg, "%s", err.msg);
     }
-    if (!(m->controller = malloc(sizeof *m->controller))) return refuse(msg, "out of memory");
-    m->dwell = 0.0;           /* LineSpan(span): the first span has no dwell nor boarding */
-    m->boarding = 0.0;
-    if (ato_line_init(&m->line, 1, &m->span, &m->dwell, &m->boarding, &m->car, &tuning,
-                      m->controller, &m->departure, msg) != RC_OK) {
-        /* open_ato builds the AtoController itself: its ValueError without LineError's span */
-        if (!strncmp(msg, "span 1: ", 8)) memmove(msg, msg + 8, strlen(msg + 8) + 1);
-        fmu_names(msg, from_profile);
-        return 0;
-    }
+    if (!build_line(g, m, &tuning, from_profile, msg)) return 0;
     m->built = 1;
-    if (string_of(m, NAT_VR_LINE_PROFILE)[0])
-        return refuse(msg, "line.profile: %s", NOT_COVERED);
-    if (string_of(m, NAT_VR_LINE_SPEED_LIMIT_PROFILE)[0])
-        return refuse(msg, "line.speed_limit_profile: %s", NOT_COVERED);
     m->real[NAT_VR_ATO_PAYLOAD] = 0.0;
     m->integer[NAT_VR_ATO_SPAN] = 1;
     publish(m, 0.0, tuning.hold_brake * m->car.brake_force_max, ATO_MODE_HOLD, 0.0, 0);
@@ -673,7 +797,6 @@ fmi2Status model_exit_initialization_mode(GlueInstance *g) {
         return fmi2Error;
     }
     m->time = m->start_time;
-    m->logged = 0;
     return fmi2OK;
 }
 
@@ -724,16 +847,21 @@ fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size)
     m->integer[NAT_VR_ATO_SPAN] = step.span + 1;
     publish(m, step.command.traction, step.command.brake, step.command.mode,
             step.command.planned_speed, step.command.ep_stage);
-    c = &m->line.controllers[0];
-    if (c->n_events - m->logged > ATO_EVENT_RING)
-        glue_log(g, fmi2Warning, "logStatusWarning", "t = %.3f s: %ld events not logged (more "
-                 "than %d in one step)", current_time, c->n_events - m->logged - ATO_EVENT_RING,
-                 ATO_EVENT_RING);
-    for (e = m->logged; e < c->n_events; e++) {
-        const ato_event *ev = ato_controller_event(c, e);
-        if (ev) glue_log(g, fmi2Warning, "logStatusWarning", "t = %.3f s: %s", ev->t, ev->text);
+    for (k = 0; k < m->n_spans; k++) {     /* line.events(): span by span, in time order */
+        char head[32] = "";
+        c = &m->line.controllers[k];
+        if (m->n_spans > 1) snprintf(head, sizeof head, "span %d: ", k + 1);
+        if (c->n_events - m->logged[k] > ATO_EVENT_RING)
+            glue_log(g, fmi2Warning, "logStatusWarning", "t = %.3f s: %s%ld events not logged "
+                     "(more than %d in one step)", current_time, head,
+                     c->n_events - m->logged[k] - ATO_EVENT_RING, ATO_EVENT_RING);
+        for (e = m->logged[k]; e < c->n_events; e++) {
+            const ato_event *ev = ato_controller_event(c, e);
+            if (ev) glue_log(g, fmi2Warning, "logStatusWarning", "t = %.3f s: %s%s", ev->t, head,
+                             ev->text);
+        }
+        m->logged[k] = c->n_events;
     }
-    m->logged = c->n_events;
     m->time = current_time + step_size;
     return step.command.mode == ATO_MODE_SAFE ? fmi2Warning : fmi2OK;
 }

@@ -1,9 +1,10 @@
 """Where the FMUs are, building them (in a subprocess) when missing or stale, and which kind runs.
 
 Two kinds of FMU run the same model (docs/using_fmus.md): the pythonfmu FMUs ``DIST/RailCar.fmu``,
-``DIST/RailCarEstimator.fmu`` (every option) and the native ones ``DIST/native/RailCarNative.fmu``,
-``DIST/native/RailCarEstimatorNative.fmu`` (the C core: bit-identical outputs, no Python, but
-``est.method`` 1 and 3 are refused at initialisation).
+``DIST/RailCarEstimator.fmu``, ``DIST/AtoController.fmu`` (every option) and the native ones
+``DIST/native/RailCarNative.fmu``, ``DIST/native/RailCarEstimatorNative.fmu`` (the C core:
+bit-identical outputs, no Python, but ``est.method`` 1 and 3 are refused at initialisation) and
+``DIST/native/AtoControllerNative.fmu`` (every AtoController parameter: one span or a line).
 ``--fmu`` picks one (``choose``): ``python``, ``native``, or ``auto`` (the default): the native FMU
 when it covers every parameter set the command will run, else the pythonfmu FMU. The
 choice is always printed (``FmuChoice.line``) and recorded in what the command writes.
@@ -55,19 +56,14 @@ COVERED_VALUES = {"est.method": (0, 2)}
 rest): a refusal names the options set outside them."""
 
 
-ATO_NOT_COVERED = ("line.profile", "line.speed_limit_profile")
-"""The AtoController's parameters its native FMU refuses when set (a line of several spans:
-fmu_src/c/native_ato.c runs one)."""
-
-
 def uncovered(model: str, parameters: dict) -> str | None:
     """Why the native ``model`` FMU would refuse these parameter values (None: it runs them). Decided by models.compiled (not_covered), the rule the C core is built to; the reason
-    names the parameters and values. Unset parameters take the FMU's start values."""
+    names the parameters and values. Unset parameters take the FMU's start values. The native
+    AtoController runs every parameter set the pythonfmu one runs (a line too: native_ato.c)."""
     from fmu_src.adapter import chain_config, estimator_settings
     from fmu_src.variables import ATO, RAILCAR, variables_for
     if model == ATO:
-        named = [f"{n} = {parameters[n]!r}" for n in ATO_NOT_COVERED if parameters.get(n)]
-        return ", ".join(named) or None
+        return None
     from models.compiled import estimator_not_covered, not_covered
     v = {x.name: x.start for x in variables_for(model) if x.causality == "parameter"}
     v.update(parameters)

@@ -18,6 +18,7 @@
 
 #include <errno.h>
 #include <limits.h>
+#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -88,11 +89,11 @@ static void put_repr(msgbuf *b, double x)          /* f"{x}" */
     puts_(b, t);
 }
 
-static void put_g(msgbuf *b, double x)             /* f"{x:g}" */
+void rc_profile_g(double x, char *buf, size_t size)      /* f"{x:g}" */
 {
     char t[64];
     if (isnan(x)) {
-        puts_(b, "nan");                            /* Python never writes "-nan" */
+        snprintf(buf, size, "nan");                 /* Python never writes "-nan" */
         return;
     }
     snprintf(t, sizeof t, "%g", x);
@@ -112,6 +113,13 @@ static void put_g(msgbuf *b, double x)             /* f"{x:g}" */
         }
     }
     t[w] = '\0';
+    snprintf(buf, size, "%s", t);
+}
+
+static void put_g(msgbuf *b, double x)             /* f"{x:g}" */
+{
+    char t[64];
+    rc_profile_g(x, t, sizeof t);
     puts_(b, t);
 }
 
@@ -402,7 +410,7 @@ static int py_float(const unsigned char *s, size_t n, char *scratch, double *x)
     return 1;
 }
 
-/* ---- parse_profile_csv ------------------------------------------------------------------ */
+/* ---- csv_number_rows ---------------------------------------------------------------------- */
 
 typedef struct {
     size_t b, e;
@@ -434,19 +442,34 @@ static void quoted_line(msgbuf *m, const unsigned char *s, span line)
     puts_(m, "'");
 }
 
-static int parse(const char *text, size_t len, const char *source, const char *col0,
-                 const char *col1, int nonnegative_values, double max_abs_value,
-                 const char *prefix, rc_profile *out)
+/* ','.join(columns) */
+static void put_columns(msgbuf *m, const char *const *columns, int n_columns)
+{
+    for (int k = 0; k < n_columns; k++) {
+        if (k > 0)
+            puts_(m, ",");
+        puts_(m, columns[k]);
+    }
+}
+
+int rc_csv_rows_open(rc_csv_rows *r, const char *text, size_t len, const char *source,
+                     const char *prefix, const char *const *columns, int n_columns,
+                     rc_profile *out)
 {
     const unsigned char *s = (const unsigned char *)text;
-    msgbuf m = {NULL, 0, 0, 0};
+    memset(r, 0, sizeof *r);
     memset(out, 0, sizeof *out);
+    if (n_columns < 1 || n_columns > RC_CSV_MAX_COLUMNS) {
+        snprintf(out->err.msg, RC_MSG_SIZE, "a CSV of %d columns: 1 .. %d are read", n_columns,
+                 RC_CSV_MAX_COLUMNS);
+        return RC_BAD_CONFIG;
+    }
     if (!text)
         len = 0;
     size_t start = 0;
     if (len >= 3 && s[0] == 0xEF && s[1] == 0xBB && s[2] == 0xBF)    /* the BOM */
         start = 3;
-    /* first pass: how many lines (the rows' room) and the longest (the numbers' scratch) */
+    /* how many lines (a bound on the rows) and the longest (the numbers' scratch) */
     size_t lines = 0, longest = 0, pos = start;
     while (pos < len) {
         size_t e = pos, br = 0;
@@ -462,29 +485,37 @@ static int parse(const char *text, size_t len, const char *source, const char *c
         snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
         return RC_BAD_CONFIG;
     }
-    double *rows = malloc(sizeof(double) * 2 * (lines ? lines : 1));
-    char *scratch = malloc(2 * longest + 40);
-    if (!rows || !scratch) {
-        free(rows);
-        free(scratch);
+    r->scratch = malloc(2 * longest + 40);
+    if (!r->scratch) {
         snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
         return RC_BAD_CONFIG;
     }
-    double *distances = rows, *values = rows + (lines ? lines : 1);
-    long n = 0, lineno = 0;
-    int header_seen = 0;
-    pos = start;
-    while (pos < len) {
-        size_t e = pos, br = 0;
-        while (e < len && (br = line_break(s, len, e)) == 0)
+    r->s = s;
+    r->len = len;
+    r->pos = start;
+    r->source = source;
+    r->prefix = prefix;
+    r->columns = columns;
+    r->n_columns = n_columns;
+    r->lines = lines;
+    return RC_OK;
+}
+
+int rc_csv_rows_next(rc_csv_rows *r, double *values, long *lineno, rc_profile *out)
+{
+    const unsigned char *s = r->s;
+    msgbuf m = {NULL, 0, 0, 0};
+    while (r->pos < r->len) {
+        size_t e = r->pos, br = 0;
+        while (e < r->len && (br = line_break(s, r->len, e)) == 0)
             e++;
-        span line = {pos, e};
-        pos = e + br;
-        lineno++;
+        span line = {r->pos, e};
+        r->pos = e + br;
+        r->lineno++;
         strip(s, &line.b, &line.e);
         if (line.b == line.e || s[line.b] == '#')
             continue;
-        span cells[2];
+        span cells[RC_CSV_MAX_COLUMNS];
         size_t n_cells = 0, cb = line.b;
         for (size_t i = line.b; i <= line.e; i++) {
             if (i < line.e && s[i] != ',')
@@ -495,47 +526,95 @@ static int parse(const char *text, size_t len, const char *source, const char *c
                 c.b++;
             while (c.e > c.b && s[c.e - 1] == '"')
                 c.e--;
-            if (n_cells < 2)
+            if (n_cells < RC_CSV_MAX_COLUMNS)
                 cells[n_cells] = c;
             n_cells++;
             cb = i + 1;
         }
-        if (!header_seen) {
-            if (!(n_cells == 2 && span_is(s, cells[0], col0) && span_is(s, cells[1], col1))) {
-                begin(&m, prefix, source, lineno);
+        if (!r->header_seen) {
+            int same = n_cells == (size_t)r->n_columns;
+            for (int k = 0; same && k < r->n_columns; k++)
+                same = span_is(s, cells[k], r->columns[k]);
+            if (!same) {
+                begin(&m, r->prefix, r->source, r->lineno);
                 puts_(&m, "header must be '");
-                puts_(&m, col0);
-                puts_(&m, ",");
-                puts_(&m, col1);
+                put_columns(&m, r->columns, r->n_columns);
                 puts_(&m, "', got ");
                 quoted_line(&m, s, line);
-                goto refused;
+                return refuse(out, &m), -1;
             }
-            header_seen = 1;
+            r->header_seen = 1;
             continue;
         }
-        if (n_cells != 2) {
-            begin(&m, prefix, source, lineno);
-            puts_(&m, "expected 2 values, got ");
+        if (n_cells != (size_t)r->n_columns) {
+            begin(&m, r->prefix, r->source, r->lineno);
+            puts_(&m, "expected ");
+            put_long(&m, r->n_columns);
+            puts_(&m, " values, got ");
             put_size(&m, n_cells);
             puts_(&m, ": ");
             quoted_line(&m, s, line);
-            goto refused;
+            return refuse(out, &m), -1;
         }
-        double d, v;
-        if (!py_float(s + cells[0].b, cells[0].e - cells[0].b, scratch, &d)
-                || !py_float(s + cells[1].b, cells[1].e - cells[1].b, scratch, &v)) {
-            begin(&m, prefix, source, lineno);
-            puts_(&m, "not a number: ");
-            quoted_line(&m, s, line);
-            goto refused;
+        int finite = 1;
+        for (int k = 0; k < r->n_columns; k++) {
+            if (!py_float(s + cells[k].b, cells[k].e - cells[k].b, r->scratch, &values[k])) {
+                begin(&m, r->prefix, r->source, r->lineno);
+                puts_(&m, "not a number: ");
+                quoted_line(&m, s, line);
+                return refuse(out, &m), -1;
+            }
+            finite = finite && isfinite(values[k]);
         }
-        if (!(isfinite(d) && isfinite(v))) {
-            begin(&m, prefix, source, lineno);
+        if (!finite) {
+            begin(&m, r->prefix, r->source, r->lineno);
             puts_(&m, "non-finite value: ");
             quoted_line(&m, s, line);
-            goto refused;
+            return refuse(out, &m), -1;
         }
+        *lineno = r->lineno;
+        return 1;
+    }
+    if (!r->header_seen) {
+        begin(&m, r->prefix, r->source, 1);
+        puts_(&m, "empty file, expected header '");
+        put_columns(&m, r->columns, r->n_columns);
+        puts_(&m, "'");
+        return refuse(out, &m), -1;
+    }
+    return 0;
+}
+
+void rc_csv_rows_close(rc_csv_rows *r)
+{
+    free(r->scratch);
+    r->scratch = NULL;
+}
+
+/* ---- parse_profile_csv ------------------------------------------------------------------ */
+
+static int parse(const char *text, size_t len, const char *source, const char *col0,
+                 const char *col1, int nonnegative_values, double max_abs_value,
+                 const char *prefix, rc_profile *out)
+{
+    const char *const columns[2] = {col0, col1};
+    rc_csv_rows r;
+    msgbuf m = {NULL, 0, 0, 0};
+    if (rc_csv_rows_open(&r, text, len, source, prefix, columns, 2, out) != RC_OK)
+        return RC_BAD_CONFIG;
+    size_t lines = r.lines;
+    double *rows = malloc(sizeof(double) * 2 * (lines ? lines : 1));
+    if (!rows) {
+        rc_csv_rows_close(&r);
+        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
+        return RC_BAD_CONFIG;
+    }
+    double *distances = rows, *values = rows + (lines ? lines : 1);
+    long n = 0, lineno = 0;
+    double row[2];
+    int got;
+    while ((got = rc_csv_rows_next(&r, row, &lineno, out)) == 1) {
+        double d = row[0], v = row[1];
         if (d < 0) {
             begin(&m, prefix, source, lineno);
             puts_(&m, col0);
@@ -573,21 +652,17 @@ static int parse(const char *text, size_t len, const char *source, const char *c
         values[n] = v;
         n++;
     }
-    if (!header_seen) {
-        begin(&m, prefix, source, 1);
-        puts_(&m, "empty file, expected header '");
-        puts_(&m, col0);
-        puts_(&m, ",");
-        puts_(&m, col1);
-        puts_(&m, "'");
-        goto refused;
+    rc_csv_rows_close(&r);
+    if (got < 0) {                                    /* the row reader's refusal is in out */
+        free(rows);
+        return RC_BAD_CONFIG;
     }
     if (n == 0) {
         begin(&m, prefix, source, 0);
         puts_(&m, "no data rows after the header");
-        goto refused;
+        free(rows);
+        return refuse(out, &m);
     }
-    free(scratch);
     if (values != distances + n)                       /* close the gap: one block of 2 n */
         memmove(distances + n, values, sizeof(double) * (size_t)n);
     out->distances = distances;
@@ -595,8 +670,8 @@ static int parse(const char *text, size_t len, const char *source, const char *c
     out->n = n;
     return RC_OK;
 refused:
+    rc_csv_rows_close(&r);
     free(rows);
-    free(scratch);
     return refuse(out, &m);
 }
 
@@ -803,6 +878,72 @@ static int refuse_unfit_file(msgbuf *m, const char *param, const char *shown, co
     return 1;
 }
 
+int rc_profile_read_text(const char *path, const char *param, const char *raw, char **text,
+                         size_t *len, char **where, rc_profile *out)
+{
+    msgbuf m = {NULL, 0, 0, 0};
+    char *data = NULL;
+    size_t n = 0;
+    *text = NULL;
+    *len = 0;
+    *where = NULL;
+    memset(out, 0, sizeof *out);
+    char *w = path_str(path ? path : "");
+    if (!w) {
+        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
+        return RC_BAD_CONFIG;
+    }
+    const char *shown = raw ? raw : path;
+    int e = 0;
+    if (refuse_unfit_file(&m, param, shown, w, &e) && !e)
+        goto refused;
+    if (!e)
+        e = read_all(w, (size_t)RC_PROFILE_MAX_BYTES, &data, &n);
+    if (e == ENOMEM) {
+        free(w);
+        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
+        return RC_BAD_CONFIG;
+    }
+    if (e) {
+        puts_(&m, param);
+        puts_(&m, ": cannot read '");
+        puts_(&m, shown);
+        puts_(&m, "' (looked for ");
+        puts_(&m, w);
+        puts_(&m, "): ");
+        puts_(&m, strerror(e));
+        goto refused;
+    }
+    if (n > RC_PROFILE_MAX_BYTES) {                 /* it grew after stat() */
+        puts_(&m, param);
+        puts_(&m, ": cannot read '");
+        puts_(&m, shown);
+        puts_(&m, "' (looked for ");
+        puts_(&m, w);
+        puts_(&m, "): it grew past the " RC_PROFILE_MAX_TEXT " a profile may have while it "
+                  "was read");
+        goto refused;
+    }
+    long bad = utf8_error((const unsigned char *)data, n);
+    if (bad >= 0) {
+        puts_(&m, param);
+        puts_(&m, ": ");
+        puts_(&m, w);
+        puts_(&m, ": not UTF-8 text (byte offset ");
+        put_long(&m, bad);
+        puts_(&m, ")");
+        goto refused;
+    }
+    *text = data;
+    *len = n;
+    *where = w;
+    return RC_OK;
+refused:
+    free(data);
+    free(w);
+    return refuse(out, &m);
+}
+
 int rc_profile_read_file(const char *path, const char *param, const char *raw,
                          rc_profile_kind kind, rc_profile *out)
 {
@@ -810,53 +951,11 @@ int rc_profile_read_file(const char *path, const char *param, const char *raw,
     char *data = NULL;
     size_t len = 0;
     int status;
-    memset(out, 0, sizeof *out);
-    char *where = path_str(path ? path : "");
-    if (!where) {
-        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
-        return RC_BAD_CONFIG;
-    }
-    int e = 0;
-    if (param && refuse_unfit_file(&m, param, raw ? raw : path, where, &e) && !e)
-        goto refused;
-    if (!e)
-        e = read_all(where, param ? (size_t)RC_PROFILE_MAX_BYTES : SIZE_MAX, &data, &len);
-    if (e == ENOMEM) {
-        free(where);
-        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
-        return RC_BAD_CONFIG;
-    }
     if (param) {                                     /* fmu_src/adapter.py load_profiles */
-        if (e) {
-            puts_(&m, param);
-            puts_(&m, ": cannot read '");
-            puts_(&m, raw ? raw : path);
-            puts_(&m, "' (looked for ");
-            puts_(&m, where);
-            puts_(&m, "): ");
-            puts_(&m, strerror(e));
-            goto refused;
-        }
-        if (len > RC_PROFILE_MAX_BYTES) {           /* it grew after stat() */
-            puts_(&m, param);
-            puts_(&m, ": cannot read '");
-            puts_(&m, raw ? raw : path);
-            puts_(&m, "' (looked for ");
-            puts_(&m, where);
-            puts_(&m, "): it grew past the " RC_PROFILE_MAX_TEXT " a profile may have while it "
-                      "was read");
-            goto refused;
-        }
-        long bad = utf8_error((const unsigned char *)data, len);
-        if (bad >= 0) {
-            puts_(&m, param);
-            puts_(&m, ": ");
-            puts_(&m, where);
-            puts_(&m, ": not UTF-8 text (byte offset ");
-            put_long(&m, bad);
-            puts_(&m, ")");
-            goto refused;
-        }
+        char *where;
+        status = rc_profile_read_text(path, param, raw, &data, &len, &where, out);
+        if (status != RC_OK)
+            return status;
         puts_(&m, param);
         puts_(&m, ": ");
         if (m.oom) {
@@ -867,7 +966,23 @@ int rc_profile_read_file(const char *path, const char *param, const char *raw,
         }
         status = parse_kind(data, len, where, kind, m.s, out);
         free(m.s);
-    } else {                                         /* harness/textio.py read_text */
+        free(data);
+        free(where);
+        return status;
+    }
+    memset(out, 0, sizeof *out);
+    char *where = path_str(path ? path : "");
+    if (!where) {
+        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
+        return RC_BAD_CONFIG;
+    }
+    int e = read_all(where, SIZE_MAX, &data, &len);
+    if (e == ENOMEM) {
+        free(where);
+        snprintf(out->err.msg, RC_MSG_SIZE, "out of memory");
+        return RC_BAD_CONFIG;
+    }
+    {                                                /* harness/textio.py read_text */
         if (e) {
             puts_(&m, where);
 #ifdef EISDIR
@@ -910,6 +1025,24 @@ refused:
     free(data);
     free(where);
     return refuse(out, &m);
+}
+
+int rc_profile_refuse(rc_profile *out, const char *fmt, ...)
+{
+    msgbuf m = {NULL, 0, 0, 0};
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(NULL, 0, fmt, ap);
+    va_end(ap);
+    memset(out, 0, sizeof *out);
+    if (n >= 0 && (m.s = malloc((size_t)n + 1)) != NULL) {
+        va_start(ap, fmt);
+        vsnprintf(m.s, (size_t)n + 1, fmt, ap);
+        va_end(ap);
+        m.len = (size_t)n;
+        m.cap = (size_t)n + 1;
+    }
+    return refuse(out, &m);                 /* m.s NULL: "out of memory" */
 }
 
 void rc_profile_free(rc_profile *p)

@@ -88,6 +88,57 @@ int rc_profile_parse_kind(const char *text, size_t len, const char *source, rc_p
 int rc_profile_read_file(const char *path, const char *param, const char *raw,
                          rc_profile_kind kind, rc_profile *out);
 
+/* adapter.read_profile_text: the checks and reading of rc_profile_read_file with param (its
+ * messages, param required) without the parsing, for a CSV of other columns (the AtoController's
+ * line files: ato_line_profile.h). RC_OK: *text (len bytes, strict UTF-8, NOT NUL-terminated)
+ * and *where (str(pathlib.Path(path)), NUL-terminated) are malloc'd, the caller frees both; else
+ * they are NULL and out holds the refusal (rc_profile_free it). */
+int rc_profile_read_text(const char *path, const char *param, const char *raw, char **text,
+                         size_t *len, char **where, rc_profile *out);
+
+/* models.plant.track.csv_number_rows: the data rows of a CSV whose header is exactly the
+ * `columns`, read one at a time so that a caller checks each row before the next is read, as
+ * Python's generator does (the first refusal is then the same line's). The rules are the ones
+ * above (BOM, line breaks, stripping, blank and '#' lines, cells, float()); a row must have
+ * n_columns cells, each a finite number. Messages: "{prefix}{source}: line N: header must be
+ * 'a,b,c', got '...'", "...: expected 3 values, got 2: '...'", "...: not a number: '...'",
+ * "...: non-finite value: '...'", "{prefix}{source}: line 1: empty file, expected header
+ * 'a,b,c'". prefix may be NULL. text, source and columns must outlive the reader. */
+#define RC_CSV_MAX_COLUMNS 8
+
+typedef struct {
+    const unsigned char *s;
+    size_t len, pos;
+    const char *source, *prefix;
+    const char *const *columns;
+    int n_columns;
+    long lineno;             /* the last line read, 1-based */
+    int header_seen;
+    size_t lines;            /* the text's lines: a bound on its rows */
+    char *scratch;           /* float()'s */
+} rc_csv_rows;
+
+/* RC_OK, or RC_BAD_CONFIG with out->err "out of memory" (or the column count refused: 1 ..
+ * RC_CSV_MAX_COLUMNS); out is zeroed first. rc_csv_rows_close() after either. */
+int rc_csv_rows_open(rc_csv_rows *r, const char *text, size_t len, const char *source,
+                     const char *prefix, const char *const *columns, int n_columns,
+                     rc_profile *out);
+/* 1: the next row's numbers in values[n_columns], its line in *lineno; 0: no more rows; -1:
+ * refused, the message in out (rc_profile_free it) */
+int rc_csv_rows_next(rc_csv_rows *r, double *values, long *lineno, rc_profile *out);
+void rc_csv_rows_close(rc_csv_rows *r);
+
+/* out refused with the printf-made message (whole in out->message, cut in out->err; "out of
+ * memory" if it cannot be made); returns RC_BAD_CONFIG. out is zeroed first. */
+int rc_profile_refuse(rc_profile *out, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+
+/* f"{x:g}" into buf (a 32-byte buf holds every double's) */
+void rc_profile_g(double x, char *buf, size_t size);
+
 /* Free what a parse or read allocated and zero the struct. */
 void rc_profile_free(rc_profile *p);
 
