@@ -41,7 +41,7 @@ gives it).
 The system steps Gauss-Seidel, the ATO first (SystemSpec.step_order ("ato", "car")): the demand
 the ATO computes from the car's outputs at t is applied over [t, t + h], as ``python -m harness
 run`` applies it, so our master reproduces the harness's run of the scenario. ``jacobi=True``
-(``--jacobi``) builds it for libcosim too, at the price of the Jacobi scheme's one-step (h)
+(``--jacobi``) builds it for libcosim and ecos too, at the price of the Jacobi scheme's one-step (h)
 actuator delay (docs/systems.md).
 """
 from __future__ import annotations
@@ -50,7 +50,7 @@ import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from harness.run.fmus import FmuChoice, choose, native_path, uncovered
+from harness.run.fmus import BuildError, FmuChoice, choose, native_path, uncovered
 from harness.systems.ssp import Component, Connection, PackedFile, SspError, SystemSpec
 from harness.textio import InputError
 
@@ -173,7 +173,7 @@ def choose_ato(asked: str, dist: Path, label: str, parameters: dict, where: str)
     from fmu_src.variables import ATO
     try:
         choice = choose(asked, ATO, dist, [(label, parameters)])
-    except InputError as e:                      # --fmu native with the native FMU missing
+    except (InputError, BuildError) as e:        # a bad --fmu; --fmu native with the native FMU missing
         raise SspError(f"{where}: {e}") from None
     if asked == "native":
         why = uncovered(ATO, parameters)
@@ -230,8 +230,8 @@ def scenario_system(path: str | Path, dist: str | Path, fmu: str = "auto",
     else:
         try:
             car = choose(fmu, RAILCAR, dist, [(scenario.name, scenario.parameters)])
-        except InputError as e:
-            raise SspError(str(e)) from None
+        except (InputError, BuildError) as e:
+            raise SspError(f"{path}: {e}") from None
     # The ATO's model description (the one variable table of both its FMUs) decides which
     # dataclass fields become parameters; the parameters then decide which FMU runs them.
     python_ato = dist / f"{ATO}.fmu"

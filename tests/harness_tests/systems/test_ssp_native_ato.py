@@ -142,6 +142,21 @@ def test_a_line_goes_where_uncovered_says(dist):
         scenario_system(LINE, dist, "native")
 
 
+def test_without_the_native_ato_auto_says_so_and_native_is_refused(dist, tmp_path):
+    import shutil
+    (tmp_path / "native").mkdir()
+    for name in ("RailCar.fmu", PYTHON_ATO, "native/RailCarNative.fmu"):
+        shutil.copy(dist / name, tmp_path / name)
+    missing = tmp_path / "native" / NATIVE_ATO
+    auto = scenario_system(NOMINAL, tmp_path, "auto")
+    assert auto.car.kind == "native" and auto.ato.kind == "python"
+    assert auto.ato.why == f"no native FMU: {missing} is missing (build.py builds it with a C compiler on linux x86-64)"
+    with pytest.raises(SspError) as e:
+        scenario_system(NOMINAL, tmp_path, "native")
+    assert str(e.value) == (f"{NOMINAL}: --fmu native: {missing} is missing (build.py builds it with a C "
+                            f"compiler on linux x86-64); --fmu python runs the pythonfmu FMU")
+
+
 def test_a_description_refuses_fmu_and_fmi(dist, tmp_path):
     with pytest.raises(SspError, match="a system description names its FMUs"):
         build(ROOT / "scenarios" / "systems" / "ato_span.toml", tmp_path / "x.ssp", dist, "native")
