@@ -23,6 +23,7 @@ Command line (docs/systems.md):
 
     python -m harness system build scenarios/systems/ato_span.toml out/ato_span.ssp
     python -m harness system build scenarios/library/ato_nominal.toml out/ato_nominal.ssp [--fmu auto|native|python]
+        [--fmi 2|3] [--jacobi]
     python -m harness system run out/ato_span.ssp [--master ours|libcosim|ecos] [--stop S] [--csv F]
         [--output Component.variable ...]
     python -m harness system compare out/plant_estimator.ssp [--masters ours,libcosim,ecos] [--stop S]
@@ -223,20 +224,28 @@ def _pack_profiles(params: dict, base: Path) -> dict:
 
 
 def build(source: str | Path, out: str | Path, dist: str | Path = DIST, fmu: str = "auto",
-          jacobi: bool = False) -> Path:
+          jacobi: bool = False, fmi: int = 2, say=None) -> Path:
     """Write the .ssp of a system description or of a span scenario (told apart by [components]:
-    harness.systems.scenario_system.is_scenario); ``fmu`` chooses a scenario's RailCar FMU,
-    ``jacobi`` builds it without a step order (libcosim runs it; the demand one step late)."""
-    from harness.systems.scenario_system import is_scenario, system_from_scenario
+    harness.systems.scenario_system.is_scenario); ``fmu`` chooses a scenario's RailCar and
+    AtoController FMUs, ``fmi`` 3 their FMI 3.0 natives, ``jacobi`` builds it without a step order
+    (libcosim and ecos run it; the demand one step late). ``say`` (print) gets the lines naming
+    each chosen FMU and why; a description names its FMUs itself."""
+    from harness.systems.scenario_system import is_scenario, scenario_system
     source = Path(source)
     try:
         data = tomllib.loads(read_text(source, SspError))
     except tomllib.TOMLDecodeError as e:
         raise SspError(f"{source}: not valid TOML: {e}") from None
     if not is_scenario(data):
+        if fmi != 2 or fmu != "auto":
+            raise SspError(f"{source}: a system description names its FMUs ([components.NAME] fmu); "
+                           f"--fmu and --fmi choose a span scenario's")
         return build_system(source, out, dist)
-    spec = system_from_scenario(source, dist, fmu, jacobi)
-    return write_ssp(spec, out, Where(source))
+    system = scenario_system(source, dist, fmu, jacobi, fmi)
+    if say is not None:
+        for line in system.choice_lines():
+            say(line)
+    return write_ssp(system.spec, out, Where(source))
 
 
 def build_system(description: str | Path, out: str | Path, dist: str | Path = DIST) -> Path:
@@ -376,7 +385,10 @@ def main(argv=None, prog: str = PROG) -> int:
     b.add_argument("out")
     b.add_argument("--dist", default=str(DIST), help="folder the FMU paths are relative to (default dist/)")
     b.add_argument("--fmu", choices=("auto", "native", "python"), default="auto",
-                   help="a span scenario's RailCar FMU (as python -m harness run --fmu; default auto)")
+                   help="a span scenario's RailCar and AtoController FMUs (as python -m harness run --fmu; "
+                        "default auto: each native FMU when it runs the parameters)")
+    b.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                   help="a span scenario's FMI version: 3 builds it on the FMI 3.0 natives (default 2)")
     b.add_argument("--jacobi", action="store_true",
                    help="a span scenario's system stepped Jacobi, as libcosim steps: the ATO's demand "
                         "reaches the car one step late (default: the ATO steps first, as in python -m harness run)")
@@ -396,7 +408,7 @@ def main(argv=None, prog: str = PROG) -> int:
     args = p.parse_args(argv)
     try:
         if args.command == "build":
-            print(build(args.description, args.out, args.dist, args.fmu, args.jacobi))
+            print(build(args.description, args.out, args.dist, args.fmu, args.jacobi, args.fmi, say=print))
             return 0
         if args.command == "compare":
             from harness.systems.ssp_read import read_ssp

@@ -120,8 +120,9 @@ def run_libcosim(system: LoadedSystem | str | Path, stop_time: float | None = No
             import pythonfmu  # noqa: F401
         except ImportError:
             pass
+    ssp_file = Path(system.path).resolve()        # before the run's working directory changes
     with _packed_files_here(system):
-        return _run(system, n, outputs, CosimExecution, CosimObserver, CosimVariableType, internal)
+        return _run(system, ssp_file, n, outputs, CosimExecution, CosimObserver, CosimVariableType, internal)
 
 
 @contextlib.contextmanager
@@ -141,12 +142,12 @@ def _packed_files_here(system: LoadedSystem):
             os.chdir(was)
 
 
-def _run(system: LoadedSystem, n: int, outputs: list[str], CosimExecution, CosimObserver,
+def _run(system: LoadedSystem, ssp_file: Path, n: int, outputs: list[str], CosimExecution, CosimObserver,
          CosimVariableType, internal) -> Result:
     spec = system.spec
     step_ns = to_ns(spec.step)
     try:
-        execution = CosimExecution.CosimExecution.from_ssp_file(str(Path(system.path).resolve()), step_ns)
+        execution = CosimExecution.CosimExecution.from_ssp_file(str(ssp_file), step_ns)
     except AssertionError:
         raise MasterError(f"{system.path}: libcosim could not load the system: "
                           f"{internal.get_last_error_message()}") from None

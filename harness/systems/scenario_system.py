@@ -6,6 +6,14 @@
 - the car (RailCar: the native FMU when the C core covers the scenario's parameters, as
   ``python -m harness run`` chooses, harness.run.fmus.choose) with every ``[parameters]`` value of
   the scenario: the true car, the estimator's prior (est.*), the seed, the track;
+- the AtoController, chosen by the same ``--fmu`` (``choose_ato``): ``auto`` the native
+  AtoControllerNative.fmu when harness.run.fmus.uncovered says it runs the parameters the system
+  gives it (one span, today), else the pythonfmu AtoController.fmu; ``native`` refuses at build,
+  with the reason, what the native FMU does not run; ``python`` the pythonfmu FMU. With ``fmi=3``
+  (``--fmi 3``) both are the FMI 3.0 natives (RailCarNative3.fmu, AtoControllerNative3.fmu), refused
+  at build when missing or when the parameters need the pythonfmu FMU (there is no FMI 3 one).
+  Both FMUs of a model have the same variable table (fmu_src.variables), so the parameters below
+  are the same whichever runs; ``ScenarioSystem.choice_lines`` says which was chosen and why;
 - the AtoController with the span (span.stop, span.length, span.schedule), the configured car
   (every CarTraction field of ``[ato.car]`` as car.<field>) and the tuning (every AtoTuning field
   of ``[ato]`` as ato.<field>), each written out, defaults too, so the FMU's own defaults do not
@@ -33,20 +41,21 @@ gives it).
 The system steps Gauss-Seidel, the ATO first (SystemSpec.step_order ("ato", "car")): the demand
 the ATO computes from the car's outputs at t is applied over [t, t + h], as ``python -m harness
 run`` applies it, so our master reproduces the harness's run of the scenario. ``jacobi=True``
-(``--jacobi``) builds it for libcosim too, at the price of the Jacobi scheme's one-step (h)
+(``--jacobi``) builds it for libcosim and ecos too, at the price of the Jacobi scheme's one-step (h)
 actuator delay (docs/systems.md).
 """
 from __future__ import annotations
 
 import re
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
+from harness.run.fmus import BuildError, FmuChoice, choose, native_path, uncovered
 from harness.systems.ssp import Component, Connection, PackedFile, SspError, SystemSpec
 from harness.textio import InputError
 
-__all__ = ["ATO_FEED", "DEMANDS", "system_from_scenario", "limits_csv", "line_csv",
-           "line_limits_csv", "is_scenario"]
+__all__ = ["ATO_FEED", "DEMANDS", "FMI_VERSIONS", "ScenarioSystem", "scenario_system", "system_from_scenario",
+           "choose_ato", "fmi3_path", "limits_csv", "line_csv", "line_limits_csv", "is_scenario"]
 
 ATO_FEED = ("filter.speed", "filter.position", "filter.speed_std", "filter.position_std",
             "est.mass", "est.A0", "est.A1", "est.A2", "est.status", "est.samples",
@@ -57,7 +66,20 @@ estimates with their stated uncertainty (the regulator weighs them by it) and th
 the estimator has recognised (a line)."""
 DEMANDS = ("traction_force_demand", "brake_force_demand")
 """The ATO's outputs the car applies."""
-ATO_FMU = "AtoController.fmu"
+FMI_VERSIONS = (2, 3)
+"""The FMI versions a scenario's system is built for (``--fmi``): 2 every kind, 3 the natives."""
+
+
+@dataclass(frozen=True)
+class ScenarioSystem:
+    """A scenario's system and the FMU chosen for each of its components (harness.run.fmus.FmuChoice)."""
+    spec: SystemSpec
+    car: FmuChoice
+    ato: FmuChoice
+
+    def choice_lines(self) -> list[str]:
+        """What ``system build`` prints: which FMU runs each component, and why."""
+        return [f"fmu: car: {self.car.describe()}", f"fmu: ato: {self.ato.describe()}"]
 
 
 def is_scenario(data: dict) -> bool:
@@ -119,17 +141,71 @@ def _fields_as_parameters(obj, prefix: str, ato_md, where: str) -> dict:
     return out
 
 
+def fmi3_path(model: str, dist: Path) -> Path:
+    """DIST/native/<model>Native3.fmu: the FMI 3.0 native twin of ``model`` (RailCarNative3.fmu,
+    AtoControllerNative3.fmu)."""
+    fmi2 = native_path(model, dist)
+    return fmi2.with_name(f"{fmi2.stem}3.fmu")
+
+
+def _fmi3_choice(asked: str, model: str, dist: Path, label: str, parameters: dict, where: str) -> FmuChoice:
+    """The FMI 3.0 native FMU of ``model`` for ``--fmi 3``, or SspError saying why not: it is the
+    only FMI 3 FMU we build, so neither --fmu python nor parameters it does not run can have one."""
+    path = fmi3_path(model, dist)
+    if asked == "python":
+        raise SspError(f"{where}: --fmi 3 --fmu python: the pythonfmu {model}.fmu is FMI 2.0 only; "
+                       f"--fmi 3 runs the native {path.name} (--fmu auto or native)")
+    why = uncovered(model, parameters)
+    if why is not None:
+        raise SspError(f"{where}: --fmi 3: {label} sets {why}, which the native {path.name} does not run, "
+                       f"and there is no FMI 3 pythonfmu {model} FMU: build with --fmi 2")
+    if not path.is_file():
+        raise SspError(f"--fmi 3: {path} is missing (build.py builds the FMI 3.0 natives it can; "
+                       f"--fmi 2 runs the FMI 2.0 FMUs)")
+    return FmuChoice("native", path, asked, "FMI 3.0, as asked (--fmi 3)")
+
+
+def choose_ato(asked: str, dist: Path, label: str, parameters: dict, where: str) -> FmuChoice:
+    """The AtoController FMU for the parameters a system gives it (FMI 2): harness.run.fmus.choose,
+    but ``native`` is refused at build (SspError with the reason) when the native FMU would refuse
+    the parameters (harness.run.fmus.uncovered), rather than failing in every master at
+    initialisation; a missing pythonfmu FMU is refused too."""
+    from fmu_src.variables import ATO
+    try:
+        choice = choose(asked, ATO, dist, [(label, parameters)])
+    except (InputError, BuildError) as e:        # a bad --fmu; --fmu native with the native FMU missing
+        raise SspError(f"{where}: {e}") from None
+    if asked == "native":
+        why = uncovered(ATO, parameters)
+        if why is not None:
+            raise SspError(f"{where}: --fmu native: {label} sets {why}, which the native "
+                           f"{choice.path.name} does not run (--fmu auto or python runs the pythonfmu "
+                           f"AtoController.fmu)")
+    if not choice.path.is_file():
+        raise SspError(f"{choice.path}: the AtoController FMU is missing (build the FMUs with: python "
+                       f"build.py; --dist names another folder)")
+    return choice
+
+
 def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
-                         jacobi: bool = False) -> SystemSpec:
+                         jacobi: bool = False, fmi: int = 2) -> SystemSpec:
+    """The system of ``scenario_system`` (the same arguments) without the FMU choices."""
+    return scenario_system(path, dist, fmu, jacobi, fmi).spec
+
+
+def scenario_system(path: str | Path, dist: str | Path, fmu: str = "auto",
+                    jacobi: bool = False, fmi: int = 2) -> ScenarioSystem:
     """The RailCar <-> AtoController system of the span scenario at ``path`` (the module's text);
-    FMUs from ``dist``; ``fmu``: auto, native or python, the RailCar FMU (harness.run.fmus.choose).
+    FMUs from ``dist``; ``fmu``: auto, native or python, for the RailCar FMU (harness.run.fmus.choose)
+    and the AtoController FMU (``choose_ato``); ``fmi``: 2, or 3 for the FMI 3.0 natives.
     SspError (or the scenario's own InputError) names the file and the key."""
-    from fmu_src.variables import RAILCAR
-    from harness.run.fmus import choose
+    from fmu_src.variables import ATO, RAILCAR
     from harness.run.scenario import PATH_PARAMETERS, load_scenario
     from harness.systems.ssp import read_model_description_of
 
     path, dist = Path(path), Path(dist)
+    if fmi not in FMI_VERSIONS:
+        raise SspError(f"--fmi {fmi}: expected one of {', '.join(map(str, FMI_VERSIONS))}")
     scenario = load_scenario(path)
     if scenario.ato is None:
         raise SspError(f"{path}: not a span scenario: a system is the car and the AtoController FMU, "
@@ -149,15 +225,20 @@ def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
             params[name] = PackedFile(Path(params[name]), parameter=name)
     if scenario.wind:
         params["wind_speed"] = scenario.wind_at(0.0)
-    try:
-        choice = choose(fmu, RAILCAR, dist, [(scenario.name, scenario.parameters)])
-    except InputError as e:
-        raise SspError(str(e)) from None
-    ato_path = dist / ATO_FMU
-    if not ato_path.is_file():
-        raise SspError(f"{ato_path}: the AtoController FMU is missing (build the FMUs with: python "
+    if fmi == 3:
+        car = _fmi3_choice(fmu, RAILCAR, dist, scenario.name, scenario.parameters, str(path))
+    else:
+        try:
+            car = choose(fmu, RAILCAR, dist, [(scenario.name, scenario.parameters)])
+        except (InputError, BuildError) as e:
+            raise SspError(f"{path}: {e}") from None
+    # The ATO's model description (the one variable table of both its FMUs) decides which
+    # dataclass fields become parameters; the parameters then decide which FMU runs them.
+    python_ato = dist / f"{ATO}.fmu"
+    if not python_ato.is_file():
+        raise SspError(f"{python_ato}: the AtoController FMU is missing (build the FMUs with: python "
                        f"build.py; --dist names another folder)")
-    ato_md = read_model_description_of(ato_path, str(ato_path))
+    ato_md = read_model_description_of(python_ato, str(python_ato))
     grade = scenario.parameters.get("track.grade_profile", "")
     ato = {"span.stop": span.stop, "span.length": span.length, "span.schedule": span.schedule,
            "span.grade_profile": PackedFile(Path(grade), parameter="track.grade_profile") if grade else "",
@@ -176,8 +257,12 @@ def system_from_scenario(path: str | Path, dist: str | Path, fmu: str = "auto",
                                                      name=f"{stem}_line_limits.csv",
                                                      parameter="span.limit_kmh")
         connections.append(Connection("ato.ato.payload", "car.car.payload"))
-    return SystemSpec(_system_name(scenario.name), (Component("car", choice.path, params),
-                                                    Component("ato", ato_path, ato)),
+    named = {k: str(v) if isinstance(v, PackedFile) else v for k, v in ato.items()}   # readable refusals
+    ato_choice = (_fmi3_choice(fmu, ATO, dist, scenario.name, named, str(path)) if fmi == 3
+                  else choose_ato(fmu, dist, scenario.name, named, str(path)))
+    spec = SystemSpec(_system_name(scenario.name), (Component("car", car.path, params),
+                                                    Component("ato", ato_choice.path, ato)),
                       tuple(connections), scenario.step_s, 0.0, scenario.duration_s,
                       scenario.purpose or f"RailCar <-> AtoController: {path.name}",
                       () if jacobi else ("ato", "car"))
+    return ScenarioSystem(spec, car, ato_choice)

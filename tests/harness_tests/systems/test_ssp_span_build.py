@@ -1,8 +1,8 @@
 """``python -m harness system build`` from a span scenario (harness.systems.scenario_system) and the
 ATO metrics of ``system run`` (harness.systems.ato_run), against ``python -m harness run``.
 
-- scenarios/library/ato_nominal.toml built into a system (RailCarNative <-> AtoController, the
-  ATO stepping first) and run in our master gives the harness's own run of the scenario: the
+- scenarios/library/ato_nominal.toml built into a system (RailCarNative <-> AtoControllerNative,
+  the ATO stepping first) and run in our master gives the harness's own run of the scenario: the
   same ATO metrics as printed, and the same trajectory to 1e-9 (the two differ only in the time
   grid: the master counts integer nanoseconds as libcosim does, the harness k * h, so a step
   size differs in its last bit now and then);
@@ -47,10 +47,13 @@ def dist(built_fmus) -> Path:
 def system_and_harness_runs(path: Path, ssp: Path, dist: Path, outputs) -> tuple:
     """(the .ssp built from the scenario at ``path``, its run in our master recording the ATO
     metrics' outputs and ``outputs``, the harness's run of the scenario on the same FMU, the
-    scenario): the pair every system-vs-harness comparison starts from."""
-    ssp = build(path, ssp, dist, "native")
+    scenario): the pair every system-vs-harness comparison starts from. Built with --fmu auto: the
+    native car, and the ATO's FMU whichever harness.run.fmus.uncovered allows (the native one for
+    a span; test_ssp_native_ato.py checks the choice)."""
+    ssp = build(path, ssp, dist, "auto")
     assert ssp.is_file()
     system = read_ssp(ssp)
+    assert Path(system.spec.components[0].fmu).name == "RailCarNative.fmu"
     ours = run_system(system, outputs=list(dict.fromkeys(metric_outputs(system) + list(outputs))))
     scenario = load_scenario(path)
     with FmuRunner(dist / "native" / "RailCarNative.fmu") as runner:
