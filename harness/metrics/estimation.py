@@ -33,7 +33,7 @@ def stop_indices(speed: np.ndarray) -> list[int]:
     Metrics "at a stop" are taken there, before passengers board and change the mass.
     """
     v = np.asarray(speed)
-    return [k for k in range(1, len(v)) if v[k] <= 0.0 < v[k - 1]]
+    return (np.flatnonzero((v[1:] <= 0.0) & (v[:-1] > 0.0)) + 1).tolist()
 
 
 def time_to_stay_within(time: np.ndarray, rel_err: np.ndarray, bound: float,
@@ -105,11 +105,12 @@ class RunSummary:
 def _segments(speed: np.ndarray) -> list[tuple[int, int]]:
     """(departure row, arrival row) of each run that ends at rest."""
     v = np.asarray(speed)
+    stops = stop_indices(v)
+    still = np.flatnonzero(~(v > 0.0))     # rows not moving; the departure follows the last before k - 1
+    before = np.searchsorted(still, np.asarray(stops, dtype=np.int64) - 1) - 1
     out = []
-    for k in stop_indices(v):
-        dep = k - 1
-        while dep > 0 and v[dep - 1] > 0.0:
-            dep -= 1
+    for k, j in zip(stops, before.tolist()):
+        dep = int(still[j]) + 1 if j >= 0 else 0
         out.append((max(dep - 1, 0), k))
     return out
 
