@@ -252,6 +252,9 @@ def oracle_filter(result, setup) -> tuple[np.ndarray, np.ndarray] | None:
     demand change into the wrong interval (0.07 m/s of prediction error at a 40 kN cut-off),
     which let the learning filter beat this "oracle" on station_day. Without recorded
     inputs, that trapezoid is the fallback.
+
+    With the C core (``c_metrics``) the forces and the filter's loop run in C
+    (models.batch.interval_forces, oracle_filter): the same arrays bit for bit, ~200x faster.
     """
     from models.estimation.online import OnlineEstimator
     from models.filtering.motion_filter import FilterConfig
@@ -342,7 +345,8 @@ def coast_time_errors(result, A_at, still_air: bool = False, setup=None) -> list
     Identified A's are the coefficients of eq. (2) as the car met them, the wind included
     (A0' = A0 + A2 Vw^2, ...): the coast is re-run in still air. With ``still_air`` the A's are
     the car's own (the truth) and the coast is re-run in the scenario's wind as it blows over
-    the coast, changes included.
+    the coast, changes included. With the C core (``c_metrics``) the coasts are found and re-run
+    in C (_coast_time_errors_c): the same numbers bit for bit.
     """
     s = result.scenario
     t, v, mass = result.time, result["car.speed"], result["car.total_mass"]
