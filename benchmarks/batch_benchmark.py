@@ -9,19 +9,24 @@ station_day ends at its last phase after 5,192 of its 9,000 steps):
       inputs: the model's floor;
   (b) harness.run.driver.run_on_chain: the Python driver per step around the C chain (before);
   (c) the metrics of the RunResult (harness.metrics.run.run_metrics), and of them the oracle
-      filter alone (harness.metrics.estimation.oracle_filter);
+      filter alone (harness.metrics.estimation.oracle_filter) and the coast-time errors
+      (coast_time_errors): in Python (RAILCAR_PURE_PYTHON set: before) and with the oracle and
+      the coasts in C (models/core/run_metrics.c through models.batch: after);
   (d) the C batch engine (harness.run.batch.run_batch, models/core/scenario_driver.c): one run,
       and --runs runs (seeds 0..runs-1) in one call, per run; (d raw) the C runs alone
       (harness.run.batch.run_chains: models.batch.run_scripts, no RunResults).
 Prints the table, the engine's time per step over the chain's (issue 31's target <= 3x), and the
 projection for 1,000 runs on 2 workers (issue 31's target <= 5 s, metrics included) from (c)
-and (d) (CPU time per run x runs / workers: 2 free cores assumed). Not run by the test suite; the figures are this machine's, noisy when others share it.
+and (d) (CPU time per run x runs / workers: 2 free cores assumed), with the metrics in Python and
+in C. Not run by the test suite; the figures are this machine's, noisy when others share it.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.metrics.estimation import oracle_filter  # noqa: E402
+from harness.metrics.estimation import c_metrics, coast_time_errors, oracle_filter  # noqa: E402
 from harness.metrics.run import run_metrics  # noqa: E402
 from harness.run.batch import run_batch, run_chains, script_of  # noqa: E402
 from harness.run.driver import run_on_chain  # noqa: E402
@@ -50,6 +55,20 @@ def best(fn, repeat: int) -> float:
         fn()
         times.append(time.process_time() - t0)
     return min(times)
+
+
+@contextmanager
+def python_metrics():
+    """The metrics' Python reference inside (RAILCAR_PURE_PYTHON set), the environment back after."""
+    before = os.environ.get("RAILCAR_PURE_PYTHON")
+    os.environ["RAILCAR_PURE_PYTHON"] = "1"
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ["RAILCAR_PURE_PYTHON"]
+        else:
+            os.environ["RAILCAR_PURE_PYTHON"] = before
 
 
 def recorded_steps(scenario, result) -> np.ndarray:
@@ -80,32 +99,55 @@ def main(argv=None) -> int:
     [same] = run_batch([sc])
     assert all(same[n].tobytes() == result[n].tobytes() for n in result.signals), "batch != run_on_chain"
 
-    t = {
+    if c_metrics() is None:
+        print("the C run metrics do not run here (models._batch or models._railcar not compiled, "
+              "or RAILCAR_PURE_PYTHON set)")
+        return 2
+
+    def identified(last):
+        return tuple(float(result[f"est.A{j}"][last]) for j in range(3))
+
+    def metric_times(suffix: str) -> dict:
+        return {"c" + suffix: best(lambda: run_metrics(result), args.repeat),
+                "c oracle" + suffix: best(lambda: oracle_filter(result, setup), args.repeat),
+                "c coasts" + suffix: best(lambda: coast_time_errors(result, identified, setup=setup),
+                                          args.repeat)}
+
+    with python_metrics():
+        reference = run_metrics(result)
+        t = metric_times(" py")
+    assert repr(run_metrics(result).summary) == repr(reference.summary), "C metrics != Python metrics"
+    t.update(metric_times(""))
+    t.update({
         "a": best(lambda: setup.open().run_steps(inputs), args.repeat),
         "b": best(lambda: run_on_chain(sc), args.repeat),
-        "c": best(lambda: run_metrics(result), args.repeat),
-        "c oracle": best(lambda: oracle_filter(result, setup), args.repeat),
         "d": best(lambda: run_batch([sc]), args.repeat),
         "d many": best(lambda: run_batch(many, seeds), max(1, args.repeat // 2)) / args.runs,
         "d raw": best(lambda: run_chains(raw_runs), max(1, args.repeat // 2)) / args.runs,
-    }
+    })
     us = 1e6 / steps
     print(f"{sc.name}: {steps} steps a run (step {sc.step_s} s), least CPU time of {args.repeat}, one core\n")
-    print(f"{'':4} {'per run':>10} {'per step':>10}  what")
+    print(f"{'':12} {'per run':>10} {'per step':>10}  what")
     rows = [("a", "C chain alone, recorded inputs (CompiledChain.run_steps)"),
             ("b", "run_on_chain: Python driver + C chain (before)"),
-            ("c", "metrics of the result (run_metrics), oracle included"),
+            ("c py", "metrics of the result (run_metrics) in Python (before)"),
+            ("c oracle py", "  of which the oracle filter"),
+            ("c coasts py", "  of which the coast-time errors"),
+            ("c", "metrics of the result, the oracle and the coasts in C (after)"),
             ("c oracle", "  of which the oracle filter"),
+            ("c coasts", "  of which the coast-time errors"),
             ("d", "C batch engine, 1 run a call, RunResult built (after)"),
             ("d many", f"C batch engine, {args.runs} runs a call, per run"),
             ("d raw", f"  the C runs alone ({args.runs} a call, no RunResults), per run")]
     for key, what in rows:
-        print(f"{key:8} {1e3 * t[key]:7.2f} ms {us * t[key]:7.3f} us  {what}")
+        print(f"{key:12} {1e3 * t[key]:7.2f} ms {us * t[key]:7.3f} us  {what}")
     print(f"\ndriver loop: run_on_chain / C engine (1 run) = {t['b'] / t['d']:.1f}x")
     print(f"engine per step / chain per step = {t['d raw'] / t['a']:.2f}x (issue 31 target <= {TARGET_STEP_RATIO:g}x)")
-    for label, run_s in (("before: run_on_chain + metrics", t["b"] + t["c"]),
-                         ("after: C engine + metrics in Python", t["d many"] + t["c"]),
-                         ("after, metrics without the oracle", t["d many"] + t["c"] - t["c oracle"]),
+    print(f"metrics in C / in Python = {t['c'] / t['c py']:.3f} "
+          f"(oracle {t['c oracle'] / t['c oracle py']:.4f}, coasts {t['c coasts'] / t['c coasts py']:.3f})")
+    for label, run_s in (("before: run_on_chain + metrics in Python", t["b"] + t["c py"]),
+                         ("C engine + metrics in Python", t["d many"] + t["c py"]),
+                         ("after: C engine + metrics in C", t["d many"] + t["c"]),
                          ("after, runs alone", t["d many"])):
         wall = TARGET_RUNS * run_s / WORKERS
         print(f"{TARGET_RUNS} runs on {WORKERS} workers, {label}: {wall:6.1f} s "

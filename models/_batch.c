@@ -7,10 +7,15 @@
  * The binding only converts: every run's float64 arrays are read through the buffer protocol
  * (no copies), all runs are checked before the first one starts, and the runs themselves go
  * with the GIL released (other Python threads of a worker keep running).
+ *
+ * It also binds the metrics of a recorded run that run a model again (models/core/run_metrics.h:
+ * the oracle filter, the interval forces, the coasts and their re-run times), the same way: flat
+ * float64 arrays in and out, every length checked and a wrong one named.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+#include "core/run_metrics.h"
 #include "core/scenario_driver.h"
 
 #define RUN_ARRAYS 6   /* config, grade_distances, grades, speed_distances, speeds, script */
@@ -200,12 +205,281 @@ done:
     return result;
 }
 
+/* ------------------------------------------------------------------ run metrics */
+
+#define VEHICLE_VALUES 11        /* rc_vehicle's fields, models.plant.dynamics.VehicleParams' order */
+#define COAST_VALUES 8           /* per coast: v0, x0, x1, A0, A1, A2, mass, t0 */
+#define MAX_VIEWS 16
+
+typedef struct {                 /* the buffers of one call, released together */
+    Py_buffer view[MAX_VIEWS];
+    int held;
+} Views;
+
+static void release_views(Views *v)
+{
+    for (int k = 0; k < v->held; k++)
+        PyBuffer_Release(&v->view[k]);
+    v->held = 0;
+}
+
+/* The next view: obj as a C-contiguous float64 array of `count` values (count < 0: any), or
+ * NULL with a ValueError naming it */
+static double *take(Views *v, PyObject *obj, int writable, const char *name, long count)
+{
+    Py_buffer *view = &v->view[v->held];
+    if (double_buffer(obj, view, writable, -1, name) < 0)
+        return NULL;
+    v->held++;
+    if (count >= 0 && length(view) != count) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %ld values, got %ld", name, count, length(view));
+        return NULL;
+    }
+    return view->buf;
+}
+
+static long taken_length(const Views *v) { return length(&v->view[v->held - 1]); }
+
+static void vehicle_from_values(rc_vehicle *p, const double *x)
+{
+    double *f[VEHICLE_VALUES] = {&p->mass, &p->A0, &p->A1, &p->A2, &p->gamma, &p->length,
+                                 &p->traction_force_max, &p->traction_power_max,
+                                 &p->brake_force_max, &p->adhesion_mass_fraction,
+                                 &p->adhesion_factor};
+    for (int k = 0; k < VEHICLE_VALUES; k++)
+        *f[k] = x[k];
+}
+
+/* interval_forces(vehicle, speed, mass, traction_demand, brake_demand, traction_mean, brake_mean) */
+static PyObject *batch_interval_forces(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *o[7];
+    if (!PyArg_ParseTuple(args, "OOOOOOO:interval_forces", &o[0], &o[1], &o[2], &o[3], &o[4],
+                          &o[5], &o[6]))
+        return NULL;
+    Views v = {.held = 0};
+    PyObject *result = NULL;
+    const double *vehicle, *speed, *mass, *td, *bd;
+    double *f_mean, *b_mean;
+    if (!(vehicle = take(&v, o[0], 0, "vehicle", VEHICLE_VALUES)) || !(speed = take(&v, o[1], 0, "speed", -1)))
+        goto done;
+    long n = taken_length(&v), intervals = n > 0 ? n - 1 : 0;
+    if (!(mass = take(&v, o[2], 0, "mass", n)) || !(td = take(&v, o[3], 0, "traction_demand", -1)))
+        goto done;
+    if (taken_length(&v) < intervals) {
+        PyErr_Format(PyExc_ValueError, "traction_demand: expected at least %ld values, got %ld",
+                     intervals, taken_length(&v));
+        goto done;
+    }
+    if (!(bd = take(&v, o[4], 0, "brake_demand", taken_length(&v)))
+            || !(f_mean = take(&v, o[5], 1, "traction_mean", intervals))
+            || !(b_mean = take(&v, o[6], 1, "brake_mean", intervals)))
+        goto done;
+    rc_vehicle car;
+    vehicle_from_values(&car, vehicle);
+    Py_BEGIN_ALLOW_THREADS
+    rc_interval_forces(&car, n, speed, mass, td, bd, f_mean, b_mean);
+    Py_END_ALLOW_THREADS
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    release_views(&v);
+    return result;
+}
+
+/* oracle_filter(config, grade_distances, grades, speed_distances, speeds, A, step, wind, time,
+ * mass, speed_meas, position_meas, traction_mean, brake_mean, v_out, x_out) */
+static PyObject *batch_oracle_filter(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *o[16];
+    double step;
+    if (!PyArg_ParseTuple(args, "OOOOOOdOOOOOOOOO:oracle_filter", &o[0], &o[1], &o[2], &o[3],
+                          &o[4], &o[5], &step, &o[7], &o[8], &o[9], &o[10], &o[11], &o[12],
+                          &o[13], &o[14], &o[15]))
+        return NULL;
+    Views v = {.held = 0};
+    PyObject *result = NULL;
+    rc_oracle_config cfg;
+    memset(&cfg, 0, sizeof cfg);
+    const double *values, *A, *time, *mass, *vm, *xm, *f_mean, *b_mean;
+    double *v_out, *x_out;
+    if (!(values = take(&v, o[0], 0, "config", -1)))
+        goto done;
+    long expected = rc_estchain_config_from_values(&cfg.est, values, taken_length(&v));
+    if (expected) {
+        PyErr_Format(PyExc_ValueError, "config: the oracle takes %ld configuration values "
+                     "(EstimatorChain's), got %ld", expected, taken_length(&v));
+        goto done;
+    }
+    if (!(cfg.est.grade_distances = take(&v, o[1], 0, "grade_distances", -1)))
+        goto done;
+    cfg.est.grade_n = taken_length(&v);
+    if (!(cfg.est.grades = take(&v, o[2], 0, "grades", cfg.est.grade_n))
+            || !(cfg.est.speed_distances = take(&v, o[3], 0, "speed_distances", -1)))
+        goto done;
+    cfg.est.speed_n = taken_length(&v);
+    if (!(cfg.est.speeds = take(&v, o[4], 0, "speeds", cfg.est.speed_n))
+            || !(A = take(&v, o[5], 0, "A", 3)) || !(cfg.wind = take(&v, o[7], 0, "wind", -1)))
+        goto done;
+    if (taken_length(&v) % 2) {
+        PyErr_Format(PyExc_ValueError, "wind: expected (time_s, speed_mps) pairs, got %ld values",
+                     taken_length(&v));
+        goto done;
+    }
+    cfg.wind_n = taken_length(&v) / 2;
+    memcpy(cfg.A, A, sizeof cfg.A);
+    cfg.step = step;
+    if (!(time = take(&v, o[8], 0, "time", -1)))
+        goto done;
+    long n = taken_length(&v), intervals = n > 0 ? n - 1 : 0;
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "time: a run has at least one row, got none");
+        goto done;
+    }
+    if (!(mass = take(&v, o[9], 0, "mass", n)) || !(vm = take(&v, o[10], 0, "speed_meas", n))
+            || !(xm = take(&v, o[11], 0, "position_meas", n))
+            || !(f_mean = take(&v, o[12], 0, "traction_mean", intervals))
+            || !(b_mean = take(&v, o[13], 0, "brake_mean", intervals))
+            || !(v_out = take(&v, o[14], 1, "v_out", n)) || !(x_out = take(&v, o[15], 1, "x_out", n)))
+        goto done;
+    rc_error err;
+    rc_status st;
+    Py_BEGIN_ALLOW_THREADS
+    st = rc_oracle_filter(&cfg, n, time, mass, vm, xm, f_mean, b_mean, v_out, x_out, &err);
+    Py_END_ALLOW_THREADS
+    if (st != RC_OK) {
+        PyErr_Format(PyExc_ValueError, "oracle: %s", err.msg);
+        goto done;
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    release_views(&v);
+    return result;
+}
+
+/* coast_segments(mode, min_rows) -> [(first, last), ...] */
+static PyObject *batch_coast_segments(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *mode_obj;
+    long min_rows;
+    if (!PyArg_ParseTuple(args, "Ol:coast_segments", &mode_obj, &min_rows))
+        return NULL;
+    Views v = {.held = 0};
+    PyObject *result = NULL;
+    long *rows = NULL;
+    const double *mode = take(&v, mode_obj, 0, "mode", -1);
+    if (!mode)
+        goto done;
+    long n = taken_length(&v), room = n / 2 + 1;
+    rows = PyMem_Malloc(2 * (size_t)room * sizeof *rows);
+    if (!rows) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    long count = rc_coast_segments(mode, n, min_rows, rows, rows + room);
+    result = PyList_New(count);
+    for (long k = 0; result && k < count; k++) {
+        PyObject *pair = Py_BuildValue("(ll)", rows[k], rows[room + k]);
+        if (!pair)
+            Py_CLEAR(result);
+        else
+            PyList_SET_ITEM(result, k, pair);
+    }
+done:
+    PyMem_Free(rows);
+    release_views(&v);
+    return result;
+}
+
+/* coast_times(vehicle, grade_distances, grades, wind, h, t_max, coasts, out) */
+static PyObject *batch_coast_times(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *o[8];
+    double h, t_max;
+    if (!PyArg_ParseTuple(args, "OOOOddOO:coast_times", &o[0], &o[1], &o[2], &o[3], &h, &t_max,
+                          &o[6], &o[7]))
+        return NULL;
+    Views v = {.held = 0};
+    PyObject *result = NULL;
+    double *profiles = NULL;
+    const double *vehicle, *gd, *grades, *wind, *coasts;
+    double *out;
+    if (!(vehicle = take(&v, o[0], 0, "vehicle", VEHICLE_VALUES))
+            || !(gd = take(&v, o[1], 0, "grade_distances", -1)))
+        goto done;
+    long ng = taken_length(&v);
+    if (ng < 1) {
+        PyErr_SetString(PyExc_ValueError, "grade_distances: the grade profile needs at least one row");
+        goto done;
+    }
+    if (!(grades = take(&v, o[2], 0, "grades", ng)) || !(wind = take(&v, o[3], 0, "wind", -1)))
+        goto done;
+    long nw = taken_length(&v);
+    if (nw % 2) {
+        PyErr_Format(PyExc_ValueError, "wind: expected (time_s, speed_mps) pairs, got %ld values", nw);
+        goto done;
+    }
+    if (!(h > 0.0 && isfinite(h))) {
+        PyErr_Format(PyExc_ValueError, "h: the RK4 step must be > 0 and finite, got %R",
+                     PyTuple_GET_ITEM(args, 4));
+        goto done;
+    }
+    if (!(coasts = take(&v, o[6], 0, "coasts", -1)))
+        goto done;
+    long nc = taken_length(&v);
+    if (nc % COAST_VALUES) {
+        PyErr_Format(PyExc_ValueError, "coasts: expected rows of %d values (v0, x0, x1, A0, A1, A2, "
+                     "mass, t0), got %ld values", COAST_VALUES, nc);
+        goto done;
+    }
+    if (!(out = take(&v, o[7], 1, "out", nc / COAST_VALUES)))
+        goto done;
+    rc_grade_profile grade;
+    rc_speed_profile none;
+    if (rc_profiles_copy(gd, grades, ng, NULL, NULL, 0, &profiles, &grade, &none) != 0) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    rc_vehicle car;
+    vehicle_from_values(&car, vehicle);
+    Py_BEGIN_ALLOW_THREADS
+    for (long k = 0; k < nc / COAST_VALUES; k++) {
+        const double *c = coasts + COAST_VALUES * k;
+        rc_vehicle p = car;
+        p.A0 = c[3];
+        p.A1 = c[4];
+        p.A2 = c[5];
+        p.mass = c[6];
+        out[k] = rc_coast_time(&p, &grade, c[0], c[1], c[2], wind, nw / 2, c[7], h, t_max);
+    }
+    Py_END_ALLOW_THREADS
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    free(profiles);
+    release_views(&v);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"run", batch_run, METH_VARARGS,
      "run(runs, outputs, inputs, error) -> [(rows, finished), ...]: whole scripted runs; each run "
      "a tuple of float64 arrays (config, grade_distances, grades, speed_distances, speeds, "
      "script); outputs runs x (steps + 1) x OUTPUTS, inputs runs x steps x INPUTS; a rejected "
      "step raises error naming the run and the step"},
+    {"interval_forces", batch_interval_forces, METH_VARARGS,
+     "interval_forces(vehicle, speed, mass, traction_demand, brake_demand, traction_mean, "
+     "brake_mean): harness.metrics.estimation._interval_forces with recorded demands"},
+    {"oracle_filter", batch_oracle_filter, METH_VARARGS,
+     "oracle_filter(config, grade_distances, grades, speed_distances, speeds, A, step, wind, time, "
+     "mass, speed_meas, position_meas, traction_mean, brake_mean, v_out, x_out): "
+     "harness.metrics.estimation.oracle_filter's loop"},
+    {"coast_segments", batch_coast_segments, METH_VARARGS,
+     "coast_segments(mode, min_rows) -> [(first, last), ...]: harness.metrics.estimation.coast_segments"},
+    {"coast_times", batch_coast_times, METH_VARARGS,
+     "coast_times(vehicle, grade_distances, grades, wind, h, t_max, coasts, out): "
+     "harness.metrics.estimation.coast_time of each coast row (v0, x0, x1, A0, A1, A2, mass, t0)"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -224,7 +498,9 @@ PyMODINIT_FUNC PyInit__batch(void)
             || PyModule_AddIntConstant(m, "INPUTS", RC_SCRIPT_INPUTS) < 0
             || PyModule_AddIntConstant(m, "HEADER", RC_SCRIPT_HEADER) < 0
             || PyModule_AddIntConstant(m, "PHASE_FIELDS", RC_PHASE_FIELDS) < 0
-            || PyModule_AddIntConstant(m, "MAX_STEPS", RC_SCRIPT_MAX_STEPS) < 0) {
+            || PyModule_AddIntConstant(m, "MAX_STEPS", RC_SCRIPT_MAX_STEPS) < 0
+            || PyModule_AddIntConstant(m, "VEHICLE_VALUES", VEHICLE_VALUES) < 0
+            || PyModule_AddIntConstant(m, "COAST_VALUES", COAST_VALUES) < 0) {
         Py_DECREF(m);
         return NULL;
     }

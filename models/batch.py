@@ -6,8 +6,14 @@ runs one script per chain configuration in C -- the driver (phases or a time tab
 the payload boarded, stop_after_last_phase and the chain -- without returning to Python per step,
 and gives every run's outputs and inputs. It is the C twin of harness.run.driver.drive on a
 models chain; harness.run.batch turns scenarios and their chains' configurations into these
-flat arrays and the results into RunResults. Only numbers here: this module sits in the models
-base layer (docs/architecture.md), importing nothing of ours but its extension.
+flat arrays and the results into RunResults.
+
+The metrics of a recorded run that run a model again are here too, in C
+(models/core/run_metrics.h): ``oracle_filter`` (the estimator with a frozen identifier holding
+the truth, replaying the measurements), ``interval_forces``, ``coast_segments`` and
+``coast_times``; harness.metrics.estimation calls them when the C core runs (its Python functions
+stay the reference, equal bit for bit). Only numbers here: this module sits in the models base
+layer (docs/architecture.md), importing nothing of ours but its extension.
 """
 from __future__ import annotations
 
@@ -119,3 +125,82 @@ def run_scripts(runs: Sequence[tuple[np.ndarray, ...]], rejected: type[Exception
     rows = np.array([n for n, _ in done], dtype=np.int64)
     finished = np.array([f for _, f in done], dtype=bool)
     return BatchRuns(outputs, inputs, rows, finished)
+
+
+# ---------------------------------------------------------------- metrics of a recorded run
+
+VEHICLE_FIELDS = ("mass", "A0", "A1", "A2", "gamma", "length", "traction_force_max",
+                  "traction_power_max", "brake_force_max", "adhesion_mass_fraction", "adhesion_factor")
+"""A car's numbers in the C arrays, models.plant.dynamics.VehicleParams' fields in its order."""
+COAST_FIELDS = ("v0", "x0", "x1", "A0", "A1", "A2", "mass", "t0")
+"""One coast of ``coast_times``: start speed [m/s], start and end distance [m], the resistance's
+A0, A1, A2, the mass [t], the time the coast starts in the run [s] (where its wind is read)."""
+
+
+def _doubles(values) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=float)
+
+
+def _needs_c() -> None:
+    if _batch is None:
+        raise RuntimeError("the C run metrics (models._batch) are not compiled")
+
+
+def interval_forces(vehicle: Sequence[float], speed, mass, traction_demand, brake_demand
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """harness.metrics.estimation._interval_forces in C, from recorded demands: the mean applied
+    traction and brake force [N] over each of the n - 1 intervals of n rows of car speed [m/s] and
+    total mass [t], the demands [N] (at least n - 1 of each) held over each interval; ``vehicle``:
+    the car's VEHICLE_FIELDS (its mass replaced by each interval's). ValueError naming a wrong
+    array."""
+    _needs_c()
+    speed = _doubles(speed)
+    n = max(len(speed) - 1, 0)
+    f_mean, b_mean = np.empty(n), np.empty(n)
+    _batch.interval_forces(_doubles(vehicle), speed, _doubles(mass), _doubles(traction_demand),
+                           _doubles(brake_demand), f_mean, b_mean)
+    return f_mean, b_mean
+
+
+def oracle_filter(config: Sequence[float], grade: tuple, speed_profile: tuple, A: Sequence[float],
+                  step: float, wind: Sequence[tuple[float, float]], time, mass, speed_meas,
+                  position_meas, traction_mean, brake_mean) -> tuple[np.ndarray, np.ndarray]:
+    """harness.metrics.estimation.oracle_filter's loop in C: speed [m/s] and distance [m] of the
+    estimator with a frozen identifier holding the truth at each of the n rows (mass [t], the
+    still-air ``A`` moved by the wind of ``wind``'s (time [s], speed [m/s]) schedule at ``time``
+    [s]), fed the measurements and, over each step of ``step`` [s], the interval forces [N] (n - 1).
+    ``config``: the estimator's numbers in EstimatorChain's flat layout (models/core/config.c;
+    identifier frozen, est.method 0); ``grade``: (distances [m], grades [permille]);
+    ``speed_profile``: (distances [m], speeds [m/s]), empty for none. ValueError naming a wrong
+    array or the first bad setting."""
+    _needs_c()
+    time = _doubles(time)
+    v_out, x_out = np.empty(len(time)), np.empty(len(time))
+    _batch.oracle_filter(_doubles(config), _doubles(grade[0]), _doubles(grade[1]),
+                         _doubles(speed_profile[0]), _doubles(speed_profile[1]), _doubles(A),
+                         float(step), _doubles([x for w in wind for x in w]), time, _doubles(mass),
+                         _doubles(speed_meas), _doubles(position_meas), _doubles(traction_mean),
+                         _doubles(brake_mean), v_out, x_out)
+    return v_out, x_out
+
+
+def coast_segments(mode, min_rows: int) -> list[tuple[int, int]]:
+    """harness.metrics.estimation.coast_segments in C: (first, last) row of each run of
+    car.mode == 2 (coasting) at least ``min_rows`` long."""
+    _needs_c()
+    return _batch.coast_segments(_doubles(mode), int(min_rows))
+
+
+def coast_times(vehicle: Sequence[float], grade: tuple, wind: Sequence[tuple[float, float]],
+                coasts, h: float = 0.05, t_max: float = 3600.0) -> np.ndarray:
+    """harness.metrics.estimation.coast_time of each row of ``coasts`` (COAST_FIELDS) in C: the
+    time [s] to coast from x0 to x1, RK4 steps of h [s] up to t_max [s], on ``grade``
+    ((distances [m], grades [permille])), the car ``vehicle`` (VEHICLE_FIELDS; its mass and A's
+    each coast's) in the wind of the (time [s], speed [m/s]) schedule read at t0 + the time into
+    the coast (no rows: still air); inf when the car stops short."""
+    _needs_c()
+    rows = _doubles(coasts).reshape(-1)
+    out = np.empty(len(rows) // len(COAST_FIELDS)) if len(rows) % len(COAST_FIELDS) == 0 else np.empty(0)
+    _batch.coast_times(_doubles(vehicle), _doubles(grade[0]), _doubles(grade[1]),
+                       _doubles([x for w in wind for x in w]), float(h), float(t_max), rows, out)
+    return out

@@ -3,7 +3,13 @@
 Input arrays come from ``RunResult`` (one value per communication step); the car's
 configuration and track profiles from a ``fmu_src.adapter.ChainSetup`` (the scenario's, resolved
 once when it was loaded: ``result.setup.chain``). Nothing here reads or writes files, and
-nothing runs the model but ``oracle_filter`` (the same filter knowing the truth, once a run).
+nothing runs the model but ``oracle_filter`` (the same filter knowing the truth, once a run) and
+``coast_time_errors`` (each coast re-run with the identified resistance).
+
+Those two run in C when the C core runs in this process (models.batch, models/core/run_metrics.c:
+compiled, and RAILCAR_PURE_PYTHON not set; ``c_metrics``): 0.4 ms instead of ~120 ms for a
+station_day run (issue 31). The Python code below is the reference they equal bit for bit
+(tests/model_tests/core/test_core_run_metrics.py), and what runs without the C core.
 """
 from __future__ import annotations
 
@@ -27,7 +33,7 @@ def stop_indices(speed: np.ndarray) -> list[int]:
     Metrics "at a stop" are taken there, before passengers board and change the mass.
     """
     v = np.asarray(speed)
-    return [k for k in range(1, len(v)) if v[k] <= 0.0 < v[k - 1]]
+    return (np.flatnonzero((v[1:] <= 0.0) & (v[:-1] > 0.0)) + 1).tolist()
 
 
 def time_to_stay_within(time: np.ndarray, rel_err: np.ndarray, bound: float,
@@ -99,11 +105,12 @@ class RunSummary:
 def _segments(speed: np.ndarray) -> list[tuple[int, int]]:
     """(departure row, arrival row) of each run that ends at rest."""
     v = np.asarray(speed)
+    stops = stop_indices(v)
+    still = np.flatnonzero(~(v > 0.0))     # rows not moving; the departure follows the last before k - 1
+    before = np.searchsorted(still, np.asarray(stops, dtype=np.int64) - 1) - 1
     out = []
-    for k in stop_indices(v):
-        dep = k - 1
-        while dep > 0 and v[dep - 1] > 0.0:
-            dep -= 1
+    for k, j in zip(stops, before.tolist()):
+        dep = int(still[j]) + 1 if j >= 0 else 0
         out.append((max(dep - 1, 0), k))
     return out
 
@@ -205,6 +212,21 @@ def resistance_covariance(result, row: int = -1) -> tuple[np.ndarray, bool]:
 
 # ---------------------------------------------------------------- oracle filter and coast times
 
+def c_metrics():
+    """models.batch when the C twins of the oracle filter and the coast times run in this
+    process (models._batch compiled, the C core enabled: models.compiled.enabled, so
+    RAILCAR_PURE_PYTHON forces the Python here as it does for the chains), else None."""
+    from models import batch
+    from models.compiled import enabled
+    return batch if batch.available() and enabled() else None
+
+
+def _vehicle_values(p) -> tuple:
+    """A models.plant.dynamics.VehicleParams as the C arrays hold a car (models.batch.VEHICLE_FIELDS)."""
+    from models.batch import VEHICLE_FIELDS
+    return tuple(float(getattr(p, name)) for name in VEHICLE_FIELDS)
+
+
 def true_theta(mass_t: float, A: tuple, wind: float) -> np.ndarray:
     """Theta = (1/(Pg), A0', A1', A2) of eq. (2) for a mass [t], still-air A's and wind [m/s].
 
@@ -230,6 +252,9 @@ def oracle_filter(result, setup) -> tuple[np.ndarray, np.ndarray] | None:
     demand change into the wrong interval (0.07 m/s of prediction error at a 40 kN cut-off),
     which let the learning filter beat this "oracle" on station_day. Without recorded
     inputs, that trapezoid is the fallback.
+
+    With the C core (``c_metrics``) the forces and the filter's loop run in C
+    (models.batch.interval_forces, oracle_filter): the same arrays bit for bit, ~200x faster.
     """
     from models.estimation.online import OnlineEstimator
     from models.filtering.motion_filter import FilterConfig
@@ -248,9 +273,20 @@ def oracle_filter(result, setup) -> tuple[np.ndarray, np.ndarray] | None:
                         position_std_rel=sensors.position_std_rel,
                         speed_std_rel=sensors.speed_std_rel, gamma=car.gamma,
                         kind=sensors.kind, length=car.length)
-    est = OnlineEstimator(ident, filt, cfg.station, setup.grade, setup.speed)
     F, B = _interval_forces(result, car)
     mass = result["car.total_mass"]
+    core = c_metrics()
+    if core is not None:
+        from models.compiled import _estimator_values
+        st, track, sp = cfg.station, cfg.track, setup.speed
+        config = [*_estimator_values(ident, filt), st.dwell, st.speed_threshold,
+                  st.position_threshold, track.base, track.resolution, track.jitter,
+                  int(ident.slope_window)]
+        return core.oracle_filter(config, (setup.grade.distances, setup.grade.grades),
+                                  (sp.distances, sp.speeds) if sp is not None else ((), ()), A, h,
+                                  [(w.time_s, w.speed_mps) for w in s.wind], result.time, mass,
+                                  result["sensor.speed"], result["sensor.position"], F, B)
+    est = OnlineEstimator(ident, filt, cfg.station, setup.grade, setup.speed)
     n = len(result.time)
     v_out, x_out = np.empty(n), np.empty(n)
     for k in range(n):
@@ -275,6 +311,9 @@ def _interval_forces(result, vehicle) -> tuple[np.ndarray, np.ndarray]:
         return 0.5 * (F[:-1] + F[1:]), 0.5 * (B[:-1] + B[1:])
     v, mass = result["car.speed"], result["car.total_mass"]
     td, bd = inputs["traction_force_demand"], inputs["brake_force_demand"]
+    core = c_metrics()
+    if core is not None:
+        return core.interval_forces(_vehicle_values(vehicle), v, mass, td, bd)
     f_mean, b_mean = np.empty(len(F) - 1), np.empty(len(F) - 1)
     for k in range(len(F) - 1):
         p = replace(vehicle, mass=float(mass[k + 1]))       # payload of this interval
@@ -306,12 +345,17 @@ def coast_time_errors(result, A_at, still_air: bool = False, setup=None) -> list
     Identified A's are the coefficients of eq. (2) as the car met them, the wind included
     (A0' = A0 + A2 Vw^2, ...): the coast is re-run in still air. With ``still_air`` the A's are
     the car's own (the truth) and the coast is re-run in the scenario's wind as it blows over
-    the coast, changes included.
+    the coast, changes included. With the C core (``c_metrics``) the coasts are found and re-run
+    in C (_coast_time_errors_c): the same numbers bit for bit.
     """
     s = result.scenario
     t, v, mass = result.time, result["car.speed"], result["car.total_mass"]
+    min_rows = int(round(10.0 / s.step_s))
+    core = c_metrics()
+    if core is not None:
+        return _coast_time_errors_c(core, result, A_at, still_air, setup, min_rows)
     out = []
-    for first, last in coast_segments(result["car.mode"], int(round(10.0 / s.step_s))):
+    for first, last in coast_segments(result["car.mode"], min_rows):
         setup = s.chain_setup() if setup is None else setup
         car = setup.config.vehicle
         x0, x1 = float(result["car.position"][first]), float(result["car.position"][last])
@@ -321,6 +365,28 @@ def coast_time_errors(result, A_at, still_air: bool = False, setup=None) -> list
                                car.length, setup.grade, wind)
         out.append(predicted - float(t[last] - t[first]))
     return out
+
+
+def _coast_time_errors_c(core, result, A_at, still_air: bool, setup, min_rows: int) -> list[float]:
+    """coast_time_errors with the segments and the re-runs in C (``core``: models.batch): the
+    same numbers, one call for all the run's coasts."""
+    from models.plant.dynamics import VehicleParams
+    segments = core.coast_segments(result["car.mode"], min_rows)
+    if not segments:
+        return []
+    s = result.scenario
+    setup = s.chain_setup() if setup is None else setup
+    car = setup.config.vehicle
+    t, v, x, mass = result.time, result["car.speed"], result["car.position"], result["car.total_mass"]
+    rows = []
+    for first, last in segments:
+        A = A_at(last)
+        rows.append((float(v[first]), float(x[first]), float(x[last]), float(A[0]), float(A[1]),
+                     float(A[2]), float(mass[first]), float(t[first])))
+    wind = [(w.time_s, w.speed_mps) for w in s.wind] if still_air else []     # []: still air
+    predicted = core.coast_times(_vehicle_values(VehicleParams(gamma=car.gamma, length=car.length)),
+                                 (setup.grade.distances, setup.grade.grades), wind, rows)
+    return [float(p) - float(t[last] - t[first]) for p, (first, last) in zip(predicted, segments)]
 
 
 def coast_time(v0: float, x0: float, x1: float, A: tuple, mass_t: float, gamma: float, length: float,

@@ -15,10 +15,9 @@ typedef struct {
     const rc_grade_profile *grade;
 } dyn;
 
-static void dyn_bind(dyn *d, const rc_plant *pl, double traction_demand, double brake_demand,
-                     double wind)
+static void dyn_bind_vehicle(dyn *d, const rc_vehicle *p, const rc_grade_profile *grade,
+                             double traction_demand, double brake_demand, double wind)
 {
-    const rc_vehicle *p = &pl->p;
     d->k_adh = 1000.0 * p->mass * p->adhesion_mass_fraction * RC_G * p->adhesion_factor;
     d->frac = p->adhesion_mass_fraction;
     d->f_max = p->traction_force_max;
@@ -30,11 +29,17 @@ static void dyn_bind(dyn *d, const rc_plant *pl, double traction_demand, double 
     d->inv_weight = 1.0 / (p->mass * RC_G);
     d->k_acc = RC_G / 1000.0 / (1.0 + p->gamma);
     d->length = p->length;
-    d->grade = pl->grade;
+    d->grade = grade;
     d->traction_demand = traction_demand;
     d->brake_demand = brake_demand;
     d->wind = wind;
     d->braking = brake_demand > 0.0;
+}
+
+static void dyn_bind(dyn *d, const rc_plant *pl, double traction_demand, double brake_demand,
+                     double wind)
+{
+    dyn_bind_vehicle(d, &pl->p, pl->grade, traction_demand, brake_demand, wind);
 }
 
 /* forces(v) -> (F, B) */
@@ -94,6 +99,15 @@ static void rk4(const dyn *d, double v, double x, double h, double *v_out, doubl
     }
     *v_out = v_new;
     *x_out = x_new;
+}
+
+void rc_rk4_step(const rc_vehicle *p, const rc_grade_profile *grade, double v, double x, double h,
+                 double traction_demand, double brake_demand, double wind, double *v_out,
+                 double *x_out)
+{
+    dyn d;
+    dyn_bind_vehicle(&d, p, grade, traction_demand, brake_demand, wind);
+    rk4(&d, v, x, h, v_out, x_out);
 }
 
 /* CarPlant._update_outputs */

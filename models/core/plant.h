@@ -51,6 +51,12 @@ rc_status rc_plant_validate(const rc_vehicle *p, double step, double noise_psd, 
  * pl->state.speed / position and call rc_plant_refresh_outputs (the chain's initial state). */
 void rc_plant_init(rc_plant *pl, const rc_vehicle *p, const rc_grade_profile *grade, double step,
                    double noise_psd, double station_dwell, rc_stream *normal);
+/* models.plant.dynamics.rk4_step: one RK4 step of h [s] from (v [m/s], x [m]) with the demands
+ * [N] and the wind [m/s] held, the car p on the grade profile -> (*v_out, *x_out) (the plant's
+ * own step: a car coming to rest inside the step stops there) */
+void rc_rk4_step(const rc_vehicle *p, const rc_grade_profile *grade, double v, double x, double h,
+                 double traction_demand, double brake_demand, double wind, double *v_out,
+                 double *x_out);
 /* CarPlant.refresh_outputs(traction_demand, brake_demand, wind) */
 void rc_plant_refresh_outputs(rc_plant *pl, double traction_demand, double brake_demand, double wind);
 /* CarPlant.advance(t_end, traction_demand, brake_demand, wind): integrate to t_end on the

@@ -10,7 +10,9 @@ them differ. The core's other files are compiled once, to objects, with -Wall -W
 (the binding against the Python headers included, as tests/model_tests/core/test_core_build.py
 does for models/_railcar.c). The batch extension is also built with -fsanitize=address,undefined
 and run, in a Python with the sanitizers' runtimes preloaded, over every scripted library scenario,
-a refused script and a rejected step: not a sanitizer report, the rows still run_on_chain's.
+a refused script and a rejected step, and the run metrics in C (the oracle filter and the coasts,
+models/core/run_metrics.c) of those scenarios and a span scenario, and a refused coast: not a
+sanitizer report, the rows still run_on_chain's, the metrics the Python reference's.
 """
 from __future__ import annotations
 
@@ -160,6 +162,22 @@ try:
     run_batch([strong])
 except StepRejected as e:
     print("rejected:", e)
+import os
+from harness.metrics.run import run_metrics
+metrics_differ = []
+for sc in scripted + [s for s in library if s.name == "ato_nominal"]:
+    result = run_on_chain(sc)
+    ours = run_metrics(result)                  # the oracle and the coasts in this build's C
+    os.environ["RAILCAR_PURE_PYTHON"] = "1"
+    reference = run_metrics(result)
+    del os.environ["RAILCAR_PURE_PYTHON"]
+    if repr(ours.summary) != repr(reference.summary):
+        metrics_differ.append(sc.name)
+try:
+    batch.coast_times([1.0] * 11, ((0.0,), (0.0,)), [], [[1.0] * 7])
+except ValueError as e:
+    print("coasts refused:", e)
+print("metrics differ", metrics_differ)
 print("scenarios", len(scripted), "differ", differ)
 """
 
@@ -184,5 +202,7 @@ def test_the_batch_extension_under_the_sanitizers(tmp_path):
     assert "Sanitizer" not in run.stderr and "runtime error" not in run.stderr, run.stderr[-3000:]
     lines = run.stdout.splitlines()
     assert lines[-1] == "scenarios 12 differ []", run.stdout
+    assert lines[-2] == "metrics differ []", run.stdout          # run metrics: models/core/run_metrics.c
+    assert lines[-3].startswith("coasts refused: coasts: expected rows of 8 values"), run.stdout
     assert lines[0].startswith("refused: run 0: script: expected"), run.stdout
     assert lines[1].startswith("rejected: run 0: step 0: traction_force_demand"), run.stdout
