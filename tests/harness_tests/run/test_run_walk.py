@@ -14,6 +14,7 @@ import pytest
 import models.ato.controller
 import models.chain
 import models.compiled
+import models.batch
 import models.estimation.online
 from harness.__main__ import main
 from harness.run import runner as runner_module
@@ -40,6 +41,7 @@ def counts(monkeypatch) -> dict:
     count(models.chain.RailCarChain, "__init__", "python chain")
     count(models.compiled, "open_chain", "chain opened")
     count(models.estimation.online.OnlineEstimator, "__init__", "estimator")
+    count(models.batch, "oracle_filter", "oracle")
     count(models.compiled, "validate", "configuration checked")
     count(scenario_module, "resolve_setup", "setup resolved")
     count(models.ato.controller.AtoController, "__init__", "ATO controller")
@@ -50,7 +52,7 @@ def test_one_run_runs_the_model_twice_fmu_and_oracle(built_fmus, counts, tmp_pat
     dist = Path(built_fmus["RailCar"]).parent
     assert main(["run", str(ROOT / "scenarios" / "default.toml"), "--out", str(tmp_path),
                  "--dist", str(dist), "--fmu", "native"]) == 0
-    assert counts == {"setup resolved": 1, "configuration checked": 1, "fmu instance": 1, "estimator": 1}
+    assert counts == {"setup resolved": 1, "configuration checked": 1, "fmu instance": 1, "oracle": 1}
     assert (tmp_path / "summary.md").is_file()
 
 
@@ -75,7 +77,7 @@ def test_a_span_scenario_logs_into_its_result_naming_it(built_fmus, counts, tmp_
     assert said, line
     assert (f"ato_speed_noise: span 1: ATO at t = {said.group(1)} s"
             in (tmp_path / "summary.md").read_text(encoding="utf-8"))
-    assert counts == {"setup resolved": 1, "configuration checked": 1, "fmu instance": 1, "estimator": 1,
+    assert counts == {"setup resolved": 1, "configuration checked": 1, "fmu instance": 1, "oracle": 1,
                       "ATO controller": 2}
 
 
