@@ -2,6 +2,7 @@
  * and harness/run/driver.py's drive() in C, each expression in the Python's operand order. */
 #include "rc_fp_contract.h"
 #include "scenario_driver.h"
+#include "run_metrics.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -225,11 +226,7 @@ void rc_script_free(rc_script *s)
 
 double rc_script_wind_at(const rc_script *s, double t)
 {
-    double w = 0.0;
-    for (long k = 0; k < s->n_wind; k++)
-        if (t + 1e-9 >= s->wind[2 * k])
-            w = s->wind[2 * k + 1];
-    return w;
+    return rc_wind_schedule_at(s->wind, s->n_wind, t);
 }
 
 void rc_script_driver_start(rc_script_driver *d, const rc_script *s)

@@ -64,8 +64,8 @@ MUTATIONS = {
                f"double demand = 1000.0 * s->mass_t * CRUISE_GAIN * (p->target_speed_mps - speed) * {ONE_ULP};"),
     "time_table": ("table", "return demands(r0[1] + w * (r1[1] - r0[1]),",
                    f"return demands((r0[1] + w * (r1[1] - r0[1])) * {ONE_ULP},"),
-    "wind": ("headwind_change", "            w = s->wind[2 * k + 1];",
-             f"            w = s->wind[2 * k + 1] * {ONE_ULP};"),
+    "wind": ("headwind_change", "return rc_wind_schedule_at(s->wind, s->n_wind, t);",
+             f"return rc_wind_schedule_at(s->wind, s->n_wind, t) * {ONE_ULP};"),
 }
 """name: (the scenario it shows on, the expression in scenario_driver.c, its one-ulp change)"""
 
