@@ -124,12 +124,13 @@ def built_fmus(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="session")
 def native_fmus(built_fmus) -> dict[str, Path]:
-    """The five native FMUs build.py put in dist/native/ of that same build (the same sources
-    and flags as fmu_src.build.native's functions): built once, not once per test module."""
+    """The six native FMUs build.py put in dist/native/ of that same build (the same sources
+    and flags as fmu_src.build.native's and native_fmi3's functions): built once, not once per
+    test module."""
     folder = built_fmus["RailCar"].parent / "native"
     paths = {n: folder / f"{n}.fmu" for n in ("RailCarNative", "RailCarEstimatorNative",
                                               "RailCarNative3", "RailCarEstimatorNative3",
-                                              "AtoControllerNative")}
+                                              "AtoControllerNative", "AtoControllerNative3")}
     for path in paths.values():
         assert path.is_file(), f"build.py did not produce {path}"
     return paths
