@@ -41,10 +41,12 @@ import argparse
 import hashlib
 import html
 import math
+import os
 import sys
 import tempfile
 import uuid
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -308,6 +310,18 @@ def compile_for(target: Target, sources: list[Path], out: Path, what: str) -> Pa
     return out
 
 
+def compile_platforms(targets, sources: list[Path], folder: Path, member: Callable,
+                      what: str) -> dict[str, Path]:
+    """``sources`` compiled for each of ``targets`` into ``folder`` at once (one compiler process
+    a platform, as many at a time as this machine has cores: they are independent), as
+    {member(target): the library}, in the order of ``targets``; the first failure raised."""
+    targets = list(targets)
+    with ThreadPoolExecutor(max_workers=max(1, min(len(targets), os.cpu_count() or 1))) as pool:
+        built = list(pool.map(lambda t: compile_for(t, sources, folder / f"{t.tuple}{t.extension}",
+                                                    what), targets))
+    return {member(t): lib for t, lib in zip(targets, built)}
+
+
 def compile_native(out: Path, spec: NativeSpec = RAILCAR_SPEC,
                    target: Target = LINUX_X86_64) -> Path:
     """The FMI 2 binary of ``spec`` for ``target`` (default linux x86-64) from the C sources."""
@@ -409,9 +423,10 @@ def build_native(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> P
     names = [p.name for p in [*c_sources(spec), *c_headers(spec)]]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binaries = {f"binaries/{t.fmi2_folder}/{spec.fmu}{t.extension}":
-                    compile_native(Path(tmp) / f"{t.tuple}{t.extension}", spec, t)
-                    for t in targets}
+        binaries = compile_platforms(
+            targets, c_sources(spec), Path(tmp),
+            lambda t: f"binaries/{t.fmi2_folder}/{spec.fmu}{t.extension}",
+            f"the native FMU {spec.native_name}")
         python_xml, profiles = read_pythonfmu(python_fmu, spec.fmu)
         xml = native_model_description(native_guid(python_xml, spec, targets), spec)
         write_fmu2(target, Path(tmp), xml, binaries, spec.native_name, targets,
@@ -579,10 +594,9 @@ def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
         assert flag in xml, flag
         xml = xml.replace(flag, flag.replace(b'"true"', b'"false"'))
     with tempfile.TemporaryDirectory() as tmp:
-        binaries = {f"binaries/{t.fmi2_folder}/{ATO}{t.extension}":
-                    compile_for(t, sources, Path(tmp) / f"{t.tuple}{t.extension}",
-                                f"the native FMU {ATO_NATIVE_NAME}")
-                    for t in targets}
+        binaries = compile_platforms(targets, sources, Path(tmp),
+                                     lambda t: f"binaries/{t.fmi2_folder}/{ATO}{t.extension}",
+                                     f"the native FMU {ATO_NATIVE_NAME}")
         write_fmu2(target, Path(tmp), xml, binaries, ATO_NATIVE_NAME, targets,
                    [*sources, *ato_c_headers()], profiles)
     return target

@@ -145,10 +145,9 @@ def _write_fmu3(dest_dir, native_name: str, fmu: str, xml: bytes, sources: list[
     names = [p.name for p in files]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binaries = {f"binaries/{t.tuple}/{fmu}{t.extension}":
-                    native.compile_for(t, sources, Path(tmp) / f"{t.tuple}{t.extension}",
-                                       f"the FMI 3 native FMU {native_name}")
-                    for t in targets}
+        binaries = native.compile_platforms(targets, sources, Path(tmp),
+                                            lambda t: f"binaries/{t.tuple}/{fmu}{t.extension}",
+                                            f"the FMI 3 native FMU {native_name}")
         _, profiles = native.read_pythonfmu(python_fmu, fmu)
         tmp_fmu = Path(tmp) / target.name
         with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
