@@ -8,8 +8,8 @@
    ``DEST/AtoController.fmu`` (``pythonfmu_fmus.build_pythonfmu``);
 3. with our binary and unless ``--no-native``: the native FMUs (no Python at run time,
    docs/native_fmus.md) into ``DEST/native/``: RailCarNative.fmu, RailCarEstimatorNative.fmu and
-   AtoControllerNative.fmu (FMI 2.0, ``native``), RailCarNative3.fmu and RailCarEstimatorNative3.fmu (FMI 3.0,
-   ``native_fmi3``), each with binaries for every platform of ``toolchain.TARGETS`` whose
+   AtoControllerNative.fmu (FMI 2.0, ``native``), RailCarNative3.fmu, RailCarEstimatorNative3.fmu and
+   AtoControllerNative3.fmu (FMI 3.0, ``native_fmi3``), each with binaries for every platform of ``toolchain.TARGETS`` whose
    compiler this machine has (linux x86-64, Windows x86-64 with mingw-w64, linux aarch64 with
    gcc-aarch64-linux-gnu); a missing compiler is printed as a SKIPPED platform.
 
@@ -78,7 +78,8 @@ def build_all(dest: Path, pythonfmu_binary: bool = False, native: bool = True) -
                          native_fmi2.build_native_estimator_fmu(native_dir, built[ESTIMATOR]),
                          native_fmi2.build_native_ato(native_dir, built[ATO]),
                          native_fmi3.build_native3_fmu(native_dir, built[RAILCAR]),
-                         native_fmi3.build_native3_estimator_fmu(native_dir, built[ESTIMATOR])):
+                         native_fmi3.build_native3_estimator_fmu(native_dir, built[ESTIMATOR]),
+                         native_fmi3.build_native_ato3(native_dir, built[ATO])):
                 good &= report(path, validate(path),
                                f"native, no Python at run time: {', '.join(binary_folders(path))}")
     return good

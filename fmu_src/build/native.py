@@ -41,10 +41,12 @@ import argparse
 import hashlib
 import html
 import math
+import os
 import sys
 import tempfile
 import uuid
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -308,6 +310,18 @@ def compile_for(target: Target, sources: list[Path], out: Path, what: str) -> Pa
     return out
 
 
+def compile_platforms(targets, sources: list[Path], folder: Path, member: Callable,
+                      what: str) -> dict[str, Path]:
+    """``sources`` compiled for each of ``targets`` into ``folder`` at once (one compiler process
+    a platform, as many at a time as this machine has cores: they are independent), as
+    {member(target): the library}, in the order of ``targets``; the first failure raised."""
+    targets = list(targets)
+    with ThreadPoolExecutor(max_workers=max(1, min(len(targets), os.cpu_count() or 1))) as pool:
+        built = list(pool.map(lambda t: compile_for(t, sources, folder / f"{t.tuple}{t.extension}",
+                                                    what), targets))
+    return {member(t): lib for t, lib in zip(targets, built)}
+
+
 def compile_native(out: Path, spec: NativeSpec = RAILCAR_SPEC,
                    target: Target = LINUX_X86_64) -> Path:
     """The FMI 2 binary of ``spec`` for ``target`` (default linux x86-64) from the C sources."""
@@ -353,14 +367,14 @@ def native_guid(xml: bytes, spec: NativeSpec = RAILCAR_SPEC, targets=None) -> st
     return "{" + str(uuid.UUID(bytes=h.digest()[:16], version=5)) + "}"
 
 
-def read_pythonfmu(path, spec: NativeSpec) -> tuple[bytes, list[tuple[str, bytes]]]:
-    """The pythonfmu FMU's modelDescription.xml (checked: ``spec.fmu``'s, with the table's
+def read_pythonfmu(path, fmu: str) -> tuple[bytes, list[tuple[str, bytes]]]:
+    """The pythonfmu FMU's modelDescription.xml (checked: ``fmu``'s, with the table's
     variables) and its profiles (resources/profiles/: relative profile paths resolve there)."""
     with zipfile.ZipFile(path) as src:
         xml = src.read("modelDescription.xml")
         profiles = [(i.filename, src.read(i.filename)) for i in src.infolist()
                     if i.filename.startswith("resources/profiles/") and not i.is_dir()]
-    model_description.check_pythonfmu_description(xml, spec.fmu, f"{path} (stale build?)")
+    model_description.check_pythonfmu_description(xml, fmu, f"{path} (stale build?)")
     return xml, profiles
 
 
@@ -409,10 +423,11 @@ def build_native(spec: NativeSpec, dest_dir, python_fmu=None, targets=None) -> P
     names = [p.name for p in [*c_sources(spec), *c_headers(spec)]]
     assert len(set(names)) == len(names), "two C files of the same name: sources/ is flat"
     with tempfile.TemporaryDirectory() as tmp:
-        binaries = {f"binaries/{t.fmi2_folder}/{spec.fmu}{t.extension}":
-                    compile_native(Path(tmp) / f"{t.tuple}{t.extension}", spec, t)
-                    for t in targets}
-        python_xml, profiles = read_pythonfmu(python_fmu, spec)
+        binaries = compile_platforms(
+            targets, c_sources(spec), Path(tmp),
+            lambda t: f"binaries/{t.fmi2_folder}/{spec.fmu}{t.extension}",
+            f"the native FMU {spec.native_name}")
+        python_xml, profiles = read_pythonfmu(python_fmu, spec.fmu)
         xml = native_model_description(native_guid(python_xml, spec, targets), spec)
         write_fmu2(target, Path(tmp), xml, binaries, spec.native_name, targets,
                    [*c_sources(spec), *c_headers(spec)], profiles)
@@ -542,28 +557,36 @@ def native_ato_guid(xml: bytes, targets) -> str:
     return "{" + str(uuid.UUID(bytes=h.digest()[:16], version=5)) + "}"
 
 
+def check_ato_header() -> None:
+    """RuntimeError unless native_ato_table.h is what generate_ato_header writes now."""
+    if ATO_TABLE_HEADER.read_text(encoding="utf-8") != generate_ato_header():
+        raise RuntimeError(f"{_rel(ATO_TABLE_HEADER)} is out of date: run python -m "
+                           "fmu_src.build.native")
+
+
+def ato_build_inputs(fmu_name: str, python_fmu=None, targets=None) -> tuple:
+    """build_inputs for the native AtoController (FMI 2 here, FMI 3 in native_fmi3): its table
+    header checked, the platforms and the pythonfmu AtoController.fmu."""
+    check_ato_header()
+    if targets is None:
+        targets = available_targets()
+    if not targets:
+        raise RuntimeError(f"{fmu_name}: no platform has a compiler here")
+    if python_fmu is None:
+        python_fmu = current_pythonfmu(ATO)
+    return targets, python_fmu
+
+
 def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
     """``dest_dir/AtoControllerNative.fmu`` (FMI 2.0) from the pythonfmu AtoController.fmu
     ``python_fmu`` (default dist/'s): build_native's recipe with native_ato.c. Its description
     says canGetAndSetFMUstate="false": this backend saves no FMU state."""
-    if ATO_TABLE_HEADER.read_text(encoding="utf-8") != generate_ato_header():
-        raise RuntimeError(f"{_rel(ATO_TABLE_HEADER)} is out of date: run python -m "
-                           "fmu_src.build.native")
-    if targets is None:
-        targets = available_targets()
-    if not targets:
-        raise RuntimeError(f"{ATO_NATIVE_NAME}: no platform has a compiler here")
-    if python_fmu is None:
-        python_fmu = current_pythonfmu(ATO)
+    targets, python_fmu = ato_build_inputs(ATO_NATIVE_NAME, python_fmu, targets)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
     target = dest / f"{ATO_NATIVE_NAME}.fmu"
     sources = ato_c_sources()
-    with zipfile.ZipFile(python_fmu) as src:
-        python_xml = src.read("modelDescription.xml")
-        profiles = [(i.filename, src.read(i.filename)) for i in src.infolist()
-                    if i.filename.startswith("resources/profiles/") and not i.is_dir()]
-    model_description.check_pythonfmu_description(python_xml, ATO, f"{python_fmu} (stale build?)")
+    python_xml, profiles = read_pythonfmu(python_fmu, ATO)
     xml = model_description.fmi2(ATO, native_ato_guid(python_xml, targets), GENERATION_TOOL,
                                  needs_execution_tool=False,
                                  source_files=tuple(p.name for p in sources))
@@ -571,10 +594,9 @@ def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
         assert flag in xml, flag
         xml = xml.replace(flag, flag.replace(b'"true"', b'"false"'))
     with tempfile.TemporaryDirectory() as tmp:
-        binaries = {f"binaries/{t.fmi2_folder}/{ATO}{t.extension}":
-                    compile_for(t, sources, Path(tmp) / f"{t.tuple}{t.extension}",
-                                f"the native FMU {ATO_NATIVE_NAME}")
-                    for t in targets}
+        binaries = compile_platforms(targets, sources, Path(tmp),
+                                     lambda t: f"binaries/{t.fmi2_folder}/{ATO}{t.extension}",
+                                     f"the native FMU {ATO_NATIVE_NAME}")
         write_fmu2(target, Path(tmp), xml, binaries, ATO_NATIVE_NAME, targets,
                    [*sources, *ato_c_headers()], profiles)
     return target

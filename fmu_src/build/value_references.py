@@ -43,6 +43,7 @@ FMU_FILES = {   # every FMU build.py makes: name -> path inside the build folder
     "RailCarNative3": "native/RailCarNative3.fmu",
     "RailCarEstimatorNative3": "native/RailCarEstimatorNative3.fmu",
     "AtoControllerNative": "native/AtoControllerNative.fmu",
+    "AtoControllerNative3": "native/AtoControllerNative3.fmu",
 }
 FIELDS = ("vr", "causality", "variability", "type", "unit")
 """What is frozen of each variable (``unit`` is None where the variable has none)."""

@@ -1,6 +1,6 @@
-"""The native FMUs on every desktop (issue 28): each of the four native FMUs of the session build
-(RailCarNative, RailCarEstimatorNative: FMI 2.0; RailCarNative3, RailCarEstimatorNative3: FMI
-3.0) carries a binary for every platform of ``fmu_src.build.toolchain.TARGETS`` (linux x86-64,
+"""The native FMUs on every desktop (issue 28): each of the six native FMUs of the session build
+(RailCarNative, RailCarEstimatorNative, AtoControllerNative: FMI 2.0; RailCarNative3,
+RailCarEstimatorNative3, AtoControllerNative3: FMI 3.0) carries a binary for every platform of ``fmu_src.build.toolchain.TARGETS`` (linux x86-64,
 Windows x86-64, linux aarch64) whose compiler this machine has, and its ``sources/`` alone
 compile for each of them with all warnings as errors.
 
@@ -12,6 +12,10 @@ compile for each of them with all warnings as errors.
   under Wine (the host built with mingw-w64: LoadLibrary, Windows paths and resource
   locations), one host process per platform, against the x86-64 binaries: bit-identical, but
   for the outputs in ULP_BOUNDS, whose largest difference is bounded and explained there;
+- the two native AtoControllers (FMI 2 and 3) on ato_nominal's span, fed the inputs of the
+  Python controller's closed loop (test_ato_fmu.closed_loop_on_chain), through the same host on
+  each platform (Booleans and Int32 among the inputs and outputs): every output at every step
+  as the x86-64 binary's, within ATO_ULP_BOUNDS (the ATO calls libm's pow);
 - the commands docs/native_fmus.md gives Windows and ARM users, run as written: the libraries
   they build, put back into the FMU and zipped, run like the shipped binaries.
 
@@ -33,7 +37,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from csv_host_cases import HOST_FLAGS, NativeFmu, assert_same, bits
+from csv_host_cases import HOST_FLAGS, NativeFmu, assert_same, bits, read_output
 from fmu_cases import cross_platform
 from fmu_cases.cross_platform import FOREIGN, Platform, Unavailable
 from fmu_src.build import native_fmi3, toolchain
@@ -44,7 +48,19 @@ NATIVE = {  # native FMU -> (modelIdentifier, FMI version)
     "RailCarEstimatorNative": ("RailCarEstimator", 2),
     "RailCarNative3": ("RailCar", 3),
     "RailCarEstimatorNative3": ("RailCarEstimator", 3),
+    "AtoControllerNative": ("AtoController", 2),
+    "AtoControllerNative3": ("AtoController", 3),
 }
+ATO_NATIVE = ("AtoControllerNative", "AtoControllerNative3")
+COMPILED_ALONE = [pytest.param(name, target, id=f"{name}-{target.tuple}")
+                  for name in NATIVE for target in TARGETS
+                  if name not in ATO_NATIVE
+                  or (name == "AtoControllerNative3" and target is not LINUX_AARCH64)]
+"""sources/ compiled alone (~8 s a build): every platform for the RailCar and estimator FMUs;
+AtoControllerNative3's on linux x86-64 and Windows (its aarch64 library is build.py's, with
+these flags, from the same files; the FMI 3 glue's sources/ compile alone for aarch64 in
+RailCarNative3's); AtoControllerNative's differ from those only by the FMI 2 glue, which
+RailCarNative's compile everywhere."""
 STRICT = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-ffp-contract=off",
           "-shared", "-Wl,--no-undefined"]
 WINDOWS_DLLS = {"kernel32.dll", "msvcrt.dll"}      # shipped with every Windows
@@ -109,8 +125,7 @@ def test_sources_list_every_file_and_carry_every_header(native_dir, name, tmp_pa
 
 # --------------------------------------------------------- sources/ alone, for each platform
 
-@pytest.mark.parametrize("target", TARGETS, ids=[t.tuple for t in TARGETS])
-@pytest.mark.parametrize("name", NATIVE)
+@pytest.mark.parametrize("name, target", COMPILED_ALONE)
 def test_sources_alone_compile_with_warnings_as_errors(native_dir, name, target, tmp_path):
     cc = compiler_or_skip(target)
     src = tmp_path / "sources"
@@ -183,22 +198,30 @@ ULP_BOUNDS = {
 
 
 @pytest.fixture(scope="module")
-def sweep_inputs(native_dir, tmp_path_factory) -> SimpleNamespace:
+def hosts(tmp_path_factory) -> SimpleNamespace:
+    """Each platform's csv_host, built on first use (platform_or_skip), once per module: the
+    library sweep and the AtoController's span share them (and Wine's prefix)."""
+    return SimpleNamespace(folder=tmp_path_factory.mktemp("hosts"), platforms={})
+
+
+@pytest.fixture(scope="module")
+def sweep_inputs(native_dir, hosts, tmp_path_factory) -> SimpleNamespace:
     """The four native FMUs unpacked, every library scenario's cases (closed loop on the native
     RailCar) and the linux x86-64 host's outputs for each: the reference."""
     folder = tmp_path_factory.mktemp("cross_platform")
     started = time.perf_counter()
     fmus = cross_platform.unpack_all(native_dir, folder / "fmus")
     cases = cross_platform.closed_loop_cases(native_dir)
-    x86 = cross_platform.build_platform(LINUX_X86_64, folder / "hosts")
+    x86 = platform_or_skip(hosts, LINUX_X86_64)
     reference = cross_platform.run_platform(x86, cases, fmus, folder / "runs")
     return SimpleNamespace(native_dir=native_dir, folder=folder, fmus=fmus, cases=cases,
                            reference=reference, x86=x86, seconds=time.perf_counter() - started,
-                           platforms={})
+                           platforms=hosts.platforms)
 
 
 def platform_or_skip(inputs: SimpleNamespace, target: toolchain.Target) -> Platform:
-    """The host for ``target`` (built once per module), or a skip naming what is missing."""
+    """The host for ``target`` (built once per module: ``inputs`` is the hosts fixture, or
+    sweep_inputs, which shares its platforms), or a skip naming what is missing."""
     if target.tuple not in inputs.platforms:
         try:
             inputs.platforms[target.tuple] = cross_platform.build_platform(
@@ -420,6 +443,133 @@ def test_the_documented_build_runs_like_the_shipped_binary(sweep_inputs, block, 
     for case in cases:
         assert_same(got["shipped"][case.key], got["rebuilt"][case.key], f"{block} {case.key}")
 
+
+
+# ------------------------------------------- the native AtoControllers on one span, everywhere
+
+# The ATO's core calls libm for one result: pow(x, 1.0 / 3.0), the cube root of the cruise
+# speed at which the resistance's v^2 term balances a power (models/core/ato_motion.c,
+# ato_span.c; Python's ``** (1 / 3)`` there). glibc's pow on x86-64 and on aarch64 and
+# mingw-w64's may round it differently, and the planner's decisions (a mode, an EP stage) could
+# then follow a different branch. The largest difference each output may show from the linux
+# x86-64 binary, per platform, in ulps (integers and Booleans: their difference); every output
+# not listed, the time column and the step statuses included, must be bit-identical at every
+# step. Measured 2026-11-27 on ato_nominal's span (1355 steps, both FMI versions): all
+# bit-identical under qemu (aarch64) and under Wine (Windows x86-64), so no bound is needed; a
+# platform whose pow differs on this span gets its outputs listed here with the measured bound.
+ATO_ULP_BOUNDS = {
+    "aarch64-linux": {},
+    "x86_64-windows": {},
+}
+ATO_SPAN = {"span.stop": 2150.0, "span.length": 2200.0, "span.schedule": 135.0}
+"""ato_nominal's span (test_native_ato_fmu.py's profiles fixture); its grade and speed-limit
+files are test_ato_fmu.py's GRADE_CSV and LIMIT_CSV, written by the ato_span fixture and passed
+by absolute path, in each platform's spelling (Wine: Z:\\...)."""
+STEP_ATO = 0.1      # [s] the closed loop's step (test_ato_fmu.py)
+
+
+def _number_text(value, word: str) -> str:
+    return repr(float(value)) if word == "real" else str(int(value))
+
+
+@pytest.fixture(scope="module")
+def ato_span(native_dir, hosts, tmp_path_factory) -> SimpleNamespace:
+    """The native AtoControllers unpacked, the inputs the Python controller saw at each step of
+    its closed loop on ato_nominal's span, and the linux x86-64 host's outputs: the reference."""
+    import test_ato_fmu
+    folder = tmp_path_factory.mktemp("ato_cross_platform")
+    seen, commands, ctrl = test_ato_fmu.closed_loop_on_chain()
+    assert ctrl.finished and len(seen) > 1000
+    (folder / "grade.csv").write_text(test_ato_fmu.GRADE_CSV)
+    (folder / "limits.csv").write_text(test_ato_fmu.LIMIT_CSV)
+    profiles = {"span.grade_profile": folder / "grade.csv",
+                "span.speed_limit_profile": folder / "limits.csv"}
+    fmus = {n: NativeFmu.unpack(native_dir / f"{n}.fmu", folder / "fmus" / n) for n in ATO_NATIVE}
+    x86 = platform_or_skip(hosts, LINUX_X86_64)
+    inputs = SimpleNamespace(folder=folder, fmus=fmus, seen=seen, commands=commands,
+                             parameters={**ATO_SPAN, **profiles})
+    inputs.reference = run_ato(x86, inputs, "x86_64")
+    return inputs
+
+
+def run_ato(platform: Platform, span: SimpleNamespace, label: str) -> dict[str, dict]:
+    """Both native AtoControllers over the span in one host process (csv_host -b); FMU ->
+    output name -> values per row (the time column under "time", the step statuses under
+    "status")."""
+    lines, outs = [], {}
+    for name, fmu in span.fmus.items():
+        work = span.folder / "runs" / label / name
+        work.mkdir(parents=True, exist_ok=True)
+        params = ["vr,type,value"] + [
+            f"{fmu.vars[k][0]},{fmu.vars[k][1]},{platform.path(v) if isinstance(v, Path) else v}"
+            for k, v in span.parameters.items()]
+        (work / "params.csv").write_text("\n".join(params) + "\n")
+        names = list(span.seen[0])
+        rows = [",".join(["time [s]", *(fmu.spec(n) for n in names)])]
+        rows += [",".join([repr(k * STEP_ATO), *(_number_text(inputs[n], fmu.vars[n][1])
+                                                 for n in names)])
+                 for k, inputs in enumerate(span.seen)]
+        (work / "inputs.csv").write_text("\n".join(rows) + "\n")
+        out = work / "out.csv"
+        if out.exists():
+            out.unlink()
+        folder = platform.target.fmi2_folder if fmu.version == 2 else platform.target.tuple
+        binary = fmu.root / "binaries" / folder / f"{NATIVE[name][0]}{platform.target.extension}"
+        lines.append("\t".join(["-q", "-s", repr(STEP_ATO), "-e", repr(len(span.seen) * STEP_ATO),
+                                f"fmi{fmu.version}", platform.path(binary),
+                                platform.path(fmu.resources), fmu.token,
+                                platform.path(work / "params.csv"),
+                                platform.path(work / "inputs.csv"), platform.path(out),
+                                *(fmu.spec(n) for n in fmu.outputs)]))
+        outs[name] = out
+    runs = span.folder / "runs" / label / "runs.txt"
+    runs.write_text("\n".join(lines) + "\n")
+    proc = subprocess.run(platform.command(runs), capture_output=True, text=True,
+                          env=platform.env, timeout=600)
+    assert proc.returncode == 0, f"{' '.join(platform.command(runs))}:\n{proc.stderr[-4000:]}"
+    got = {}
+    for name, out in outs.items():
+        fmu = span.fmus[name]
+        _, times, columns, status = read_output(out, fmu, fmu.outputs)
+        assert len(times) == len(span.seen) + 1, f"{label} {name}: {len(times)} rows"
+        got[name] = {"time": times, "status": status, **columns}
+    return got
+
+
+
+def test_the_x86_64_host_gives_the_python_atocontrollers_commands(ato_span):
+    """The reference is right: through the host, both native AtoControllers give the commands
+    the Python controller gave in its closed loop, step for step, and stop at the mark."""
+    for name, got in ato_span.reference.items():
+        expected = {"traction_force_demand": [c.traction for c in ato_span.commands],
+                    "brake_force_demand": [c.brake for c in ato_span.commands],
+                    "ato.mode": [c.mode for c in ato_span.commands],
+                    "ato.planned_speed": [c.planned_speed for c in ato_span.commands]}
+        for output, values in expected.items():
+            assert_same({output: np.array(values)}, {output: got[output][1:]}, f"{name} {output}")
+        assert got["ato.finished"][-1] == 1 and not got["status"].any(), name
+    assert_same(ato_span.reference["AtoControllerNative"],
+                ato_span.reference["AtoControllerNative3"], "FMI 2 vs FMI 3 on x86-64")
+
+
+@pytest.mark.parametrize("target", FOREIGN, ids=[t.tuple for t in FOREIGN])
+def test_the_native_atocontrollers_on_the_foreign_binary(hosts, ato_span, target):
+    """AtoControllerNative and AtoControllerNative3 for ``target`` (one host process under qemu
+    or Wine) against the linux x86-64 binaries over ato_nominal's span: every output and the
+    step statuses at every step bit-identical, but the outputs of ATO_ULP_BOUNDS[target]."""
+    platform = platform_or_skip(hosts, target)
+    started = time.perf_counter()
+    got = run_ato(platform, ato_span, target.tuple)
+    bounds = ATO_ULP_BOUNDS[target.tuple]
+    report, beyond = [f"{target.tuple}: the native AtoControllers in {time.perf_counter() - started:.1f} s"], []
+    for name, reference in ato_span.reference.items():
+        diffs = cross_platform.compare(reference, got[name])
+        report += [f"  {name} {output}: {d.ulps:g} ulp at {d.rows} step(s) from {d.first_row}"
+                   for output, d in diffs.items() if d.rows]
+        beyond += [f"{name} {output}: {d.ulps:g} ulp > {bounds.get(output, 0)}"
+                   for output, d in diffs.items() if d.ulps > bounds.get(output, 0)]
+    print("\n".join(report))
+    assert not beyond, "\n".join(["beyond the bounds:", *beyond, *report])
 
 
 # ------------------------------------------------------------- a machine without a compiler

@@ -3,7 +3,9 @@ native_estimator.c) under ASan/UBSan/LSan, with no Python in the process: a plai
 (tests/fmu_cases/native3_cycles.c) linked with the glue, the backend and models/core/*.c (the
 sources fmu_src.build.native_fmi3.c_sources lists), all built with -fsanitize=address,undefined
 -fno-sanitize-recover=all and run with LeakSanitizer on. The FMI 2 twin of this file is
-tests/fmu_tests/test_native_sanitized.py.
+tests/fmu_tests/test_native_sanitized.py. The native AtoController (native_ato.c, issue 30)
+behind the same glue gets its own host on a short span (tests/fmu_cases/native_ato_cycles.c
+with -DATO_FMI3: a bad input, a discarded step, reset, failed initialisations, 200 cycles).
 
 What the host checks (it exits 1 naming the failed line otherwise), per backend:
 - the bad-input catalogue: NaN, +inf and -inf forces, negative traction and brake forces, a step
@@ -83,6 +85,7 @@ from fmu_src.build import native_fmi3, toolchain
 pytestmark = [pytest.mark.core, pytest.mark.slow]
 
 HOST = ROOT / "tests" / "fmu_cases" / "native3_cycles.c"
+ATO_HOST = ROOT / "tests" / "fmu_cases" / "native_ato_cycles.c"
 TOKEN = "{native3-cycles-test}"
 BACKENDS = {"railcar": native_fmi3.RAILCAR_SPEC, "estimator": native_fmi3.ESTIMATOR_SPEC}
 CYCLES = 900                       # cycles between the two measurements (100 -> 1000)
@@ -109,6 +112,8 @@ def _compile_all(out: Path) -> dict[str, Path]:
     jobs["host_estimator"] = (HOST, ["-DNATIVE_ESTIMATOR"])
     jobs["host_leak_host"] = (HOST, ["-DNATIVE3_LEAK_HOST"])
     jobs["host_leak_instance"] = (HOST, ["-DNATIVE3_LEAK_INSTANCE"])
+    jobs["native_ato"] = (toolchain.C_DIR / "native_ato.c", [])
+    jobs["host_ato"] = (ATO_HOST, ["-DATO_FMI3"])
 
     def compile_one(item):
         stem, (src, defs) = item
@@ -124,8 +129,11 @@ def _compile_all(out: Path) -> dict[str, Path]:
     def link(item):
         name, (host, backend) = item
         exe = out / f"native3_cycles_{name}"
+        # the AtoController links its own sources (no native_common.c, native_state.c)
+        rest = ([s for s in native_fmi3.ato_c_sources() if s.stem != backend] if name == "ato"
+                else shared)
         proc = subprocess.run([*cc, "-fsanitize=address,undefined", "-pthread", str(objs[host]),
-                               str(objs[backend]), *[str(objs[s.stem]) for s in shared],
+                               str(objs[backend]), *[str(objs[s.stem]) for s in rest],
                                "-o", str(exe), "-lm"], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
         return name, exe
@@ -133,7 +141,8 @@ def _compile_all(out: Path) -> dict[str, Path]:
     links = {"railcar": ("host_railcar", "native_railcar"),
              "estimator": ("host_estimator", "native_estimator"),
              "leak_host": ("host_leak_host", "native_railcar"),
-             "leak_instance": ("host_leak_instance", "native_railcar")}
+             "leak_instance": ("host_leak_instance", "native_railcar"),
+             "ato": ("host_ato", "native_ato")}
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
         return dict(pool.map(link, links.items()))
 
@@ -241,3 +250,20 @@ def test_a_null_resource_path_is_accepted(hosts):
     no_sanitizer_report(proc)
     clean(proc)
     assert "null_resources instantiated, 20 steps" in proc.stdout, proc.stdout
+
+
+def test_the_atocontroller_on_a_short_span_clean_under_sanitizers(hosts):
+    """native_ato.c behind the FMI 3 glue (tests/fmu_cases/native_ato_cycles.c -DATO_FMI3,
+    fmi3GetBoolean / fmi3SetBoolean included): a clean run, a bad input (the safe brake, a
+    warning naming it), a discarded step, reset bit-identical to a fresh instance (and one ulp
+    off differing), 20 refused initialisations, 200 cycles; no sanitizer report, no leak, the
+    live heap bytes equal after cycles 20 and 200."""
+    proc, figures = run_host(hosts["exes"]["ato"], hosts["args"][:2], ASAN_DEFAULT)
+    clean(proc)
+    out = proc.stdout
+    assert "bad_input warning with the safe brake; step of 0 discarded" in out, out
+    assert re.search(r"^reset 300 steps x 5 outputs bit-identical to a fresh instance; "
+                     r"one ulp off differs from step \d+$", out, re.M), out
+    assert "failed_inits 20 refused naming the parameter" in out and "cycles 200" in out, out
+    live = figures["live_bytes"]
+    assert set(live) == {20, 200} and live[200] == live[20], f"live heap bytes: {live}"

@@ -2,6 +2,9 @@
 backends (native_railcar.c, native_estimator.c), with no Python in the process: a plain C host
 (tests/fmu_cases/native_cycles.c) linked with the glue, the backend and models/core/*.c, all
 built with -fsanitize=address,undefined -fno-sanitize-recover=all, run with LeakSanitizer on.
+The native AtoController (native_ato.c, issue 30) gets its own host on a short span
+(tests/fmu_cases/native_ato_cycles.c: a bad input, a discarded step, reset, failed
+initialisations, 200 cycles; see its header), from the same objects.
 
 What the host checks (it exits 1 naming the failed line otherwise), per backend:
 - NaN, +inf and -inf forces, negative traction and brake forces, a step of 0, a negative step,
@@ -51,6 +54,7 @@ from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMI
 from fmu_src.build import native, toolchain
 
 HOST = ROOT / "tests" / "fmu_cases" / "native_cycles.c"
+ATO_HOST = ROOT / "tests" / "fmu_cases" / "native_ato_cycles.c"
 GUID = "{native-cycles-test}"
 BACKENDS = {"railcar": native.RAILCAR_SPEC, "estimator": native.ESTIMATOR_SPEC}
 
@@ -71,6 +75,8 @@ def _compile_all(out: Path) -> dict[str, Path]:
     jobs["host_railcar"] = ([str(HOST)], [])
     jobs["host_estimator"] = ([str(HOST)], ["-DNATIVE_ESTIMATOR"])
     jobs["host_leak"] = ([str(HOST)], ["-DNATIVE_CYCLES_LEAK"])
+    jobs["native_ato"] = ([str(native.C_DIR / "native_ato.c")], [])
+    jobs["host_ato"] = ([str(ATO_HOST)], [])
 
     def compile_one(item):
         stem, (src, defs) = item
@@ -92,6 +98,14 @@ def _compile_all(out: Path) -> dict[str, Path]:
                                "-o", str(exe), "-lm"], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
         exes[name] = exe
+    # the AtoController: its own sources (the glue, glue_common.c, native_ato.c, the core)
+    ato = [objs[s.stem] for s in native.ato_c_sources()]
+    exe = out / "native_ato_cycles"
+    proc = subprocess.run([*cc, "-fsanitize=address,undefined", "-pthread", str(objs["host_ato"]),
+                           *[str(o) for o in ato], "-o", str(exe), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    exes["ato"] = exe
     return exes
 
 
@@ -156,3 +170,19 @@ def test_the_checks_see_a_leak_of_4_kb_a_cycle(hosts):
     live, rss = figures["live_bytes"], figures["rss_kb"]
     assert live[1000] - live[100] >= 900 * 4096, live
     assert rss[1000] - rss[100] >= RSS_GROWTH_LIMIT_KB, rss
+
+
+def test_the_atocontroller_on_a_short_span_clean_under_sanitizers(hosts):
+    """native_ato.c behind the FMI 2 glue (tests/fmu_cases/native_ato_cycles.c): a clean run, a
+    bad input (the safe brake, a warning naming it), a discarded step, reset bit-identical to a
+    fresh instance (and one ulp off differing), 20 refused initialisations, 200 cycles; no
+    sanitizer report, no leak, the live heap bytes equal after cycles 20 and 200."""
+    proc, figures = run_host(hosts["exes"]["ato"], hosts["args"][:2], ASAN_DEFAULT)
+    clean(proc)
+    out = proc.stdout
+    assert "bad_input warning with the safe brake; step of 0 discarded" in out, out
+    assert re.search(r"^reset 300 steps x 5 outputs bit-identical to a fresh instance; "
+                     r"one ulp off differs from step \d+$", out, re.M), out
+    assert "failed_inits 20 refused naming the parameter" in out and "cycles 200" in out, out
+    live = figures["live_bytes"]
+    assert set(live) == {20, 200} and live[200] == live[20], f"live heap bytes: {live}"

@@ -22,7 +22,8 @@ POLICY = (f"Value references are a contract with users' models: a change is only
 
 TABLE_OF = {"RailCar": RAILCAR, "RailCarNative": RAILCAR, "RailCarNative3": RAILCAR,
             "RailCarEstimator": ESTIMATOR, "RailCarEstimatorNative": ESTIMATOR,
-            "RailCarEstimatorNative3": ESTIMATOR, "AtoController": ATO, "AtoControllerNative": ATO}
+            "RailCarEstimatorNative3": ESTIMATOR, "AtoController": ATO, "AtoControllerNative": ATO,
+            "AtoControllerNative3": ATO}
 """Which FMU of fmu_src/variables.py each built FMU describes."""
 
 
