@@ -114,15 +114,16 @@ class ResultsWriter:
     """Appends rows to DIR/results.csv as they come (deduplicated by run id), Parquet alongside."""
 
     def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool, overwrite: bool = False,
-                 fmu_kind: str | None = None):
+                 fmu_kind: str | None = None, engine: str = "fmu"):
         self.out_dir = out_dir
         self.fmu_kind = fmu_kind
+        self.engine = engine
         self.cols = sweep_columns(sweep)
         self.csv_path = out_dir / "results.csv"
         self.parquet_path = out_dir / "results.parquet"
         meta_path = out_dir / "sweep.json"
         meta = {"sweep": str(sweep.path.resolve()), "name": sweep.name, "fingerprint": sweep.fingerprint,
-                "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "runs": len(sweep.runs),
+                "engine": engine, "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "runs": len(sweep.runs),
                 "columns": [[c.key, c.unit, c.kind] for c in self.cols]}
         out_dir.mkdir(parents=True, exist_ok=True)
         self._lock = _lock_folder(out_dir)
@@ -158,6 +159,10 @@ class ResultsWriter:
         if old.get("fingerprint") != sweep.fingerprint:
             raise SweepError(f"{self.out_dir}: --resume: the results there are of another sweep (its runs, "
                              f"fixed values or base scenario differ); use another --out or drop --resume")
+        if old.get("engine", "fmu") != self.engine:
+            raise SweepError(f"{self.out_dir}: --resume: the results there ran on the {old.get('engine', 'fmu')} "
+                             f"engine, this call would run the {self.engine} one; give --engine "
+                             f"{old.get('engine', 'fmu')} to continue, or use another --out")
         if old.get("fmu_kind") and self.fmu_kind and old["fmu_kind"] != self.fmu_kind:
             raise SweepError(f"{self.out_dir}: --resume: the results there ran on the {old['fmu_kind']} FMU, this "
                              f"call would run the {self.fmu_kind} one; give --fmu {old['fmu_kind']} to continue, "
