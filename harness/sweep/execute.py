@@ -1,7 +1,14 @@
 """Running a sweep's runs on dask.distributed worker processes: the cluster, the workers' FMU
-instances, and one run turned into one row.
+instances, one run turned into one row (the FMU path) and a chunk of runs turned into rows (the
+batch engine).
 
-Every run is one dask task on a worker *process* (one thread each: FMU calls hold the GIL).
+Two engines (``--engine``), the same rows bit for bit but for the ``engine``, ``fmu`` and
+``wall_time`` columns (add_metrics builds the rest for both). The batch engine (execute_chunk):
+a dask task runs a chunk of runs (chunk_size) through harness.run.batch.run_batch -- whole runs in
+the C core, CALL_RUNS a call -- and computes their rows; a run that fails in a call is re-run
+alone so that the chunk's other runs keep their rows. The FMU path (execute_run), below.
+
+With the FMU path every run is one dask task on a worker *process* (one thread each: FMU calls hold the GIL).
 Each worker process extracts the FMU once and keeps one live instance, reset between runs
 (``fmi2Reset``; gives the same results bit for bit as a fresh instance, see the tests); after
 an initialisation failure (pythonfmu: fmi2Fatal) that instance is leaked, never called again,

@@ -172,3 +172,18 @@ def test_the_results_writer_keeps_no_rows_in_memory(tmp_path):
     table = pq.read_table(tmp_path / "out" / "results.parquet")
     assert table.num_rows == 5000 and table.column("run_id").to_pylist() == list(range(5000))
     assert pq.ParquetFile(tmp_path / "out" / "results.parquet").num_row_groups == 1
+
+
+def test_a_span_run_goes_to_the_python_reference_with_the_fmu_rows(native_railcar, tmp_path):
+    """The C batch engine does not drive the ATO: --engine batch runs a span scenario on
+    run_on_chain (engine "python"), and its row, the ATO's cells included, is the FMU's."""
+    path = tmp_path / "span.toml"
+    path.write_text(f'name = "span"\nscenario = "{(ROOT / "scenarios/library/ato_nominal.toml").as_posix()}"\n'
+                    f'seeds = [4]\n', encoding="utf-8")
+    sweep = load_sweep(path)
+    assert choose_engine("auto", "auto", sweep)[0] == "fmu"
+    (row,) = execute_chunk(list(sweep.runs))
+    reference = execute_run(str(native_railcar), None, sweep.runs[0])
+    assert (row["status"], row["engine"], row["ato_spans"]) == ("ok", "python", 1)
+    keys = [c.key for c in sweep_columns(sweep) if c.key not in NOT_COMPARED]
+    assert [cell_text(row.get(k)) for k in keys] == [cell_text(reference.get(k)) for k in keys]
