@@ -380,11 +380,11 @@ def main(argv=None) -> int:
     p.add_argument("--engine", choices=("auto", "batch", "fmu"), default="auto",
                    help="batch: whole runs in the C core, many per dask task (rows bit-identical to the FMU's); "
                         "fmu: a run a task through the RailCar FMU (--fmu), to validate the FMU itself; auto "
-                        "(default): batch when the C core covers every run and --fmu is auto, else fmu")
+                        "(default): batch when the C core covers every run and no --fmu is given, else fmu")
     p.add_argument("--chunk", type=int, metavar="N", help="runs per dask task of the batch engine (default: about "
                    "four tasks per worker, at most 100)")
     _fmu_options(p)
-    p.set_defaults(func=cmd_sweep)
+    p.set_defaults(func=cmd_sweep, fmu=None)     # None: no --fmu given (--engine auto may take the batch engine)
     args = ap.parse_args(argv)
     from harness.run.fmus import BuildError
     try:

@@ -138,14 +138,17 @@ def _usage_error(args) -> str | None:
         return "--chunk must be >= 1"
     if getattr(args, "chunk", None) is not None and getattr(args, "engine", "auto") == "fmu":
         return "--chunk sets the runs per task of the batch engine; not with --engine fmu (a run a task)"
+    if getattr(args, "fmu", None) is not None and getattr(args, "engine", "auto") == "batch":
+        return "--fmu picks the FMU of --engine fmu; the batch engine runs no FMU: give one of the two"
     return None
 
 
-def choose_engine(asked: str, fmu_asked: str, sweep: Sweep) -> tuple[str, str]:
-    """(engine, why) for ``--engine`` ``asked`` and ``--fmu`` ``fmu_asked``: ``auto`` is the batch
-    engine when the C core covers every valid run (harness.run.batch.not_covered) and no FMU kind
-    was asked for, else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs
-    on run_on_chain, the Python reference: the engine column says "python")."""
+def choose_engine(asked: str, fmu_asked: str | None, sweep: Sweep) -> tuple[str, str]:
+    """(engine, why) for ``--engine`` ``asked`` and ``--fmu`` ``fmu_asked`` (None: not given):
+    ``auto`` is the batch engine when the C core covers every valid run
+    (harness.run.batch.not_covered) and no --fmu was given (any --fmu, ``auto`` too, asks for the
+    FMU path), else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs on
+    run_on_chain, the Python reference: the engine column says "python")."""
     from harness.run.batch import not_covered
     uncovered = next(((s.run_id, why) for s in sweep.runs if s.scenario is not None
                       for why in [not_covered(s.scenario)] if why), None)
@@ -156,7 +159,7 @@ def choose_engine(asked: str, fmu_asked: str, sweep: Sweep) -> tuple[str, str]:
                          f"--engine batch: run {uncovered[0]} and maybe others on the Python reference: {uncovered[1]}")
     if asked != "auto":
         raise SweepError(f"--engine {asked}: expected one of {', '.join(ENGINES)}")
-    if fmu_asked != "auto":
+    if fmu_asked is not None:
         return "fmu", f"--engine auto: --fmu {fmu_asked} asks for an FMU"
     if uncovered is not None:
         return "fmu", f"--engine auto: the C batch engine does not cover run {uncovered[0]}: {uncovered[1]}"
@@ -174,10 +177,10 @@ def cli_sweep(args) -> int:
     out = Path(args.out) if args.out else Path("out") / "sweeps" / sweep.name
     check_out_dir(out)
     check_rerun(out, sweep.fingerprint, args.resume, args.overwrite)   # before any build
-    engine, why = choose_engine(getattr(args, "engine", "auto"), getattr(args, "fmu", "auto"), sweep)
+    engine, why = choose_engine(getattr(args, "engine", "auto"), getattr(args, "fmu", None), sweep)
     choice = None
     if engine == "fmu":
-        choice = select(getattr(args, "fmu", "auto"), "RailCar", args.dist, args.rebuild,
+        choice = select(getattr(args, "fmu", None) or "auto", "RailCar", args.dist, args.rebuild,
                         [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
     where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
     print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)

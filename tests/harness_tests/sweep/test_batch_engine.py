@@ -131,18 +131,21 @@ def test_resume_adds_exactly_the_missing_rows(client, native_railcar, tmp_path):
 
 def test_the_engine_choice_and_the_chunk_size(tmp_path):
     sweep = load_sweep(cut_down(tmp_path, "grid_mass_noise", *KINDS["grid_mass_noise"]))
-    assert choose_engine("auto", "auto", sweep)[0] == "batch"
+    assert choose_engine("auto", None, sweep)[0] == "batch"
     assert choose_engine("auto", "native", sweep) == ("fmu", "--engine auto: --fmu native asks for an FMU")
-    assert choose_engine("fmu", "auto", sweep)[0] == "fmu"
+    assert choose_engine("auto", "auto", sweep)[0] == "fmu"                   # an explicit --fmu auto too
+    assert choose_engine("fmu", None, sweep)[0] == "fmu"
     method1 = cut_down(tmp_path, "grid_mass_noise", KINDS["grid_mass_noise"][0], 'duration_s = 60.0\n"est.method" = 1')
-    engine, why = choose_engine("auto", "auto", load_sweep(method1))
+    engine, why = choose_engine("auto", None, load_sweep(method1))
     assert engine == "fmu" and "does not cover run 0" in why
-    assert choose_engine("batch", "auto", load_sweep(method1))[0] == "batch"
+    assert choose_engine("batch", None, load_sweep(method1))[0] == "batch"
     assert [chunk_size(n, 2) for n in (1, 8, 9, 200, 1000, 100_000)] == [1, 1, 2, 25, 100, 100]
     from harness.sweep.main import _usage_error
     base = dict(scheduler=None, workers=None, limit=None, resume=False, overwrite=False)
     assert _usage_error(SimpleNamespace(**base, chunk=0, engine="batch")) == "--chunk must be >= 1"
     assert "not with --engine fmu" in _usage_error(SimpleNamespace(**base, chunk=5, engine="fmu"))
+    assert "give one of the two" in _usage_error(SimpleNamespace(**base, chunk=None, engine="batch", fmu="native"))
+    assert _usage_error(SimpleNamespace(**base, chunk=None, engine="batch", fmu=None)) is None
 
 
 def test_the_results_writer_keeps_no_rows_in_memory(tmp_path):
@@ -181,7 +184,7 @@ def test_a_span_run_goes_to_the_python_reference_with_the_fmu_rows(native_railca
     path.write_text(f'name = "span"\nscenario = "{(ROOT / "scenarios/library/ato_nominal.toml").as_posix()}"\n'
                     f'seeds = [4]\n', encoding="utf-8")
     sweep = load_sweep(path)
-    assert choose_engine("auto", "auto", sweep)[0] == "fmu"
+    assert choose_engine("auto", None, sweep)[0] == "fmu"
     (row,) = execute_chunk(list(sweep.runs))
     reference = execute_run(str(native_railcar), None, sweep.runs[0])
     assert (row["status"], row["engine"], row["ato_spans"]) == ("ok", "python", 1)
