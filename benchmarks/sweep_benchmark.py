@@ -19,7 +19,7 @@ Prints (does not assert) against the targets:
   ``--engine fmu`` (the native FMU, a run a task) and ``--engine batch`` (the C batch engine, chunks
   of runs a task): wall times, the ratio, whether the tables are the same bit for bit (but for
   wall_time, engine and fmu), and one run's split between the engine and the metrics, so that the
-  gap to issue 31's target (1,000 runs in <= 5 s on 2 workers) shows where it is.
+  gap to the target (1,000 runs in <= 5 s on 2 workers) shows where it is.
 Every measurement also prints the CPU share other processes took meanwhile. Not run by the test
 suite.
 """
