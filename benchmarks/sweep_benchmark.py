@@ -1,6 +1,6 @@
 """Sweep throughput on 1 and 2 dask worker processes, per-run overhead, and what the native FMU gains.
 
-    python benchmarks/sweep_benchmark.py [--runs 40] [--mc 1000] [--dist DIR] [--part workers|kinds|mc ...]
+    python benchmarks/sweep_benchmark.py [--runs 40] [--mc 1000] [--engines 200] [--dist DIR] [--part workers|kinds|mc|engines ...]
 
 Prints (does not assert) against the targets:
 - ``workers``: runs per second of a seed sweep of level_run cut to 1500 steps (150 s at 0.1 s),
@@ -14,7 +14,12 @@ Prints (does not assert) against the targets:
   where a run's time goes (the FMU run vs the metrics computed on it, which are Python either way);
 - ``mc``: a Monte Carlo of the library scenario station_day (900 s, 9000 steps), seeds 0..N-1
   (``--mc``, default 1000), on 2 warmed-up worker processes with each FMU kind: the sweep's wall
-  time with each, the ratio, and whether the two tables are the same bit for bit.
+  time with each, the ratio, and whether the two tables are the same bit for bit;
+- ``engines``: N station_day runs (``--engines``, default 200) on 2 warmed-up worker processes with
+  ``--engine fmu`` (the native FMU, a run a task) and ``--engine batch`` (the C batch engine, chunks
+  of runs a task): wall times, the ratio, whether the tables are the same bit for bit (but for
+  wall_time, engine and fmu), and one run's split between the engine and the metrics, so that the
+  gap to the target (1,000 runs in <= 5 s on 2 workers) shows where it is.
 Every measurement also prints the CPU share other processes took meanwhile. Not run by the test
 suite.
 """
@@ -36,7 +41,7 @@ from harness.run.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: 
 from harness.metrics.estimation import summarise  # noqa: E402
 from harness.run.runner import FmuRunner  # noqa: E402
 from harness.sweep.main import run_sweep  # noqa: E402
-from harness.sweep.execute import ReusableRunner, execute_run  # noqa: E402
+from harness.sweep.execute import CALL_RUNS, ReusableRunner, execute_chunk, execute_run  # noqa: E402
 from harness.sweep.spec import load_sweep  # noqa: E402
 
 STEPS = 1500
@@ -95,10 +100,11 @@ def throughput(n_workers: int, fmu: Path, runs: int, folder: Path, sweep=None) -
     return len(o.table.rows) / o.wall_s, statistics.mean(r["wall_time"] for r in o.table.rows), share
 
 
-def timed_sweep(n_workers: int, fmu: Path, sweep, folder: Path):
+def timed_sweep(n_workers: int, fmu: Path | None, sweep, folder: Path):
     """(SweepOutcome, CPU share of other processes) of ``sweep`` on a LocalCluster of
     ``n_workers``, each warmed up first with one run of the sweep's scenario (FMU extracted and
-    loaded): o.wall_s is the sweep's own wall time, without the cluster's start-up."""
+    loaded, or the batch engine imported): o.wall_s is the sweep's own wall time, without the
+    cluster's start-up. ``fmu`` None: the batch engine (--engine batch)."""
     import dataclasses
     import logging
     from distributed import Client, LocalCluster
@@ -107,9 +113,13 @@ def timed_sweep(n_workers: int, fmu: Path, sweep, folder: Path):
     with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None,
                       host="127.0.0.1", silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         client.wait_for_workers(n_workers)
-        guid = fmu_guid(fmu)
-        futures = [client.submit(execute_run, str(fmu), guid, spec, workers=[w], pure=False)
-                   for spec, w in zip(warm, client.scheduler_info()["workers"])]
+        workers = client.scheduler_info()["workers"]
+        if fmu is None:
+            futures = [client.submit(execute_chunk, [spec], workers=[w], pure=False) for spec, w in zip(warm, workers)]
+        else:
+            guid = fmu_guid(fmu)
+            futures = [client.submit(execute_run, str(fmu), guid, spec, workers=[w], pure=False)
+                       for spec, w in zip(warm, workers)]
         client.gather(futures)                                    # every worker: FMU loaded, one run done
         with ForeignLoad() as load:
             o = run_sweep(sweep, folder / f"out_{n_workers}_{time.monotonic_ns()}", fmu, client=client,
@@ -221,20 +231,73 @@ def part_mc(fmus: dict, args, tmp: Path) -> None:
           f"{'identical bit for bit' if same else 'DIFFERENT'}")
 
 
+def engine_split(sweep, repeats: int) -> dict:
+    """Seconds per station_day run in this process (medians of ``repeats``): the batch engine
+    (run_batch, CALL_RUNS runs a call, as execute_chunk calls it) and the row's metrics
+    (harness.sweep.execute.add_metrics: summary, oracle filter, coast re-runs, calibration)."""
+    from harness.run.batch import ENGINES, run_batch
+    from harness.sweep.execute import add_metrics
+    scenarios = [spec.scenario for spec in sweep.runs[:CALL_RUNS]]
+    run_batch(scenarios[:1])                                       # warm-up (imports, profiles)
+    engine, metrics = [], []
+    c0 = ENGINES["c"]
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        results = run_batch(scenarios)
+        engine.append((time.perf_counter() - t0) / len(scenarios))
+        t0 = time.perf_counter()
+        rows = [add_metrics({}, r) for r in results]
+        metrics.append((time.perf_counter() - t0) / len(scenarios))
+        assert all(r["status"] == "ok" for r in rows), [r["error"] for r in rows]
+    assert ENGINES["c"] - c0 == repeats * len(scenarios), "the runs did not go to the C batch engine"
+    return {"engine": statistics.median(engine), "metrics": statistics.median(metrics),
+            "steps": len(results[0].time) - 1}
+
+
+def part_engines(fmus: dict, args, tmp: Path) -> None:
+    """(c) N station_day runs (seeds 0..N-1) on 2 warmed-up workers: --engine batch vs --engine fmu
+    with the native FMU, the ratio, the two tables compared, and a run's split engine / metrics."""
+    sweep = load_sweep(sweep_file(tmp, args.engines, first_seed=0, scenario="station_day", duration_s=None))
+    out = {}
+    for engine, fmu in (("fmu", fmus["native"]), ("batch", None)):
+        print(f"  station_day on --engine {engine} ...", flush=True)
+        out[engine] = timed_sweep(2, fmu, sweep, tmp)
+    split = engine_split(sweep, args.repeats)
+    print(f"engines: station_day (900 s, {split['steps']} steps), {args.engines} runs (seeds 0..{args.engines - 1}) "
+          f"on 2 local dask worker processes (warmed up), run + metrics per run:")
+    for engine, (o, load) in out.items():
+        print(f"  --engine {engine:5s}: {o.wall_s:8.2f} s wall  ({len(o.table.rows) / o.wall_s:7.2f} runs/s; other "
+              f"processes took {100 * load:4.1f} % of the CPUs meanwhile)")
+    print(f"  fmu (native) / batch wall time: {out['fmu'][0].wall_s / out['batch'][0].wall_s:.2f}x")
+    keep = ("wall_time", "engine", "fmu")
+    same = out["fmu"][0].table.comparable(keep) == out["batch"][0].table.comparable(keep)
+    print(f"  the two results tables, every cell but wall_time, engine and fmu: "
+          f"{'identical bit for bit' if same else 'DIFFERENT'}")
+    e, m = split["engine"], split["metrics"]
+    print(f"  one run on one process (medians of {args.repeats}, {CALL_RUNS} runs a call): batch engine {1000 * e:.1f} ms "
+          f"({1e9 * e / split['steps']:.0f} ns/step) + metrics {1000 * m:.1f} ms = {1000 * (e + m):.1f} ms; "
+          f"metrics {100 * m / (e + m):.0f} % of it")
+    per_1000 = 1000 * (e + m) / 2
+    print(f"  1000 runs on 2 workers at that rate: {per_1000:.1f} s of compute (target <= 5 s wall: "
+          f"{'met' if per_1000 <= 5.0 else f'the engine alone {1000 * e / 2:.1f} s, the metrics {1000 * m / 2:.1f} s'})")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=40, help="runs per throughput measurement (default 40)")
     ap.add_argument("--repeats", type=int, default=10, help="repeats of the overhead measurement (default 10)")
     ap.add_argument("--trials", type=int, default=2, help="throughput trials per worker count or kind; the best counts")
     ap.add_argument("--mc", type=int, default=1000, help="runs of the station_day Monte Carlo per kind (default 1000)")
-    ap.add_argument("--part", action="append", choices=("workers", "kinds", "mc"),
-                    help="measure only this (repeatable; default: all three)")
+    ap.add_argument("--engines", type=int, default=200, help="station_day runs per engine of the engines "
+                    "part (default 200)")
+    ap.add_argument("--part", action="append", choices=("workers", "kinds", "mc", "engines"),
+                    help="measure only this (repeatable; default: all four)")
     ap.add_argument("--dist", help="folder of the FMUs (default: dist/, built if stale)")
     args = ap.parse_args(argv)
     dist = Path(args.dist) if args.dist else DIST
     fmu = ensure_built(dist)["RailCar"]
     fmus = {"python": fmu, "native": native_path("RailCar", dist)}
-    parts = args.part or ["workers", "kinds", "mc"]
+    parts = args.part or ["workers", "kinds", "mc", "engines"]
     with tempfile.TemporaryDirectory() as tmp:
         if "workers" in parts:
             part_workers(fmu, args, Path(tmp))
@@ -242,6 +305,8 @@ def main(argv=None) -> int:
             part_kinds(fmus, args, Path(tmp))
         if "mc" in parts and args.mc > 0:
             part_mc(fmus, args, Path(tmp))
+        if "engines" in parts and args.engines > 0:
+            part_engines(fmus, args, Path(tmp))
     return 0
 
 

@@ -6,7 +6,7 @@
     python -m harness regress [--update] [--variants] [NAME ...]    (a NAME may be a pattern: 'ato_*')
     python -m harness report [--out DIR] [NAME ...]
     python -m harness filters [NAME ...]
-    python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite]
+    python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite] [--engine auto|batch|fmu] [--chunk N]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
     python -m harness list
 
@@ -377,8 +377,14 @@ def main(argv=None) -> int:
                    "(without --resume or --overwrite, a folder that holds results is refused)")
     p.add_argument("--limit", type=int, metavar="K", help="run only the first K runs not done yet")
     p.add_argument("--no-plots", action="store_true", help="write no plots")
+    p.add_argument("--engine", choices=("auto", "batch", "fmu"), default="auto",
+                   help="batch: whole runs in the C core, many per dask task (rows bit-identical to the FMU's); "
+                        "fmu: a run a task through the RailCar FMU (--fmu), to validate the FMU itself; auto "
+                        "(default): batch when the C core covers every run and no --fmu is given, else fmu")
+    p.add_argument("--chunk", type=int, metavar="N", help="runs per dask task of the batch engine (default: about "
+                   "four tasks per worker, at most 100)")
     _fmu_options(p)
-    p.set_defaults(func=cmd_sweep)
+    p.set_defaults(func=cmd_sweep, fmu=None)     # None: no --fmu given (--engine auto may take the batch engine)
     args = ap.parse_args(argv)
     from harness.run.fmus import BuildError
     try:

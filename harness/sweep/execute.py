@@ -1,7 +1,14 @@
 """Running a sweep's runs on dask.distributed worker processes: the cluster, the workers' FMU
-instances, and one run turned into one row.
+instances, one run turned into one row (the FMU path) and a chunk of runs turned into rows (the
+batch engine).
 
-Every run is one dask task on a worker *process* (one thread each: FMU calls hold the GIL).
+Two engines (``--engine``), the same rows bit for bit but for the ``engine``, ``fmu`` and
+``wall_time`` columns (add_metrics builds the rest for both). The batch engine (execute_chunk):
+a dask task runs a chunk of runs (chunk_size) through harness.run.batch.run_batch -- whole runs in
+the C core, CALL_RUNS a call -- and computes their rows; a run that fails in a call is re-run
+alone so that the chunk's other runs keep their rows. The FMU path (execute_run), below.
+
+With the FMU path every run is one dask task on a worker *process* (one thread each: FMU calls hold the GIL).
 Each worker process extracts the FMU once and keeps one live instance, reset between runs
 (``fmi2Reset``; gives the same results bit for bit as a fresh instance, see the tests); after
 an initialisation failure (pythonfmu: fmi2Fatal) that instance is leaked, never called again,
@@ -42,6 +49,14 @@ from harness.sweep.table import TEXT_STATUS_FAILED, TEXT_STATUS_OK, calibration,
 _LEAKED: list = []            # instances after fmi2Fatal: FMI allows no further call (pythonfmu segfaults)
 _WORKER_FMUS: dict = {}       # per process: FMU path -> ReusableRunner (one extraction, one live instance)
 FATAL = 4
+ENGINE_FMU, ENGINE_C, ENGINE_PYTHON = "fmu", "c", "python"
+"""The ``engine`` column: the FMU (``fmu`` column: which), the C batch engine, or run_on_chain (the
+Python reference, for runs the C core does not cover)."""
+ENGINES = ("auto", "batch", "fmu")
+CALL_RUNS = 8
+"""Runs per run_batch call inside a chunk: the call's output arrays hold every run's rows at once
+(~2.5 MB for a 9000-step run), so a call of 8 keeps a worker's memory flat in the chunk's size."""
+MAX_CHUNK = 100
 
 
 # ======================================================================== the worker side
@@ -166,12 +181,12 @@ def execute_run(fmu_path: str, guid: str | None, spec: RunSpec, extract_root: st
     """Run one sweep point in this (worker) process; never raises: a failure is a row. The FMU is
     extracted below ``extract_root`` (the embedded cluster's scratch folder, removed at its end)
     or, by default, in the system's temporary folder for the worker process's life."""
-    from harness.metrics.estimation import summarise
     row = base_row(spec)
     t0 = time.perf_counter()
     if spec.error is not None:
         row.update(status=TEXT_STATUS_FAILED, error=_one_line(spec.error), wall_time=0.0)
         return row
+    row["engine"] = ENGINE_FMU
     try:
         runner = worker_runner(fmu_path, guid, extract_root)
         row["fmu"] = runner.kind
@@ -181,21 +196,91 @@ def execute_run(fmu_path: str, guid: str | None, spec: RunSpec, extract_root: st
     except Exception as e:
         row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"{type(e).__name__}: {e}"))
     else:
-        try:
-            row.update(flatten_summary(summarise(result)))
-            row.update(calibration(result))
-            row.update(run_ato_row(result))        # a span scenario's: the ATO's metrics
-            row.update(status=TEXT_STATUS_OK, error="")
-        except Exception as e:
-            row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"metrics: {type(e).__name__}: {e}"))
+        add_metrics(row, result)
     row["wall_time"] = time.perf_counter() - t0
     return row
 
 
-def worker_check(fmu_path: str) -> dict:
-    """Run on every worker before a sweep: can it import the harness and read the FMU path?"""
-    return {"pid": os.getpid(), "fmu_readable": os.access(fmu_path, os.R_OK),
-            "harness": str(Path(__file__).resolve().parents[1]), "threads": threading.active_count()}
+def add_metrics(row: dict, result) -> dict:
+    """``row`` with the run's metrics, calibration and (span scenario) ATO columns and status ok;
+    status failed and the message if computing them raises. The one row builder of both engines."""
+    from harness.metrics.estimation import summarise
+    try:
+        row.update(flatten_summary(summarise(result)))
+        row.update(calibration(result))
+        row.update(run_ato_row(result))        # a span scenario's: the ATO's metrics
+        row.update(status=TEXT_STATUS_OK, error="")
+    except Exception as e:
+        row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"metrics: {type(e).__name__}: {e}"))
+    return row
+
+
+def execute_chunk(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict]:
+    """Rows of ``specs`` in order, run on the batch engine (harness.run.batch.run_batch, ``call_runs``
+    runs per call) in this (worker) process; never raises: a failed run is a row. The rows are
+    execute_run's (the same metrics code on the same arrays) but for ``engine`` ("c", or "python"
+    for a run the C core does not cover: run_on_chain), ``fmu`` ('': no FMU ran) and
+    ``wall_time`` (the run's share of its call plus its metrics)."""
+    rows = []
+    for k in range(0, len(specs), call_runs):
+        rows += _batch_rows(specs[k:k + call_runs])
+    return rows
+
+
+def _batch_rows(specs: list[RunSpec]) -> list[dict]:
+    from harness.run.batch import not_covered, run_batch
+    rows = [base_row(s) for s in specs]
+    valid = []
+    for row, spec in zip(rows, specs):
+        if spec.error is not None:
+            row.update(status=TEXT_STATUS_FAILED, error=_one_line(spec.error), wall_time=0.0)
+        else:
+            valid.append((row, spec))
+    if not valid:
+        return rows
+    scenarios = [spec.scenario for _, spec in valid]
+    t0 = time.perf_counter()
+    try:
+        results = run_batch(scenarios)
+        share = (time.perf_counter() - t0) / len(scenarios)
+        outcomes = [(r, None, share) for r in results]
+    except Exception:
+        # one run refused or rejected a step: the call raises for all; each alone keeps the others' rows
+        outcomes = []
+        for sc in scenarios:
+            t1 = time.perf_counter()
+            try:
+                outcomes.append((run_batch([sc])[0], None, time.perf_counter() - t1))
+            except Exception as e:
+                outcomes.append((None, e, time.perf_counter() - t1))
+    for (row, spec), (result, error, engine_s) in zip(valid, outcomes):
+        t1 = time.perf_counter()
+        row["fmu"] = ""
+        try:
+            row["engine"] = ENGINE_C if not_covered(spec.scenario) is None else ENGINE_PYTHON
+        except Exception:
+            row["engine"] = ""               # its parameters were refused: no engine ran it
+        if error is not None:
+            row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"{type(error).__name__}: {error}"))
+        else:
+            add_metrics(row, result)
+        row["wall_time"] = engine_s + time.perf_counter() - t1
+    return rows
+
+
+def chunk_size(runs: int, workers: int) -> int:
+    """Runs per dask task: about four tasks per worker (the progress bar moves, a killed worker
+    costs one chunk), at most MAX_CHUNK runs (a chunk's rows are held until it ends)."""
+    return max(1, min(MAX_CHUNK, -(-runs // (4 * max(1, workers)))))
+
+
+def worker_check(fmu_path: str | None) -> dict:
+    """Run on every worker before a sweep: can it import the harness and read the FMU path (None:
+    no FMU, the batch engine), is the C batch engine compiled there?"""
+    from models import batch
+    return {"pid": os.getpid(), "fmu_readable": fmu_path is None or os.access(fmu_path, os.R_OK),
+            "batch": batch.available(), "harness": str(Path(__file__).resolve().parents[1]),
+            "threads": threading.active_count()}
 
 
 # ======================================================================== the cluster
@@ -271,12 +356,14 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
             cluster.close()
 
 
-def check_workers(client, fmu_path: Path, log) -> int:
-    """The number of workers; RuntimeError if one cannot import the harness or read the FMU."""
+def check_workers(client, fmu_path: Path | None, log) -> int:
+    """The number of workers; RuntimeError if one cannot import the harness or read the FMU
+    (None: the batch engine, no FMU; a worker without the compiled C batch engine is reported:
+    its runs go to the Python reference, slower)."""
     info = client.scheduler_info()
     if not info.get("workers"):
         client.wait_for_workers(1, timeout=60)
-    checks = client.run(worker_check, str(fmu_path), on_error="return")
+    checks = client.run(worker_check, None if fmu_path is None else str(fmu_path), on_error="return")
     bad = {w: r for w, r in checks.items() if isinstance(r, BaseException)}
     if bad:
         w, e = next(iter(bad.items()))
@@ -286,6 +373,9 @@ def check_workers(client, fmu_path: Path, log) -> int:
     if unreadable:
         raise RuntimeError(f"{len(unreadable)} dask worker(s) cannot read {fmu_path} (e.g. {unreadable[0]}); "
                            f"the FMU is shipped by path: it must be reachable at that path on every worker")
+    if fmu_path is None and not all(r["batch"] for r in checks.values()):
+        log(f"warning: {sum(not r['batch'] for r in checks.values())} worker(s) have no compiled C batch engine "
+            f"(models._batch): their runs go to the Python reference (engine column 'python'), slower")
     threads = {w: n for w, n in client.nthreads().items() if n > 1}
     if threads:
         log(f"warning: {len(threads)} worker(s) run {max(threads.values())} threads: every FMU call takes "
@@ -323,19 +413,64 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
     return ran
 
 
-def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path, guid: str | None,
+def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool]) -> int:
+    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk); each row goes to
+    ``record`` as its chunk ends. A chunk that kept killing its worker becomes failed rows. The
+    rows recorded (a retried chunk's rows come once: dask gives a task's result once, and
+    ``record`` drops a run id it has)."""
+    from distributed import as_completed
+    nonce = uuid.uuid4().hex[:8]
+    futures = {}
+    for k in range(0, len(specs), chunk):
+        part = specs[k:k + chunk]
+        f = client.submit(execute_chunk, part, pure=False, retries=2,
+                          key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
+        futures[f.key] = (f, part)
+    ran = 0
+    try:
+        for f, result in as_completed([f for f, _ in futures.values()], with_results=True, raise_errors=False):
+            _, part = futures.pop(f.key)
+            if isinstance(result, list):
+                rows = result
+            else:                    # an exception: KilledWorker (the chunk killed its worker every time), ...
+                rows = []
+                for spec in part:
+                    row = base_row(spec)
+                    row.update(status=TEXT_STATUS_FAILED, wall_time=None,
+                               error=_one_line(f"dask: {type(result).__name__}: {result}"))
+                    rows.append(row)
+            f.release()
+            for row in rows:
+                if record(row):
+                    ran += 1
+    finally:
+        for f, _ in futures.values():
+            f.cancel()
+    return ran
+
+
+def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid: str | None,
                  record: Callable[[dict], bool], client=None, scheduler: str | None = None,
-                 workers: int | None = None, log=print) -> tuple[int, int]:
+                 workers: int | None = None, log=print, engine: str = "fmu",
+                 chunk: int | None = None) -> tuple[int, int]:
     """Run ``specs`` and hand each row to ``record`` (True if it kept the row): the invalid ones
-    at once, here, the others on dask (see dask_client). Returns (rows recorded, dask workers)."""
+    at once, here, the others on dask (see dask_client): ``engine`` "fmu", a run a task through
+    the FMU at ``fmu_path``; "batch", ``chunk`` runs a task (default chunk_size) on the batch
+    engine (execute_chunk). Returns (rows recorded, dask workers)."""
+    if engine not in ("fmu", "batch"):
+        raise ValueError(f"engine: expected 'fmu' or 'batch', got {engine!r}")
     ran = 0
     for spec in [s for s in specs if s.error is not None]:        # invalid scenarios: rows now
-        record(execute_run(str(fmu_path), guid, spec))
+        row = execute_run(str(fmu_path), guid, spec) if engine == "fmu" else execute_chunk([spec])[0]
+        record(row)
         ran += 1
     valid = [s for s in specs if s.error is None]
     if not valid:
         return ran, 0
     with dask_client(client, scheduler, workers) as (c, extract_root):
-        n_workers = check_workers(c, fmu_path, log)
-        ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
+        n_workers = check_workers(c, fmu_path if engine == "fmu" else None, log)
+        if engine == "fmu":
+            ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
+        else:
+            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record)
     return ran, n_workers

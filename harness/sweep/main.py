@@ -6,7 +6,8 @@ A sweep file names a base scenario and the values to run it with; each run becom
 The parts, one module each:
 
 - harness/sweep/spec.py: the sweep file (grid, zip, Latin hypercube, seeds) -> ``Sweep`` of ``RunSpec``
-- harness/sweep/execute.py: the dask cluster, the workers' FMU instances, one run -> one row
+- harness/sweep/execute.py: the dask cluster, the workers' FMU instances, one run -> one row (--engine
+  fmu) or a chunk of runs on the C batch engine -> their rows (--engine batch, the default where it covers)
 - harness/sweep/table.py: the columns, a run's result -> row, the summary text (pure computing)
 - harness/sweep/results.py: the results folder: CSV/Parquet, sweep.json, lock, --resume/--overwrite
 - harness/sweep/plots.py: the plots
@@ -18,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from harness.sweep.execute import execute_runs
+from harness.sweep.execute import ENGINES, execute_runs
 from harness.sweep.plots import plot_sweep
 from harness.sweep.results import ResultsWriter, check_rerun, read_results, write_summary
 from harness.sweep.spec import Sweep, load_sweep
@@ -54,28 +55,44 @@ class _Progress:
             print(f"  {b.done}/{b.total} runs, {b.failed} failed, {elapsed:.0f} s, ETA {eta:.0f} s", flush=True)
 
 
-def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler: str | None = None,
+def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = None, scheduler: str | None = None,
               workers: int | None = None, resume: bool = False, limit: int | None = None,
               progress: bool | None = None, plots: bool = True, client=None, log=print,
-              overwrite: bool = False, fmu_note: str = "") -> SweepOutcome:
+              overwrite: bool = False, fmu_note: str = "", engine: str | None = None,
+              chunk: int | None = None, engine_note: str = "") -> SweepOutcome:
     """Run the sweep's runs (those not in DIR yet with ``resume``; the first ``limit`` of them).
     A DIR that holds results is refused (SweepError) unless ``resume`` or ``overwrite``.
 
     Runs on ``client`` if given, else on the dask scheduler at ``scheduler``, else on a
     LocalCluster of ``workers`` (default: one per core) single-threaded worker processes whose
     scratch space and FMU extractions are in one temporary folder, removed when the sweep ends.
-    ``fmu_path`` is either kind of RailCar FMU (harness.run.fmus); ``fmu_note`` says which and why,
-    for the summary (default: its kind and path).
+    ``engine``: "fmu", a run a task through ``fmu_path``, either kind of RailCar FMU
+    (harness.run.fmus; ``fmu_note`` says which and why, for the summary, default its kind and
+    path); "batch", ``chunk`` runs a task (default execute.chunk_size) on the C batch engine
+    (harness.run.batch; ``engine_note`` says why, for the summary). Default: "fmu" when
+    ``fmu_path`` is given, else "batch". The rows are the same bit for bit but for ``engine``,
+    ``fmu`` and ``wall_time``.
     """
-    from fmpy import read_model_description
-    from harness.run.fmus import fmu_guid, is_native
+    engine = engine or ("fmu" if fmu_path is not None else "batch")
+    if engine not in ("fmu", "batch"):
+        raise ValueError(f"engine: expected 'fmu' or 'batch', got {engine!r}")
+    if chunk is not None and chunk < 1:
+        raise ValueError(f"chunk: expected a number of runs >= 1, got {chunk}")
     out_dir = Path(out_dir)
-    fmu_path = Path(fmu_path).resolve()
-    if not fmu_path.is_file():
-        raise FileNotFoundError(f"FMU not found: {fmu_path}")
-    guid = fmu_guid(fmu_path)
-    kind = "native" if is_native(read_model_description(str(fmu_path))) else "python"
-    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind)
+    guid, kind = None, None
+    if engine == "fmu":
+        from fmpy import read_model_description
+        from harness.run.fmus import fmu_guid, is_native
+        if fmu_path is None:
+            raise ValueError("engine 'fmu': give fmu_path, the RailCar FMU to run")
+        fmu_path = Path(fmu_path).resolve()
+        if not fmu_path.is_file():
+            raise FileNotFoundError(f"FMU not found: {fmu_path}")
+        guid = fmu_guid(fmu_path)
+        kind = "native" if is_native(read_model_description(str(fmu_path))) else "python"
+    else:
+        fmu_path = None
+    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind, engine=engine)
     todo = [s for s in sweep.runs if s.run_id not in writer.done]
     if limit is not None:
         todo = todo[:limit]
@@ -90,14 +107,16 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path, scheduler
 
     try:
         ran, n_workers = execute_runs(sweep, todo, fmu_path, guid, record, client=client, scheduler=scheduler,
-                                      workers=workers, log=log)
+                                      workers=workers, log=log, engine=engine, chunk=chunk)
     finally:
         writer.close()
     table = read_results(out_dir)
     done = {r["run_id"] for r in table.rows}
     outcome = SweepOutcome(table=table, ran=ran, resumed=writer.resumed,
                            missing=[s.run_id for s in sweep.runs if s.run_id not in done],
-                           wall_s=time.monotonic() - t0, workers=n_workers, fmu=fmu_note or f"{kind} {fmu_path}")
+                           wall_s=time.monotonic() - t0, workers=n_workers,
+                           fmu=(fmu_note or f"{kind} {fmu_path}") if engine == "fmu" else "",
+                           engine=(engine_note or "batch") if engine == "batch" else "")
     outcome.files = [out_dir / "results.csv"] + ([writer.parquet_path] if writer.parquet_path.is_file() else [])
     outcome.files.append(write_summary(out_dir, sweep, outcome))
     if plots:
@@ -115,7 +134,36 @@ def _usage_error(args) -> str | None:
         return "--limit must be >= 0"
     if args.resume and args.overwrite:
         return "--resume continues the results in --out, --overwrite discards them: give one"
+    if getattr(args, "chunk", None) is not None and args.chunk < 1:
+        return "--chunk must be >= 1"
+    if getattr(args, "chunk", None) is not None and getattr(args, "engine", "auto") == "fmu":
+        return "--chunk sets the runs per task of the batch engine; not with --engine fmu (a run a task)"
+    if getattr(args, "fmu", None) is not None and getattr(args, "engine", "auto") == "batch":
+        return "--fmu picks the FMU of --engine fmu; the batch engine runs no FMU: give one of the two"
     return None
+
+
+def choose_engine(asked: str, fmu_asked: str | None, sweep: Sweep) -> tuple[str, str]:
+    """(engine, why) for ``--engine`` ``asked`` and ``--fmu`` ``fmu_asked`` (None: not given):
+    ``auto`` is the batch engine when the C core covers every valid run
+    (harness.run.batch.not_covered) and no --fmu was given (any --fmu, ``auto`` too, asks for the
+    FMU path), else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs on
+    run_on_chain, the Python reference: the engine column says "python")."""
+    from harness.run.batch import not_covered
+    uncovered = next(((s.run_id, why) for s in sweep.runs if s.scenario is not None
+                      for why in [not_covered(s.scenario)] if why), None)
+    if asked == "fmu":
+        return "fmu", "--engine fmu"
+    if asked == "batch":
+        return "batch", ("--engine batch: C core" if uncovered is None else
+                         f"--engine batch: run {uncovered[0]} and maybe others on the Python reference: {uncovered[1]}")
+    if asked != "auto":
+        raise SweepError(f"--engine {asked}: expected one of {', '.join(ENGINES)}")
+    if fmu_asked is not None:
+        return "fmu", f"--engine auto: --fmu {fmu_asked} asks for an FMU"
+    if uncovered is not None:
+        return "fmu", f"--engine auto: the C batch engine does not cover run {uncovered[0]}: {uncovered[1]}"
+    return "batch", "--engine auto: the C core covers every run"
 
 
 def cli_sweep(args) -> int:
@@ -129,15 +177,21 @@ def cli_sweep(args) -> int:
     out = Path(args.out) if args.out else Path("out") / "sweeps" / sweep.name
     check_out_dir(out)
     check_rerun(out, sweep.fingerprint, args.resume, args.overwrite)   # before any build
-    choice = select(getattr(args, "fmu", "auto"), "RailCar", args.dist, args.rebuild,
-                    [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
+    engine, why = choose_engine(getattr(args, "engine", "auto"), getattr(args, "fmu", None), sweep)
+    choice = None
+    if engine == "fmu":
+        choice = select(getattr(args, "fmu", None) or "auto", "RailCar", args.dist, args.rebuild,
+                        [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
     where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
     print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)
-    print(choice.line(), flush=True)
+    print(f"engine: {engine} ({why})", flush=True)
+    if choice is not None:
+        print(choice.line(), flush=True)
     try:
-        o = run_sweep(sweep, out, choice.path, scheduler=args.scheduler, workers=args.workers,
+        o = run_sweep(sweep, out, choice.path if choice else None, scheduler=args.scheduler, workers=args.workers,
                       resume=args.resume, limit=args.limit, plots=not args.no_plots, overwrite=args.overwrite,
-                      fmu_note=choice.describe())
+                      fmu_note=choice.describe() if choice else "", engine=engine,
+                      chunk=getattr(args, "chunk", None), engine_note=f"{engine} ({why})")
     except KeyboardInterrupt:
         print(f"\ninterrupted: the finished runs are in {out / 'results.csv'}; --resume continues", file=sys.stderr)
         return 1

@@ -1,8 +1,9 @@
 """A sweep's results folder: results.csv, results.parquet, sweep.json, summary.md and the lock.
 
 One row per run is appended to ``DIR/results.csv`` as runs finish (completion order, units in
-the header cells ``name [unit]``), and to ``DIR/results.parquet`` when pyarrow is importable
-(rewritten from the CSV every few seconds and at the end, so it is always a valid file).
+the header cells ``name [unit]``); the writer keeps only the run ids, so its memory does not grow
+with the rows' contents. ``DIR/results.parquet`` (when pyarrow is importable) is written from the
+CSV when the sweep ends, also after an error or Ctrl-C, streamed in row groups of PARQUET_ROWS.
 ``read_results(DIR)`` returns the table sorted by run id. ``--resume`` skips the run ids
 already in results.csv (ok or failed) if the sweep, its base scenario and the FMU build are
 unchanged (``DIR/sweep.json``); without ``--resume``, a folder that holds results is refused
@@ -15,14 +16,14 @@ import csv
 import io
 import json
 import os
-import time
 from pathlib import Path
 
 from harness.sweep.spec import Sweep, SweepError
 from harness.sweep.table import Column, SweepOutcome, Table, cell_text, format_sweep_summary, parse_cell, sweep_columns
 from harness.textio import read_text
 
-PARQUET_EVERY_S = 10.0
+PARQUET_ROWS = 10_000
+"""Rows per Parquet row group: the CSV is read and converted this many rows at a time."""
 
 
 def read_meta(meta_path: Path) -> dict:
@@ -90,39 +91,59 @@ def read_results(out_dir: str | Path, sort: bool = True) -> Table:
 
 def _read_csv_rows(path: Path, cols: list[Column]) -> list[dict]:
     """Well-formed rows of results.csv (a line cut short by an interruption is dropped)."""
+    return list(iter_csv_rows(path, cols))
+
+
+def iter_csv_rows(path: Path, cols: list[Column]):
+    """The well-formed rows of results.csv one at a time (memory flat in the file's length); a
+    last line cut short by an interruption (no newline at the end) is dropped."""
     if not path.is_file():
-        return []
-    text = read_text(path, SweepError)
-    rows = []
-    reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
-    if header != [c.header for c in cols]:
-        raise SweepError(f"{path}: header does not match the sweep's columns")
-    complete = text.endswith("\n")
-    lines = list(reader)
-    for i, cells in enumerate(lines):
-        if len(cells) != len(cols) or (i == len(lines) - 1 and not complete):
-            continue
-        try:
-            rows.append({c.key: parse_cell(x, c.kind) for c, x in zip(cols, cells)})
-        except ValueError:
-            continue
-    return rows
+        return
+    with open(path, "rb") as f:
+        f.seek(0, os.SEEK_END)
+        size = f.tell()
+        if size:
+            f.seek(size - 1)
+        complete = not size or f.read(1) == b"\n"
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.reader(f)
+            header = next(reader, None)
+            if header != [c.header for c in cols]:
+                raise SweepError(f"{path}: header does not match the sweep's columns")
+            pending = None               # a row is yielded once the next one shows it was not the last
+            for cells in reader:
+                if pending is not None:
+                    yield pending
+                pending = None
+                if len(cells) != len(cols):
+                    continue
+                try:
+                    pending = {c.key: parse_cell(x, c.kind) for c, x in zip(cols, cells)}
+                except ValueError:
+                    continue
+            if pending is not None and complete:
+                yield pending
+    except UnicodeDecodeError as e:
+        raise SweepError(f"{path}: not UTF-8 text: {e}") from None
+    except csv.Error as e:
+        raise SweepError(f"{path}: not valid CSV: {e}") from None
 
 
 class ResultsWriter:
     """Appends rows to DIR/results.csv as they come (deduplicated by run id), Parquet alongside."""
 
     def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool, overwrite: bool = False,
-                 fmu_kind: str | None = None):
+                 fmu_kind: str | None = None, engine: str = "fmu"):
         self.out_dir = out_dir
         self.fmu_kind = fmu_kind
+        self.engine = engine
         self.cols = sweep_columns(sweep)
         self.csv_path = out_dir / "results.csv"
         self.parquet_path = out_dir / "results.parquet"
         meta_path = out_dir / "sweep.json"
         meta = {"sweep": str(sweep.path.resolve()), "name": sweep.name, "fingerprint": sweep.fingerprint,
-                "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "runs": len(sweep.runs),
+                "engine": engine, "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "runs": len(sweep.runs),
                 "columns": [[c.key, c.unit, c.kind] for c in self.cols]}
         out_dir.mkdir(parents=True, exist_ok=True)
         self._lock = _lock_folder(out_dir)
@@ -132,7 +153,6 @@ class ResultsWriter:
             self._unlock()
             raise
         meta_path.write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
-        self.rows = rows
         self.done = {r["run_id"] for r in rows}
         tmp = self.csv_path.with_suffix(".csv.tmp")       # a clean file: header + the complete rows kept
         with open(tmp, "w", newline="", encoding="utf-8") as f:
@@ -143,7 +163,6 @@ class ResultsWriter:
         os.replace(tmp, self.csv_path)
         self._f = open(self.csv_path, "a", newline="", encoding="utf-8")
         self._w = csv.writer(self._f)
-        self._last_parquet = time.monotonic()
         self.resumed = len(rows)
 
     def _previous_rows(self, sweep: Sweep, fmu_guid, resume: bool, overwrite: bool) -> list[dict]:
@@ -158,6 +177,10 @@ class ResultsWriter:
         if old.get("fingerprint") != sweep.fingerprint:
             raise SweepError(f"{self.out_dir}: --resume: the results there are of another sweep (its runs, "
                              f"fixed values or base scenario differ); use another --out or drop --resume")
+        if old.get("engine", "fmu") != self.engine:
+            raise SweepError(f"{self.out_dir}: --resume: the results there ran on the {old.get('engine', 'fmu')} "
+                             f"engine, this call would run the {self.engine} one; give --engine "
+                             f"{old.get('engine', 'fmu')} to continue, or use another --out")
         if old.get("fmu_kind") and self.fmu_kind and old["fmu_kind"] != self.fmu_kind:
             raise SweepError(f"{self.out_dir}: --resume: the results there ran on the {old['fmu_kind']} FMU, this "
                              f"call would run the {self.fmu_kind} one; give --fmu {old['fmu_kind']} to continue, "
@@ -182,17 +205,13 @@ class ResultsWriter:
         if row["run_id"] in self.done:
             return False
         self.done.add(row["run_id"])
-        cells = [cell_text(row.get(c.key)) for c in self.cols]
-        self._w.writerow(cells)
+        self._w.writerow([cell_text(row.get(c.key)) for c in self.cols])
         self._f.flush()
-        self.rows.append({c.key: parse_cell(x, c.kind) for c, x in zip(self.cols, cells)})
-        if time.monotonic() - self._last_parquet > PARQUET_EVERY_S:
-            self.write_parquet()
         return True
 
     def write_parquet(self) -> Path | None:
-        self._last_parquet = time.monotonic()
-        return write_parquet(Table(self.cols, self.rows), self.parquet_path)
+        """DIR/results.parquet from results.csv (every row there, as written); None without pyarrow."""
+        return write_parquet_rows(self.cols, iter_csv_rows(self.csv_path, self.cols), self.parquet_path)
 
     def close(self) -> None:
         if not self._f.closed:
@@ -226,18 +245,35 @@ def _lock_folder(out_dir: Path):
 
 def write_parquet(table: Table, path: Path) -> Path | None:
     """The table as Parquet (units in each field's metadata); None when pyarrow is missing."""
+    return write_parquet_rows(table.columns, table.rows, path)
+
+
+def write_parquet_rows(columns: list[Column], rows, path: Path, group: int = PARQUET_ROWS) -> Path | None:
+    """``rows`` (any iterable of row dicts, read once) as Parquet, ``group`` rows at a time (a row
+    group each), units in each field's metadata; written to a temporary file and moved into place,
+    so ``path`` is always a whole file. None when pyarrow is missing."""
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError:
         return None
     types = {"int": pa.int64(), "float": pa.float64(), "str": pa.string()}
-    arrays, schema = [], []
-    for c in table.columns:
-        arrays.append(pa.array([r.get(c.key) for r in table.rows], type=types[c.kind]))
-        schema.append(pa.field(c.key, types[c.kind], metadata={"unit": c.unit}))
+    schema = pa.schema([pa.field(c.key, types[c.kind], metadata={"unit": c.unit}) for c in columns])
     tmp = path.with_suffix(".parquet.tmp")
-    pq.write_table(pa.Table.from_arrays(arrays, schema=pa.schema(schema)), tmp)
+
+    def flush(writer, batch):
+        writer.write_table(pa.Table.from_arrays(
+            [pa.array([r.get(c.key) for r in batch], type=types[c.kind]) for c in columns], schema=schema))
+
+    with pq.ParquetWriter(tmp, schema) as writer:
+        batch = []
+        for row in rows:
+            batch.append(row)
+            if len(batch) >= group:
+                flush(writer, batch)
+                batch = []
+        if batch:
+            flush(writer, batch)
     os.replace(tmp, path)
     return path
 

@@ -6,7 +6,9 @@ A row holds the run id, status ("ok" or "failed") and error message, the wall ti
 values (and the seed), the flattened ``RunSummary`` of harness.metrics.estimation, the calibration counts,
 for a sweep of a span scenario the ATO's metrics over the run's spans (``ATO_SWEEP_COLUMNS``:
 arrival and stop errors, energy, margin to the limit, interventions; the summary gives the share
-of spans within +-2.5 s and +-0.3 m and the worst) and, last, ``fmu``: which FMU kind ran it. List-valued metrics of ``RunSummary`` become two
+of spans within +-2.5 s and +-0.3 m and the worst) and, last, ``engine`` (what ran it: ``fmu``, ``c``
+the batch engine, ``python`` its fallback run_on_chain; '' for a run refused before it started)
+and ``fmu``: which FMU kind ran it ('' when none did). List-valued metrics of ``RunSummary`` become two
 columns: ``NAME.max_abs`` (largest absolute value; nan when the list is empty or holds a nan)
 and ``NAME.list`` (the values, ';'-joined reprs). Tuples of A coefficients become ``A0_true`` ...
 In the CSV, floats are written by repr (they read back bit for bit) and units stand in the
@@ -51,6 +53,7 @@ CALIBRATION_COLUMNS = (
     Column("speed_within_2sigma_pct", "%", "float"),
     Column("position_within_2sigma_pct", "%", "float"),
 )
+ENGINE_COLUMN = Column("engine", "", "str")    # what ran the row: fmu, c (batch engine), python (run_on_chain)
 FMU_COLUMN = Column("fmu", "", "str")          # which FMU ran the row: native, python ('' none ran)
 ATO_SWEEP_COLUMNS = (      # a span scenario's run (harness.metrics.ato.SpanMetrics over its spans)
     Column("ato_spans", "-", "int"),                   # spans the ATO drove
@@ -106,14 +109,14 @@ def is_span_sweep(sweep: Sweep) -> bool:
 
 def sweep_columns(sweep: Sweep) -> list[Column]:
     """The run id, status, error, wall time, the swept values and the seed, the metrics, the
-    calibration, for a span scenario's sweep the ATO's (ATO_SWEEP_COLUMNS), and ``fmu``."""
+    calibration, for a span scenario's sweep the ATO's (ATO_SWEEP_COLUMNS), ``engine`` and ``fmu``."""
     cols = [Column("run_id", "", "int"), Column("status", "", "str"), Column("error", "", "str"),
             Column("wall_time", "s", "float")]
     cols += [Column(n, name_unit(n) or ("-" if name_kind(n) != "str" else ""), name_kind(n)) for n in sweep.axes]
     if "seed" not in sweep.axes:
         cols.append(Column("seed", "-", "int"))
     ato = list(ATO_SWEEP_COLUMNS) if is_span_sweep(sweep) else []
-    return cols + metric_columns() + list(CALIBRATION_COLUMNS) + ato + [FMU_COLUMN]
+    return cols + metric_columns() + list(CALIBRATION_COLUMNS) + ato + [ENGINE_COLUMN, FMU_COLUMN]
 
 
 def ato_row(spans) -> dict:
@@ -249,6 +252,7 @@ class SweepOutcome:
     workers: int
     files: list = field(default_factory=list)
     fmu: str = ""                # which FMU ran and why (harness.run.fmus.FmuChoice.describe)
+    engine: str = ""             # which engine ran and why (--engine), '' for the FMU
 
 
 def finite_values(xs) -> list[float]:
@@ -289,6 +293,8 @@ def format_sweep_summary(sweep: Sweep, o: SweepOutcome) -> str:
              + (f"; {o.resumed} rows kept from before (--resume)" if o.resumed else "")]
     if o.fmu:
         lines.append(f"  fmu: {o.fmu}")
+    if o.engine:
+        lines.append(f"  engine: {o.engine}")
     if o.missing:
         lines.append(f"  not run yet: {len(o.missing)} runs (first ids {', '.join(map(str, o.missing[:5]))}); "
                      f"--resume continues")

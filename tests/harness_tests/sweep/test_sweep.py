@@ -1,7 +1,7 @@
 """Parameter sweeps (harness/sweep/main.py and its parts in harness/sweep/): sweep files, Latin
-hypercube, instance reuse, and whole sweeps through the CLI on an embedded local cluster and on
-a real dask scheduler with two worker processes (one of them killed mid-sweep), plus an
-interrupted sweep resumed.
+hypercube, instance reuse, and whole sweeps through the CLI (its default: the C batch engine,
+chunks of runs a task) on an embedded local cluster and on a real dask scheduler with two worker
+processes (one of them killed mid-sweep), plus an interrupted sweep resumed.
 
 Short runs (60 s of simulated time) keep the whole module well under two minutes.
 """
@@ -289,6 +289,8 @@ def test_embedded_sweep_writes_rows_summary_and_plots(embedded):
     assert all("car.mass must be > 0" in r["error"] for r in failed)
     ok = [r for r in table.rows if r["status"] == "ok"]
     assert all(r["speed_rmse_filter"] < r["speed_rmse_sensor"] and r["moving_samples"] > 0 for r in ok)
+    assert {(r["engine"], r["fmu"]) for r in ok} == {("c", "")}          # the default: the C batch engine
+    assert "engine: batch (--engine auto: the C core covers every run)" in stdout
     assert [r["seed"] for r in table.rows[:3]] == [1, 2, 3]
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
     assert header[:7] == ["run_id", "status", "error", "wall_time [s]", "car.mass [t]",

@@ -73,7 +73,8 @@ def sweep_file(tmp_path: Path, scenario: Path, body: str = "seeds = 3\n") -> Pat
 
 def test_only_a_span_scenarios_sweep_has_ato_columns(tmp_path):
     keys = [c.key for c in sweep_columns(load_sweep(sweep_file(tmp_path, NOMINAL)))]
-    assert keys[-len(ATO_SWEEP_COLUMNS) - 1:-1] == [c.key for c in ATO_SWEEP_COLUMNS] and keys[-1] == "fmu"
+    assert keys[-len(ATO_SWEEP_COLUMNS) - 2:-2] == [c.key for c in ATO_SWEEP_COLUMNS]
+    assert keys[-2:] == ["engine", "fmu"]
     assert not {c.key for c in ATO_SWEEP_COLUMNS} & {c.key for c in
                                                      sweep_columns(load_sweep(sweep_file(tmp_path, LEVEL)))}
 
