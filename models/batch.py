@@ -139,9 +139,10 @@ AtoCommand's traction [N], brake [N], mode, planned_speed [m/s], ep_stage, dwell
 change [t]); models/core/span_driver.h RC_SPAN_STEP_FIELDS."""
 SPAN_STATION_STOPS = 22
 """est.station_stops' column in the chain's outputs (span_driver.h RC_SPAN_STATION_STOPS)."""
-LOG_CAP = 256
-"""The log lines a span run keeps (a controller logs once per episode: a few); a run that logs
-more says so (``SpanRuns.log_lines`` > LOG_CAP) and its caller runs it again in Python."""
+LOG_CAP = 32
+"""The log lines a span run keeps (a controller logs once per episode: a few; ~0.6 kB each, held
+for every run of a call); a run that logs more says so (``SpanRuns.log_lines`` > LOG_CAP) and
+its caller runs it again in Python."""
 
 
 def span_script_values(*, step_s: float, duration_s: float, stop_after_last_phase: bool,
