@@ -6,7 +6,10 @@ runs one script per chain configuration in C -- the driver (phases or a time tab
 the payload boarded, stop_after_last_phase and the chain -- without returning to Python per step,
 and gives every run's outputs and inputs. It is the C twin of harness.run.driver.drive on a
 models chain; harness.run.batch turns scenarios and their chains' configurations into these
-flat arrays and the results into RunResults.
+flat arrays and the results into RunResults. ``run_spans`` does the same for span scenarios, the
+ATO's line driving (models/core/span_driver.h, the twin of harness.run.span_scenario.AtoDriver):
+a *span script* (``span_script_values``) instead of a script, and every ATO call and log line
+back with the rows.
 
 The metrics of a recorded run that run a model again are here too, in C
 (models/core/run_metrics.h): ``oracle_filter`` (the estimator with a frozen identifier holding
