@@ -1,7 +1,7 @@
 """Where a station_day run's time goes, and what the C batch engine gains (issue 31's benchmark).
 
     python benchmarks/batch_benchmark.py [--scenario scenarios/library/station_day.toml]
-                                         [--runs 50] [--repeat 5]
+                                         [--runs 50] [--repeat 5] [--part scripted|spans|all]
 
 Measures in one process, on one core, the least CPU time of --repeat, per run of the scenario (its own seed;
 station_day ends at its last phase after 5,192 of its 9,000 steps):
@@ -18,7 +18,14 @@ station_day ends at its last phase after 5,192 of its 9,000 steps):
 Prints the table, the engine's time per step over the chain's (issue 31's target <= 3x), and the
 projection for 1,000 runs on 2 workers (issue 31's target <= 5 s, metrics included) from (c)
 and (d) (CPU time per run x runs / workers: 2 free cores assumed), with the metrics in Python and
-in C. Not run by the test suite; the figures are this machine's, noisy when others share it.
+in C.
+
+``--part spans`` (``all``: both parts) measures the span scenarios ato_nominal and ato_line (the
+ATO drives) the same way: (b) run_on_chain with the Python AtoDriver (before), (d) the C batch
+engine (models/core/span_driver.c: after), one run a call and --runs a call, and the run's
+metrics: the ATO's (harness.metrics.ato.ato_metrics: Python) and all of them
+(harness.metrics.run.run_metrics); then the share the metrics take of an engine run + metrics.
+Not run by the test suite; the figures are this machine's, noisy when others share it.
 """
 from __future__ import annotations
 
@@ -34,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from harness.metrics.ato import ato_metrics  # noqa: E402
 from harness.metrics.estimation import c_metrics, coast_time_errors, oracle_filter  # noqa: E402
 from harness.metrics.run import run_metrics  # noqa: E402
 from harness.run.batch import run_batch, run_chains, script_of  # noqa: E402
@@ -78,15 +86,49 @@ def recorded_steps(scenario, result) -> np.ndarray:
     return np.column_stack([np.arange(n) * h, np.full(n, h)] + [result.inputs[k][:n] for k in INPUTS])
 
 
+SPAN_SCENARIOS = ("ato_nominal", "ato_line")
+
+
+def spans_part(args) -> None:
+    """The span scenarios' table (module docstring, --part spans)."""
+    print(f"span scenarios: least CPU time of {args.repeat}, one core, per run\n")
+    print(f"{'':12} {'b before':>10} {'d 1 run':>10} {'d many':>10} {'ratio':>7} {'ato_metrics':>12} "
+          f"{'run_metrics':>12} {'metrics share':>14}")
+    for name in SPAN_SCENARIOS:
+        sc = load_scenario(ROOT / "scenarios" / "library" / f"{name}.toml")
+        result = run_on_chain(sc)
+        [same] = run_batch([sc])
+        assert same.driver_steps == result.driver_steps and all(
+            same[n].tobytes() == result[n].tobytes() for n in result.signals), f"{name}: batch != run_on_chain"
+        seeds = [{"seed": k} for k in range(args.runs)]
+        t = {"b": best(lambda: run_on_chain(sc), args.repeat),
+             "d": best(lambda: run_batch([sc]), args.repeat),
+             "d many": best(lambda: run_batch([sc] * args.runs, seeds), max(1, args.repeat // 2)) / args.runs,
+             "ato": best(lambda: ato_metrics(sc, result, result.driver_steps), args.repeat),
+             "run": best(lambda: run_metrics(result), args.repeat)}
+        share = t["run"] / (t["d many"] + t["run"])
+        print(f"{name:12} {1e3 * t['b']:7.2f} ms {1e3 * t['d']:7.2f} ms {1e3 * t['d many']:7.2f} ms "
+              f"{t['b'] / t['d many']:6.1f}x {1e3 * t['ato']:9.2f} ms {1e3 * t['run']:9.2f} ms "
+              f"{100 * share:12.0f} %   ({len(result.time) - 1} steps)")
+    print("\nratio: before / the engine (d many); metrics share: run_metrics / (d many + run_metrics)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", default=str(ROOT / "scenarios" / "library" / "station_day.toml"))
     ap.add_argument("--runs", type=int, default=50, help="runs per batch call in (d) [default 50]")
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--part", choices=("scripted", "spans", "all"), default="scripted",
+                    help="the scripted scenario (--scenario), the span scenarios, or both")
     args = ap.parse_args(argv)
     if not batch.available():
         print("models._batch is not compiled: python setup.py build_ext --inplace")
         return 2
+    if args.part in ("spans", "all"):
+        spans_part(args)
+        if args.part == "spans":
+            return 0
+        print()
     sc = load_scenario(args.scenario)
     setup = sc.chain_setup()
     result = run_on_chain(sc)

@@ -17,6 +17,7 @@
 
 #include "core/run_metrics.h"
 #include "core/scenario_driver.h"
+#include "core/span_driver.h"
 
 #define RUN_ARRAYS 6   /* config, grade_distances, grades, speed_distances, speeds, script */
 
@@ -29,6 +30,9 @@ typedef struct {                 /* one run, parsed */
     rc_chain_config cfg;
     rc_script script;
     int has_script;
+    rc_span_script span;         /* run_spans' runs: the span script instead */
+    int has_span;
+    rc_span_output out;
     long rows;                   /* output rows written */
     int finished;
 } Run;
@@ -40,6 +44,9 @@ static void release_runs(Run *runs, Py_ssize_t n)
             PyBuffer_Release(&runs[r].view[k]);
         if (runs[r].has_script)
             rc_script_free(&runs[r].script);
+        if (runs[r].has_span)
+            rc_span_script_free(&runs[r].span);
+        PyMem_Free(runs[r].out.log);
     }
     PyMem_Free(runs);
 }
@@ -72,9 +79,9 @@ static int double_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_
 
 static long length(const Py_buffer *view) { return (long)(view->len / (Py_ssize_t)sizeof(double)); }
 
-/* runs[r] from the tuple (config, grade_distances, grades, speed_distances, speeds, script); -1
- * with ValueError naming the run */
-static int parse_run(PyObject *item, Run *run, Py_ssize_t r)
+/* runs[r]'s chain from the tuple (config, grade_distances, grades, speed_distances, speeds,
+ * script); -1 with ValueError naming the run */
+static int parse_chain(PyObject *item, Run *run, Py_ssize_t r)
 {
     if (!PyTuple_Check(item) || PyTuple_GET_SIZE(item) != RUN_ARRAYS) {
         PyErr_Format(PyExc_ValueError, "run %zd: expected a tuple of %d arrays (config, "
@@ -105,6 +112,15 @@ static int parse_run(PyObject *item, Run *run, Py_ssize_t r)
     run->cfg.speed_distances = run->view[3].buf;
     run->cfg.speeds = run->view[4].buf;
     run->cfg.speed_n = ns;
+    return 0;
+}
+
+/* runs[r] from the tuple (config, grade_distances, grades, speed_distances, speeds, script); -1
+ * with ValueError naming the run */
+static int parse_run(PyObject *item, Run *run, Py_ssize_t r)
+{
+    if (parse_chain(item, run, r) < 0)
+        return -1;
     rc_error err;
     if (rc_script_init(&run->script, run->view[5].buf, length(&run->view[5]), &err) != RC_OK) {
         PyErr_Format(PyExc_ValueError, "run %zd: %s", r, err.msg);
@@ -201,6 +217,139 @@ done:
         PyBuffer_Release(&out);
     if (have_in)
         PyBuffer_Release(&in);
+    Py_DECREF(fast);
+    return result;
+}
+
+/* run_spans(runs, outputs, inputs, steps, log_cap, error) -> [(rows, finished, calls, log_lines,
+ * [line, ...]), ...]: whole span runs (span_driver.h), each run's tuple (config, grade_distances,
+ * grades, speed_distances, speeds, span_script); outputs runs x (steps + 1) x OUTPUTS, inputs
+ * runs x steps x INPUTS, steps runs x steps x SPAN_STEP_FIELDS; at most log_cap log lines kept a
+ * run (log_lines counts them all) */
+static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *seq, *out_obj, *in_obj, *steps_obj, *error;
+    long log_cap;
+    if (!PyArg_ParseTuple(args, "OOOOlO:run_spans", &seq, &out_obj, &in_obj, &steps_obj, &log_cap,
+                          &error))
+        return NULL;
+    if (!PyExceptionClass_Check(error)) {
+        PyErr_SetString(PyExc_TypeError, "error must be an exception class");
+        return NULL;
+    }
+    if (log_cap < 0 || log_cap > 100000) {
+        PyErr_Format(PyExc_ValueError, "log_cap must be in 0..100000, got %ld", log_cap);
+        return NULL;
+    }
+    PyObject *fast = PySequence_Fast(seq, "runs must be a sequence of tuples");
+    if (!fast)
+        return NULL;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
+    Run *runs = PyMem_Calloc((size_t)(n > 0 ? n : 1), sizeof *runs);
+    rc_chain *chain = PyMem_Malloc(sizeof *chain);
+    Py_buffer out, in, steps;
+    int have_out = 0, have_in = 0, have_steps = 0;
+    PyObject *result = NULL;
+    if (!runs || !chain) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    if (double_buffer(out_obj, &out, 1, -1, "outputs") < 0)
+        goto done;
+    have_out = 1;
+    if (double_buffer(in_obj, &in, 1, -1, "inputs") < 0)
+        goto done;
+    have_in = 1;
+    if (double_buffer(steps_obj, &steps, 1, -1, "steps") < 0)
+        goto done;
+    have_steps = 1;
+    Py_ssize_t out_rows = n ? length(&out) / (n * RC_CHAIN_OUTPUTS) : 0;
+    Py_ssize_t in_rows = n ? length(&in) / (n * RC_SPAN_INPUTS) : 0;
+    if (n && (length(&out) != n * out_rows * RC_CHAIN_OUTPUTS
+              || length(&in) != n * in_rows * RC_SPAN_INPUTS || out_rows != in_rows + 1
+              || length(&steps) != n * in_rows * RC_SPAN_STEP_FIELDS)) {
+        PyErr_Format(PyExc_ValueError, "outputs must be runs x (steps + 1) x %d, inputs runs x "
+                     "steps x %d and steps runs x steps x %d float64 (%zd runs), got %zd, %zd and "
+                     "%zd values", RC_CHAIN_OUTPUTS, RC_SPAN_INPUTS, RC_SPAN_STEP_FIELDS, n,
+                     (Py_ssize_t)length(&out), (Py_ssize_t)length(&in),
+                     (Py_ssize_t)length(&steps));
+        goto done;
+    }
+    for (Py_ssize_t r = 0; r < n; r++) {
+        Run *run = &runs[r];
+        if (parse_chain(PySequence_Fast_GET_ITEM(fast, r), run, r) < 0)
+            goto done;
+        rc_error err;
+        if (rc_span_script_init(&run->span, run->view[5].buf, length(&run->view[5]), &err) != RC_OK) {
+            PyErr_Format(PyExc_ValueError, "run %zd: %s", r, err.msg);
+            goto done;
+        }
+        run->has_span = 1;
+        if (run->span.steps > in_rows) {
+            PyErr_Format(PyExc_ValueError, "run %zd: %ld steps, the arrays have room for %zd",
+                         r, run->span.steps, in_rows);
+            goto done;
+        }
+        run->out.outputs = (double *)out.buf + r * out_rows * RC_CHAIN_OUTPUTS;
+        run->out.inputs = (double *)in.buf + r * in_rows * RC_SPAN_INPUTS;
+        run->out.steps = (double *)steps.buf + r * in_rows * RC_SPAN_STEP_FIELDS;
+        run->out.log_cap = log_cap;
+        run->out.log = PyMem_Malloc((size_t)(log_cap > 0 ? log_cap : 1) * RC_SPAN_LOG_SIZE);
+        if (!run->out.log) {
+            PyErr_NoMemory();
+            goto done;
+        }
+    }
+    rc_status st = RC_OK;
+    Py_ssize_t failed = -1;
+    rc_error err;
+    err.msg[0] = '\0';
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < n && st == RC_OK; r++) {
+        st = rc_chain_init(chain, &runs[r].cfg, &err);
+        if (st != RC_OK) {
+            failed = r;
+            break;
+        }
+        st = rc_span_run(&runs[r].span, chain, &runs[r].out, &err);
+        rc_chain_free(chain);
+        if (st != RC_OK)
+            failed = r;
+    }
+    Py_END_ALLOW_THREADS
+    if (st != RC_OK) {
+        PyErr_Format(st == RC_REJECTED ? error : PyExc_ValueError, "run %zd: %s", failed, err.msg);
+        goto done;
+    }
+    result = PyList_New(n);
+    for (Py_ssize_t r = 0; result && r < n; r++) {
+        const rc_span_output *o = &runs[r].out;
+        long kept = o->log_lines < log_cap ? o->log_lines : log_cap;
+        PyObject *lines = PyList_New(kept);
+        for (long k = 0; lines && k < kept; k++) {
+            PyObject *line = PyUnicode_FromString(o->log + RC_SPAN_LOG_SIZE * k);
+            if (!line)
+                Py_CLEAR(lines);
+            else
+                PyList_SET_ITEM(lines, k, line);
+        }
+        PyObject *row = lines ? Py_BuildValue("(lOllN)", o->rows, o->finished ? Py_True : Py_False,
+                                              o->calls, o->log_lines, lines) : NULL;
+        if (!row)
+            Py_CLEAR(result);
+        else
+            PyList_SET_ITEM(result, r, row);
+    }
+done:
+    if (runs)
+        release_runs(runs, n);
+    PyMem_Free(chain);
+    if (have_out)
+        PyBuffer_Release(&out);
+    if (have_in)
+        PyBuffer_Release(&in);
+    if (have_steps)
+        PyBuffer_Release(&steps);
     Py_DECREF(fast);
     return result;
 }
@@ -468,6 +617,11 @@ static PyMethodDef methods[] = {
      "a tuple of float64 arrays (config, grade_distances, grades, speed_distances, speeds, "
      "script); outputs runs x (steps + 1) x OUTPUTS, inputs runs x steps x INPUTS; a rejected "
      "step raises error naming the run and the step"},
+    {"run_spans", batch_run_spans, METH_VARARGS,
+     "run_spans(runs, outputs, inputs, steps, log_cap, error) -> [(rows, finished, calls, "
+     "log_lines, [line, ...]), ...]: whole span runs (the ATO drives); each run a tuple of float64 "
+     "arrays (config, grade_distances, grades, speed_distances, speeds, span_script); steps runs x "
+     "steps x SPAN_STEP_FIELDS (one row per ATO call)"},
     {"interval_forces", batch_interval_forces, METH_VARARGS,
      "interval_forces(vehicle, speed, mass, traction_demand, brake_demand, traction_mean, "
      "brake_mean): harness.metrics.estimation._interval_forces with recorded demands"},
@@ -500,7 +654,11 @@ PyMODINIT_FUNC PyInit__batch(void)
             || PyModule_AddIntConstant(m, "PHASE_FIELDS", RC_PHASE_FIELDS) < 0
             || PyModule_AddIntConstant(m, "MAX_STEPS", RC_SCRIPT_MAX_STEPS) < 0
             || PyModule_AddIntConstant(m, "VEHICLE_VALUES", VEHICLE_VALUES) < 0
-            || PyModule_AddIntConstant(m, "COAST_VALUES", COAST_VALUES) < 0) {
+            || PyModule_AddIntConstant(m, "COAST_VALUES", COAST_VALUES) < 0
+            || PyModule_AddIntConstant(m, "SPAN_HEADER", RC_SPAN_HEADER) < 0
+            || PyModule_AddIntConstant(m, "SPAN_STEP_FIELDS", RC_SPAN_STEP_FIELDS) < 0
+            || PyModule_AddIntConstant(m, "SPAN_TUNING_FIELDS", ATO_N_TUNING_FIELDS) < 0
+            || PyModule_AddIntConstant(m, "SPAN_STATION_STOPS", RC_SPAN_STATION_STOPS) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -6,7 +6,10 @@ runs one script per chain configuration in C -- the driver (phases or a time tab
 the payload boarded, stop_after_last_phase and the chain -- without returning to Python per step,
 and gives every run's outputs and inputs. It is the C twin of harness.run.driver.drive on a
 models chain; harness.run.batch turns scenarios and their chains' configurations into these
-flat arrays and the results into RunResults.
+flat arrays and the results into RunResults. ``run_spans`` does the same for span scenarios, the
+ATO's line driving (models/core/span_driver.h, the twin of harness.run.span_scenario.AtoDriver):
+a *span script* (``span_script_values``) instead of a script, and every ATO call and log line
+back with the rows.
 
 The metrics of a recorded run that run a model again are here too, in C
 (models/core/run_metrics.h): ``oracle_filter`` (the estimator with a frozen identifier holding
@@ -125,6 +128,91 @@ def run_scripts(runs: Sequence[tuple[np.ndarray, ...]], rejected: type[Exception
     rows = np.array([n for n, _ in done], dtype=np.int64)
     finished = np.array([f for _, f in done], dtype=bool)
     return BatchRuns(outputs, inputs, rows, finished)
+
+
+# ---------------------------------------------------------------- span runs: the ATO drives
+
+SPAN_HEADER = 5
+SPAN_CAR_FIELDS = 18
+"""CarTraction's fields (models/planning/span.py), in declaration order."""
+SPAN_STEP_FIELDS = ("t", "span", "traction", "brake", "mode", "planned_speed", "ep_stage", "dwell",
+                    "payload_change")
+"""One ATO call in ``run_spans``' steps (models.ato.line.LineStep: t [s], span 0-based, the
+AtoCommand's traction [N], brake [N], mode, planned_speed [m/s], ep_stage, dwell 0/1, payload
+change [t]); models/core/span_driver.h RC_SPAN_STEP_FIELDS."""
+SPAN_STATION_STOPS = 22
+"""est.station_stops' column in the chain's outputs (span_driver.h RC_SPAN_STATION_STOPS)."""
+LOG_CAP = 32
+"""The log lines a span run keeps (a controller logs once per episode: a few; ~0.6 kB each, held
+for every run of a call); a run that logs more says so (``SpanRuns.log_lines`` > LOG_CAP) and
+its caller runs it again in Python."""
+
+
+def span_script_values(*, step_s: float, duration_s: float, stop_after_last_phase: bool,
+                       car: Sequence[float], tuning: Sequence[float],
+                       spans: Sequence[Mapping[str, object]],
+                       wind: Sequence[tuple[float, float]] = ()) -> np.ndarray:
+    """The flat span script (models/core/span_driver.h) of a line: the configured car's
+    SPAN_CAR_FIELDS values, the tuning's values (AtoTuning's fields in order), and ``spans``, each
+    a mapping of length [m], schedule [s], stop [m], dwell_s [s], boarding_t [t],
+    limit_distances [m], limit_speeds [m/s], grade_distances [m], grades [permille]; the wind
+    schedule (``wind``: (time [s], speed [m/s]) in the order Scenario.wind_at reads them), the
+    run's step and duration [s]. The C side checks the values (rc_span_script_init)."""
+    if len(car) != SPAN_CAR_FIELDS:
+        raise ValueError(f"car: expected {SPAN_CAR_FIELDS} values (CarTraction's fields), got {len(car)}")
+    header = [step_s, duration_s, 1.0 if stop_after_last_phase else 0.0, len(wind), len(spans)]
+    body: list[float] = [float(x) for x in car] + [float(x) for x in tuning]
+    for i, sp in enumerate(spans):
+        ld, lv = list(sp["limit_distances"]), list(sp["limit_speeds"])
+        gd, gg = list(sp["grade_distances"]), list(sp["grades"])
+        if len(ld) != len(lv) or len(gd) != len(gg):
+            raise ValueError(f"span[{i}]: the limits' and the grade's distances and values must "
+                             f"have one length")
+        body += [float(sp[k]) for k in ("length", "schedule", "stop", "dwell_s", "boarding_t")]
+        body += [len(ld), len(gd), *ld, *lv, *gd, *gg]
+    body += [float(x) for w in wind for x in w]
+    return np.array(header + body, dtype=float)
+
+
+def span_steps_of(script: np.ndarray) -> int:
+    """The span script's number of steps, as ``steps_of`` counts a script's (0 for a header the
+    C side will refuse)."""
+    if len(script) < SPAN_HEADER or not (script[0] > 0 and script[1] >= 0):
+        return 0
+    steps = float(script[1]) / float(script[0])
+    return int(round(steps)) if math.isfinite(steps) and steps <= MAX_STEPS else 0
+
+
+@dataclass
+class SpanRuns(BatchRuns):
+    """``run_spans``' result: BatchRuns' arrays, and for run r ``steps[r, :calls[r]]`` (every ATO
+    call, SPAN_STEP_FIELDS columns), ``log[r]`` its log lines ("span k: ATO at t = ..."; the first
+    LOG_CAP) and ``log_lines[r]`` how many it logged (more than len(log[r]): some did not fit)."""
+    steps: np.ndarray = None
+    calls: np.ndarray = None
+    log: list = None
+    log_lines: np.ndarray = None
+
+
+def run_spans(runs: Sequence[tuple[np.ndarray, ...]], rejected: type[Exception] = ValueError
+              ) -> SpanRuns:
+    """Each span run whole in C (the ATO's line drives the chain), on a fresh chain each: a run is
+    ``run_scripts``' six arrays with a span script (``span_script_values``) for the script. The
+    scripts are checked before the first run starts (ValueError naming the run and the value);
+    a line the ATO refuses raises ValueError naming the run and the span, a step the chain rejects
+    ``rejected``. RuntimeError if models._batch is not compiled."""
+    if _batch is None:
+        raise RuntimeError("the C scenario runner (models._batch) is not compiled")
+    flat = [tuple(np.ascontiguousarray(a, dtype=float) for a in run) for run in runs]
+    steps = max((span_steps_of(run[-1]) for run in flat), default=0)
+    outputs = np.empty((len(flat), steps + 1, OUTPUTS))
+    inputs = np.empty((len(flat), steps, INPUTS))
+    calls = np.empty((len(flat), steps, len(SPAN_STEP_FIELDS)))
+    done = _batch.run_spans(flat, outputs, inputs, calls, LOG_CAP, rejected)
+    return SpanRuns(outputs, inputs, np.array([d[0] for d in done], dtype=np.int64),
+                    np.array([d[1] for d in done], dtype=bool), steps=calls,
+                    calls=np.array([d[2] for d in done], dtype=np.int64),
+                    log=[d[4] for d in done], log_lines=np.array([d[3] for d in done], dtype=np.int64))
 
 
 # ---------------------------------------------------------------- metrics of a recorded run

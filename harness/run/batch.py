@@ -7,9 +7,13 @@ harness.run.driver.run_on_chain(scenario, overrides) gives -- the same arrays bi
 step in C (models.batch, models/core/scenario_driver.c) without returning to Python per step.
 Here a Scenario becomes the C driver's script (``script_of``: its phases or time table as
 Scenario.new_driver builds them, its wind schedule, step, duration and stop_after_last_phase) and
-the C arrays become RunResults. Span scenarios (the ATO drives) are not covered yet; a run the C
-core cannot take (``not_covered``: a span scenario, an estimator it does not cover, no compiled
-models._batch, RAILCAR_PURE_PYTHON set) runs on run_on_chain, the Python loop, with the same
+the C arrays become RunResults. A span scenario (the ATO drives: harness.run.span_scenario's
+AtoDriver) becomes a span script (``span_script_of``: its line's spans, configured car and tuning
+as Scenario.new_driver builds them) run by models/core/span_driver.c, the C twin of the AtoDriver
+in drive(): its RunResult carries the same driver_steps (every AtoStep) and driver_log lines
+(tests/harness_tests/run/test_batch_spans.py). A run the C core cannot take (``not_covered``: an
+estimator it does not cover, no compiled models._batch, RAILCAR_PURE_PYTHON set; a span run that
+logged more lines than the C side keeps) runs on run_on_chain, the Python loop, with the same
 result; ``ENGINES`` counts the runs each way.
 """
 from __future__ import annotations
@@ -21,17 +25,21 @@ import numpy as np
 
 from models import batch
 from models.chain import ChainConfig, StepRejected
-from models.compiled import (INTEGER_OUTPUTS, OUTPUT_NAMES, _config_values, core_not_covered, enabled,
-                             validate)
+from models.ato.interface import AtoCommand
+from models.compiled import (INTEGER_OUTPUTS, OUTPUT_NAMES, _config_values, core_not_covered,
+                             dataclass_values, enabled, validate)
 from models.plant.track import GradeProfile, SpeedProfile
 
 from harness.run.driver import run_on_chain
 from harness.run.phases import ACTIONS, INPUTS, PhaseDriver, TimeTable
 from harness.run.result import RunResult
 from harness.run.scenario import Scenario
+from harness.run.span_scenario import AtoStep
 
 assert batch.ACTIONS == ACTIONS, "models.batch.ACTIONS must list harness.run.phases.ACTIONS in order"
 assert batch.OUTPUTS == len(OUTPUT_NAMES), "models.batch.OUTPUTS must count models.compiled.OUTPUT_NAMES"
+assert OUTPUT_NAMES[batch.SPAN_STATION_STOPS] == "est.station_stops", \
+    "models.batch.SPAN_STATION_STOPS must be est.station_stops' column in models.compiled.OUTPUT_NAMES"
 
 ENGINES: collections.Counter = collections.Counter()
 """Runs made by run_batch per engine: "c" (the batch engine) and "python" (run_on_chain)."""
@@ -55,6 +63,26 @@ def script_of(scenario: Scenario) -> np.ndarray:
                      f"[driver_table]); this one's driver is {type(driver).__name__}")
 
 
+def span_script_of(scenario: Scenario) -> np.ndarray:
+    """A span scenario's ATO (the AtoDriver Scenario.new_driver builds: scenario.ato_setup()), wind
+    schedule and run length as the C span driver's flat script (models.batch.span_script_values).
+    ValueError naming the scenario for a scenario that is not a span scenario."""
+    setup = scenario.ato_setup()
+    if setup is None:
+        raise ValueError(f"{scenario.name}: not a span scenario (no [span] or [[span]]): script_of "
+                         f"gives its script")
+    spans = [dict(length=s.span.length, schedule=s.span.schedule, stop=s.span.stop,
+                  dwell_s=s.dwell_s, boarding_t=s.boarding_t,
+                  limit_distances=s.span.limit_distances, limit_speeds=s.span.limit_speeds,
+                  grade_distances=s.span.grade.distances, grades=s.span.grade.grades)
+             for s in setup.spans]
+    return batch.span_script_values(step_s=scenario.step_s, duration_s=scenario.duration_s,
+                                    stop_after_last_phase=scenario.stop_after_last_phase,
+                                    car=dataclass_values(setup.car),
+                                    tuning=dataclass_values(setup.tuning), spans=spans,
+                                    wind=[(w.time_s, w.speed_mps) for w in scenario.wind])
+
+
 def not_covered(scenario: Scenario, setup=None) -> str | None:
     """Why the C batch engine does not run this scenario (then run_batch runs it on
     run_on_chain), or None when it does; ``setup``: its chain's (fmu_src.adapter.ChainSetup),
@@ -63,8 +91,6 @@ def not_covered(scenario: Scenario, setup=None) -> str | None:
         return "the C scenario runner (models._batch) is not compiled"
     if not enabled():
         return "the C core is switched off (RAILCAR_PURE_PYTHON) or not compiled (models._railcar)"
-    if scenario.ato is not None:
-        return "a span scenario (the ATO drives)"
     return core_not_covered((setup or scenario.chain_setup()).config.identifier)
 
 
@@ -79,20 +105,33 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
     if len(overrides) != len(scenarios):
         raise ValueError(f"overrides: one per scenario ({len(scenarios)}), got {len(overrides)}")
     results: list[RunResult | None] = [None] * len(scenarios)
-    todo, runs = [], []
+    todo, runs, span_todo, span_runs = [], [], [], []
     for i, (sc, ov) in enumerate(zip(scenarios, overrides)):
         setup = sc.chain_setup(ov)
         if not_covered(sc, setup) is not None:
             results[i] = run_on_chain(sc, ov)
             ENGINES["python"] += 1
             continue
-        todo.append(i)
-        runs.append((setup.config, setup.grade, setup.speed, script_of(sc)))
+        if sc.ato is not None:
+            span_todo.append(i)
+            span_runs.append((setup.config, setup.grade, setup.speed, span_script_of(sc)))
+        else:
+            todo.append(i)
+            runs.append((setup.config, setup.grade, setup.speed, script_of(sc)))
     if runs:
         done = run_chains(runs)
         for r, i in enumerate(todo):
             results[i] = result_of(scenarios[i], done, r)
         ENGINES["c"] += len(runs)
+    if span_runs:
+        done = run_chains(span_runs, spans=True)
+        for r, i in enumerate(span_todo):
+            if done.log_lines[r] > len(done.log[r]):     # the C side kept only the first lines
+                results[i] = run_on_chain(scenarios[i], overrides[i])
+                ENGINES["python"] += 1
+                continue
+            results[i] = span_result_of(scenarios[i], done, r)
+            ENGINES["c"] += 1
     return results
 
 
@@ -110,18 +149,19 @@ def chain_arrays(cfg: ChainConfig, grade: GradeProfile, speed: SpeedProfile | No
                  for a in (config, grade.distances, grade.grades, sd, sv))
 
 
-def run_chains(runs: Sequence[tuple[ChainConfig, GradeProfile, SpeedProfile | None, np.ndarray]]
-               ) -> batch.BatchRuns:
+def run_chains(runs: Sequence[tuple[ChainConfig, GradeProfile, SpeedProfile | None, np.ndarray]],
+               spans: bool = False) -> batch.BatchRuns:
     """Each run (chain configuration, grade profile, speed profile or None, script) whole in C
-    (models.batch.run_scripts), on a fresh chain each. ValueError naming the run and the setting
-    before any run starts; StepRejected naming the run and the step."""
+    (models.batch.run_scripts; ``spans``: span scripts, models.batch.run_spans), on a fresh chain
+    each. ValueError naming the run and the setting before any run starts (a line the ATO
+    refuses: when its run starts); StepRejected naming the run and the step."""
     flat = []
     for r, (cfg, grade, speed, script) in enumerate(runs):
         try:
             flat.append((*chain_arrays(cfg, grade, speed), script))
         except ValueError as e:
             raise ValueError(f"run {r}: {e}") from None
-    return batch.run_scripts(flat, StepRejected)
+    return batch.run_spans(flat, StepRejected) if spans else batch.run_scripts(flat, StepRejected)
 
 
 def result_of(scenario: Scenario, done: batch.BatchRuns, r: int) -> RunResult:
@@ -137,3 +177,17 @@ def result_of(scenario: Scenario, done: batch.BatchRuns, r: int) -> RunResult:
     return RunResult(scenario, np.arange(rows) * h, signals, {},
                      inputs={n: u[:, j].copy() for j, n in enumerate(INPUTS)},
                      driver_steps=None, driver_log=[])
+
+
+def span_result_of(scenario: Scenario, done: batch.SpanRuns, r: int) -> RunResult:
+    """Span run ``r`` of ``done`` as ``result_of`` makes it, with the AtoDriver's records: every
+    call as an AtoStep (driver_steps) and its log lines headed by the scenario's name (driver_log)."""
+    result = result_of(scenario, done, r)
+    steps = []
+    for t, span, traction, brake, mode, planned, stage, dwell, payload in \
+            done.steps[r, :int(done.calls[r])].tolist():
+        steps.append(AtoStep(t, int(span), AtoCommand(traction, brake, int(mode), planned, int(stage)),
+                             dwell=bool(dwell), payload_change=payload))
+    result.driver_steps = tuple(steps)
+    result.driver_log = [f"{scenario.name or 'ATO'}: {line}" for line in done.log[r]]
+    return result

@@ -1,16 +1,18 @@
-"""The C scenario driver (models/core/scenario_driver.c) under the sanitizers, and a one-ulp change
-in it failing the bit-identity test of whole runs against the Python loop
-(harness.run.driver.run_on_chain).
+"""The C scenario drivers (models/core/scenario_driver.c, and span_driver.c: the ATO drives) under
+the sanitizers, and a one-ulp change in them failing the bit-identity test of whole runs against
+the Python loop (harness.run.driver.run_on_chain).
 
 The batch extension (models/_batch.c with the core) is built here twice more, the same way: with
 the driver as it is, and with one expression of it changed by one ulp (an operand times
 (1 + 2**-52)) -- the brake_to_stop demand, the cruise demand, the time table's interpolation, the
-wind held over a step. The unchanged build gives run_on_chain's rows exactly; each mutant makes
+wind held over a step; in span_driver.c the time the ATO is called at and the payload boarded
+at a line's dwells. The unchanged build gives run_on_chain's rows exactly; each mutant makes
 them differ. The core's other files are compiled once, to objects, with -Wall -Wextra -Werror
 (the binding against the Python headers included, as tests/model_tests/core/test_core_build.py
 does for models/_railcar.c). The batch extension is also built with -fsanitize=address,undefined
 and run, in a Python with the sanitizers' runtimes preloaded, over every scripted library scenario,
-a refused script and a rejected step, and the run metrics in C (the oracle filter and the coasts,
+a refused script and a rejected step, the span scenarios ato_nominal and ato_line, and the run
+metrics in C (the oracle filter and the coasts,
 models/core/run_metrics.c) of those scenarios and a span scenario, and a refused coast: not a
 sanitizer report, the rows still run_on_chain's, the metrics the Python reference's.
 """
@@ -34,6 +36,7 @@ from models import batch
 ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "models" / "core"
 DRIVER = CORE / "scenario_driver.c"
+SPAN_DRIVER = CORE / "span_driver.c"
 LIBRARY = ROOT / "scenarios" / "library"
 FLAGS = ["-std=c99", "-O1", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-Wall", "-Wextra",
          "-Werror"]
@@ -57,6 +60,10 @@ def scenarios() -> dict:
     return out
 
 
+def span_scenarios() -> dict:
+    return {n: load_scenario(LIBRARY / f"{n}.toml") for n in ("ato_nominal", "ato_line")}
+
+
 MUTATIONS = {
     "brake_to_stop": ("level_run", "double need = speed * speed / (2.0 * left);",
                       f"double need = speed * speed / (2.0 * left) * {ONE_ULP};"),
@@ -69,6 +76,13 @@ MUTATIONS = {
 }
 """name: (the scenario it shows on, the expression in scenario_driver.c, its one-ulp change)"""
 
+SPAN_MUTATIONS = {
+    "span_time": ("ato_nominal", "double t = (double)k * h;", f"double t = (double)k * h * {ONE_ULP};"),
+    "span_payload": ("ato_line", "payload += st.payload_change;",
+                     f"payload += st.payload_change * {ONE_ULP};"),
+}
+"""name: (the span scenario it shows on, the expression in span_driver.c, its one-ulp change)"""
+
 
 def gcc() -> str:
     path = shutil.which("gcc")
@@ -78,22 +92,26 @@ def gcc() -> str:
 
 @pytest.fixture(scope="module")
 def objects(tmp_path_factory) -> list[Path]:
-    """The binding and every core source but the driver, compiled once."""
+    """The binding and every core source but the drivers, compiled once."""
     directory = tmp_path_factory.mktemp("batch_objects")
-    sources = [ROOT / "models" / "_batch.c", *(p for p in sorted(CORE.glob("*.c")) if p != DRIVER)]
+    sources = [ROOT / "models" / "_batch.c",
+               *(p for p in sorted(CORE.glob("*.c")) if p not in (DRIVER, SPAN_DRIVER))]
     proc = subprocess.run([gcc(), *FLAGS, f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}", "-c",
                            *map(str, sources)], cwd=directory, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     return sorted(directory.glob("*.o"))
 
 
-def build(objects: list[Path], driver_source: str, directory: Path):
-    """models._batch with ``driver_source`` as scenario_driver.c, imported from ``directory``."""
+def build(objects: list[Path], driver_source: str, directory: Path, span_source: str | None = None):
+    """models._batch with ``driver_source`` as scenario_driver.c and ``span_source`` as
+    span_driver.c (default: the file's), imported from ``directory``."""
     directory.mkdir()
     source = directory / "scenario_driver.c"
     source.write_text(driver_source)
+    span = directory / "span_driver.c"
+    span.write_text(SPAN_DRIVER.read_text() if span_source is None else span_source)
     so = directory / f"_batch{sysconfig.get_config_var('EXT_SUFFIX')}"
-    proc = subprocess.run([gcc(), *FLAGS, "-shared", f"-I{CORE}", str(source), *map(str, objects),
+    proc = subprocess.run([gcc(), *FLAGS, "-shared", f"-I{CORE}", str(source), str(span), *map(str, objects),
                            "-lm", "-o", str(so)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     spec = importlib.util.spec_from_file_location("_batch", so)
@@ -104,7 +122,7 @@ def build(objects: list[Path], driver_source: str, directory: Path):
 
 def differing_outputs(scenario, module, monkeypatch) -> list[str]:
     """The outputs and inputs whose bits differ between run_on_chain and the batch run on
-    ``module``."""
+    ``module`` ("driver_steps" too if a span scenario's AtoSteps differ)."""
     expected = run_on_chain(scenario)
     monkeypatch.setattr(batch, "_batch", module)
     [got] = harness_batch.run_batch([scenario])
@@ -113,7 +131,8 @@ def differing_outputs(scenario, module, monkeypatch) -> list[str]:
         return [f"rows: {len(got.time)} != {len(expected.time)}"]
     pairs = [*((n, expected.signals[n], got.signals[n]) for n in expected.signals),
              *((f"input {n}", expected.inputs[n], got.inputs[n]) for n in expected.inputs)]
-    return [n for n, a, b in pairs if a.tobytes() != b.tobytes()]
+    steps = [] if got.driver_steps == expected.driver_steps else ["driver_steps"]   # the ATO's calls
+    return [n for n, a, b in pairs if a.tobytes() != b.tobytes()] + steps
 
 
 def test_the_unchanged_driver_built_here_gives_the_python_rows(objects, tmp_path, monkeypatch):
@@ -132,6 +151,19 @@ def test_a_one_ulp_change_in_the_driver_is_caught(mutation, objects, tmp_path, m
     differ = differing_outputs(scenario, module, monkeypatch)
     assert differ, f"{mutation}: the one-ulp change left every row of {scenario_name} the same"
     assert "car.speed" in differ or any(d.startswith("input") for d in differ), differ
+
+
+@pytest.mark.parametrize("mutation", SPAN_MUTATIONS)
+def test_a_one_ulp_change_in_the_span_driver_is_caught(mutation, objects, tmp_path, monkeypatch):
+    scenario_name, expression, changed = SPAN_MUTATIONS[mutation]
+    text = SPAN_DRIVER.read_text()
+    assert text.count(expression) == 1, f"{expression!r} is not once in {SPAN_DRIVER.name}"
+    module = build(objects, DRIVER.read_text(), tmp_path / mutation, text.replace(expression, changed))
+    scenario = span_scenarios()[scenario_name]
+    differ = differing_outputs(scenario, module, monkeypatch)
+    assert differ, f"{mutation}: the one-ulp change left every row of {scenario_name} the same"
+    # the calls' t (the ATO compares it with thresholds only: the rows may stay), the payload held
+    assert ("driver_steps" if mutation == "span_time" else "input car.payload") in differ, differ
 
 
 SANITIZED_RUNS = """
@@ -162,6 +194,11 @@ try:
     run_batch([strong])
 except StepRejected as e:
     print("rejected:", e)
+spans = [sc for sc in library if sc.name in ("ato_nominal", "ato_line")]
+spans_differ = [sc.name for sc, got, want in zip(spans, run_batch(spans), map(run_on_chain, spans))
+                if got.driver_steps != want.driver_steps
+                or any(got[n].tobytes() != want[n].tobytes() for n in got.signals)]
+print("spans", len(spans), "differ", spans_differ)
 import os
 from harness.metrics.run import run_metrics
 metrics_differ = []
@@ -206,3 +243,4 @@ def test_the_batch_extension_under_the_sanitizers(tmp_path):
     assert lines[-3].startswith("coasts refused: coasts: expected rows of 8 values"), run.stdout
     assert lines[0].startswith("refused: run 0: script: expected"), run.stdout
     assert lines[1].startswith("rejected: run 0: step 0: traction_force_demand"), run.stdout
+    assert lines[2] == "spans 2 differ []", run.stdout         # span_driver.c: the ATO drives

@@ -1,0 +1,301 @@
+/* span_driver.c -- see span_driver.h: harness/run/span_scenario.py's AtoDriver inside
+ * harness/run/driver.py's drive() in C, each expression in the Python's operand order. */
+#include "rc_fp_contract.h"
+#include "span_driver.h"
+#include "ato_closed_loop.h"
+#include "run_metrics.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+
+#define MAX_COUNT 10000000.0       /* spans, limits, grade rows, wind steps: a sanity bound */
+
+static rc_status refuse(rc_error *err, const char *fmt, ...)
+{
+    if (err) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
+        va_end(ap);
+    }
+    return RC_BAD_CONFIG;
+}
+
+static rc_status refuse_value(rc_error *err, const char *where, const char *rule, double v)
+{
+    char r[40];
+    rc_repr(v, r, sizeof r);
+    return refuse(err, "%s %s, got %s", where, rule, r);
+}
+
+/* A count: a whole number in 0..MAX_COUNT, else -1 */
+static long count_of(double v)
+{
+    if (!(v >= 0.0 && v <= MAX_COUNT) || v != floor(v))
+        return -1;
+    return (long)v;
+}
+
+/* The header's numbers into s, checked */
+static rc_status read_header(rc_span_script *s, const double *v, long n, rc_error *err)
+{
+    if (n < RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS)
+        return refuse(err, "span script: expected at least %d values (the header, the car and the "
+                      "tuning), got %ld", RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS, n);
+    s->step_s = v[0];
+    s->duration_s = v[1];
+    if (!(s->step_s > 0.0 && isfinite(s->step_s)))
+        return refuse_value(err, "step_s", "must be > 0 and finite", s->step_s);
+    if (!(s->duration_s >= 0.0 && isfinite(s->duration_s)))
+        return refuse_value(err, "duration_s", "must be >= 0 and finite", s->duration_s);
+    if (v[2] != 0.0 && v[2] != 1.0)
+        return refuse_value(err, "stop_after_last_phase", "must be 0 or 1", v[2]);
+    s->stop_after_last_phase = v[2] == 1.0;
+    long wind = count_of(v[3]), spans = count_of(v[4]);
+    if (wind < 0)
+        return refuse_value(err, "span script: the number of wind steps", "must be a whole number "
+                            "in 0..10000000", v[3]);
+    if (spans < 1 || spans > 10000)
+        return refuse_value(err, "span script: the number of spans", "must be a whole number in "
+                            "1..10000", v[4]);
+    s->n_wind = wind;
+    s->n_spans = (int)spans;
+    double steps = nearbyint(s->duration_s / s->step_s);   /* Python's round(): half to even */
+    if (!(steps <= (double)RC_SPAN_MAX_STEPS))
+        return refuse_value(err, "duration_s / step_s", "must round to at most 1e9 steps",
+                            s->duration_s / s->step_s);
+    s->steps = (long)steps;
+    return RC_OK;
+}
+
+/* The doubles the arrays need (the spans' and the wind's), or -1 with err naming what is wrong */
+static long arrays_needed(const rc_span_script *s, const double *v, long n, rc_error *err)
+{
+    long at = RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS, need = 2 * s->n_spans;
+    for (int i = 0; i < s->n_spans; i++) {
+        if (at + RC_SPAN_FIELDS > n) {
+            refuse(err, "span script: span[%d] is missing (%ld values given)", i, n);
+            return -1;
+        }
+        long nl = count_of(v[at + 5]), ng = count_of(v[at + 6]);
+        char where[64];
+        snprintf(where, sizeof where, "span[%d]: the number of limits", i);
+        if (nl < 1) {
+            refuse_value(err, where, "must be a whole number >= 1", v[at + 5]);
+            return -1;
+        }
+        snprintf(where, sizeof where, "span[%d]: the number of grade rows", i);
+        if (ng < 1) {
+            refuse_value(err, where, "must be a whole number >= 1", v[at + 6]);
+            return -1;
+        }
+        at += RC_SPAN_FIELDS + 2 * nl + 2 * ng;
+        need += 2 * nl + 3 * ng;
+    }
+    if (n != at + 2 * s->n_wind) {
+        refuse(err, "span script: expected %ld values for %d spans and %ld wind steps, got %ld",
+               at + 2 * s->n_wind, s->n_spans, s->n_wind, n);
+        return -1;
+    }
+    return need + 2 * s->n_wind;
+}
+
+rc_status rc_span_script_init(rc_span_script *s, const double *values, long n, rc_error *err)
+{
+    memset(s, 0, sizeof *s);
+    if (err)
+        err->msg[0] = '\0';
+    rc_status st = read_header(s, values, n, err);
+    if (st != RC_OK)
+        return st;
+    long need = arrays_needed(s, values, n, err);
+    if (need < 0)
+        return RC_BAD_CONFIG;
+    s->spans = calloc((size_t)s->n_spans, sizeof *s->spans);
+    s->arrays = malloc(sizeof *s->arrays * (size_t)need);
+    if (!s->spans || !s->arrays) {
+        rc_span_script_free(s);
+        return refuse(err, "span script: out of memory");
+    }
+    const double *v = values + RC_SPAN_HEADER;
+    ato_car_from_values(&s->car, v);
+    v += RC_SPAN_CAR_FIELDS;
+    ato_tuning_from_values(&s->tuning, v);
+    v += ATO_N_TUNING_FIELDS;
+    double *a = s->arrays;
+    s->dwell_s = a;
+    s->boarding_t = a + s->n_spans;
+    a += 2 * s->n_spans;
+    for (int i = 0; i < s->n_spans; i++) {
+        rc_ato_span *sp = &s->spans[i];
+        long nl = (long)v[5], ng = (long)v[6];
+        sp->length = v[0];
+        sp->schedule = v[1];
+        sp->stop = v[2];
+        s->dwell_s[i] = v[3];
+        s->boarding_t[i] = v[4];
+        v += RC_SPAN_FIELDS;
+        memcpy(a, v, sizeof *a * (size_t)(2 * nl + 2 * ng));
+        sp->n_limits = (int)nl;
+        sp->limit_distances = a;
+        sp->limit_speeds = a + nl;
+        sp->grade.distances = a + 2 * nl;
+        sp->grade.grades = a + 2 * nl + ng;
+        sp->grade.n = ng;
+        for (long j = 0; j < ng; j++)
+            if (!isfinite(sp->grade.distances[j]) || !isfinite(sp->grade.grades[j])
+                    || (j > 0 && !(sp->grade.distances[j] > sp->grade.distances[j - 1]))) {
+                char where[64];
+                snprintf(where, sizeof where, "span[%d]: grade row %ld", i, j);
+                rc_span_script_free(s);
+                return refuse(err, "%s must be finite with increasing distances", where);
+            }
+        double *cum = a + 2 * nl + 2 * ng;
+        rc_grade_cumulate(sp->grade.distances, sp->grade.grades, ng, cum);
+        sp->grade.cum = cum;
+        v += 2 * nl + 2 * ng;
+        a += 2 * nl + 3 * ng;
+    }
+    s->wind = a;
+    memcpy(s->wind, v, sizeof *a * (size_t)(2 * s->n_wind));
+    for (long k = 0; k < 2 * s->n_wind; k++)
+        if (!isfinite(s->wind[k])) {
+            double bad = s->wind[k];
+            char where[64];
+            snprintf(where, sizeof where, "wind[%ld].%s", k / 2, k % 2 ? "speed_mps" : "time_s");
+            rc_span_script_free(s);
+            return refuse_value(err, where, "must be finite", bad);
+        }
+    return RC_OK;
+}
+
+void rc_span_script_free(rc_span_script *s)
+{
+    free(s->spans);
+    free(s->arrays);
+    s->spans = NULL;
+    s->arrays = s->dwell_s = s->boarding_t = s->wind = NULL;
+}
+
+/* The events AtoController._log logs (logger models.ato.controller): the ones recorded once per
+ * episode */
+static int logged(ato_event_code code)
+{
+    return code == ATO_EV_INPUT || code == ATO_EV_RECOVERY || code == ATO_EV_ESTIMATES
+           || code == ATO_EV_REPLAN_FAILED || code == ATO_EV_OVERSPEED || code == ATO_EV_INTERNAL;
+}
+
+/* The new events of controller `span` since *seen as log lines, AtoDriver's "span k: " head and
+ * LOG.warning("ATO at t = %.2f s: %s", t, reason) */
+static void log_events(const ato_controller *c, int span, long *seen, rc_span_output *out)
+{
+    for (; *seen < c->n_events; (*seen)++) {
+        const ato_event *e = ato_controller_event(c, *seen);
+        if (e != NULL && !logged(e->code))
+            continue;
+        if (e != NULL && out->log_lines < out->log_cap) {
+            char *line = out->log + RC_SPAN_LOG_SIZE * out->log_lines;
+            if (isnan(e->t))          /* Python's "%.2f" % nan, whatever its sign */
+                snprintf(line, RC_SPAN_LOG_SIZE, "span %d: ATO at t = nan s: %s", span + 1, e->text);
+            else
+                snprintf(line, RC_SPAN_LOG_SIZE, "span %d: ATO at t = %.2f s: %s", span + 1, e->t,
+                         e->text);
+            out->log_lines++;
+        } else {                      /* no room, or left the ring: the caller is told */
+            out->log_lines = out->log_cap + 1;
+        }
+    }
+}
+
+static void record_step(double *row, const ato_line_step *st)
+{
+    row[0] = st->t;
+    row[1] = (double)st->span;
+    row[2] = st->command.traction;
+    row[3] = st->command.brake;
+    row[4] = (double)st->command.mode;
+    row[5] = st->command.planned_speed;
+    row[6] = (double)st->command.ep_stage;
+    row[7] = (double)st->dwell;
+    row[8] = st->payload_change;
+}
+
+/* The run with the line built (see rc_span_run) */
+static rc_status run_line(const rc_span_script *s, ato_line *line, long *seen, rc_chain *chain,
+                          rc_span_output *out, rc_error *err)
+{
+    const double h = s->step_s;
+    double *y = out->outputs;
+    double reads[ATO_N_ALL_INPUTS];
+    rc_chain_outputs(chain, y);
+    out->rows = 1;
+    double payload = 0.0;
+    for (long k = 0; k < s->steps; k++) {
+        double t = (double)k * h;
+        for (int i = 0; i < ATO_N_ALL_INPUTS; i++)
+            reads[i] = y[ATO_LOOP_INPUT_OUTPUTS[i]];
+        ato_line_step st = ato_line_demands(line, t, reads, y[RC_SPAN_STATION_STOPS]);
+        record_step(out->steps + RC_SPAN_STEP_FIELDS * out->calls, &st);
+        out->calls++;
+        log_events(&line->controllers[st.span], st.span, &seen[st.span], out);
+        payload += st.payload_change;
+        if (line->finished && s->stop_after_last_phase) {
+            out->finished = 1;
+            break;
+        }
+        double *u = out->inputs + RC_SPAN_INPUTS * k;
+        u[0] = st.command.traction;
+        u[1] = st.command.brake;
+        u[2] = rc_wind_schedule_at(s->wind, s->n_wind, t);
+        u[3] = payload;
+        rc_status rc = rc_chain_step(chain, t, h, u[0], u[1], u[2], u[3], err);
+        if (rc != RC_OK) {
+            if (err) {
+                char why[RC_MSG_SIZE];
+                memcpy(why, err->msg, sizeof why);
+                snprintf(err->msg, sizeof err->msg, "step %ld: %.200s", k, why);
+            }
+            return rc;
+        }
+        y += RC_CHAIN_OUTPUTS;
+        rc_chain_outputs(chain, y);
+        out->rows++;
+    }
+    return RC_OK;
+}
+
+rc_status rc_span_run(const rc_span_script *s, rc_chain *chain, rc_span_output *out, rc_error *err)
+{
+    if (err)
+        err->msg[0] = '\0';
+    out->rows = out->calls = out->log_lines = 0;
+    out->finished = 0;
+    int n = s->n_spans;
+    ato_controller *controllers = malloc(sizeof *controllers * (size_t)n);
+    double *departures = malloc(sizeof *departures * (size_t)n);
+    long *seen = calloc((size_t)n, sizeof *seen);
+    if (!controllers || !departures || !seen) {
+        free(controllers);
+        free(departures);
+        free(seen);
+        return refuse(err, "span run: out of memory");
+    }
+    ato_line line;
+    char msg[ATO_TEXT_SIZE];
+    rc_status st = ato_line_init(&line, n, s->spans, s->dwell_s, s->boarding_t, &s->car, &s->tuning,
+                                 controllers, departures, msg);
+    if (st == RC_OK) {
+        st = run_line(s, &line, seen, chain, out, err);
+        ato_line_free(&line);
+    } else if (err) {
+        snprintf(err->msg, sizeof err->msg, "%.*s", (int)sizeof err->msg - 1, msg);
+    }
+    free(controllers);
+    free(departures);
+    free(seen);
+    return st;
+}
