@@ -177,16 +177,16 @@ def test_the_results_writer_keeps_no_rows_in_memory(tmp_path):
     assert pq.ParquetFile(tmp_path / "out" / "results.parquet").num_row_groups == 1
 
 
-def test_a_span_run_goes_to_the_python_reference_with_the_fmu_rows(native_railcar, tmp_path):
-    """The C batch engine does not drive the ATO: --engine batch runs a span scenario on
-    run_on_chain (engine "python"), and its row, the ATO's cells included, is the FMU's."""
+def test_a_span_run_on_the_batch_engine_gives_the_fmu_rows(native_railcar, tmp_path):
+    """The C batch engine drives the ATO too (models/core/span_driver.c): --engine auto picks it
+    for a span scenario (engine "c"), and its row, the ATO's cells included, is the FMU's."""
     path = tmp_path / "span.toml"
     path.write_text(f'name = "span"\nscenario = "{(ROOT / "scenarios/library/ato_nominal.toml").as_posix()}"\n'
                     f'seeds = [4]\n', encoding="utf-8")
     sweep = load_sweep(path)
-    assert choose_engine("auto", None, sweep)[0] == "fmu"
+    assert choose_engine("auto", None, sweep)[0] == "batch"
     (row,) = execute_chunk(list(sweep.runs))
     reference = execute_run(str(native_railcar), None, sweep.runs[0])
-    assert (row["status"], row["engine"], row["ato_spans"]) == ("ok", "python", 1)
+    assert (row["status"], row["engine"], row["ato_spans"]) == ("ok", "c", 1)
     keys = [c.key for c in sweep_columns(sweep) if c.key not in NOT_COMPARED]
     assert [cell_text(row.get(k)) for k in keys] == [cell_text(reference.get(k)) for k in keys]
