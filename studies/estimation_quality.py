@@ -451,7 +451,8 @@ def library_filter_study() -> dict:
     rows = mt.compute_rows(None, methods, extras=tuple(extras))
     out = {}
     for c, (method, extra) in split.items():
-        label = mt.method_label(method, extra)
+        # compute_rows labels a row by its parameter set as handed over: sorted by name (above)
+        label = mt.method_label(method, dict(sorted(extra.items())))
         sel = [r for r in rows if r.method == label and not r.rejected and r.speed_noise <= mt.LOW_NOISE + 1e-12]
         so, ss, ds = ([r.speed_ratio for r in sel], [r.speed_vs_sensor for r in sel],
                       [r.dist_vs_sensor for r in sel])
