@@ -405,10 +405,29 @@ class StationDay:
 def station_day_run(job) -> StationDay:
     """(configuration, seed): station_day on the models chain, the mass at each arrival (the
     run's last row before the stop is confirmed) and the filter's coverage while moving."""
-    from harness.run.driver import run_on_chain
+    return station_day_runs([job])[0]
+
+
+def station_day_runs(jobs) -> list[StationDay]:
+    """station_day_run of each (configuration, seed), the runs whole in C on the batch engine
+    (harness.run.batch.run_batch: run_on_chain's results bit for bit), CALL_RUNS per call."""
+    from harness.run.batch import run_batch
+    scenario = load_scenario(LIBRARY / "station_day.toml")
+    out = []
+    for k in range(0, len(jobs), CALL_RUNS):
+        part = jobs[k:k + CALL_RUNS]
+        results = run_batch([scenario] * len(part), [{"seed": int(seed), **ONLINE[config]} for config, seed in part])
+        out += [_station_day(r) for r in results]
+    return out
+
+
+CALL_RUNS = 8
+"""Runs per run_batch call: its arrays hold every run's rows at once (~2.5 MB a station_day run)."""
+
+
+def _station_day(r) -> StationDay:
+    """A station_day RunResult's StationDay."""
     from harness.metrics.estimation import _segments
-    config, seed = job
-    r = run_on_chain(load_scenario(LIBRARY / "station_day.toml"), {"seed": int(seed), **ONLINE[config]})
     m, est, sd = r["car.total_mass"], r["est.mass"], r["est.mass_std"]
     stops = [k for _, k in _segments(r["car.speed"])]
     moving = r["car.speed"] > 0.0
@@ -422,11 +441,19 @@ def station_day_run(job) -> StationDay:
 
 def online_study(n_seeds: int, processes: int = 2) -> dict:
     """{config: (share of seeds with every stop within 1 %, mass coverage, speed coverage,
-    distance coverage, number of stops)} over station_day seeds 1..n_seeds."""
+    distance coverage, number of stops)} over station_day seeds 1..n_seeds; the runs split in
+    one chunk per process (station_day_runs)."""
     from multiprocessing import Pool
     jobs = [(c, s) for c in ONLINE for s in range(1, n_seeds + 1)]
-    with Pool(processes) as pool:
-        runs = pool.map(station_day_run, jobs)
+    chunks = [jobs[i::processes] for i in range(processes)]
+    if processes > 1:
+        with Pool(processes) as pool:
+            done = pool.map(station_day_runs, chunks)
+    else:
+        done = [station_day_runs(jobs)]
+    by_job = {job: day for chunk, days in zip(chunks if processes > 1 else [jobs], done)
+              for job, day in zip(chunk, days)}
+    runs = [by_job[job] for job in jobs]
     out = {}
     for c in ONLINE:
         rs = [r for (cc, _), r in zip(jobs, runs) if cc == c]
