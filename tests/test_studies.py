@@ -101,3 +101,39 @@ def test_online_section_matches_the_library_run_of_station_day():
     assert set(summary) == set(eq.ONLINE)
     assert all(0.0 <= x <= 1.0 for row in summary.values() for x in row[:4])
     assert all(row[4] == 8 for row in summary.values())        # 4 stops x 2 seeds
+
+
+def test_online_section_on_the_batch_engine_equals_the_python_loop():
+    """estimation_quality's (d) runs station_day on the batch engine (harness.run.batch, whole runs
+    in C); the StationDay of each run equals the one computed from run_on_chain (the Python driver
+    loop over the C chain) exactly, for two configurations (est.method 0 and 2) and two seeds in
+    one call. And the engine did run them: not a fallback compared with itself."""
+    import estimation_quality as eq
+    from harness.run.batch import ENGINES
+    from harness.run.driver import run_on_chain
+    scenario = eq.load_scenario(eq.LIBRARY / "station_day.toml")
+    jobs = [("paper LS", 3), ("LS slopes, lik. s2", 3), ("paper LS", 4)]
+    before = ENGINES["c"]
+    engine = eq.station_day_runs(jobs)
+    assert ENGINES["c"] - before == len(jobs)
+    loop = [eq._station_day(run_on_chain(scenario, {"seed": seed, **eq.ONLINE[c]})) for c, seed in jobs]
+    assert engine == loop
+    assert engine[0] != engine[2]            # the seeds differ: the comparison is not of one run
+
+
+def test_method_table_runs_on_the_batch_engine_as_on_the_chain():
+    """method_table._run (the batch engine) gives chain_result's arrays exactly on level_run, for a
+    method the engine covers (2) and one it hands to run_on_chain (1)."""
+    import numpy as np
+
+    import method_table
+    from harness.run.driver import chain_result
+    scenario = method_table.load_scenario(method_table.LIBRARY / "level_run.toml")
+    for method in (2, 1):
+        setup, result = method_table._run(scenario, method)
+        reference = chain_result(scenario.chain_setup({"est.method": method}).open(), scenario)
+        assert setup.config == scenario.chain_setup({"est.method": method}).config
+        assert list(result.signals) == list(reference.signals)
+        for name in reference.signals:
+            assert np.array_equal(result[name], reference[name]), (method, name)
+        assert np.array_equal(result.time, reference.time)
