@@ -69,7 +69,7 @@ def test_slope_method_a_covariance_matches_its_errors_after_ten_runs():
     z = []
     for seed in range(1, 21):
         run = eq.run_scenario(day, 2000 + seed)
-        A, cov = eq.est_A(run, -1), run.ls_cov[1:, 1:]
+        A, cov = eq.est_A(run, -1), run.A_cov
         z += list((A - run.A_true) / np.sqrt(np.diag(cov)))
     spread = float(np.sqrt(np.mean(np.square(z))))
     assert 0.75 < spread < 1.3
@@ -137,3 +137,35 @@ def test_method_table_runs_on_the_batch_engine_as_on_the_chain():
         for name in reference.signals:
             assert np.array_equal(result[name], reference[name]), (method, name)
         assert np.array_equal(result.time, reference.time)
+
+
+def test_study_runs_on_the_batch_engine_equal_the_python_chain():
+    """estimation_quality.run_scenarios (the batch engine) against the Python RailCarChain driven by
+    harness.run.driver.drive_chain, on a coasting row with est.method 0 and the ten-run day's first
+    400 s with est.method 2: the study's signals bit for bit, the forces exactly those the Python
+    estimator's propagate was given, and the A's covariance rebuilt from the outputs equal to the
+    identifier's own to 4 ulp (the diagonal goes through a square root and back)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    import estimation_quality as eq
+    from harness.run.driver import drive_chain
+    from models.chain import RailCarChain
+    coast = eq.load_scenario(eq.LIBRARY / "coasting_rusich_row1.toml")
+    day = replace(eq.with_parameters(eq.ten_run_day(), eq.SLOPES), duration_s=400.0)
+    jobs = [(coast, 1001), (day, 2001)]
+    for (scenario, seed), run in zip(jobs, eq.run_scenarios(jobs)):
+        scenario = replace(scenario, parameters={**eq.FORMER_DEFAULTS, **scenario.parameters})
+        setup = scenario.chain_setup({"seed": seed})
+        chain = RailCarChain(setup.config, setup.grade, setup.speed)
+        fed, propagate = [], chain.estimator.propagate
+        chain.estimator.propagate = lambda f, b, ts: (fed.append((f, b)), propagate(f, b, ts))[1]
+        rows = drive_chain(chain, scenario)
+        assert len(rows) == len(run.time) > 500
+        for name in eq.SIGNALS:
+            assert np.array_equal(run.sig[name], [r[name] for r in rows]), (scenario.name, name)
+        assert np.array_equal(run.forces, np.array(fed))
+        reference = chain.estimator.ident.covariance()[1:, 1:]
+        assert np.allclose(run.A_cov, reference, rtol=4 * 2.0 ** -52, atol=0.0)
+        assert np.any(run.A_cov != np.diag(np.diag(run.A_cov)))      # the cross terms are there
