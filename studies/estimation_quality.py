@@ -2,7 +2,8 @@
 
     python studies/estimation_quality.py [--quick] [--seeds N] [--day-seeds N]
 
-Compares, on runs of the models chain (plant -> sensors -> online estimator, no FMI):
+Compares, on runs of the models chain (plant -> sensors -> online estimator, no FMI; each run whole in
+C on the batch engine, harness.run.batch, many seeds per call: the Python chain's outputs bit for bit):
 
   paper LS   models.estimation.identification.ParameterIdentifier with default settings, as
              models.estimation.online.OnlineEstimator feeds it (read from est.* of models.chain.RailCarChain)
