@@ -2,7 +2,8 @@
 
     python studies/estimation_quality.py [--quick] [--seeds N] [--day-seeds N]
 
-Compares, on runs of the models chain (plant -> sensors -> online estimator, no FMI):
+Compares, on runs of the models chain (plant -> sensors -> online estimator, no FMI; each run whole in
+C on the batch engine, harness.run.batch, many seeds per call: the Python chain's outputs bit for bit):
 
   paper LS   models.estimation.identification.ParameterIdentifier with default settings, as
              models.estimation.online.OnlineEstimator feeds it (read from est.* of models.chain.RailCarChain)
@@ -69,10 +70,8 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 from fmu_src.variables import FORMER_DEFAULTS  # noqa: E402
-from harness.run.driver import drive_chain  # noqa: E402
 from harness.metrics.estimation import coast_segments, coast_time, w0_relative_rms_error  # noqa: E402
 from harness.run.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
-from models.chain import RailCarChain  # noqa: E402
 from models.estimation.coast_ekf import CoastEKF, CoastEKFConfig  # noqa: E402
 from models.estimation.output_error import (Prior, ResistanceCarryOver, estimate_process_noise_psd,  # noqa: E402
                                  fit_initial_state, fit_segment, grade_per_interval,
@@ -110,8 +109,7 @@ class Run:
     sig: dict                        # car.*, sensor.*, est.* arrays
     forces: np.ndarray               # (n-1, 2) mean applied traction, brake over each interval [N]
     grade_profile: object
-    ls_theta: np.ndarray             # paper LS Theta at the end
-    ls_cov: np.ndarray               # and its covariance (4x4)
+    A_cov: np.ndarray                # the online LS's A0, A1, A2 covariance at the last row (3x3)
 
     def p(self, name):
         return self.scenario.parameter(name)
@@ -135,41 +133,48 @@ def est_A(run: Run, row: int) -> np.ndarray:
     return np.array([run.sig["est.A0"][row], run.sig["est.A1"][row], run.sig["est.A2"][row]])
 
 
-class ForceLog:
-    """An estimator's identification method (models/estimation/methods.py) that also keeps the forces [N]
-    of every prediction (the hook OnlineEstimator.propagate calls); the rest is the method's."""
-
-    def __init__(self, method):
-        self.method = method
-        self.forces: list = []
-
-    def __getattr__(self, name):
-        return getattr(self.method, name)
-
-    def record_forces(self, traction: float, brake: float) -> None:
-        self.forces.append((traction, brake))
-        self.method.record_forces(traction, brake)
-
-
 def run_scenario(scenario: Scenario, seed: int) -> Run:
-    """The scenario's driver on models.chain.RailCarChain (what the RailCar FMU runs, without
-    FMI; the loop of harness.run.runner.FmuRunner.run). The forces the estimator is given per
-    sample interval are recorded by its method wrapped in a ForceLog (before the first step).
-    The estimator starts from FORMER_DEFAULTS (the paper's LS) under the scenario's own
-    parameters: the study names its rows by method ("paper LS", "LS slopes" adds est.method 2)."""
-    scenario = replace(scenario, parameters={**FORMER_DEFAULTS, **scenario.parameters})
-    setup = scenario.chain_setup({"seed": int(seed)})
-    if abs(scenario.step_s - setup.config.sample_period) > 1e-12:
-        raise ValueError("the study needs step_s == sensor.sample_period (one sample per row)")
-    grade = setup.grade
-    chain = RailCarChain(setup.config, setup.grade, setup.speed)
-    est = chain.estimator
-    est.method = log = ForceLog(est.method)
-    h = scenario.step_s
-    rows = drive_chain(chain, scenario)
-    sig = {name: np.array([r[name] for r in rows]) for name in SIGNALS}
-    return Run(scenario, seed, np.arange(len(rows)) * h, sig, np.array(log.forces).reshape(-1, 2),
-               grade, est.ident.theta.copy(), est.ident.covariance().copy())
+    """The scenario's driver on the models chain (what the RailCar FMU runs, without FMI), whole
+    in C on the batch engine: run_scenarios of one run."""
+    return run_scenarios([(scenario, seed)])[0]
+
+
+def run_scenarios(jobs) -> list[Run]:
+    """Each (scenario, seed) on the models chain, whole in C on the batch engine
+    (harness.run.batch.run_batch: run_on_chain's outputs bit for bit, the Python RailCarChain's
+    too), CALL_RUNS per call. The estimator starts from FORMER_DEFAULTS (the paper's LS) under
+    the scenario's own parameters: the study names its rows by method ("paper LS", "LS slopes"
+    adds est.method 2). From the outputs: the forces the estimator was given over each sample
+    interval (car.traction_force_mean, car.brake_force_mean after the interval) and the A's
+    covariance at the end (est.A*_std squared, est.cov_*: the LS's own to an ulp here, measured on
+    the ten-run day with est.method 0 and 2; with est.run_forgetting or a drift it is the carried
+    A's the FMU states)."""
+    from harness.run.batch import run_batch
+    scenarios, setups = [], []
+    for scenario, seed in jobs:
+        scenario = replace(scenario, parameters={**FORMER_DEFAULTS, **scenario.parameters})
+        setup = scenario.chain_setup({"seed": int(seed)})
+        if abs(scenario.step_s - setup.config.sample_period) > 1e-12:
+            raise ValueError(f"{scenario.name}: the study needs step_s == sensor.sample_period "
+                             "(one sample per row)")
+        scenarios.append(scenario)
+        setups.append(setup)
+    out = []
+    for k in range(0, len(jobs), CALL_RUNS):
+        results = run_batch(scenarios[k:k + CALL_RUNS], [{"seed": int(seed)} for _, seed in jobs[k:k + CALL_RUNS]])
+        for (scenario, setup, (_, seed)), r in zip(zip(scenarios[k:], setups[k:], jobs[k:]), results):
+            std = [r[f"est.A{i}_std"][-1] for i in range(3)]
+            A_cov = np.diag(np.square(std))
+            for name, i, j in (("est.cov_A0_A1", 0, 1), ("est.cov_A0_A2", 0, 2), ("est.cov_A1_A2", 1, 2)):
+                A_cov[i, j] = A_cov[j, i] = r[name][-1]
+            forces = np.column_stack([r["car.traction_force_mean"][1:], r["car.brake_force_mean"][1:]])
+            out.append(Run(scenario, seed, r.time, {name: r[name] for name in SIGNALS}, forces,
+                           setup.grade, A_cov))
+    return out
+
+
+CALL_RUNS = 8
+"""Runs per run_batch call: its arrays hold every run's rows at once (~8 MB a ten-run day)."""
 
 
 def ten_run_day() -> Scenario:
@@ -224,6 +229,11 @@ def prior_for(rng: np.random.Generator | None, A_true) -> tuple[np.ndarray, Prio
 
 
 def slopes_run(scenario: Scenario, seed: int, rng_seed) -> "Run":
+    """run_scenario of slopes_scenario(scenario, rng_seed)."""
+    return run_scenario(slopes_scenario(scenario, rng_seed), seed)
+
+
+def slopes_scenario(scenario: Scenario, rng_seed) -> Scenario:
     """The scenario with est.method 2 ("LS slopes") and the study's physical prior on the A's,
     the same one OE, FE and the EKF get (prior_for with a generator seeded ``rng_seed``, so the
     same draw; None: PRIOR_MEAN), as est.A*_initial and est.A*_std_initial."""
@@ -232,7 +242,15 @@ def slopes_run(scenario: Scenario, seed: int, rng_seed) -> "Run":
     extra = dict(SLOPES)
     extra.update({f"est.A{i}_initial": float(mean[i]) for i in range(3)})
     extra.update({f"est.A{i}_std_initial": float(PRIOR_STD[i]) for i in range(3)})
-    return run_scenario(with_parameters(scenario, extra), seed)
+    return with_parameters(scenario, extra)
+
+
+def paired_runs(scenario: Scenario, seeds) -> list[tuple[Run, Run]]:
+    """(run_scenario(scenario, seed), slopes_run(scenario, seed, rng_seed)) for each (seed,
+    rng_seed), all in one run_scenarios."""
+    runs = run_scenarios([(scenario, seed) for seed, _ in seeds]
+                         + [(slopes_scenario(scenario, rng_seed), seed) for seed, rng_seed in seeds])
+    return list(zip(runs[:len(seeds)], runs[len(seeds):]))
 
 
 def fmt(x, f="{:+.2f}"):
@@ -300,12 +318,12 @@ def coast_study(c: Coast, q: float) -> CoastResult:
                                   speed_std=p("sensor.speed_std"), process_noise_psd=q,
                                   gamma=gamma)).run(t, v_meas, g_iv)
     ls_A = np.array([s["est.A0"][last], s["est.A1"][last], s["est.A2"][last]])
-    cand = {"paper LS": (ls_A, run.ls_cov[1:, 1:] if last == len(run.time) - 1 else None),
+    cand = {"paper LS": (ls_A, run.A_cov if last == len(run.time) - 1 else None),
             "OE": (oe.A, oe.cov_A), "FE": (fe.A, fe.cov_A), "EKF": (ekf.A, ekf.cov_A),
             "oracle": (A_true, None)}
     if c.slopes is not None:
         cand["LS slopes"] = (est_A(c.slopes, last),
-                             c.slopes.ls_cov[1:, 1:] if last == len(c.slopes.time) - 1 else None)
+                             c.slopes.A_cov if last == len(c.slopes.time) - 1 else None)
     mass = p("car.mass")
     res = CoastResult({}, {}, {}, {}, q)
     for name, (A, cov) in cand.items():
@@ -376,17 +394,17 @@ def day_study(run: Run, rng: np.random.Generator | None, speeds, slopes: Run | N
         w0_relative_rms_error(speeds_run, (s["est.A0"][b], s["est.A1"][b], s["est.A2"][b]), tuple(A_true))
         for _, b in segs]
     out.w0_err["paper LS"] = w0_relative_rms_error(speeds_run, tuple(ls_A), tuple(A_true))
-    out.z["paper LS"] = z_scores(ls_A, run.ls_cov[1:, 1:], A_true, speeds)
+    out.z["paper LS"] = z_scores(ls_A, run.A_cov, A_true, speeds)
     out.w0_err["oracle"] = 0.0
     if slopes is not None:         # est.method 2 online, the same seed (same truth and noise)
         sA = est_A(slopes, -1)
         out.w0_err_by_run["LS slopes"] = [w0_relative_rms_error(speeds_run, tuple(est_A(slopes, b)), tuple(A_true))
                                           for _, b in segs]
         out.w0_err["LS slopes"] = w0_relative_rms_error(speeds_run, tuple(sA), tuple(A_true))
-        out.z["LS slopes"] = z_scores(sA, slopes.ls_cov[1:, 1:], A_true, speeds)
-        out.w0_std["LS slopes"] = np.sqrt(np.einsum("ij,jk,ik->i", ph, slopes.ls_cov[1:, 1:], ph))
+        out.z["LS slopes"] = z_scores(sA, slopes.A_cov, A_true, speeds)
+        out.w0_std["LS slopes"] = np.sqrt(np.einsum("ij,jk,ik->i", ph, slopes.A_cov, ph))
         out.w0_err_pred["LS slopes"] = float(np.sqrt(np.mean(
-            np.einsum("ij,jk,ik->i", phi, slopes.ls_cov[1:, 1:], phi)))) / w0_rms
+            np.einsum("ij,jk,ik->i", phi, slopes.A_cov, phi)))) / w0_rms
     return out
 
 
@@ -405,10 +423,25 @@ class StationDay:
 def station_day_run(job) -> StationDay:
     """(configuration, seed): station_day on the models chain, the mass at each arrival (the
     run's last row before the stop is confirmed) and the filter's coverage while moving."""
-    from harness.run.driver import run_on_chain
+    return station_day_runs([job])[0]
+
+
+def station_day_runs(jobs) -> list[StationDay]:
+    """station_day_run of each (configuration, seed), the runs whole in C on the batch engine
+    (harness.run.batch.run_batch: run_on_chain's results bit for bit), CALL_RUNS per call."""
+    from harness.run.batch import run_batch
+    scenario = load_scenario(LIBRARY / "station_day.toml")
+    out = []
+    for k in range(0, len(jobs), CALL_RUNS):
+        part = jobs[k:k + CALL_RUNS]
+        results = run_batch([scenario] * len(part), [{"seed": int(seed), **ONLINE[config]} for config, seed in part])
+        out += [_station_day(r) for r in results]
+    return out
+
+
+def _station_day(r) -> StationDay:
+    """A station_day RunResult's StationDay."""
     from harness.metrics.estimation import _segments
-    config, seed = job
-    r = run_on_chain(load_scenario(LIBRARY / "station_day.toml"), {"seed": int(seed), **ONLINE[config]})
     m, est, sd = r["car.total_mass"], r["est.mass"], r["est.mass_std"]
     stops = [k for _, k in _segments(r["car.speed"])]
     moving = r["car.speed"] > 0.0
@@ -422,11 +455,19 @@ def station_day_run(job) -> StationDay:
 
 def online_study(n_seeds: int, processes: int = 2) -> dict:
     """{config: (share of seeds with every stop within 1 %, mass coverage, speed coverage,
-    distance coverage, number of stops)} over station_day seeds 1..n_seeds."""
+    distance coverage, number of stops)} over station_day seeds 1..n_seeds; the runs split in
+    one chunk per process (station_day_runs)."""
     from multiprocessing import Pool
     jobs = [(c, s) for c in ONLINE for s in range(1, n_seeds + 1)]
-    with Pool(processes) as pool:
-        runs = pool.map(station_day_run, jobs)
+    chunks = [jobs[i::processes] for i in range(processes)]
+    if processes > 1:
+        with Pool(processes) as pool:
+            done = pool.map(station_day_runs, chunks)
+    else:
+        done = [station_day_runs(jobs)]
+    by_job = {job: day for chunk, days in zip(chunks if processes > 1 else [jobs], done)
+              for job, day in zip(chunk, days)}
+    runs = [by_job[job] for job in jobs]
     out = {}
     for c in ONLINE:
         rs = [r for (cc, _), r in zip(jobs, runs) if cc == c]
@@ -451,7 +492,8 @@ def library_filter_study() -> dict:
     rows = mt.compute_rows(None, methods, extras=tuple(extras))
     out = {}
     for c, (method, extra) in split.items():
-        label = mt.method_label(method, extra)
+        # compute_rows labels a row by its parameter set as handed over: sorted by name (above)
+        label = mt.method_label(method, dict(sorted(extra.items())))
         sel = [r for r in rows if r.method == label and not r.rejected and r.speed_noise <= mt.LOW_NOISE + 1e-12]
         so, ss, ds = ([r.speed_ratio for r in sel], [r.speed_vs_sensor for r in sel],
                       [r.dist_vs_sensor for r in sel])
@@ -499,10 +541,10 @@ def main(argv=None) -> int:
     for r in (1, 2, 3, 4):
         scn = load_scenario(LIBRARY / f"coasting_rusich_row{r}.toml")
         lib_seed = int(scn.parameter("seed"))
-        lib_c = coast_prepare(run_scenario(scn, lib_seed), None, slopes_run(scn, lib_seed, None))
-        mc_c = [coast_prepare(run_scenario(scn, 1000 + seed), np.random.default_rng([r, seed]),
-                              slopes_run(scn, 1000 + seed, [r, seed]))
-                for seed in range(1, n_rows + 1)]
+        runs = paired_runs(scn, [(lib_seed, None)] + [(1000 + seed, [r, seed]) for seed in range(1, n_rows + 1)])
+        lib_c = coast_prepare(runs[0][0], None, runs[0][1])
+        mc_c = [coast_prepare(run, np.random.default_rng([r, seed]), slopes)
+                for seed, (run, slopes) in zip(range(1, n_rows + 1), runs[1:])]
         # q calibrated over the row's coasts (same train and line): one 33-120 s coast cannot
         # estimate it (row 3: REML collapses towards 0 in ~1 coast of 8, coverage falls to 87 %)
         q = estimate_process_noise_psd([lib_c.oe0] + [c.oe0 for c in mc_c])
@@ -530,12 +572,13 @@ def main(argv=None) -> int:
     print("(b) Ten consecutive inter-station runs, same resistance, mass changing at every stop")
     day = ten_run_day()
     speeds = np.array([2.0, 5.0, 10.0, 15.0])
-    lib_run = run_scenario(day, int(day.parameter("seed")))
+    runs = paired_runs(day, [(int(day.parameter("seed")), None)]
+                       + [(2000 + seed, [9, seed]) for seed in range(1, n_day + 1)])
+    lib_run = runs[0][0]
     A_true_day = lib_run.A_true
-    lib = day_study(lib_run, None, speeds, slopes_run(day, int(day.parameter("seed")), None))
-    days = [day_study(run_scenario(day, 2000 + seed), np.random.default_rng([9, seed]), speeds,
-                      slopes_run(day, 2000 + seed, [9, seed]))
-            for seed in range(1, n_day + 1)]
+    lib = day_study(lib_run, None, speeds, runs[0][1])
+    days = [day_study(run, np.random.default_rng([9, seed]), speeds, slopes)
+            for seed, (run, slopes) in zip(range(1, n_day + 1), runs[1:])]
     print(f"    runs found: {lib.runs}; q-hat (pooled, REML) median {np.median([d.q for d in days]):.2e} "
           f"m2/s3 (plant {day.parameter('car.process_noise_psd'):.0e}); largest per-run mass error (OE) "
           f"{max(d.mass_err_pct for d in days):.2f} %")
@@ -560,9 +603,9 @@ def main(argv=None) -> int:
         print(f"      {m:9s} " + " ".join(f"{x:6.3f}" for x in np.mean([d.w0_std[m] for d in days], axis=0)))
     # the same day with ten times less process noise: is the 2 % target information-limited?
     low = with_parameters(day, {"car.process_noise_psd": 1e-5})
-    lows = [day_study(run_scenario(low, 3000 + seed), np.random.default_rng([10, seed]), speeds,
-                      slopes_run(low, 3000 + seed, [10, seed]))
-            for seed in range(1, n_low + 1)]
+    lows = [day_study(run, np.random.default_rng([10, seed]), speeds, slopes)
+            for seed, (run, slopes) in zip(range(1, n_low + 1),
+                                            paired_runs(low, [(3000 + seed, [10, seed]) for seed in range(1, n_low + 1)]))]
     print(f"    sensitivity, plant process noise 1e-05 m2/s3 ({n_low} days): mean w0 error after 10 runs "
           + ", ".join(f"{m} {100 * np.mean([d.w0_err[m] for d in lows]):.2f} %" for m in ("paper LS", "LS slopes", "OE", "FE"))
           + f" (share <= 2 %: FE {np.mean([d.w0_err['FE'] <= W0_TARGET for d in lows]):.0%})")

@@ -39,8 +39,10 @@ Then a summary per method over the scenarios with speed noise <= 0.05 m/s (all b
 etcs_noisy_sensors). Prints both tables and writes them as markdown to out/methods/methods.md.
 A note lists the rows equal in every metric to paper LS (method 1 on every scenario with a
 single stop: its refit acts on the runs after a stop). Seeded (each scenario's own seed): the
-numbers repeat. Runtime on 2 cores (Pool(2)): ~2 s for the 12 scenarios with --methods 0 1,
-~6 s with all four.
+numbers repeat. The scripted runs of est.method 0 and 2 go whole in C (harness.run.batch); est.method
+1 and 3, and the span scenarios (until the batch engine covers the ATO), run on run_on_chain. Runtime
+on 2 cores (Pool(2), a loaded machine): ~10 s for the library with --methods 0 2, ~20 s with all
+four; serially 30 of the 33 s of --methods 0 2 are the span scenarios' Python ATO.
 
 Reading the coast column: with the true A's the prediction is still off by up to ~1 s per
 coast on these runs (0.00 s with car.process_noise_psd = 0: it is the plant's process noise),
@@ -64,7 +66,7 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from harness.run.driver import chain_result  # noqa: E402
+from harness.run.batch import run_batch  # noqa: E402
 from harness.metrics.estimation import _segments, coast_time_errors, summarise  # noqa: E402
 from harness.run.runner import RunResult  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS as PARAMETERS, load_scenario  # noqa: E402
@@ -127,10 +129,12 @@ def method_label(method: int, extra: dict | None = None) -> str:
 
 def _run(scenario, method: int, extra: dict | None = None):
     """The scenario on the models chain with est.method = method and the ``extra`` parameters,
-    demands recorded as inputs: (the run's ChainSetup, its RunResult). Raises ValueError if the
-    configuration rejects them."""
-    setup = scenario.chain_setup({"est.method": method, **(extra or {})})
-    return setup, chain_result(setup.open(), scenario)
+    demands recorded as inputs: (the run's ChainSetup, its RunResult), the run whole in C where
+    the batch engine covers it (harness.run.batch.run_batch: run_on_chain's result bit for bit;
+    est.method 1 and 3 run on run_on_chain). Raises ValueError if the configuration rejects them."""
+    overrides = {"est.method": method, **(extra or {})}
+    setup = scenario.chain_setup(overrides)
+    return setup, run_batch([scenario], [overrides])[0]
 
 
 def _coverage(estimate, truth, std, mask) -> float:

@@ -69,7 +69,7 @@ def test_slope_method_a_covariance_matches_its_errors_after_ten_runs():
     z = []
     for seed in range(1, 21):
         run = eq.run_scenario(day, 2000 + seed)
-        A, cov = eq.est_A(run, -1), run.ls_cov[1:, 1:]
+        A, cov = eq.est_A(run, -1), run.A_cov
         z += list((A - run.A_true) / np.sqrt(np.diag(cov)))
     spread = float(np.sqrt(np.mean(np.square(z))))
     assert 0.75 < spread < 1.3
@@ -101,3 +101,71 @@ def test_online_section_matches_the_library_run_of_station_day():
     assert set(summary) == set(eq.ONLINE)
     assert all(0.0 <= x <= 1.0 for row in summary.values() for x in row[:4])
     assert all(row[4] == 8 for row in summary.values())        # 4 stops x 2 seeds
+
+
+def test_online_section_on_the_batch_engine_equals_the_python_loop():
+    """estimation_quality's (d) runs station_day on the batch engine (harness.run.batch, whole runs
+    in C); the StationDay of each run equals the one computed from run_on_chain (the Python driver
+    loop over the C chain) exactly, for two configurations (est.method 0 and 2) and two seeds in
+    one call. And the engine did run them: not a fallback compared with itself."""
+    import estimation_quality as eq
+    from harness.run.batch import ENGINES
+    from harness.run.driver import run_on_chain
+    scenario = eq.load_scenario(eq.LIBRARY / "station_day.toml")
+    jobs = [("paper LS", 3), ("LS slopes, lik. s2", 3), ("paper LS", 4)]
+    before = ENGINES["c"]
+    engine = eq.station_day_runs(jobs)
+    assert ENGINES["c"] - before == len(jobs)
+    loop = [eq._station_day(run_on_chain(scenario, {"seed": seed, **eq.ONLINE[c]})) for c, seed in jobs]
+    assert engine == loop
+    assert engine[0] != engine[2]            # the seeds differ: the comparison is not of one run
+
+
+def test_method_table_runs_on_the_batch_engine_as_on_the_chain():
+    """method_table._run (the batch engine) gives chain_result's arrays exactly on level_run, for a
+    method the engine covers (2) and one it hands to run_on_chain (1)."""
+    import numpy as np
+
+    import method_table
+    from harness.run.driver import chain_result
+    scenario = method_table.load_scenario(method_table.LIBRARY / "level_run.toml")
+    for method in (2, 1):
+        setup, result = method_table._run(scenario, method)
+        reference = chain_result(scenario.chain_setup({"est.method": method}).open(), scenario)
+        assert setup.config == scenario.chain_setup({"est.method": method}).config
+        assert list(result.signals) == list(reference.signals)
+        for name in reference.signals:
+            assert np.array_equal(result[name], reference[name]), (method, name)
+        assert np.array_equal(result.time, reference.time)
+
+
+def test_study_runs_on_the_batch_engine_equal_the_python_chain():
+    """estimation_quality.run_scenarios (the batch engine) against the Python RailCarChain driven by
+    harness.run.driver.drive_chain, on a coasting row with est.method 0 and the ten-run day's first
+    400 s with est.method 2: the study's signals bit for bit, the forces exactly those the Python
+    estimator's propagate was given, and the A's covariance rebuilt from the outputs equal to the
+    identifier's own to 4 ulp (the diagonal goes through a square root and back)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    import estimation_quality as eq
+    from harness.run.driver import drive_chain
+    from models.chain import RailCarChain
+    coast = eq.load_scenario(eq.LIBRARY / "coasting_rusich_row1.toml")
+    day = replace(eq.with_parameters(eq.ten_run_day(), eq.SLOPES), duration_s=400.0)
+    jobs = [(coast, 1001), (day, 2001)]
+    for (scenario, seed), run in zip(jobs, eq.run_scenarios(jobs)):
+        scenario = replace(scenario, parameters={**eq.FORMER_DEFAULTS, **scenario.parameters})
+        setup = scenario.chain_setup({"seed": seed})
+        chain = RailCarChain(setup.config, setup.grade, setup.speed)
+        fed, propagate = [], chain.estimator.propagate
+        chain.estimator.propagate = lambda f, b, ts: (fed.append((f, b)), propagate(f, b, ts))[1]
+        rows = drive_chain(chain, scenario)
+        assert len(rows) == len(run.time) > 500
+        for name in eq.SIGNALS:
+            assert np.array_equal(run.sig[name], [r[name] for r in rows]), (scenario.name, name)
+        assert np.array_equal(run.forces, np.array(fed))
+        reference = chain.estimator.ident.covariance()[1:, 1:]
+        assert np.allclose(run.A_cov, reference, rtol=4 * 2.0 ** -52, atol=0.0)
+        assert np.any(run.A_cov != np.diag(np.diag(run.A_cov)))      # the cross terms are there
