@@ -268,6 +268,23 @@ def _batch_rows(specs: list[RunSpec]) -> list[dict]:
     return rows
 
 
+def core_identity() -> str:
+    """What the batch engine runs in this process, for --resume to refuse mixing two builds' rows:
+    ``c <sha256 of the compiled extensions' bytes, 16 hex digits>`` (models._batch and
+    models._railcar: the C core is linked into both, so any rebuild that changes its code changes
+    the hash), or ``python reference`` when the core is not compiled or RAILCAR_PURE_PYTHON is set.
+    A few milliseconds: the two files are ~1 MB each."""
+    import hashlib
+    from models import batch, compiled
+    if not batch.available() or not compiled.enabled():
+        return "python reference"
+    h = hashlib.sha256()
+    for module in (batch._batch, compiled._railcar):
+        with open(module.__file__, "rb") as f:
+            h.update(f.read())
+    return f"c {h.hexdigest()[:16]}"
+
+
 def chunk_size(runs: int, workers: int) -> int:
     """Runs per dask task: about four tasks per worker (the progress bar moves, a killed worker
     costs one chunk), at most MAX_CHUNK runs (a chunk's rows are held until it ends)."""
