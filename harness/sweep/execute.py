@@ -296,7 +296,7 @@ def worker_check(fmu_path: str | None) -> dict:
     no FMU, the batch engine), is the C batch engine compiled there?"""
     from models import batch
     return {"pid": os.getpid(), "fmu_readable": fmu_path is None or os.access(fmu_path, os.R_OK),
-            "batch": batch.available(), "harness": str(Path(__file__).resolve().parents[1]),
+            "batch": batch.available(), "core": core_identity(), "harness": str(Path(__file__).resolve().parents[1]),
             "threads": threading.active_count()}
 
 
@@ -376,7 +376,8 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
 def check_workers(client, fmu_path: Path | None, log) -> int:
     """The number of workers; RuntimeError if one cannot import the harness or read the FMU
     (None: the batch engine, no FMU; a worker without the compiled C batch engine is reported:
-    its runs go to the Python reference, slower)."""
+    its runs go to the Python reference, slower; one with another build of the C core than this
+    process's, core_identity, is refused)."""
     info = client.scheduler_info()
     if not info.get("workers"):
         client.wait_for_workers(1, timeout=60)
@@ -393,6 +394,13 @@ def check_workers(client, fmu_path: Path | None, log) -> int:
     if fmu_path is None and not all(r["batch"] for r in checks.values()):
         log(f"warning: {sum(not r['batch'] for r in checks.values())} worker(s) have no compiled C batch engine "
             f"(models._batch): their runs go to the Python reference (engine column 'python'), slower")
+    if fmu_path is None:
+        mine = core_identity()
+        other = {r["core"] for r in checks.values()
+                 if r["core"] != mine and r["core"].startswith("c ") and mine.startswith("c ")}
+        if other:
+            raise RuntimeError(f"dask worker(s) run another build of the C core ({', '.join(sorted(other))}) than "
+                               f"this process ({mine}, recorded in sweep.json for --resume): rebuild or restart them")
     threads = {w: n for w, n in client.nthreads().items() if n > 1}
     if threads:
         log(f"warning: {len(threads)} worker(s) run {max(threads.values())} threads: every FMU call takes "
