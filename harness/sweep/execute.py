@@ -438,23 +438,34 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
     return ran
 
 
-def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool]) -> int:
-    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk); each row goes to
-    ``record`` as its chunk ends. A chunk that kept killing its worker becomes failed rows. The
-    rows recorded (a retried chunk's rows come once: dask gives a task's result once, and
-    ``record`` drops a run id it has)."""
+def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool],
+                   in_flight: int) -> int:
+    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk), at most ``in_flight``
+    chunks submitted at a time (the next one as one ends), so that the scheduler holds a bounded
+    number of tasks and their runs whatever the sweep's size; each row goes to ``record`` as its chunk
+    ends. A chunk that kept killing its worker becomes failed rows. The rows recorded (a retried
+    chunk's rows come once: dask gives a task's result once, and ``record`` drops a run id it has)."""
     from distributed import as_completed
     nonce = uuid.uuid4().hex[:8]
+    parts = (specs[k:k + chunk] for k in range(0, len(specs), chunk))
     futures = {}
-    for k in range(0, len(specs), chunk):
-        part = specs[k:k + chunk]
-        f = client.submit(execute_chunk, part, pure=False, retries=2,
-                          key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
-        futures[f.key] = (f, part)
+    done = as_completed(with_results=True, raise_errors=False)
+
+    def submit_next() -> None:
+        part = next(parts, None)
+        if part is not None:
+            f = client.submit(execute_chunk, part, pure=False, retries=2,
+                              key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
+            futures[f.key] = (f, part)
+            done.add(f)
+
     ran = 0
     try:
-        for f, result in as_completed([f for f, _ in futures.values()], with_results=True, raise_errors=False):
+        for _ in range(max(1, in_flight)):
+            submit_next()
+        for f, result in done:
             _, part = futures.pop(f.key)
+            submit_next()
             if isinstance(result, list):
                 rows = result
             else:                    # an exception: KilledWorker (the chunk killed its worker every time), ...
@@ -472,6 +483,11 @@ def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, recor
         for f, _ in futures.values():
             f.cancel()
     return ran
+
+
+IN_FLIGHT_PER_WORKER = 4
+"""Chunks submitted ahead per worker (harness/sweep/execute.py _submit_chunks): enough to keep every
+worker busy while rows come back, few enough that the scheduler's memory does not grow with the runs."""
 
 
 def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid: str | None,
@@ -497,5 +513,6 @@ def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid
         if engine == "fmu":
             ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
         else:
-            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record)
+            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record,
+                                  IN_FLIGHT_PER_WORKER * n_workers)
     return ran, n_workers
