@@ -308,7 +308,7 @@ def part_thousand(fmus: dict, args, tmp: Path) -> None:
     part = load_sweep(sweep_file(tmp, n, first_seed=0, scenario="station_day", duration_s=None))
     print(f"  the first {n} of them on --engine fmu (native FMU) ...", flush=True)
     fmu, load_f = timed_sweep(2, fmus["native"], part, tmp)
-    print(f"thousand: station_day (900 s, 9000 steps), seeds 0..{args.thousand - 1} on 2 local dask worker "
+    print(f"thousand: station_day (up to 900 s at 0.1 s), seeds 0..{args.thousand - 1} on 2 local dask worker "
           f"processes (warmed up), run + metrics per run:")
     print(f"  --engine batch: {batch.wall_s:7.2f} s wall for {args.thousand} runs ({args.thousand / batch.wall_s:.0f} "
           f"runs/s; other processes took {100 * load_b:4.1f} % of the CPUs) -- target <= 5 s: "

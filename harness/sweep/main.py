@@ -11,6 +11,9 @@ The parts, one module each:
 - harness/sweep/table.py: the columns, a run's result -> row, the summary text (pure computing)
 - harness/sweep/results.py: the results folder: CSV/Parquet, sweep.json, lock, --resume/--overwrite
 - harness/sweep/plots.py: the plots
+
+The end of a sweep reads results.csv once, a row at a time (``streamed_end``): the summary from
+SweepStats, the plots from a bounded sample, so that it ends in flat memory at any number of runs.
 """
 from __future__ import annotations
 
@@ -120,7 +123,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
                            missing=[s.run_id for s in sweep.runs if s.run_id not in done],
                            wall_s=time.monotonic() - t0, workers=n_workers,
                            fmu=(fmu_note or f"{kind} {fmu_path}") if engine == "fmu" else "",
-                           engine=(engine_note or "batch") if engine == "batch" else "", out_dir=out_dir)
+                           engine=(engine_note or "batch") if engine == "batch" else "",
+                           read_table=lambda: read_results(out_dir))
     outcome.files = [out_dir / "results.csv"] + ([writer.parquet_path] if writer.parquet_path.is_file() else [])
     outcome.files.append(write_summary(out_dir, sweep, outcome))
     if plots:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 from array import array
 from dataclasses import dataclass, field, fields
-from pathlib import Path
 
 import numpy as np
 
@@ -348,7 +347,7 @@ class SweepOutcome:
     any size ends in flat memory."""
 
     def __init__(self, stats: SweepStats, ran: int, resumed: int, missing: list, wall_s: float, workers: int,
-                 files: list | None = None, fmu: str = "", engine: str = "", out_dir: Path | None = None,
+                 files: list | None = None, fmu: str = "", engine: str = "", read_table=None,
                  table: Table | None = None):
         self.stats = stats
         self.ran = ran                   # runs executed by this call
@@ -359,15 +358,14 @@ class SweepOutcome:
         self.files = files if files is not None else []
         self.fmu = fmu                   # which FMU ran and why (harness.run.fmus.FmuChoice.describe)
         self.engine = engine             # which engine ran and why (--engine), '' for the FMU
-        self.out_dir = out_dir
+        self._read_table = read_table    # () -> Table: every row in DIR (results.read_results)
         self._table = table
 
     @property
     def table(self) -> Table:
         """Every row in DIR, sorted by run id (read on first use: O(rows) memory)."""
         if self._table is None:
-            from harness.sweep.results import read_results
-            self._table = read_results(self.out_dir)
+            self._table = self._read_table()
         return self._table
 
 
