@@ -32,12 +32,14 @@ import pythonfmu  # noqa: F401  (import before any FMU is loaded in this process
 
 import contextlib
 import os
+import pickle
 import shutil
 import signal
 import tempfile
 import threading
 import time
 import uuid
+import zlib
 from collections import Counter
 from pathlib import Path
 from typing import Callable
@@ -225,6 +227,19 @@ def execute_chunk(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict
     for k in range(0, len(specs), call_runs):
         rows += _batch_rows(specs[k:k + call_runs])
     return rows
+
+
+def pack_chunk(specs: list[RunSpec]) -> bytes:
+    """A chunk's specs as one compressed pickle (~60 bytes a run where the runs differ in a few
+    values, ~1.7 kB a run as objects): the dask scheduler keeps the arguments of tasks it has
+    finished (measured: ~11 kB a run of a 300-step sweep, 1 GB at 100,000 runs), so a chunk ships
+    as bytes."""
+    return zlib.compress(pickle.dumps(specs, protocol=pickle.HIGHEST_PROTOCOL), 1)
+
+
+def execute_packed_chunk(packed: bytes) -> list[dict]:
+    """execute_chunk of a pack_chunk'ed chunk (on a worker)."""
+    return execute_chunk(pickle.loads(zlib.decompress(packed)))
 
 
 def _batch_rows(specs: list[RunSpec]) -> list[dict]:
@@ -454,7 +469,7 @@ def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, recor
     def submit_next() -> None:
         part = next(parts, None)
         if part is not None:
-            f = client.submit(execute_chunk, part, pure=False, retries=2,
+            f = client.submit(execute_packed_chunk, pack_chunk(part), pure=False, retries=2,
                               key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
             futures[f.key] = (f, part)
             done.add(f)
