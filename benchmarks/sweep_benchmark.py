@@ -344,8 +344,9 @@ def part_ratio(fmus: dict, args, tmp: Path) -> None:
 
 
 class MemorySampler:
-    """RSS of this process and of its child processes (the local cluster's workers), or of given
-    processes (an external cluster's), now and at most, sampled every ``period_s`` in a thread."""
+    """RSS of this process and of its child processes (the local cluster's workers; its scheduler
+    is in this process), or of given processes (an external cluster's scheduler and workers), now and
+    at most, sampled every ``period_s`` in a thread."""
 
     def __init__(self, processes=None, period_s: float = 0.5):
         import psutil
@@ -385,7 +386,8 @@ class MemorySampler:
     def line(self, what: str) -> str:
         main, workers = self.now()
         mb = 1e-6
-        return (f"  {what}: main {main * mb:6.0f} MB (at most {self.peak_main * mb:6.0f}), workers "
+        return (f"  {what}: main {main * mb:6.0f} MB (at most {self.peak_main * mb:6.0f}), the two largest "
+                f"cluster processes "
                 f"{', '.join(f'{w * mb:.0f}' for w in sorted(workers)[-2:])} MB (at most {self.peak_workers * mb:.0f})")
 
 
