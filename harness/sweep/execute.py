@@ -32,12 +32,14 @@ import pythonfmu  # noqa: F401  (import before any FMU is loaded in this process
 
 import contextlib
 import os
+import pickle
 import shutil
 import signal
 import tempfile
 import threading
 import time
 import uuid
+import zlib
 from collections import Counter
 from pathlib import Path
 from typing import Callable
@@ -227,6 +229,19 @@ def execute_chunk(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict
     return rows
 
 
+def pack_chunk(specs: list[RunSpec]) -> bytes:
+    """A chunk's specs as one compressed pickle (~60 bytes a run where the runs differ in a few
+    values, ~1.7 kB a run as objects): the dask scheduler keeps the arguments of tasks it has
+    finished (measured: ~11 kB a run of a 300-step sweep, 1 GB at 100,000 runs), so a chunk ships
+    as bytes."""
+    return zlib.compress(pickle.dumps(specs, protocol=pickle.HIGHEST_PROTOCOL), 1)
+
+
+def execute_packed_chunk(packed: bytes) -> list[dict]:
+    """execute_chunk of a pack_chunk'ed chunk (on a worker)."""
+    return execute_chunk(pickle.loads(zlib.decompress(packed)))
+
+
 def _batch_rows(specs: list[RunSpec]) -> list[dict]:
     from harness.run.batch import not_covered, run_batch
     rows = [base_row(s) for s in specs]
@@ -268,6 +283,23 @@ def _batch_rows(specs: list[RunSpec]) -> list[dict]:
     return rows
 
 
+def core_identity() -> str:
+    """What the batch engine runs in this process, for --resume to refuse mixing two builds' rows:
+    ``c <sha256 of the compiled extensions' bytes, 16 hex digits>`` (models._batch and
+    models._railcar: the C core is linked into both, so any rebuild that changes its code changes
+    the hash), or ``python reference`` when the core is not compiled or RAILCAR_PURE_PYTHON is set.
+    A few milliseconds: the two files are ~1 MB each."""
+    import hashlib
+    from models import batch, compiled
+    if not batch.available() or not compiled.enabled():
+        return "python reference"
+    h = hashlib.sha256()
+    for module in (batch._batch, compiled._railcar):
+        with open(module.__file__, "rb") as f:
+            h.update(f.read())
+    return f"c {h.hexdigest()[:16]}"
+
+
 def chunk_size(runs: int, workers: int) -> int:
     """Runs per dask task: about four tasks per worker (the progress bar moves, a killed worker
     costs one chunk), at most MAX_CHUNK runs (a chunk's rows are held until it ends)."""
@@ -279,7 +311,7 @@ def worker_check(fmu_path: str | None) -> dict:
     no FMU, the batch engine), is the C batch engine compiled there?"""
     from models import batch
     return {"pid": os.getpid(), "fmu_readable": fmu_path is None or os.access(fmu_path, os.R_OK),
-            "batch": batch.available(), "harness": str(Path(__file__).resolve().parents[1]),
+            "batch": batch.available(), "core": core_identity(), "harness": str(Path(__file__).resolve().parents[1]),
             "threads": threading.active_count()}
 
 
@@ -359,7 +391,8 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
 def check_workers(client, fmu_path: Path | None, log) -> int:
     """The number of workers; RuntimeError if one cannot import the harness or read the FMU
     (None: the batch engine, no FMU; a worker without the compiled C batch engine is reported:
-    its runs go to the Python reference, slower)."""
+    its runs go to the Python reference, slower; one with another build of the C core than this
+    process's, core_identity, is refused)."""
     info = client.scheduler_info()
     if not info.get("workers"):
         client.wait_for_workers(1, timeout=60)
@@ -376,6 +409,13 @@ def check_workers(client, fmu_path: Path | None, log) -> int:
     if fmu_path is None and not all(r["batch"] for r in checks.values()):
         log(f"warning: {sum(not r['batch'] for r in checks.values())} worker(s) have no compiled C batch engine "
             f"(models._batch): their runs go to the Python reference (engine column 'python'), slower")
+    if fmu_path is None:
+        mine = core_identity()
+        other = {r["core"] for r in checks.values()
+                 if r["core"] != mine and r["core"].startswith("c ") and mine.startswith("c ")}
+        if other:
+            raise RuntimeError(f"dask worker(s) run another build of the C core ({', '.join(sorted(other))}) than "
+                               f"this process ({mine}, recorded in sweep.json for --resume): rebuild or restart them")
     threads = {w: n for w, n in client.nthreads().items() if n > 1}
     if threads:
         log(f"warning: {len(threads)} worker(s) run {max(threads.values())} threads: every FMU call takes "
@@ -413,23 +453,34 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
     return ran
 
 
-def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool]) -> int:
-    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk); each row goes to
-    ``record`` as its chunk ends. A chunk that kept killing its worker becomes failed rows. The
-    rows recorded (a retried chunk's rows come once: dask gives a task's result once, and
-    ``record`` drops a run id it has)."""
+def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool],
+                   in_flight: int) -> int:
+    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk), at most ``in_flight``
+    chunks submitted at a time (the next one as one ends), so that the scheduler holds a bounded
+    number of tasks and their runs whatever the sweep's size; each row goes to ``record`` as its chunk
+    ends. A chunk that kept killing its worker becomes failed rows. The rows recorded (a retried
+    chunk's rows come once: dask gives a task's result once, and ``record`` drops a run id it has)."""
     from distributed import as_completed
     nonce = uuid.uuid4().hex[:8]
+    parts = (specs[k:k + chunk] for k in range(0, len(specs), chunk))
     futures = {}
-    for k in range(0, len(specs), chunk):
-        part = specs[k:k + chunk]
-        f = client.submit(execute_chunk, part, pure=False, retries=2,
-                          key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
-        futures[f.key] = (f, part)
+    done = as_completed(with_results=True, raise_errors=False)
+
+    def submit_next() -> None:
+        part = next(parts, None)
+        if part is not None:
+            f = client.submit(execute_packed_chunk, pack_chunk(part), pure=False, retries=2,
+                              key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
+            futures[f.key] = (f, part)
+            done.add(f)
+
     ran = 0
     try:
-        for f, result in as_completed([f for f, _ in futures.values()], with_results=True, raise_errors=False):
+        for _ in range(max(1, in_flight)):
+            submit_next()
+        for f, result in done:
             _, part = futures.pop(f.key)
+            submit_next()
             if isinstance(result, list):
                 rows = result
             else:                    # an exception: KilledWorker (the chunk killed its worker every time), ...
@@ -447,6 +498,11 @@ def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, recor
         for f, _ in futures.values():
             f.cancel()
     return ran
+
+
+IN_FLIGHT_PER_WORKER = 4
+"""Chunks submitted ahead per worker (harness/sweep/execute.py _submit_chunks): enough to keep every
+worker busy while rows come back, few enough that the scheduler's memory does not grow with the runs."""
 
 
 def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid: str | None,
@@ -472,5 +528,6 @@ def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid
         if engine == "fmu":
             ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
         else:
-            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record)
+            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record,
+                                  IN_FLIGHT_PER_WORKER * n_workers)
     return ran, n_workers

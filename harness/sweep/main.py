@@ -11,6 +11,9 @@ The parts, one module each:
 - harness/sweep/table.py: the columns, a run's result -> row, the summary text (pure computing)
 - harness/sweep/results.py: the results folder: CSV/Parquet, sweep.json, lock, --resume/--overwrite
 - harness/sweep/plots.py: the plots
+
+The end of a sweep reads results.csv once, a row at a time (``streamed_end``): the summary from
+SweepStats, the plots from a bounded sample, so that it ends in flat memory at any number of runs.
 """
 from __future__ import annotations
 
@@ -19,14 +22,17 @@ import sys
 import time
 from pathlib import Path
 
-from harness.sweep.execute import ENGINES, execute_runs
-from harness.sweep.plots import plot_sweep
-from harness.sweep.results import ResultsWriter, check_rerun, read_results, write_summary
+from harness.sweep.execute import ENGINES, core_identity, execute_runs
+from harness.sweep.plots import PLOT_SAMPLE_ROWS, PlotSample, plot_sweep
+from harness.sweep.results import (ResultsWriter, check_rerun, iter_csv_rows, read_meta, read_results,
+                                   write_summary)
 from harness.sweep.spec import Sweep, load_sweep
-from harness.sweep.table import TEXT_STATUS_OK, SweepOutcome, format_sweep_summary
+from harness.sweep.table import TEXT_STATUS_OK, Column, SweepOutcome, SweepStats, Table, format_sweep_summary
 from harness.textio import check_out_dir
 
-# Re-exported: tests/harness_tests/run/test_cli_errors.py and tests/harness_tests/run/test_harness_fmu_kind.py import them from here.
+# Re-exported: tests/harness_tests/run/test_cli_errors.py and tests/harness_tests/run/test_harness_fmu_kind.py import them
+# (read_results too) from here.
+__all__ = ["read_results", "run_sweep", "cli_sweep", "streamed_end"]
 from harness.sweep.execute import _WORKER_FMUS, execute_run, worker_runner  # noqa: F401
 from harness.sweep.spec import RunSpec, SweepError  # noqa: F401
 
@@ -90,9 +96,11 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
             raise FileNotFoundError(f"FMU not found: {fmu_path}")
         guid = fmu_guid(fmu_path)
         kind = "native" if is_native(read_model_description(str(fmu_path))) else "python"
+        core = None
     else:
         fmu_path = None
-    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind, engine=engine)
+        core = core_identity()
+    writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind, engine=engine, core=core)
     todo = [s for s in sweep.runs if s.run_id not in writer.done]
     if limit is not None:
         todo = todo[:limit]
@@ -110,17 +118,34 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
                                       workers=workers, log=log, engine=engine, chunk=chunk)
     finally:
         writer.close()
-    table = read_results(out_dir)
-    done = {r["run_id"] for r in table.rows}
-    outcome = SweepOutcome(table=table, ran=ran, resumed=writer.resumed,
+    stats, done, sample = streamed_end(out_dir, sweep, plots)
+    outcome = SweepOutcome(stats=stats, ran=ran, resumed=writer.resumed,
                            missing=[s.run_id for s in sweep.runs if s.run_id not in done],
                            wall_s=time.monotonic() - t0, workers=n_workers,
                            fmu=(fmu_note or f"{kind} {fmu_path}") if engine == "fmu" else "",
-                           engine=(engine_note or "batch") if engine == "batch" else "")
+                           engine=(engine_note or "batch") if engine == "batch" else "",
+                           read_table=lambda: read_results(out_dir))
     outcome.files = [out_dir / "results.csv"] + ([writer.parquet_path] if writer.parquet_path.is_file() else [])
     outcome.files.append(write_summary(out_dir, sweep, outcome))
     if plots:
-        outcome.files += plot_sweep(sweep, table, out_dir / "plots")
+        outcome.files += plot_sweep(sweep, sample, out_dir / "plots", ok_runs=stats.ok)
+    return outcome
+
+
+def streamed_end(out_dir: Path, sweep: Sweep, plots: bool = True) -> tuple[SweepStats, set, Table]:
+    """One pass over DIR/results.csv, a row at a time: (the summary's SweepStats, the run ids there,
+    the plots' sample: at most PLOT_SAMPLE_ROWS rows, by run id, of the plots' columns only). The
+    memory is that of the sample, the ids and the summary's 8 bytes per run and metric, whatever the
+    number of runs; a sweep of at most PLOT_SAMPLE_ROWS runs is plotted whole, as before."""
+    cols = [Column(*c) for c in read_meta(out_dir / "sweep.json")["columns"]]
+    keep = {c.key for c in cols if c.kind != "str"} | {"status"} | set(sweep.axes)
+    stats, done, sample = SweepStats(), set(), PlotSample(PLOT_SAMPLE_ROWS)
+    for row in iter_csv_rows(out_dir / "results.csv", cols):
+        stats.add(row)
+        done.add(row["run_id"])
+        if plots:
+            sample.offer({k: v for k, v in row.items() if k in keep})
+    return stats, done, Table(cols, sample.rows())
     return outcome
 
 
@@ -201,7 +226,7 @@ def cli_sweep(args) -> int:
     print(format_sweep_summary(sweep, o))
     print(f"results: {', '.join(str(p) for p in o.files if p.suffix != '.png')}"
           + (f"; plots: {out / 'plots'} ({sum(p.suffix == '.png' for p in o.files)} files)" if not args.no_plots else ""))
-    failed = sum(r["status"] != TEXT_STATUS_OK for r in o.table.rows)
+    failed = o.stats.failed
     if failed:
         print(f"{failed} run(s) failed (status and message in results.csv)", file=sys.stderr)
     return 1 if failed else 0

@@ -9,12 +9,17 @@ sweep); any other varying metric in
 - ``GROUP_histograms.png`` (a sweep over seeds): each metric's distribution, runs per bin;
 - ``GROUP_heatmap_A__B.png`` (a two-axis grid): each metric's mean over the other axes (seeds).
 
+A sweep of more than PLOT_SAMPLE_ROWS runs is plotted from a sample of that many (``PlotSample``:
+the same rows whatever the order they finished in; the titles say so), so that its plots cost
+the same memory and time at 100,000 runs as at 5,000.
+
 At most ``PANELS_PER_FIGURE`` panels a figure, every axis labelled with its unit, text large
 enough to read at the PNG's size. ``sweep_figures`` makes the figures (tests read them),
 ``plot_sweep`` writes them.
 """
 from __future__ import annotations
 
+import heapq
 import math
 import re
 import textwrap
@@ -77,6 +82,33 @@ PANEL_TITLES = {
 HONEST_VALUES = {"speed_nees": 1.0, "position_nees": 1.0, "speed_within_2sigma_pct": 95.4,
                  "position_within_2sigma_pct": 95.4}
 MEDIAN_LINE_MAX_VALUES = 30        # a swept name with more distinct values gets no median line
+PLOT_SAMPLE_ROWS = 5_000
+"""Rows plotted at most: a larger sweep is plotted from a sample of this many (PlotSample)."""
+
+
+class PlotSample:
+    """At most ``size`` rows out of those offered one at a time: the ``size`` whose run ids hash
+    smallest, so the sample is the same whatever order the rows come in (completion order) and
+    spread over the whole sweep (the ids of a grid or hypercube walk its axes in order)."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self._heap: list = []            # (-hash, run id, row): the largest hash on top, dropped first
+
+    @staticmethod
+    def _hash(run_id: int) -> int:
+        return (run_id * 0x9E3779B97F4A7C15 + 0x632BE59BD9B4E019) % 2**64     # Fibonacci hashing
+
+    def offer(self, row: dict) -> None:
+        item = (-self._hash(row["run_id"]), row["run_id"], row)
+        if len(self._heap) < self.size:
+            heapq.heappush(self._heap, item)
+        elif item[0] > self._heap[0][0]:
+            heapq.heapreplace(self._heap, item)
+
+    def rows(self) -> list[dict]:
+        """The sample, sorted by run id."""
+        return [row for _, _, row in sorted(self._heap, key=lambda item: item[1])]
 
 
 def _safe(name: str) -> str:
@@ -151,7 +183,15 @@ def _finite_pairs(rows, x: str, y: str) -> list[tuple[float, float]]:
             if r.get(y) is not None and math.isfinite(r[y]) and r.get(x) is not None and math.isfinite(r[x])]
 
 
-def _vs_figure(plt, sweep: Sweep, ok: list[dict], x: Column, title: str, cols: list[Column], median_line: bool):
+def _runs_text(ok: list[dict], ok_runs: int | None) -> str:
+    """'N ok runs', or for a sample 'a sample of N of the M ok runs'."""
+    if ok_runs is not None and ok_runs > len(ok):
+        return f"a sample of {len(ok)} of the {ok_runs} ok runs"
+    return f"{len(ok)} ok runs"
+
+
+def _vs_figure(plt, sweep: Sweep, ok: list[dict], x: Column, title: str, cols: list[Column], median_line: bool,
+               ok_runs: int | None = None):
     fig, axs = _panels(plt, len(cols))
     for ax, m in zip(axs, cols):
         pts = _finite_pairs(ok, x.key, m.key)
@@ -164,11 +204,11 @@ def _vs_figure(plt, sweep: Sweep, ok: list[dict], x: Column, title: str, cols: l
             ax.axhline(HONEST_VALUES[m.key], ls="--", color="0.4", lw=1.2)
         _style(ax, PANEL_TITLES.get(m.key, m.key), _label(x), _label(m))
     how = "dots: runs; line: median of each value" if median_line else "dots: runs"
-    _suptitle(fig, f"{sweep.name}: {title} vs {x.key} ({len(ok)} ok runs; {how})")
+    _suptitle(fig, f"{sweep.name}: {title} vs {x.key} ({_runs_text(ok, ok_runs)}; {how})")
     return fig
 
 
-def _histogram_figure(plt, sweep: Sweep, ok: list[dict], title: str, cols: list[Column]):
+def _histogram_figure(plt, sweep: Sweep, ok: list[dict], title: str, cols: list[Column], ok_runs: int | None = None):
     from matplotlib.ticker import MaxNLocator
     fig, axs = _panels(plt, len(cols))
     bins = min(30, max(5, len(ok) // 5))
@@ -178,7 +218,7 @@ def _histogram_figure(plt, sweep: Sweep, ok: list[dict], title: str, cols: list[
             ax.axvline(HONEST_VALUES[m.key], ls="--", color="0.4", lw=1.2)
         _style(ax, PANEL_TITLES.get(m.key, m.key), _label(m), "runs")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))      # counts of runs
-    _suptitle(fig, f"{sweep.name}: {title}, distribution over {len(ok)} ok runs")
+    _suptitle(fig, f"{sweep.name}: {title}, distribution over {_runs_text(ok, ok_runs)}")
     return fig
 
 
@@ -206,10 +246,11 @@ def _heatmap_figure(plt, sweep: Sweep, table: Table, a: Column, b: Column, title
     return fig
 
 
-def sweep_figures(sweep: Sweep, table: Table):
+def sweep_figures(sweep: Sweep, table: Table, ok_runs: int | None = None):
     """Yields (file name, matplotlib Figure) for each plot of the sweep (see the module docstring),
     one at a time: the caller saves and closes each (plot_sweep) before the next is made. None when
-    no run is ok or no metric varies."""
+    no run is ok or no metric varies. ``ok_runs``: the sweep's ok runs when ``table`` is a sample
+    of its rows (the titles say so)."""
     plt = pyplot()
     ok = table.ok_rows()
     groups = metric_groups(table)
@@ -222,10 +263,10 @@ def sweep_figures(sweep: Sweep, table: Table):
     for x in swept:
         median_line = x.key in discrete and len({r.get(x.key) for r in ok}) <= MEDIAN_LINE_MAX_VALUES
         for prefix, title, cols in groups:
-            yield f"{prefix}_vs_{_safe(x.key)}.png", _vs_figure(plt, sweep, ok, x, title, cols, median_line)
+            yield f"{prefix}_vs_{_safe(x.key)}.png", _vs_figure(plt, sweep, ok, x, title, cols, median_line, ok_runs)
     if "seed" in sweep.axes and len(ok) > 1:
         for prefix, title, cols in groups:
-            yield f"{prefix}_histograms.png", _histogram_figure(plt, sweep, ok, title, cols)
+            yield f"{prefix}_histograms.png", _histogram_figure(plt, sweep, ok, title, cols, ok_runs)
     grid = [by_key[n] for n in sweep.grid_axes if by_key[n].kind != "str"]
     if len(sweep.grid_axes) == 2 and len(grid) == 2:
         a, b = grid
@@ -234,7 +275,8 @@ def sweep_figures(sweep: Sweep, table: Table):
                    _heatmap_figure(plt, sweep, table, a, b, title, cols))
 
 
-def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path) -> list[Path]:
-    """Write sweep_figures' figures as PNGs into ``plot_dir``; their paths."""
+def plot_sweep(sweep: Sweep, table: Table, plot_dir: Path, ok_runs: int | None = None) -> list[Path]:
+    """Write sweep_figures' figures as PNGs into ``plot_dir``; their paths. ``ok_runs``: see
+    sweep_figures."""
     plot_dir.mkdir(parents=True, exist_ok=True)
-    return [save_figure(fig, None, plot_dir / name, dpi=DPI) for name, fig in sweep_figures(sweep, table)]
+    return [save_figure(fig, None, plot_dir / name, dpi=DPI) for name, fig in sweep_figures(sweep, table, ok_runs)]

@@ -6,7 +6,8 @@ with the rows' contents. ``DIR/results.parquet`` (when pyarrow is importable) is
 CSV when the sweep ends, also after an error or Ctrl-C, streamed in row groups of PARQUET_ROWS.
 ``read_results(DIR)`` returns the table sorted by run id. ``--resume`` skips the run ids
 already in results.csv (ok or failed) if the sweep, its base scenario and the FMU build are
-unchanged (``DIR/sweep.json``); without ``--resume``, a folder that holds results is refused
+unchanged (``DIR/sweep.json``: the FMU's GUID, or for the batch engine the C core's identity,
+harness.sweep.execute.core_identity); without ``--resume``, a folder that holds results is refused
 (SweepError) unless ``--overwrite`` says to start again. ``DIR/sweep.lock`` keeps a second
 sweep from writing the same folder meanwhile.
 """
@@ -134,8 +135,9 @@ class ResultsWriter:
     """Appends rows to DIR/results.csv as they come (deduplicated by run id), Parquet alongside."""
 
     def __init__(self, out_dir: Path, sweep: Sweep, fmu_guid: str | None, resume: bool, overwrite: bool = False,
-                 fmu_kind: str | None = None, engine: str = "fmu"):
+                 fmu_kind: str | None = None, engine: str = "fmu", core: str | None = None):
         self.out_dir = out_dir
+        self.core = core
         self.fmu_kind = fmu_kind
         self.engine = engine
         self.cols = sweep_columns(sweep)
@@ -143,7 +145,7 @@ class ResultsWriter:
         self.parquet_path = out_dir / "results.parquet"
         meta_path = out_dir / "sweep.json"
         meta = {"sweep": str(sweep.path.resolve()), "name": sweep.name, "fingerprint": sweep.fingerprint,
-                "engine": engine, "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "runs": len(sweep.runs),
+                "engine": engine, "fmu_guid": fmu_guid, "fmu_kind": fmu_kind, "core": core, "runs": len(sweep.runs),
                 "columns": [[c.key, c.unit, c.kind] for c in self.cols]}
         out_dir.mkdir(parents=True, exist_ok=True)
         self._lock = _lock_folder(out_dir)
@@ -188,6 +190,10 @@ class ResultsWriter:
         if old.get("fmu_guid") != fmu_guid:
             raise SweepError(f"{self.out_dir}: --resume: the FMU was rebuilt since (GUID {old.get('fmu_guid')} "
                              f"-> {fmu_guid}); rows of two builds would mix: use another --out or drop --resume")
+        if old.get("core") != self.core:
+            raise SweepError(f"{self.out_dir}: --resume: the results there ran on another build of the batch engine "
+                             f"(core {old.get('core')!r}, now {self.core!r}); rows of two builds would mix: use "
+                             f"another --out or drop --resume")
         seen, kept = set(), []
         for r in _read_csv_rows(self.csv_path, self.cols):      # the first row of a run id wins
             if r["run_id"] not in seen:

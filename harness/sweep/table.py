@@ -17,7 +17,7 @@ header cells, ``name [unit]``.
 from __future__ import annotations
 
 import math
-from collections import Counter
+from array import array
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -242,17 +242,131 @@ class Table:
         return [r for r in self.rows if r.get("status") == TEXT_STATUS_OK]
 
 
-@dataclass
+class SweepStats:
+    """What the summary says about a sweep's rows, accumulated one row at a time (``add``), in any
+    order, so that the end of a sweep of any size streams its CSV once instead of holding the table:
+    counts, the pooled calibration, the failures by message (count and the five smallest run ids),
+    the ATO's shares and worsts, and each SUMMARY_METRICS value and each run's ATO energy (8 bytes a
+    value, for the exact median). ``coverage`` and ``ato_outcome`` of a Table are computed here too."""
+
+    def __init__(self):
+        self.rows = self.ok = self.failed = 0
+        self.values = {m: array("d") for m in SUMMARY_METRICS}
+        self.stops = self.covered = self.moving = self.speed_in = self.position_in = 0
+        self.failures: dict[str, list] = {}      # message -> [count, up to 5 smallest run ids]
+        self.ato_runs = self.spans = self.arrival_within = self.stop_within = 0
+        self.on_target = self.arrived = self.interventions = 0
+        self.worst = {"arrival": None, "stop": None}    # max (|x|, run id) over the finite errors
+        self.nan_run = {"arrival": None, "stop": None}  # least run id with a nan error (never came to rest)
+        self.min_margin = math.inf
+        self.energy = array("d")
+
+    @classmethod
+    def of(cls, rows) -> "SweepStats":
+        stats = cls()
+        for r in rows:
+            stats.add(r)
+        return stats
+
+    def add(self, r: dict) -> None:
+        self.rows += 1
+        if r.get("status") != TEXT_STATUS_OK:
+            self.failed += 1
+            entry = self.failures.setdefault(r.get("error") or "?", [0, []])
+            entry[0] += 1
+            entry[1] = sorted(entry[1] + [r["run_id"]])[:5]
+            return
+        self.ok += 1
+        for m, xs in self.values.items():
+            xs.extend(finite_values([r.get(m)]))
+        self.stops += r.get("stops") or 0
+        self.covered += r.get("mass_stops_covered") or 0
+        self.moving += r.get("moving_samples") or 0
+        self.speed_in += r.get("speed_within_2sigma") or 0
+        self.position_in += r.get("position_within_2sigma") or 0
+        if r.get("ato_spans") is not None:
+            self._add_ato(r)
+
+    def _add_ato(self, r: dict) -> None:
+        from harness.metrics.ato import ARRIVAL_BOUND_S, STOP_BOUND_M
+        self.ato_runs += 1
+        self.spans += r["ato_spans"]
+        for what, key, bound in (("arrival", "ato_arrival_error_s.list", ARRIVAL_BOUND_S),
+                                 ("stop", "ato_stop_error_m.list", STOP_BOUND_M)):
+            for x in _split_list(r.get(key)):
+                if what == "arrival":
+                    self.arrival_within += abs(x) <= bound
+                else:
+                    self.stop_within += abs(x) <= bound
+                if math.isnan(x):
+                    run = self.nan_run[what]
+                    self.nan_run[what] = r["run_id"] if run is None else min(run, r["run_id"])
+                else:
+                    pair = (abs(x), r["run_id"])
+                    self.worst[what] = pair if self.worst[what] is None else max(self.worst[what], pair)
+        self.on_target += r.get("ato_on_target") or 0
+        self.arrived += r.get("ato_arrived") or 0
+        self.min_margin = min([self.min_margin] + finite_values([r.get("ato_margin_mps")]))
+        self.interventions += r.get("ato_interventions") or 0
+        self.energy.extend(finite_values([r.get("ato_energy_kwh")]))
+
+    def coverage(self) -> dict:
+        """Pooled calibration over the ok rows: percentage of stops / moving samples inside +-2 sigma."""
+        nan = float("nan")
+        return {"runs": self.ok, "stops": self.stops, "moving_samples": self.moving,
+                "mass_pct": 100.0 * self.covered / self.stops if self.stops else nan,
+                "speed_pct": 100.0 * self.speed_in / self.moving if self.moving else nan,
+                "position_pct": 100.0 * self.position_in / self.moving if self.moving else nan}
+
+    def ato_outcome(self) -> dict | None:
+        """See ``ato_outcome``."""
+        if not self.ato_runs:
+            return None
+        nan = float("nan")
+
+        def worst(what):          # a car that never came to rest: its run is the worst
+            if self.nan_run[what] is not None:
+                return nan, self.nan_run[what]
+            return self.worst[what] if self.worst[what] is not None else (nan, None)
+        return {"runs": self.ato_runs, "spans": self.spans, "arrival_within": self.arrival_within,
+                "stop_within": self.stop_within, "on_target": self.on_target, "arrived": self.arrived,
+                "worst_arrival": worst("arrival"), "worst_stop": worst("stop"),
+                "min_margin": nan if math.isinf(self.min_margin) else self.min_margin,
+                "interventions": self.interventions, "energy": list(self.energy)}
+
+    def top_failures(self, n: int = 5) -> list[tuple[str, int, list]]:
+        """(message, count, up to 5 smallest run ids) of the ``n`` commonest failure messages; ties
+        in the order of their smallest run id (as Counter.most_common over the rows by run id)."""
+        ranked = sorted(self.failures.items(), key=lambda kv: (-kv[1][0], kv[1][1][0]))
+        return [(msg, count, ids) for msg, (count, ids) in ranked[:n]]
+
+
 class SweepOutcome:
-    table: Table                 # every row in DIR, sorted by run id
-    ran: int                     # runs executed by this call
-    resumed: int                 # rows kept from an earlier call (--resume)
-    missing: list                # run ids with no row (interrupted, --limit)
-    wall_s: float
-    workers: int
-    files: list = field(default_factory=list)
-    fmu: str = ""                # which FMU ran and why (harness.run.fmus.FmuChoice.describe)
-    engine: str = ""             # which engine ran and why (--engine), '' for the FMU
+    """What run_sweep did: ``stats`` (SweepStats over every row in DIR), the counts of this call, the
+    files; ``table`` (every row, sorted by run id) is read from DIR only when asked for, so a sweep of
+    any size ends in flat memory."""
+
+    def __init__(self, stats: SweepStats, ran: int, resumed: int, missing: list, wall_s: float, workers: int,
+                 files: list | None = None, fmu: str = "", engine: str = "", read_table=None,
+                 table: Table | None = None):
+        self.stats = stats
+        self.ran = ran                   # runs executed by this call
+        self.resumed = resumed           # rows kept from an earlier call (--resume)
+        self.missing = missing           # run ids with no row (interrupted, --limit)
+        self.wall_s = wall_s
+        self.workers = workers
+        self.files = files if files is not None else []
+        self.fmu = fmu                   # which FMU ran and why (harness.run.fmus.FmuChoice.describe)
+        self.engine = engine             # which engine ran and why (--engine), '' for the FMU
+        self._read_table = read_table    # () -> Table: every row in DIR (results.read_results)
+        self._table = table
+
+    @property
+    def table(self) -> Table:
+        """Every row in DIR, sorted by run id (read on first use: O(rows) memory)."""
+        if self._table is None:
+            self._table = self._read_table()
+        return self._table
 
 
 def finite_values(xs) -> list[float]:
@@ -262,17 +376,7 @@ def finite_values(xs) -> list[float]:
 
 def coverage(table: Table) -> dict:
     """Pooled calibration over the ok rows: percentage of stops / moving samples inside +-2 sigma."""
-    ok = table.ok_rows()
-    stops = sum(r.get("stops") or 0 for r in ok)
-    covered = sum(r.get("mass_stops_covered") or 0 for r in ok)
-    n = sum(r.get("moving_samples") or 0 for r in ok)
-    nv = sum(r.get("speed_within_2sigma") or 0 for r in ok)
-    nx = sum(r.get("position_within_2sigma") or 0 for r in ok)
-    nan = float("nan")
-    return {"runs": len(ok), "stops": stops, "moving_samples": n,
-            "mass_pct": 100.0 * covered / stops if stops else nan,
-            "speed_pct": 100.0 * nv / n if n else nan,
-            "position_pct": 100.0 * nx / n if n else nan}
+    return SweepStats.of(table.rows).coverage()
 
 
 SUMMARY_METRICS = ("mass_error_pct", "mass_errors_at_stops_pct.max_abs", "mass_time_within_1pct_s.max_abs",
@@ -281,14 +385,14 @@ SUMMARY_METRICS = ("mass_error_pct", "mass_errors_at_stops_pct.max_abs", "mass_t
                    "position_nees")
 
 
-def format_sweep_summary(sweep: Sweep, o: SweepOutcome) -> str:
-    t = o.table
-    ok = [r for r in t.rows if r["status"] == TEXT_STATUS_OK]
-    failed = [r for r in t.rows if r["status"] != TEXT_STATUS_OK]
-    units = {c.key: c.unit for c in t.columns}
+def format_sweep_summary(sweep: Sweep, o: SweepOutcome, columns: list[Column] | None = None) -> str:
+    """The summary of a sweep's rows (``o.stats``) and of this call; ``columns`` (default the sweep's)
+    give the units."""
+    st = o.stats
+    units = {c.key: c.unit for c in (columns or sweep_columns(sweep))}
     lines = [f"sweep '{sweep.name}' on {sweep.base_path.name}: {len(sweep.runs)} runs over "
              f"{', '.join(sweep.axes)}",
-             f"  rows {len(t.rows)}: {len(ok)} ok, {len(failed)} failed; this call ran {o.ran} in {o.wall_s:.1f} s"
+             f"  rows {st.rows}: {st.ok} ok, {st.failed} failed; this call ran {o.ran} in {o.wall_s:.1f} s"
              + (f" ({o.ran / o.wall_s:.2f} runs/s on {o.workers} workers)" if o.ran and o.wall_s > 0 and o.workers else "")
              + (f"; {o.resumed} rows kept from before (--resume)" if o.resumed else "")]
     if o.fmu:
@@ -298,30 +402,29 @@ def format_sweep_summary(sweep: Sweep, o: SweepOutcome) -> str:
     if o.missing:
         lines.append(f"  not run yet: {len(o.missing)} runs (first ids {', '.join(map(str, o.missing[:5]))}); "
                      f"--resume continues")
-    if ok:
+    if st.ok:
         lines.append("")
         w = max(len(m) for m in SUMMARY_METRICS) + 6
         lines.append(f"  {'metric (over the ok runs)':<{w}} {'min':>10} {'median':>10} {'max':>10}")
         for m in SUMMARY_METRICS:
-            xs = finite_values(r.get(m) for r in ok)
+            xs = st.values[m]
             label = f"{m} [{units.get(m, '-')}]"
             if xs:
                 lines.append(f"  {label:<{w}} {min(xs):>10.4g} {float(np.median(xs)):>10.4g} {max(xs):>10.4g}")
             else:
                 lines.append(f"  {label:<{w}} {'n/a':>10}")
-        c = coverage(t)
+        c = st.coverage()
         lines += ["", "  calibration: truth inside the estimate +- 2 sigma (95.4 % for honest Gaussian errors)",
                   f"    mass at the arrival at each stop    {_pct(c['mass_pct'])} of {c['stops']} stops",
                   f"    filter speed (moving samples)       {_pct(c['speed_pct'])} of {c['moving_samples']} samples",
                   f"    filter distance (moving samples)    {_pct(c['position_pct'])} of {c['moving_samples']} samples"]
-        ato = ato_outcome(t)
+        ato = st.ato_outcome()
         if ato is not None:
             lines += format_ato_outcome(ato)
-    if failed:
+    if st.failed:
         lines += ["", "  failures (by message):"]
-        for msg, n in Counter(r.get("error") or "?" for r in failed).most_common(5):
-            ids = [str(r["run_id"]) for r in failed if (r.get("error") or "?") == msg][:5]
-            lines.append(f"    {n} x (runs {', '.join(ids)}{', ...' if n > 5 else ''}): {msg[:300]}")
+        for msg, n, ids in st.top_failures(5):
+            lines.append(f"    {n} x (runs {', '.join(map(str, ids))}{', ...' if n > 5 else ''}): {msg[:300]}")
     return "\n".join(lines)
 
 
@@ -335,29 +438,7 @@ def ato_outcome(table: Table) -> dict | None:
     spans, the share arrived within +-ARRIVAL_BOUND_S / +-STOP_BOUND_M / both (and arrived), the
     worst |arrival error| and |stop error| and their runs, the smallest margin to V_lim, the
     interventions and the spans not arrived."""
-    ok = [r for r in table.ok_rows() if r.get("ato_spans") is not None]
-    if not ok:
-        return None
-    from harness.metrics.ato import ARRIVAL_BOUND_S, STOP_BOUND_M
-    arrival = [(x, r["run_id"]) for r in ok for x in _split_list(r.get("ato_arrival_error_s.list"))]
-    stop = [(x, r["run_id"]) for r in ok for x in _split_list(r.get("ato_stop_error_m.list"))]
-    spans = sum(r["ato_spans"] for r in ok)
-    nan = float("nan")
-
-    def worst(pairs):
-        finite = [(abs(x), i) for x, i in pairs if not math.isnan(x)]
-        if len(finite) < len(pairs):           # a car that never came to rest: its run is the worst
-            return nan, next(i for x, i in pairs if math.isnan(x))
-        return max(finite) if finite else (nan, None)
-    return {"runs": len(ok), "spans": spans,
-            "arrival_within": sum(abs(x) <= ARRIVAL_BOUND_S for x, _ in arrival),
-            "stop_within": sum(abs(x) <= STOP_BOUND_M for x, _ in stop),
-            "on_target": sum(r.get("ato_on_target") or 0 for r in ok),
-            "arrived": sum(r.get("ato_arrived") or 0 for r in ok),
-            "worst_arrival": worst(arrival), "worst_stop": worst(stop),
-            "min_margin": min(finite_values(r.get("ato_margin_mps") for r in ok), default=nan),
-            "interventions": sum(r.get("ato_interventions") or 0 for r in ok),
-            "energy": finite_values(r.get("ato_energy_kwh") for r in ok)}
+    return SweepStats.of(table.rows).ato_outcome()
 
 
 def format_ato_outcome(a: dict) -> list[str]:

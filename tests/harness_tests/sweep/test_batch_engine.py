@@ -129,6 +129,30 @@ def test_resume_adds_exactly_the_missing_rows(client, native_railcar, tmp_path):
         run_sweep(sweep, out, native_railcar, client=client, resume=True, engine="fmu")
 
 
+def test_resume_refuses_rows_of_another_build_of_the_c_core(client, tmp_path):
+    """sweep.json records the batch engine's core (core_identity: a hash of the compiled extensions);
+    a --resume on another build is refused, naming both, as the FMU path's GUID check does."""
+    import json
+    from harness.sweep.execute import core_identity
+    sweep = load_sweep(cut_down(tmp_path, "lhs_mass_A0_noise", *KINDS["lhs_mass_A0_noise"]))
+    out = tmp_path / "out"
+    run_sweep(sweep, out, client=client, plots=False, progress=False, limit=1, log=lambda *_: None)
+    meta = json.loads((out / "sweep.json").read_text(encoding="utf-8"))
+    mine = core_identity()
+    assert meta["core"] == mine and re.fullmatch(r"c [0-9a-f]{16}", mine)
+    meta["core"] = "c 0123456789abcdef"                              # as if the core was rebuilt since
+    (out / "sweep.json").write_text(json.dumps(meta), encoding="utf-8")
+    with pytest.raises(SweepError, match=re.escape(f"(core 'c 0123456789abcdef', now '{mine}')")):
+        run_sweep(sweep, out, client=client, plots=False, progress=False, resume=True, log=lambda *_: None)
+    assert len((out / "results.csv").read_text().splitlines()) == 2          # the row kept, none added
+
+
+def test_the_core_identity_is_the_python_reference_without_the_c_core(monkeypatch):
+    from harness.sweep.execute import core_identity
+    monkeypatch.setenv("RAILCAR_PURE_PYTHON", "1")
+    assert core_identity() == "python reference"
+
+
 def test_the_engine_choice_and_the_chunk_size(tmp_path):
     sweep = load_sweep(cut_down(tmp_path, "grid_mass_noise", *KINDS["grid_mass_noise"]))
     assert choose_engine("auto", None, sweep)[0] == "batch"

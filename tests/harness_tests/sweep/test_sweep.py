@@ -322,7 +322,13 @@ def test_scheduler_gives_the_embedded_rows_bit_for_bit(embedded, dask_cluster, s
     p = run_cli(sweep_file, tmp_path, dist, "--scheduler", address, "--no-plots")
     assert p.returncode == 1, p.stdout + p.stderr
     assert f"on {address}" in p.stdout and "on 2 workers" in p.stdout
-    assert read_results(tmp_path).comparable() == embedded[1].comparable()
+    assert "engine: batch (--engine auto: the C core covers every run)" in p.stdout    # the external
+    table = read_results(tmp_path)                                   # scheduler's workers ran the batch engine
+    assert {r["engine"] for r in table.rows if r["status"] == "ok"} == {"c"}
+    assert table.comparable() == embedded[1].comparable()
+    def summary(out):            # but the line of this call's time
+        return [x for x in (out / "summary.md").read_text().splitlines() if not x.startswith("  rows ")]
+    assert summary(tmp_path) == summary(embedded[0])
 
 
 def test_a_worker_killed_mid_sweep_loses_no_run_and_counts_none_twice(embedded, dask_cluster, sweep_file, dist,
