@@ -333,6 +333,22 @@ rc_demands rc_script_driver_demands(rc_script_driver *d, double t, double speed,
     }
 }
 
+rc_status rc_script_advance(rc_chain *chain, long k, double t, double h, const double *u,
+                            double *next_outputs, rc_error *err)
+{
+    rc_status st = rc_chain_step(chain, t, h, u[0], u[1], u[2], u[3], err);
+    if (st != RC_OK) {
+        if (err) {
+            char why[RC_MSG_SIZE];
+            memcpy(why, err->msg, sizeof why);
+            snprintf(err->msg, sizeof err->msg, "step %ld: %.200s", k, why);
+        }
+        return st;
+    }
+    rc_chain_outputs(chain, next_outputs);
+    return RC_OK;
+}
+
 rc_status rc_script_run(const rc_script *s, rc_chain *chain, double *outputs, double *inputs,
                         long *rows, int *finished, rc_error *err)
 {
@@ -359,17 +375,10 @@ rc_status rc_script_run(const rc_script *s, rc_chain *chain, double *outputs, do
         u[1] = d.brake;
         u[2] = rc_script_wind_at(s, t);
         u[3] = payload;
-        rc_status st = rc_chain_step(chain, t, h, u[0], u[1], u[2], u[3], err);
-        if (st != RC_OK) {
-            if (err) {
-                char why[RC_MSG_SIZE];
-                memcpy(why, err->msg, sizeof why);
-                snprintf(err->msg, sizeof err->msg, "step %ld: %.200s", k, why);
-            }
-            return st;
-        }
         out += RC_CHAIN_OUTPUTS;
-        rc_chain_outputs(chain, out);
+        rc_status st = rc_script_advance(chain, k, t, h, u, out, err);
+        if (st != RC_OK)
+            return st;
         (*rows)++;
     }
     return RC_OK;

@@ -98,6 +98,12 @@ rc_demands rc_script_driver_demands(rc_script_driver *d, double t, double speed,
  * step's RC_SCRIPT_INPUTS (room for s->steps rows); *rows: output rows written (steps + 1);
  * *finished: the run ended early, the driver done and stop_after_last_phase. RC_OK, or the
  * chain's status with err naming the step (the rows before it written, *rows counting them). */
+/* One step k of a whole run (the batch engine's scripted and span drivers): the chain advanced
+ * over [t, t + h] with the inputs u (traction, brake, wind, payload) held, its outputs written
+ * to next_outputs; a refused step's message prefixed "step k: ". */
+rc_status rc_script_advance(rc_chain *chain, long k, double t, double h, const double *u,
+                            double *next_outputs, rc_error *err);
+
 rc_status rc_script_run(const rc_script *s, rc_chain *chain, double *outputs, double *inputs,
                         long *rows, int *finished, rc_error *err);
 

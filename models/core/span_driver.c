@@ -2,6 +2,7 @@
  * harness/run/driver.py's drive() in C, each expression in the Python's operand order. */
 #include "rc_fp_contract.h"
 #include "span_driver.h"
+#include "scenario_driver.h"
 #include "ato_closed_loop.h"
 #include "run_metrics.h"
 
@@ -252,17 +253,10 @@ static rc_status run_line(const rc_span_script *s, ato_line *line, long *seen, r
         u[1] = st.command.brake;
         u[2] = rc_wind_schedule_at(s->wind, s->n_wind, t);
         u[3] = payload;
-        rc_status rc = rc_chain_step(chain, t, h, u[0], u[1], u[2], u[3], err);
-        if (rc != RC_OK) {
-            if (err) {
-                char why[RC_MSG_SIZE];
-                memcpy(why, err->msg, sizeof why);
-                snprintf(err->msg, sizeof err->msg, "step %ld: %.200s", k, why);
-            }
-            return rc;
-        }
         y += RC_CHAIN_OUTPUTS;
-        rc_chain_outputs(chain, y);
+        rc_status rc = rc_script_advance(chain, k, t, h, u, y, err);
+        if (rc != RC_OK)
+            return rc;
         out->rows++;
     }
     return RC_OK;
