@@ -4,7 +4,7 @@
     python -m harness span-info SCENARIO.toml    (per span: the fastest feasible run, the schedule's margin, its energy)
     python -m harness replay LOG.csv [--param NAME=VALUE ...] [--out DIR]    (LOG.params beside it: the run's parameters)
     python -m harness regress [--update] [--variants] [NAME ...]    (a NAME may be a pattern: 'ato_*')
-    python -m harness report [--out DIR] [NAME ...]
+    python -m harness report [--out DIR] [--engine fmu|batch|auto] [NAME ...]
     python -m harness filters [NAME ...]
     python -m harness sweep SWEEP.toml [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N] [--resume | --overwrite] [--engine auto|batch|fmu] [--chunk N]
     python -m harness plan SCENARIO.toml --out PROFILE.csv
@@ -192,17 +192,62 @@ def cmd_regress(args) -> int:
     return _init_failures(results) or (EXIT_OK if ok else EXIT_RUN_FAILED)
 
 
+def _run_batch_each(scenarios):
+    """Run scenarios one by one on the C batch engine (harness.run.batch.run_batch): yields
+    (scenario, result or exception, engine). The engine is ENGINE_BATCH, or ENGINE_REFERENCE when
+    run_batch ran it on run_on_chain, the Python reference. A step the chain rejects
+    (StepRejected) is a failed run; another ValueError is a parameter the C core refuses."""
+    from harness.progress import Progress
+    from harness.reports.library_report import ENGINE_BATCH, ENGINE_REFERENCE
+    from harness.run.batch import ENGINES, run_batch
+    bar = Progress(len(scenarios), "scenarios")
+    for s in scenarios:
+        on_python = ENGINES["python"]
+        try:
+            result = run_batch([s])[0]
+        except ValueError as e:
+            bar.advance(s.name, failed=True)
+            yield s, e, ENGINE_BATCH
+            continue
+        bar.advance(s.name)
+        yield s, result, (ENGINE_REFERENCE if ENGINES["python"] > on_python else ENGINE_BATCH)
+
+
 def cmd_report(args) -> int:
-    from harness.reports.library_report import format_table, library_rows, write_table
+    """``--engine`` (harness.reports.library_report.choose_engines) picks what runs each scenario:
+    the FMU (``--fmu`` picks which, _run_all) or the C batch engine (_run_batch_each); the rows
+    are printed and written in the library's order, whichever ran them."""
+    from harness.reports.library_report import (ENGINE_FMU, choose_engines, engine_choice_lines,
+                                                engine_usage_error, format_table, library_rows, write_table)
+    from models.chain import StepRejected
+    problem = engine_usage_error(args.engine, args.fmu)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return EXIT_USAGE
     scenarios = _library(args.names)
     out = Path(args.out) if args.out else Path("out") / "library"
     check_out_dir(out)
-    results = list(_run_all(scenarios, args.dist, args.rebuild, args.fmu))
-    rows = library_rows(results)
+    choices = choose_engines(scenarios, args.engine, args.fmu)
+    for line in engine_choice_lines(choices):
+        print(line, flush=True)
+    on_fmu = [s for s in scenarios if choices[s.name].engine == ENGINE_FMU]
+    done, engines, refused = {}, {}, []
+    for s, result, engine in _run_batch_each([s for s in scenarios if choices[s.name].engine != ENGINE_FMU]):
+        if isinstance(result, ValueError) and not isinstance(result, StepRejected):
+            refused.append((s, result))
+        done[s.name], engines[s.name] = result, engine
+    if on_fmu:
+        for s, result in _run_all(on_fmu, args.dist, args.rebuild, args.fmu or "auto"):
+            done[s.name], engines[s.name] = result, ENGINE_FMU
+    results = [(s, done[s.name]) for s in scenarios]
+    rows = library_rows(results, engines)
     print(format_table(rows))
     path = write_table(rows, out)
     print(f"table: {path}")
-    return _init_failures(results) or (EXIT_OK if all(r.ok for r in rows) else EXIT_RUN_FAILED)
+    for s, e in refused:
+        print(f"error: {s.path or s.name}: parameters: the C batch engine refused them: {e}", file=sys.stderr)
+    return ((EXIT_USAGE if refused else None) or _init_failures(results)
+            or (EXIT_OK if all(r.ok for r in rows) else EXIT_RUN_FAILED))
 
 
 def cmd_replay(args) -> int:
@@ -348,8 +393,15 @@ def main(argv=None) -> int:
     p = sub.add_parser("report", help="run the library scenarios and print and write one table of metrics")
     p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     p.add_argument("--out", help="folder of the table (default: out/library)")
+    from harness.reports.library_report import DEFAULT_ENGINE, ENGINES as REPORT_ENGINES
+    p.add_argument("--engine", choices=REPORT_ENGINES, default=DEFAULT_ENGINE,
+                   help="fmu (default): every scenario through the FMU (--fmu picks which), since the report "
+                        "validates the FMUs users load; batch: whole runs in the C core, no FMU (the same table, "
+                        "bit-identical runs, in seconds), an error for a scenario the C core does not cover; "
+                        "auto: batch where the C core covers the scenario, else the FMU (any --fmu: the FMU "
+                        "for all). --engine batch with --fmu is refused: the batch engine runs no FMU")
     _fmu_options(p)
-    p.set_defaults(func=cmd_report)
+    p.set_defaults(func=cmd_report, fmu=None)     # None: no --fmu given (--engine auto may take the batch engine)
     p = sub.add_parser("filters", help="each filter.kind on the library scenarios: speed/distance RMSE and NEES")
     p.add_argument("names", nargs="*", help="library scenario names or patterns such as 'ato_*' (default: all)")
     _fmu_options(p)

@@ -5,6 +5,12 @@ truth at every stop, and the filter's speed and distance RMSE at most 0.6x the r
 A span scenario (the ATO drives, harness/run/span_scenario.py) also gets a table of its own, and the
 ATO's targets (Meleshin 2011, Sidorenko 1997), at any noise: on every span arrival within +-2.5 s of the
 schedule, the stop within +-0.3 m of the mark, never over the speed limit, no safety intervention.
+
+Which engine runs each scenario (``python -m harness report --engine``, ``choose_engines``): ``fmu``
+(the default: the report validates the FMUs users load, so it runs them), ``batch`` (whole runs in the
+C core, harness.run.batch: no FMU, bit-identical results, the same table in seconds) or ``auto``
+(batch where the C core covers the scenario, else the FMU). Each row records its engine
+(``Row.engine``), and library.md names the engine of every scenario (``engine_line``).
 """
 from __future__ import annotations
 
@@ -16,10 +22,20 @@ import numpy as np
 
 from harness.metrics.ato import ARRIVAL_BOUND_S, STOP_BOUND_M   # the ATO's targets: one copy
 from harness.metrics.estimation import RunSummary
+from harness.textio import InputError
 
 MASS_BOUND_PCT = 1.0
 RMSE_RATIO_BOUND = 0.6
 NOISE_LIMIT = 0.05     # [m/s] the targets apply up to this speed noise
+
+ENGINE_FMU, ENGINE_BATCH, ENGINE_REFERENCE = "fmu", "batch", "reference"
+"""A row's engine: an FMU (Row.fmu says which), the C batch engine (harness.run.batch.run_batch in
+C), or run_on_chain, the Python reference run_batch falls back to (a span run whose log outgrew
+the C side's)."""
+ENGINES = ("auto", ENGINE_BATCH, ENGINE_FMU)
+"""The values of ``--engine``."""
+DEFAULT_ENGINE = ENGINE_FMU
+"""The report validates what users load, the FMUs; the batch engine is asked for (or auto)."""
 
 
 @dataclass
@@ -28,8 +44,17 @@ class Row:
     speed_std: float            # [m/s] the largest speed noise sd (speed_std + rel x top speed)
     summary: RunSummary | None
     error: str = ""
-    fmu: str = ""               # which FMU ran: "native" or "python" (harness.run.fmus)
+    fmu: str = ""               # which FMU ran: "native" or "python" (harness.run.fmus); "" none
     ato: list | None = None     # a span scenario's harness.metrics.ato.SpanMetrics, else None
+    engine: str = ENGINE_FMU    # what ran it: ENGINE_FMU, ENGINE_BATCH or ENGINE_REFERENCE
+
+    @property
+    def engine_label(self) -> str:
+        """What ran the scenario, for people: 'native FMU', 'C batch engine', ..."""
+        if self.engine == ENGINE_FMU:
+            return f"{self.fmu or '?'} FMU"
+        return {ENGINE_BATCH: "C batch engine", ENGINE_REFERENCE: "Python reference (run_on_chain)"}.get(
+            self.engine, self.engine or "?")
 
     @property
     def targets_apply(self) -> bool:
@@ -64,22 +89,86 @@ class Row:
                 and all(self.ato_checks.values()))
 
 
-def library_rows(results) -> list[Row]:
+def library_rows(results, engines: dict[str, str] | None = None) -> list[Row]:
     """(scenario, RunResult or exception) pairs -> rows, each run's metrics computed once
     (harness.metrics.run.run_metrics; a span scenario's ATO table from the calls the run
-    recorded)."""
+    recorded). ``engines``: what ran each scenario, by name (default ENGINE_FMU)."""
     from harness.metrics.run import run_metrics
+    engines = engines or {}
     rows = []
     for s, r in results:
+        engine = engines.get(s.name, ENGINE_FMU)
         std = s.parameter("sensor.speed_std")     # [m/s]; a relative part counts at top speed
         if not isinstance(r, Exception) and s.parameter("sensor.speed_std_rel"):
             std += s.parameter("sensor.speed_std_rel") * float(np.max(np.abs(r["car.speed"])))
         if isinstance(r, Exception):
-            rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", "")))
+            rows.append(Row(s.name, std, None, str(r).splitlines()[0], getattr(r, "fmu", ""), engine=engine))
             continue
         m = run_metrics(r)
-        rows.append(Row(s.name, std, m.summary, fmu=r.fmu, ato=m.ato))
+        rows.append(Row(s.name, std, m.summary, fmu=r.fmu, ato=m.ato, engine=engine))
     return rows
+
+
+# ------------------------------------------------------------------------------ which engine runs
+
+@dataclass(frozen=True)
+class EngineChoice:
+    engine: str          # ENGINE_BATCH or ENGINE_FMU: what will run the scenario
+    why: str             # printed and recorded: the --engine asked and the reason
+
+
+def engine_usage_error(engine: str, fmu_asked: str | None) -> str | None:
+    """What is wrong with ``--engine`` ``engine`` given with ``--fmu`` ``fmu_asked`` (None: no
+    --fmu), None if nothing: --fmu picks an FMU, and the batch engine runs none."""
+    if engine not in ENGINES:
+        return f"--engine {engine}: expected one of {', '.join(ENGINES)}"
+    if engine == ENGINE_BATCH and fmu_asked is not None:
+        return (f"--fmu {fmu_asked} picks the FMU of --engine fmu; --engine batch runs no FMU (whole runs in "
+                f"the C core): give one of the two")
+    return None
+
+
+def choose_engines(scenarios, asked: str, fmu_asked: str | None = None) -> dict[str, EngineChoice]:
+    """The engine of each scenario, by name, for ``--engine`` ``asked`` and ``--fmu`` ``fmu_asked``
+    (None: not given). ``fmu``: every scenario on the FMU. ``batch``: every scenario in the C
+    batch engine; InputError naming each scenario it does not cover
+    (harness.run.batch.not_covered) and why. ``auto``: the batch engine for each scenario it
+    covers, the FMU for the others; with --fmu given, the FMU for all (as ``harness sweep``
+    --engine auto: a --fmu asks for the FMU)."""
+    problem = engine_usage_error(asked, fmu_asked)
+    if problem:
+        raise InputError(problem)
+    if asked == ENGINE_FMU:
+        return {s.name: EngineChoice(ENGINE_FMU, "--engine fmu") for s in scenarios}
+    if asked == "auto" and fmu_asked is not None:
+        return {s.name: EngineChoice(ENGINE_FMU, f"--engine auto: --fmu {fmu_asked} asks for an FMU")
+                for s in scenarios}
+    from harness.run.batch import not_covered
+    gaps = {s.name: why for s in scenarios if (why := not_covered(s)) is not None}
+    if asked == ENGINE_BATCH:
+        if gaps:
+            where = {s.name: str(s.path or s.name) for s in scenarios}
+            raise InputError("--engine batch: the C batch engine does not cover "
+                             + "; ".join(f"{where[name]}: {why}" for name, why in gaps.items())
+                             + " (--engine auto runs such a scenario on the FMU, the rest in the C core)")
+        return {s.name: EngineChoice(ENGINE_BATCH, "--engine batch") for s in scenarios}
+    return {s.name: (EngineChoice(ENGINE_FMU, f"--engine auto: the C batch engine does not cover it: {gaps[s.name]}")
+                     if s.name in gaps else EngineChoice(ENGINE_BATCH, "--engine auto: the C core covers it"))
+            for s in scenarios}
+
+
+def engine_choice_lines(choices: dict[str, EngineChoice]) -> list[str]:
+    """What the report prints before it runs: one line per engine and reason,
+    'engine: batch for all 19 scenarios (--engine batch)' or 'engine: fmu for a, b (why)'."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for name, c in choices.items():
+        groups.setdefault((c.engine, c.why), []).append(name)
+    lines = []
+    for (engine, why), names in groups.items():
+        which = (f"all {len(names)} scenarios" if len(names) == len(choices) and len(names) > 1
+                 else ", ".join(names))
+        lines.append(f"engine: {engine} for {which} ({why})")
+    return lines
 
 
 def _fmt(x, spec):
@@ -151,12 +240,31 @@ def fmu_line(rows: list[Row]) -> str:
     return "; ".join(f"{k}: {', '.join(names)}" for k, names in kinds.items())
 
 
+def engine_line(rows: list[Row]) -> str:
+    """Which engine ran which scenarios: 'C batch engine for all 19 scenarios' or
+    'C batch engine: a, b; native FMU: c' (Row.engine_label)."""
+    kinds: dict[str, list[str]] = {}
+    for r in rows:
+        kinds.setdefault(r.engine_label, []).append(r.name)
+    if len(kinds) == 1 and len(rows) > 1:
+        return f"{next(iter(kinds))} for all {len(rows)} scenarios"
+    return "; ".join(f"{k}: {', '.join(names)}" for k, names in kinds.items())
+
+
+def ran_on_line(rows: list[Row]) -> str:
+    """library.md's line naming what ran each scenario: the FMU line when only FMUs ran (fmu_line),
+    else the engine line (engine_line)."""
+    if all(r.engine == ENGINE_FMU for r in rows):
+        return f"FMU (python -m harness report --fmu): {fmu_line(rows)}."
+    return f"Engine (python -m harness report --engine): {engine_line(rows)}."
+
+
 def write_table(rows: list[Row], out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Scenario library: truth vs estimates", "",
              f"Targets for speed noise <= {NOISE_LIMIT} m/s: |mass error| <= {MASS_BOUND_PCT} % at every stop, "
              f"filter RMSE <= {RMSE_RATIO_BOUND} x sensor RMSE (speed and distance).", "",
-             f"FMU (python -m harness report --fmu): {fmu_line(rows)}.", "",
+             ran_on_line(rows), "",
              "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     lines += ["| " + " | ".join(b) + " |" for b in table_rows(rows)]
     ato = ato_table_rows(rows)
