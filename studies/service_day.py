@@ -2,7 +2,7 @@
 whole day, fed a clean and a faulty sensor stream? (a study, not a test)
 
     .venv/bin/python studies/service_day.py [--hours 24] [--seed 1] [--wind-max 5]
-                                            [--param NAME=VALUE ...]
+                                            [--param NAME=VALUE ...] [--engine auto|c|python]
 
 The day (seeded, reproducible; numbers in DayConfig and FaultConfig):
 - one 30 t car (the FMU's defaults otherwise) on a gently graded line (a GradeProfile of
@@ -634,12 +634,18 @@ def _as_int(x):
     return int(x) if isinstance(x, float) and math.isfinite(x) and x == int(x) else x
 
 
+DRAWS_CHUNK_STEPS = 4096
+"""Steps per C call: the driver's draws for them (7 a step, 229 kB) are drawn ahead; a day's
+hour in one call would hold 2 MB of them, which the RSS readings would see."""
+
+
 def _loop_c(*, h, n_steps, winds, rss_every_s, progress, sensors, driver, scores, payload, lo, hi,
             rng_driver, day, grade, schedule, batch_size, chain_values) -> dict:
     """run_day's loop in C (models/core/service_day.c, via models.batch.ServiceDay), one block
-    per RSS reading. The driver's draws: RNG doubles drawn ahead from rng_driver, enough for the
-    block (SERVICE_DAY_DRAWS_PER_STEP a step), the unused rest carried to the next block, so the
-    C twin consumes the Generator's stream in the Python driver's order."""
+    per RSS reading (in calls of DRAWS_CHUNK_STEPS). The driver's draws: rng_driver.random()
+    doubles drawn ahead, enough for the call (SERVICE_DAY_DRAWS_PER_STEP a step), the unused rest
+    carried to the next call, so the C twin consumes the Generator's stream in the Python
+    driver's order (uniform(a, b) is a + (b - a) * random(), as numpy computes it)."""
     values = (n_steps, h, *day.run_time_s, *day.dwell_s, *day.target_kmh, day.traction_max_s,
               day.short_cruise_share, *day.short_cruise_s, day.long_cruise_share, *day.long_cruise_min,
               *day.decel_mps2, day.payload_change_t, lo, hi, driver.f_max, driver.b_max, CRUISE_GAIN,
@@ -653,12 +659,14 @@ def _loop_c(*, h, n_steps, winds, rss_every_s, progress, sensors, driver, scores
     t_wall = time.perf_counter()
     while k < n_steps:
         end = _block_end(k, n_steps, h, next_rss)
-        need = batch.SERVICE_DAY_DRAWS_PER_STEP * (end + 1 - k)
-        if len(pending) < need:
-            pending = np.concatenate((pending, rng_driver.random(need - len(pending))))
-        used = sim.run(end + 1 - k, pending)
-        pending = pending[used:]
-        k = end + 1
+        while k <= end:                              # the block in chunks: a small draws array
+            steps = min(end + 1 - k, DRAWS_CHUNK_STEPS)
+            need = batch.SERVICE_DAY_DRAWS_PER_STEP * steps
+            if len(pending) < need:
+                pending = np.concatenate((pending, rng_driver.random(need - len(pending))))
+            used = sim.run(steps, pending)
+            pending = pending[used:]
+            k += steps
         t1 = end * h + h
         rss.append((t1, rss_kb()))
         next_rss += rss_every_s
@@ -778,6 +786,9 @@ def main(argv=None) -> int:
                     help="an FMU parameter on top of SERVICE_PARAMETERS (repeatable; "
                          "est.run_forgetting=0, est.A0_drift_std=0 and est.A1_drift_std=0 give "
                          "the FMU's own defaults)")
+    ap.add_argument("--engine", choices=ENGINES, default="auto",
+                    help="the loop: c (models/core/service_day.c), python (the reference) or auto "
+                         "(c when compiled; default)")
     args = ap.parse_args(argv)
     overrides = None
     if args.param:
@@ -795,7 +806,8 @@ def main(argv=None) -> int:
               file=sys.stderr, flush=True)
 
     day = DayConfig(wind_max_mps=args.wind_max)
-    s = run_day(args.hours, args.seed, day=day, overrides=overrides, progress=progress)
+    s = run_day(args.hours, args.seed, day=day, overrides=overrides, progress=progress,
+                engine=args.engine)
     print(format_summary(s))
     return 0
 
