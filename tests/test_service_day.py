@@ -358,3 +358,13 @@ def test_one_ulp_in_an_accumulation_is_caught(name, core_objects, python_quarter
     mutant = day_on(build_twin(core_objects, tmp_path, MUTATIONS[name]), monkeypatch, MUTATION_HOURS)
     with pytest.raises(AssertionError, match=MUTATIONS[name][2]):   # the figure it feeds differs
         assert_same_day(python_quarter_hour, mutant)
+
+
+def test_pure_python_switch_runs_the_reference(monkeypatch):
+    """RAILCAR_PURE_PYTHON (as a machine without the compiled core): auto runs the Python loop,
+    "c" says why it cannot."""
+    monkeypatch.setenv("RAILCAR_PURE_PYTHON", "1")
+    assert "RAILCAR_PURE_PYTHON" in sd.c_engine_why_not()
+    with pytest.raises(RuntimeError, match="engine='c'.*RAILCAR_PURE_PYTHON"):
+        sd.run_day(0.01, SEED, engine="c")
+    assert sd.run_day(0.01, SEED)["steps"] == 360
