@@ -32,6 +32,13 @@ Two estimators are scored on the same run:
   its last value, 4 per hour), and the forces the plant applied over [t, t+h] (car.traction_force,
   car.brake_force after the step, harness.run.replay's convention). A step the estimator refuses
   (StepRejected) is counted and redone with the last accepted measurement held.
+
+The loop (``run_day(engine=...)``, ``--engine``): "python" steps the two chains from Python, one
+step at a time (the reference); "c" runs the same loop in C (models/core/service_day.c, its
+twin: the driver, the faults, both chains, the scoring), one block per RSS reading, the driver's
+draws handed over from the same numpy Generator: the same summary (==), ~5x faster for the whole
+process (docs/service_day.md); "auto" (the default) is "c" when the C core is compiled.
+
 Note that EstimatorChain's filter.* after a step is the one-step prediction for t + h from the
 measurement at t, RailCarChain's the posterior with the measurement at t + h: the faulty
 filter's speed RMSE is a prediction's, a little larger even without faults.
@@ -72,7 +79,8 @@ from harness.run.phases import CRUISE_GAIN  # noqa: E402
 from harness.run.scenario import railcar_values  # noqa: E402
 from models import batch, compiled  # noqa: E402
 from models.chain import StepRejected, TrackSensorConfig  # noqa: E402
-from models.compiled import ESTIMATOR_OUTPUT_NAMES, OUTPUT_NAMES, open_chain, open_estimator_chain  # noqa: E402
+from models.compiled import (ESTIMATOR_OUTPUT_NAMES, OUTPUT_NAMES, open_chain,  # noqa: E402
+                             open_estimator_chain)
 from models.plant.track import GradeProfile  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
 
@@ -432,8 +440,8 @@ class _Score:
 
 ENGINES = ("auto", "c", "python")
 """run_day's engines: "python" the reference loop below (runs without a compiler), "c" its twin in
-the C core (models/core/service_day.c: no Python per step, ~10x faster, the summary equal key for
-key), "auto" C when it is compiled and can run the day, else Python."""
+the C core (models/core/service_day.c: no Python per step, the loop ~5x faster, the summary equal
+key for key), "auto" C when it is compiled and can run the day, else Python."""
 
 
 def c_engine_why_not(speed_trace=None, chains=()) -> str | None:
@@ -466,7 +474,7 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
     receives car.speed [m/s] after every step (for checks on short days; it grows): the Python
     loop only ("auto" then runs Python, "c" refuses it).
 
-    ``engine`` (ENGINES): "python" steps the two C chains from this loop; "c" runs the same loop
+    ``engine`` (ENGINES): "python" steps the two chains from this loop; "c" runs the same loop
     in C (models/core/service_day.c) between RSS readings, the driver's draws taken from the same
     numpy Generator ahead of it: the summary is equal (==) but for wall_s, steps_per_s and the RSS
     readings (tests/test_service_day.py); "auto" (the default) is "c" when c_engine_why_not()
@@ -486,9 +494,10 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
     plant_chain = open_chain(cfg, grade)            # the C core (same numbers as the Python chain)
     settings = estimator_settings(v)
     est_chain = open_estimator_chain(*settings, grade)
-    why_not = c_engine_why_not(speed_trace, (plant_chain, est_chain)) if engine != "python" else ""
+    why_not = c_engine_why_not(speed_trace, (plant_chain, est_chain))
     if engine == "c" and why_not:
         raise RuntimeError(f"run_day(engine='c'): {why_not}")
+    in_c = engine != "python" and why_not is None
     sensors = FaultySensors(schedule)
     driver = ServiceDriver(day, rng_driver, v["car.traction_force_max"], v["car.brake_force_max"])
     batch_size = int(v["est.batch_size"])
@@ -498,7 +507,7 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
     loop = dict(h=h, n_steps=n_steps, winds=winds, rss_every_s=rss_every_s, progress=progress,
                 sensors=sensors, driver=driver, scores=scores, payload=payload, lo=lo, hi=hi,
                 rng_driver=rng_driver)
-    if why_not is None:
+    if in_c:
         ran = _loop_c(**loop, day=day, grade=grade, schedule=schedule, batch_size=batch_size,
                       chain_values=_chain_values(plant_chain, *settings))
     else:

@@ -194,7 +194,8 @@ def test_running_out_of_draws_is_refused_by_name(monkeypatch):
 
     monkeypatch.setattr(sd.batch, "ServiceDay", Recording)
     monkeypatch.setattr(sd.batch, "SERVICE_DAY_DRAWS_PER_STEP", 0)   # the study under-supplies
-    with pytest.raises(ValueError, match=r"service day: driver draws: 0 left before step 0, a step may take 7"):
+    with pytest.raises(ValueError,
+                       match=r"service day: driver draws: 0 left before step 0, a step may take 7"):
         sd.run_day(0.05, SEED, engine="c")
     day = made[0]
     assert day.export().steps_done == 0
@@ -273,7 +274,7 @@ def build_twin(core_objects, directory: Path, mutation: tuple[str, ...] | None) 
     text = (CORE / "service_day.c").read_text()
     if mutation:
         target, replacement = mutation[:2]
-        assert text.count(target) == 1, f"service_day.c: the mutation's target occurs {text.count(target)} times"
+        assert text.count(target) == 1, f"service_day.c: the target occurs {text.count(target)} times"
         text = text.replace(target, replacement)
     src = directory / "service_day.c"
     src.write_text(text)
@@ -321,8 +322,9 @@ def day_on(lib_path: Path, monkeypatch, hours: float) -> dict:
     """run_day(engine="c") with the twin from lib_path in place of models._batch's."""
     lib = ctypes.CDLL(str(lib_path))
     lib.rc_service_day_size.restype = ctypes.c_size_t
-    lib.rc_service_day_init.argtypes = [ctypes.c_void_p] + [ctypes.c_void_p, ctypes.c_long] * 3 + [
-        ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long] + [ctypes.c_void_p, ctypes.c_long] * 2 + [ctypes.c_void_p]
+    array = [ctypes.c_void_p, ctypes.c_long]                          # a double * and its length
+    lib.rc_service_day_init.argtypes = [ctypes.c_void_p, *array * 3, ctypes.c_void_p, *array,
+                                        *array * 2, ctypes.c_void_p]
     lib.rc_service_day_run.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_long,
                                        ctypes.c_void_p, ctypes.c_void_p]
     lib.rc_service_day_export.restype = ctypes.c_long

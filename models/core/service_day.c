@@ -116,7 +116,8 @@ static rc_status check_rows(const double *wind, long n_wind, const double *fault
                           "zero, hold)", i);
         if (!isfinite(f[2]))
             return refuse(err, RC_BAD_CONFIG, "faults row %ld: value must be finite", i);
-        if (f[1] >= RC_SD_FAULT_ZERO && !(f[2] >= 1.0 && f[2] == floor(f[2]) && f[2] <= (double)n_steps + 1.0))
+        int dropout = f[1] >= RC_SD_FAULT_ZERO;
+        if (dropout && !(f[2] >= 1.0 && f[2] == floor(f[2]) && f[2] <= (double)n_steps + 1.0))
             return refuse(err, RC_BAD_CONFIG, "faults row %ld: a dropout's value must be its "
                           "samples, a whole number >= 1", i);
     }
