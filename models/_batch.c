@@ -611,6 +611,8 @@ done:
     return result;
 }
 
+static PyObject *batch_service_day(PyObject *module, PyObject *args);   /* at the end */
+
 static PyMethodDef methods[] = {
     {"run", batch_run, METH_VARARGS,
      "run(runs, outputs, inputs, error) -> [(rows, finished), ...]: whole scripted runs; each run "
@@ -634,6 +636,9 @@ static PyMethodDef methods[] = {
     {"coast_times", batch_coast_times, METH_VARARGS,
      "coast_times(vehicle, grade_distances, grades, wind, h, t_max, coasts, out): "
      "harness.metrics.estimation.coast_time of each coast row (v0, x0, x1, A0, A1, A2, mass, t0)"},
+    {"service_day", batch_service_day, METH_VARARGS,
+     "service_day(day, plant, est, grade_distances, grade_values, wind, faults, error) -> "
+     "ServiceDay: studies/service_day.py's day in C (models/core/service_day.h), run in blocks"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -663,4 +668,144 @@ PyMODINIT_FUNC PyInit__batch(void)
         return NULL;
     }
     return m;
+}
+
+
+/* ------------------------------------------------------------------ the service day (issue 31)
+ * studies/service_day.py's run_day loop in C (models/core/service_day.h): service_day(...) builds
+ * a ServiceDay (its flat float64 arrays checked, copied), whose run(steps, draws) runs a block of
+ * steps with the GIL released and whose export() gives the figures so far (a float64 bytearray
+ * in service_day.h's export layout). models/batch.py's ServiceDay is its Python face. */
+#include "core/service_day.h"
+
+typedef struct {
+    PyObject_HEAD
+    rc_service_day *day;         /* NULL after a failed set-up */
+    PyObject *error;             /* the class a chain's refusal raises (StepRejected) */
+    int busy;                    /* a run is under way in another thread */
+} ServiceDayObject;
+
+static void service_day_dealloc(ServiceDayObject *self)
+{
+    if (self->day) {
+        rc_service_day_free(self->day);
+        PyMem_Free(self->day);
+    }
+    Py_XDECREF(self->error);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* run(steps, draws) -> draws used: the next steps of the day; draws a float64 array of the
+ * driver's Generator.random() doubles. ValueError naming a short supply or the day's end (the
+ * steps before it done), error naming a chain's refused step. */
+static PyObject *service_day_run(ServiceDayObject *self, PyObject *args)
+{
+    long steps;
+    PyObject *draws_obj;
+    if (!PyArg_ParseTuple(args, "lO:run", &steps, &draws_obj))
+        return NULL;
+    if (self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "ServiceDay.run: already running in another thread");
+        return NULL;
+    }
+    Py_buffer draws;
+    if (double_buffer(draws_obj, &draws, 0, -1, "draws") < 0)
+        return NULL;
+    long used = 0;
+    rc_error err;
+    rc_status st;
+    self->busy = 1;
+    Py_BEGIN_ALLOW_THREADS
+    st = rc_service_day_run(self->day, steps, draws.buf, length(&draws), &used, &err);
+    Py_END_ALLOW_THREADS
+    self->busy = 0;
+    PyBuffer_Release(&draws);
+    if (st != RC_OK) {
+        PyErr_Format(st == RC_BAD_CONFIG ? PyExc_ValueError : self->error, "service day: %s",
+                     err.msg);
+        return NULL;
+    }
+    return PyLong_FromLong(used);
+}
+
+/* export() -> bytearray of float64: the figures so far (service_day.h's export layout) */
+static PyObject *service_day_export(ServiceDayObject *self, PyObject *Py_UNUSED(ignored))
+{
+    long n = rc_service_day_export(self->day, NULL, 0);
+    PyObject *out = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)n * (Py_ssize_t)sizeof(double));
+    if (out)
+        rc_service_day_export(self->day, (double *)(void *)PyByteArray_AS_STRING(out), n);
+    return out;
+}
+
+static PyMethodDef service_day_methods[] = {
+    {"run", (PyCFunction)service_day_run, METH_VARARGS,
+     "run(steps, draws) -> draws used: the next steps of the day (the GIL released)"},
+    {"export", (PyCFunction)service_day_export, METH_NOARGS,
+     "export() -> bytearray of float64: the figures so far (models/core/service_day.h)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject ServiceDayType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "models._batch.ServiceDay",
+    .tp_basicsize = sizeof(ServiceDayObject),
+    .tp_dealloc = (destructor)service_day_dealloc,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "studies/service_day.py's day in C: run(steps, draws), export()",
+    .tp_methods = service_day_methods,
+};
+
+#define SERVICE_DAY_ARRAYS 7
+
+static PyObject *batch_service_day(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    static const char *const names[SERVICE_DAY_ARRAYS] = {"day", "plant", "est", "grade_distances",
+                                                          "grade_values", "wind", "faults"};
+    PyObject *objs[SERVICE_DAY_ARRAYS], *error;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO:service_day", &objs[0], &objs[1], &objs[2], &objs[3],
+                          &objs[4], &objs[5], &objs[6], &error))
+        return NULL;
+    if (!PyExceptionClass_Check(error)) {
+        PyErr_SetString(PyExc_TypeError, "error must be an exception class");
+        return NULL;
+    }
+    if (!(ServiceDayType.tp_flags & Py_TPFLAGS_READY) && PyType_Ready(&ServiceDayType) < 0)
+        return NULL;
+    Py_buffer v[SERVICE_DAY_ARRAYS];
+    int held = 0;
+    ServiceDayObject *self = NULL;
+    for (; held < SERVICE_DAY_ARRAYS; held++)
+        if (double_buffer(objs[held], &v[held], 0, -1, names[held]) < 0)
+            goto done;
+    long n_grade = length(&v[3]), n_wind = length(&v[5]), n_faults = length(&v[6]);
+    if (length(&v[4]) != n_grade || n_wind % 2 || n_faults % 3) {
+        PyErr_SetString(PyExc_ValueError, "service_day: grade_values must have grade_distances' "
+                        "length, wind (time, speed) pairs and faults (step, kind, value) rows");
+        goto done;
+    }
+    self = PyObject_New(ServiceDayObject, &ServiceDayType);
+    if (!self)
+        goto done;
+    self->error = Py_NewRef(error);
+    self->busy = 0;
+    self->day = PyMem_Malloc(sizeof *self->day);
+    if (!self->day) {
+        PyErr_NoMemory();
+        Py_CLEAR(self);
+        goto done;
+    }
+    rc_error err;
+    if (rc_service_day_init(self->day, v[0].buf, length(&v[0]), v[1].buf, length(&v[1]), v[2].buf,
+                            length(&v[2]), v[3].buf, v[4].buf, n_grade, v[5].buf, n_wind / 2,
+                            v[6].buf, n_faults / 3, &err) != RC_OK) {
+        PyMem_Free(self->day);
+        self->day = NULL;
+        PyErr_Format(PyExc_ValueError, "service_day: %s", err.msg);
+        Py_CLEAR(self);
+    }
+done:
+    for (int k = 0; k < held; k++)
+        PyBuffer_Release(&v[k]);
+    return (PyObject *)self;
 }

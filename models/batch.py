@@ -292,3 +292,137 @@ def coast_times(vehicle: Sequence[float], grade: tuple, wind: Sequence[tuple[flo
     _batch.coast_times(_doubles(vehicle), _doubles(grade[0]), _doubles(grade[1]),
                        _doubles([x for w in wind for x in w]), float(h), float(t_max), rows, out)
     return out
+
+
+# ---------------------------------------------------------------- the service day (studies/service_day.py)
+
+SERVICE_DAY_FIELDS = ("steps", "step_s", "run_time_lo", "run_time_hi", "dwell_lo", "dwell_hi",
+                      "target_kmh_lo", "target_kmh_hi", "traction_max_s", "short_cruise_share",
+                      "short_cruise_lo", "short_cruise_hi", "long_cruise_share", "long_cruise_min_lo",
+                      "long_cruise_min_hi", "decel_lo", "decel_hi", "payload_change_t", "payload_lo",
+                      "payload_hi", "traction_force_max", "brake_force_max", "cruise_gain",
+                      "batch_size", "car_mass_t", "first_dwell_end", "first_payload")
+"""The day's numbers in models/core/service_day.h's order (RC_SD_*): [s], [km/h], [min], [m/s^2],
+[t], [N], [1/s] as in studies/service_day.DayConfig; the first dwell's end [s] and the first
+payload [t] are the Python driver's first draws."""
+FAULT_KINDS = ("speed", "position", "zero", "hold")
+"""FaultySensors' fault kinds, codes 0..3 (service_day.h RC_SD_FAULT_*)."""
+SERVICE_DAY_DRAWS_PER_STEP = 7
+"""The most driver draws one step takes (departure 5, arrival 1, boarding 1)."""
+_DAY_FIXED = 13          # service_day.h RC_SD_X_DAY
+_SCORE_FIXED = 15        # service_day.h RC_SD_S_FIXED
+
+
+@dataclass
+class ServiceDayScore:
+    """One estimator's accumulators (studies/service_day._Score's, as numbers): non-finite values
+    per output index, the first (t [s], output index), 3-sigma hits and samples, squared speed
+    errors [(m/s)^2] over all samples and per hour (moving), the order the outputs first went
+    non-finite (first_seen, where nonfinite_by_output counts), rejected last/max (None: never
+    seen), est.status value -> samples in first-seen order, stop errors [-]."""
+    nonfinite: int
+    nonfinite_by_output: list
+    first_seen: list
+    first: tuple | None
+    sigma_in: int
+    sigma_n: int
+    se_all: float
+    n_all: int
+    hour_se: list
+    hour_n: list
+    rejected_last: float | None
+    rejected_max: float | None
+    status: list
+    stop_errors: list
+
+
+@dataclass
+class ServiceDayFigures:
+    """What ServiceDay.export gives: the steps done, the driver's counts, the distance [m], the
+    moving steps, the total mass range [t], the fault counts by FAULT_KINDS, the estimator steps
+    redone with the held sample, and the clean and faulty ServiceDayScore."""
+    steps_done: int
+    stops: int
+    long_cruises: int
+    cruise_s: float
+    distance_m: float
+    moving_steps: int
+    mass_min: float
+    mass_max: float
+    faults: dict
+    rejected: int
+    clean: ServiceDayScore
+    faulty: ServiceDayScore
+
+
+def _score_of(x: np.ndarray, at: int) -> tuple[ServiceDayScore, int]:
+    n_out, hours, n_status, n_stops = (int(x[at + i]) for i in (14, 11, 13, 12))
+    p = at + _SCORE_FIXED
+    by_output = [int(c) for c in x[p:p + n_out]]
+    first_seen = [int(c) for c in x[p + n_out:p + 2 * n_out]]
+    p += 2 * n_out
+    hour_se = [float(v) for v in x[p:p + hours]]
+    hour_n = [int(v) for v in x[p + hours:p + 2 * hours]]
+    p += 2 * hours
+    status = [(float(x[p + 2 * i]), int(x[p + 2 * i + 1])) for i in range(n_status)]
+    p += 2 * n_status
+    stops = [float(v) for v in x[p:p + n_stops]]
+    p += n_stops
+    has_rej = x[at + 8] != 0.0
+    score = ServiceDayScore(
+        nonfinite=int(x[at]), nonfinite_by_output=by_output, first_seen=first_seen,
+        first=(float(x[at + 2]), int(x[at + 3])) if x[at + 1] != 0.0 else None,
+        sigma_in=int(x[at + 4]), sigma_n=int(x[at + 5]), se_all=float(x[at + 6]), n_all=int(x[at + 7]),
+        hour_se=hour_se, hour_n=hour_n, rejected_last=float(x[at + 9]) if has_rej else None,
+        rejected_max=float(x[at + 10]) if has_rej else None, status=status, stop_errors=stops)
+    return score, p
+
+
+class ServiceDay:
+    """studies/service_day.py's run_day loop in C (models/core/service_day.h), run in blocks:
+    ``run(steps, draws)`` the next steps with the driver's numpy Generator.random() doubles
+    (returns how many it took; a step may take SERVICE_DAY_DRAWS_PER_STEP, and a run refuses
+    with ValueError naming the step before one with fewer left: never past the array),
+    ``export()`` the figures so far (ServiceDayFigures).
+
+    ``day``: SERVICE_DAY_FIELDS' values; ``plant``: the C chain's flat configuration (as
+    CompiledChain hands it to the core, est.slope_window after it); ``est``: the EstimatorChain's
+    (as CompiledEstimatorChain's); ``grade``: (distances [m], grades [permille]); ``wind``:
+    [(from time [s], wind [m/s])]; ``faults``: {step: (kind in FAULT_KINDS, value)} (FaultySensors'
+    schedule); ``rejected``: the class a chain's refused step raises (StepRejected). The chains'
+    configurations are taken as validated (open_chain does). RuntimeError if models._batch is not
+    compiled; ValueError naming a bad value."""
+
+    def __init__(self, day: Sequence[float], plant: Sequence[float], est: Sequence[float],
+                 grade: tuple, wind: Sequence[tuple[float, float]], faults: Mapping[int, tuple],
+                 rejected: type[Exception] = ValueError):
+        if _batch is None:
+            raise RuntimeError("the C scenario runner (models._batch) is not compiled")
+        if len(day) != len(SERVICE_DAY_FIELDS):
+            raise ValueError(f"service day: expected {len(SERVICE_DAY_FIELDS)} day values "
+                             f"{SERVICE_DAY_FIELDS}, got {len(day)}")
+        rows = []
+        for k in sorted(faults):
+            kind, value = faults[k]
+            if kind not in FAULT_KINDS:
+                raise ValueError(f"service day: fault at step {k}: kind must be one of "
+                                 f"{', '.join(FAULT_KINDS)}, got {kind!r}")
+            rows += [float(k), float(FAULT_KINDS.index(kind)), float(value)]
+        self._day = _batch.service_day(_doubles(day), _doubles(plant), _doubles(est),
+                                       _doubles(grade[0]), _doubles(grade[1]),
+                                       _doubles([x for w in wind for x in w]), _doubles(rows), rejected)
+
+    def run(self, steps: int, draws: np.ndarray) -> int:
+        """The next ``steps`` steps; returns the draws taken from the front of ``draws``."""
+        return self._day.run(int(steps), _doubles(draws))
+
+    def export(self) -> ServiceDayFigures:
+        """The figures so far."""
+        x = np.frombuffer(self._day.export(), dtype=float)
+        clean, at = _score_of(x, _DAY_FIXED)
+        faulty, _ = _score_of(x, at)
+        return ServiceDayFigures(
+            steps_done=int(x[0]), stops=int(x[1]), long_cruises=int(x[2]), cruise_s=float(x[3]),
+            distance_m=float(x[4]), moving_steps=int(x[5]), mass_min=float(x[6]), mass_max=float(x[7]),
+            faults={kind: int(x[8 + i]) for i, kind in enumerate(FAULT_KINDS)}, rejected=int(x[12]),
+            clean=clean, faulty=faulty)

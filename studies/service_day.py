@@ -2,7 +2,7 @@
 whole day, fed a clean and a faulty sensor stream? (a study, not a test)
 
     .venv/bin/python studies/service_day.py [--hours 24] [--seed 1] [--wind-max 5]
-                                            [--param NAME=VALUE ...]
+                                            [--param NAME=VALUE ...] [--engine auto|c|python]
 
 The day (seeded, reproducible; numbers in DayConfig and FaultConfig):
 - one 30 t car (the FMU's defaults otherwise) on a gently graded line (a GradeProfile of
@@ -32,6 +32,13 @@ Two estimators are scored on the same run:
   its last value, 4 per hour), and the forces the plant applied over [t, t+h] (car.traction_force,
   car.brake_force after the step, harness.run.replay's convention). A step the estimator refuses
   (StepRejected) is counted and redone with the last accepted measurement held.
+
+The loop (``run_day(engine=...)``, ``--engine``): "python" steps the two chains from Python, one
+step at a time (the reference); "c" runs the same loop in C (models/core/service_day.c, its
+twin: the driver, the faults, both chains, the scoring), one block per RSS reading, the driver's
+draws handed over from the same numpy Generator: the same summary (==), ~5x faster for the whole
+process (docs/service_day.md); "auto" (the default) is "c" when the C core is compiled.
+
 Note that EstimatorChain's filter.* after a step is the one-step prediction for t + h from the
 measurement at t, RailCarChain's the posterior with the measurement at t + h: the faulty
 filter's speed RMSE is a prediction's, a little larger even without faults.
@@ -70,8 +77,10 @@ import numpy as np  # noqa: E402
 from fmu_src.adapter import chain_config, estimator_settings  # noqa: E402
 from harness.run.phases import CRUISE_GAIN  # noqa: E402
 from harness.run.scenario import railcar_values  # noqa: E402
-from models.chain import StepRejected  # noqa: E402
-from models.compiled import open_chain, open_estimator_chain  # noqa: E402
+from models import batch, compiled  # noqa: E402
+from models.chain import StepRejected, TrackSensorConfig  # noqa: E402
+from models.compiled import (ESTIMATOR_OUTPUT_NAMES, OUTPUT_NAMES, open_chain,  # noqa: E402
+                             open_estimator_chain)
 from models.plant.track import GradeProfile  # noqa: E402
 from models.units import kmh_to_mps  # noqa: E402
 
@@ -429,9 +438,30 @@ class _Score:
         }
 
 
+ENGINES = ("auto", "c", "python")
+"""run_day's engines: "python" the reference loop below (runs without a compiler), "c" its twin in
+the C core (models/core/service_day.c: no Python per step, the loop ~5x faster, the summary equal
+key for key), "auto" C when it is compiled and can run the day, else Python."""
+
+
+def c_engine_why_not(speed_trace=None, chains=()) -> str | None:
+    """Why the C twin cannot run this day (None: it can): models._batch not compiled, the C core
+    switched off (RAILCAR_PURE_PYTHON), a speed_trace asked for (the C twin keeps no per-step
+    record), or a chain the C core does not cover (``chains``: the opened chains)."""
+    if not batch.available() or not compiled.enabled():
+        return "the C core (models._batch, models._railcar) is not compiled or RAILCAR_PURE_PYTHON is set"
+    if speed_trace is not None:
+        return "speed_trace: the C twin keeps no per-step record (run engine='python')"
+    for chain in chains:
+        if getattr(chain, "engine", "python") != "c":
+            return f"{type(chain).__name__}: the C core does not run this estimator configuration"
+    return None
+
+
 def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
             faults: FaultConfig = FaultConfig(), overrides: dict | None = None,
-            rss_every_s: float = 3600.0, progress=None, speed_trace: list | None = None) -> dict:
+            rss_every_s: float = 3600.0, progress=None, speed_trace: list | None = None,
+            engine: str = "auto") -> dict:
     """Simulate ``hours`` [h] of service and score both estimators; returns the summary dict.
 
     ``overrides``: FMU parameters by name on top of the defaults (None: SERVICE_PARAMETERS). ``progress(t [s], summary so
@@ -441,8 +471,17 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
     fewer than 3 readings), rss_growth_from_start_kb, day (what was driven),
     rejected_steps (faulty stream steps EstimatorChain refused), estimators {clean, faulty}
     (each _Score.summary()), targets {(estimator, name): bool}. ``speed_trace``, when given,
-    receives car.speed [m/s] after every step (for checks on short days; it grows).
+    receives car.speed [m/s] after every step (for checks on short days; it grows): the Python
+    loop only ("auto" then runs Python, "c" refuses it).
+
+    ``engine`` (ENGINES): "python" steps the two chains from this loop; "c" runs the same loop
+    in C (models/core/service_day.c) between RSS readings, the driver's draws taken from the same
+    numpy Generator ahead of it: the summary is equal (==) but for wall_s, steps_per_s and the RSS
+    readings (tests/test_service_day.py); "auto" (the default) is "c" when c_engine_why_not()
+    says nothing. "c" raises RuntimeError saying why when it cannot run.
     """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     h = day.step_s
     n_steps = int(round(hours * 3600.0 / h))
     seeds = np.random.SeedSequence(int(seed)).spawn(4)
@@ -453,13 +492,52 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
     v = fmu_parameters(day, seed, overrides)
     cfg = chain_config(v)
     plant_chain = open_chain(cfg, grade)            # the C core (same numbers as the Python chain)
-    est_chain = open_estimator_chain(*estimator_settings(v), grade)
+    settings = estimator_settings(v)
+    est_chain = open_estimator_chain(*settings, grade)
+    why_not = c_engine_why_not(speed_trace, (plant_chain, est_chain))
+    if engine == "c" and why_not:
+        raise RuntimeError(f"run_day(engine='c'): {why_not}")
+    in_c = engine != "python" and why_not is None
     sensors = FaultySensors(schedule)
     driver = ServiceDriver(day, rng_driver, v["car.traction_force_max"], v["car.brake_force_max"])
-    batch = int(v["est.batch_size"])
-    scores = {"clean": _Score(batch), "faulty": _Score(batch)}
+    batch_size = int(v["est.batch_size"])
+    scores = {"clean": _Score(batch_size), "faulty": _Score(batch_size)}
     lo, hi = day.total_mass_t[0] - day.car_mass_t, day.total_mass_t[1] - day.car_mass_t
     payload = float(rng_driver.uniform(lo, hi))
+    loop = dict(h=h, n_steps=n_steps, winds=winds, rss_every_s=rss_every_s, progress=progress,
+                sensors=sensors, driver=driver, scores=scores, payload=payload, lo=lo, hi=hi,
+                rng_driver=rng_driver)
+    if in_c:
+        ran = _loop_c(**loop, day=day, grade=grade, schedule=schedule, batch_size=batch_size,
+                      chain_values=_chain_values(plant_chain, *settings))
+    else:
+        ran = _loop_python(**loop, day=day, plant_chain=plant_chain, est_chain=est_chain,
+                           speed_trace=speed_trace)
+    wall, rss = ran["wall"], ran["rss"]
+
+    est = {name: s.summary() for name, s in scores.items()}
+    ok = len(rss) >= 3 and rss[0][1] >= 0
+    growth = rss[-1][1] - rss[1][1] if ok else float("nan")
+    summary = {
+        "hours": hours, "seed": int(seed), "steps": n_steps, "step_s": h,
+        "wall_s": wall, "steps_per_s": n_steps / wall if wall > 0 else float("nan"),
+        "rss_kb": rss, "rss_growth_kb": growth,
+        "rss_growth_from_start_kb": rss[-1][1] - rss[0][1] if rss[0][1] >= 0 else float("nan"),
+        "day": {"stops": ran["stops"], "long_cruises": ran["long_cruises"],
+                "cruise_h": ran["cruise_s"] / 3600.0, "wind_changes": len(winds) - 1,
+                "winds_mps": [w for _, w in winds], "distance_km": ran["distance"] / 1000.0,
+                "moving_share": ran["moving_steps"] / n_steps if n_steps else float("nan"),
+                "total_mass_range_t": tuple(ran["mass_seen"]), "faults": dict(ran["faults"])},
+        "rejected_steps": ran["rejected"],
+        "estimators": est,
+    }
+    summary["targets"] = judge(summary)
+    return summary
+
+
+def _loop_python(*, h, n_steps, winds, rss_every_s, progress, sensors, driver, scores, payload, lo,
+                 hi, rng_driver, day, plant_chain, est_chain, speed_trace) -> dict:
+    """run_day's loop in Python, one step at a time (the reference)."""
     mass_seen = [day.car_mass_t + payload] * 2
     wind_k, wind = 0, winds[0][1]
     rejected = 0
@@ -511,25 +589,105 @@ def run_day(hours: float = 24.0, seed: int = 1, *, day: DayConfig = DayConfig(),
             if progress is not None:
                 progress(t1, {name: s.summary() for name, s in scores.items()})
     wall = time.perf_counter() - t_wall
+    return {"wall": wall, "rss": rss, "stops": driver.stops, "long_cruises": driver.long_cruises,
+            "cruise_s": driver.cruise_s, "distance": distance, "moving_steps": moving_steps,
+            "mass_seen": mass_seen, "faults": sensors.counts, "rejected": rejected}
 
-    est = {name: s.summary() for name, s in scores.items()}
-    ok = len(rss) >= 3 and rss[0][1] >= 0
-    growth = rss[-1][1] - rss[1][1] if ok else float("nan")
-    summary = {
-        "hours": hours, "seed": int(seed), "steps": n_steps, "step_s": h,
-        "wall_s": wall, "steps_per_s": n_steps / wall if wall > 0 else float("nan"),
-        "rss_kb": rss, "rss_growth_kb": growth,
-        "rss_growth_from_start_kb": rss[-1][1] - rss[0][1] if rss[0][1] >= 0 else float("nan"),
-        "day": {"stops": driver.stops, "long_cruises": driver.long_cruises,
-                "cruise_h": driver.cruise_s / 3600.0, "wind_changes": len(winds) - 1,
-                "winds_mps": [w for _, w in winds], "distance_km": distance / 1000.0,
-                "moving_share": moving_steps / n_steps if n_steps else float("nan"),
-                "total_mass_range_t": tuple(mass_seen), "faults": dict(sensors.counts)},
-        "rejected_steps": rejected,
-        "estimators": est,
-    }
-    summary["targets"] = judge(summary)
-    return summary
+
+def _block_end(k: int, n_steps: int, h: float, next_rss: float) -> int:
+    """The step at which the Python loop takes its next RSS reading, from step k on: the first
+    j >= k with ``j * h + h >= next_rss - 1e-9`` (its own expression, so the block ends where
+    it would) or the last step."""
+    last = n_steps - 1
+    guess = (next_rss - 1e-9) / h - 1.0
+    j = min(max(k, int(guess) - 2), last) if math.isfinite(guess) else last
+    reached = lambda i: i * h + h >= next_rss - 1e-9 or i == last  # noqa: E731
+    while j > k and reached(j - 1):
+        j -= 1
+    while not reached(j):
+        j += 1
+    return j
+
+
+def _chain_values(plant_chain, identifier, filt, station) -> tuple[list, list]:
+    """The flat configurations the C core builds the two chains from, as CompiledChain and
+    CompiledEstimatorChain hand them over (models/compiled.py's order; est.slope_window last;
+    the estimator chain's track sensor the default, as open_estimator_chain's here)."""
+    slope_window = int(identifier.slope_window)
+    track = TrackSensorConfig()
+    plant = [*compiled._config_values(plant_chain.cfg, plant_chain.start_time), slope_window]
+    est = [*compiled._estimator_values(identifier, filt), station.dwell, station.speed_threshold,
+           station.position_threshold, track.base, track.resolution, track.jitter, slope_window]
+    return plant, est
+
+
+def _fill_scores(scores: dict, figures) -> None:
+    """The C twin's accumulators into the _Score objects, so _Score.summary() gives the figures."""
+    for name, names in (("clean", OUTPUT_NAMES), ("faulty", ESTIMATOR_OUTPUT_NAMES)):
+        s, c = scores[name], getattr(figures, name)
+        counted = [i for i, n in enumerate(c.nonfinite_by_output) if n]
+        s.nonfinite = c.nonfinite
+        s.nonfinite_names = {names[i]: c.nonfinite_by_output[i]
+                             for i in sorted(counted, key=lambda i: c.first_seen[i])}
+        s.nonfinite_first = None if c.first is None else (c.first[0], names[c.first[1]])
+        s.sigma_in, s.sigma_n = c.sigma_in, c.sigma_n
+        s.stop_errors = list(c.stop_errors)
+        s.se_all, s.n_all = c.se_all, c.n_all
+        s.hour_se, s.hour_n = list(c.hour_se), list(c.hour_n)
+        s.rejected_last = _as_int(c.rejected_last)       # integer outputs come as int in Python
+        s.rejected_max = _as_int(c.rejected_max)
+        s.status = {_as_int(value): n for value, n in c.status}
+
+
+def _as_int(x):
+    return int(x) if isinstance(x, float) and math.isfinite(x) and x == int(x) else x
+
+
+DRAWS_CHUNK_STEPS = 4096
+"""Steps per C call: the driver's draws for them (7 a step, 229 kB) are drawn ahead; a day's
+hour in one call would hold 2 MB of them, which the RSS readings would see."""
+
+
+def _loop_c(*, h, n_steps, winds, rss_every_s, progress, sensors, driver, scores, payload, lo, hi,
+            rng_driver, day, grade, schedule, batch_size, chain_values) -> dict:
+    """run_day's loop in C (models/core/service_day.c, via models.batch.ServiceDay), one block
+    per RSS reading (in calls of DRAWS_CHUNK_STEPS). The driver's draws: rng_driver.random()
+    doubles drawn ahead, enough for the call (SERVICE_DAY_DRAWS_PER_STEP a step), the unused rest
+    carried to the next call, so the C twin consumes the Generator's stream in the Python
+    driver's order (uniform(a, b) is a + (b - a) * random(), as numpy computes it)."""
+    values = (n_steps, h, *day.run_time_s, *day.dwell_s, *day.target_kmh, day.traction_max_s,
+              day.short_cruise_share, *day.short_cruise_s, day.long_cruise_share, *day.long_cruise_min,
+              *day.decel_mps2, day.payload_change_t, lo, hi, driver.f_max, driver.b_max, CRUISE_GAIN,
+              batch_size, day.car_mass_t, driver.phase_end, payload)
+    sim = batch.ServiceDay(values, *chain_values, (grade.distances, grade.grades), winds, schedule,
+                           StepRejected)
+    rss = [(0.0, rss_kb())]
+    next_rss = rss_every_s
+    pending = np.empty(0)
+    k = 0
+    t_wall = time.perf_counter()
+    while k < n_steps:
+        end = _block_end(k, n_steps, h, next_rss)
+        while k <= end:                              # the block in chunks: a small draws array
+            steps = min(end + 1 - k, DRAWS_CHUNK_STEPS)
+            need = batch.SERVICE_DAY_DRAWS_PER_STEP * steps
+            if len(pending) < need:
+                pending = np.concatenate((pending, rng_driver.random(need - len(pending))))
+            used = sim.run(steps, pending)
+            pending = pending[used:]
+            k += steps
+        t1 = end * h + h
+        rss.append((t1, rss_kb()))
+        next_rss += rss_every_s
+        if progress is not None:
+            _fill_scores(scores, sim.export())
+            progress(t1, {name: s.summary() for name, s in scores.items()})
+    wall = time.perf_counter() - t_wall
+    f = sim.export()
+    _fill_scores(scores, f)
+    return {"wall": wall, "rss": rss, "stops": f.stops, "long_cruises": f.long_cruises,
+            "cruise_s": f.cruise_s, "distance": f.distance_m, "moving_steps": f.moving_steps,
+            "mass_seen": [f.mass_min, f.mass_max], "faults": f.faults, "rejected": f.rejected}
 
 
 def judge(summary: dict) -> dict:
@@ -637,6 +795,9 @@ def main(argv=None) -> int:
                     help="an FMU parameter on top of SERVICE_PARAMETERS (repeatable; "
                          "est.run_forgetting=0, est.A0_drift_std=0 and est.A1_drift_std=0 give "
                          "the FMU's own defaults)")
+    ap.add_argument("--engine", choices=ENGINES, default="auto",
+                    help="the loop: c (models/core/service_day.c), python (the reference) or auto "
+                         "(c when compiled; default)")
     args = ap.parse_args(argv)
     overrides = None
     if args.param:
@@ -654,7 +815,8 @@ def main(argv=None) -> int:
               file=sys.stderr, flush=True)
 
     day = DayConfig(wind_max_mps=args.wind_max)
-    s = run_day(args.hours, args.seed, day=day, overrides=overrides, progress=progress)
+    s = run_day(args.hours, args.seed, day=day, overrides=overrides, progress=progress,
+                engine=args.engine)
     print(format_summary(s))
     return 0
 
