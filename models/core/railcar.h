@@ -10,9 +10,9 @@
  * The struct points into itself (the plant at its noise stream and profiles): initialise it
  * where it stays, never copy it. Covered: filter kinds 0-4 (Singer: singer.h), est.method 0 and
  * 2 (est.method 2 needs slope_window: the optional value after the flat configuration,
- * config.c), est.physical 0 and 1, est.sigma2_method 0, any est.forgetting / est.run_forgetting, car.length,
- * odometry drift, track sensors (track_sensors.h); not covered (rc_chain_init answers
- * RC_BAD_CONFIG, the Python chain runs): est.method 1 and 3, est.sigma2_method 1.
+ * config.c), est.physical 0 and 1, est.sigma2_method 0 and 1, any est.forgetting / est.run_forgetting,
+ * car.length, odometry drift, track sensors (track_sensors.h); not covered (rc_chain_init answers
+ * RC_BAD_CONFIG, the Python chain runs): est.method 1 and 3.
  */
 #ifndef RAILCAR_RAILCAR_H
 #define RAILCAR_RAILCAR_H
@@ -35,7 +35,7 @@ typedef struct {                       /* models.chain.ChainConfig + the profile
     rc_filter_config filter;
     double track_spacing;              /* [m]: a sensor pair every spacing from a station; 0 none */
     double track_base, track_resolution, track_jitter;   /* [m], [s], [s] (TrackSensorConfig) */
-    int method, physical, sigma2_method;      /* est.*: method 0 or 2, the others 0 */
+    int method, physical, sigma2_method;      /* est.*: method 0 or 2, physical and sigma2_method 0 or 1 */
     long slope_window;                 /* est.slope_window, with method 2 (config.c) */
     const double *grade_distances, *grades;   /* [m], [permille] */
     long grade_n;
@@ -100,7 +100,7 @@ typedef struct {                       /* what EstimatorChain is built from */
     rc_filter_config filter;
     rc_station_config station;
     double track_base, track_resolution, track_jitter;   /* [m], [s], [s] */
-    int method, physical, sigma2_method;      /* est.*: method 0 or 2, the others 0 */
+    int method, physical, sigma2_method;      /* est.*: method 0 or 2, physical and sigma2_method 0 or 1 */
     long slope_window;                 /* est.slope_window, with method 2 (config.c) */
     const double *grade_distances, *grades;
     long grade_n;

@@ -10,7 +10,7 @@
  * FilterConfig (kind, Singer settings, speed profile), StationConfig. EstimatorChain:
  * TrackSensorConfig, then build_estimator with dt = 1.
  *
- * Options the core does not cover (est.method 1 and 3, est.sigma2_method 1) are
+ * Options the core does not cover (est.method 1 and 3) are
  * refused where IdentifierConfig.validate checks that option's value, with a message naming
  * the parameter and value and the pythonfmu FMU that runs them (RailCar.fmu or
  * RailCarEstimator.fmu). So every message before that point is Python's, byte for byte; for
