@@ -512,7 +512,8 @@ def build_native_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
 # fmu_src/c/native_ato.c, the C core's LineController (models/core/ato_line.h) behind the FMI 2.0
 # glue. It has no flat configuration (NativeSpec): native_ato.c reads its parameters by value
 # reference (the generated NAT_VR_* names) and builds the controller itself, so it has its own
-# table header, sources (no native_common.c, native_state.c: no FMU states) and build.
+# table header, sources (no native_common.c, native_state.c: its FMU states are its own, at the end
+# of native_ato.c) and build.
 
 ATO_NATIVE_NAME = "AtoControllerNative"
 ATO_TABLE_HEADER = C_DIR / "native_ato_table.h"
@@ -613,7 +614,8 @@ def ato_build_inputs(fmu_name: str, python_fmu=None, targets=None) -> tuple:
 def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
     """``dest_dir/AtoControllerNative.fmu`` (FMI 2.0) from the pythonfmu AtoController.fmu
     ``python_fmu`` (default dist/'s): build_native's recipe with native_ato.c. Its description
-    says canGetAndSetFMUstate="false": this backend saves no FMU state."""
+    says canGetAndSetFMUstate="true" and canSerializeFMUstate="true": native_ato.c saves and
+    restores the whole controller (its FMU states)."""
     targets, python_fmu = ato_build_inputs(ATO_NATIVE_NAME, python_fmu, targets)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
@@ -623,9 +625,6 @@ def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
     xml = model_description.fmi2(ATO, native_ato_guid(python_xml, targets), GENERATION_TOOL,
                                  needs_execution_tool=False,
                                  source_files=tuple(p.name for p in sources))
-    for flag in (b'canGetAndSetFMUstate="true"', b'canSerializeFMUstate="true"'):
-        assert flag in xml, flag
-        xml = xml.replace(flag, flag.replace(b'"true"', b'"false"'))
     with tempfile.TemporaryDirectory() as tmp:
         binaries = compile_platforms(targets, sources, Path(tmp),
                                      lambda t: f"binaries/{t.fmi2_folder}/{ATO}{t.extension}",

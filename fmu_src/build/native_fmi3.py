@@ -7,8 +7,8 @@ co-simulation: the C core, no Python.
 
 RailCar and RailCarEstimator are each one ``native.NativeSpec`` (RAILCAR_SPEC, ESTIMATOR_SPEC;
 default RailCar); the AtoController (``build_native_ato3``) is the FMI 2 AtoControllerNative's
-backend ``fmu_src/c/native_ato.c`` (``native.ato_c_sources``) behind the same FMI 3 glue, its
-description without FMU states (that backend saves none). A binary
+backend ``fmu_src/c/native_ato.c`` (``native.ato_c_sources``) behind the same FMI 3 glue, with
+FMU states as the other two (that backend saves and restores the whole controller). A binary
 is the FMI 2 native FMU's backend (``fmu_src/c/native_railcar.c`` or ``native_estimator.c`` and
 what it needs, as ``native.c_sources(spec)`` lists them) and ``models/core/*.c`` behind the FMI
 3.0 glue ``fmu_src/c/fmi3_glue.c`` instead of ``fmi2_glue.c``: the backend links unchanged.
@@ -199,8 +199,8 @@ def ato_instantiation_token() -> str:
 
 
 def ato_model_description_xml(token: str) -> bytes:
-    """AtoControllerNative3's modelDescription.xml: no FMU states (native_ato.c saves none)."""
-    return model_description.fmi3(ATO, token, GENERATION_TOOL, fmu_states=False)
+    """AtoControllerNative3's modelDescription.xml: FMU states, as the other native FMUs."""
+    return model_description.fmi3(ATO, token, GENERATION_TOOL)
 
 
 def build_native_ato3(dest_dir, python_fmu=None, targets=None) -> Path:

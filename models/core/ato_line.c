@@ -1,8 +1,12 @@
-/* ato_line.c -- LineController (models/ato/line.py) in the C core; see ato_line.h. */
+/* ato_line.c -- LineController (models/ato/line.py) in the C core, and its running state as bytes
+ * (the FMU states of fmu_src/c/native_ato.c); see ato_line.h. */
 #include "rc_fp_contract.h"
 #include "ato_line.h"
 
+#include <stddef.h>
+#include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #define REPR_SIZE 40
@@ -146,4 +150,368 @@ ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
         }
     }
     return line_step(t, line->k, cmd, 0, 0.0);
+}
+
+/* ------------------------------------------------------------------ FMU states
+ * The line's running state as bytes (see ato_line.h). Each struct is written as its byte image
+ * (so no number can be forgotten) with every pointer field zeroed; reading copies the image and
+ * then sets every pointer field again: the ones fixed at construction from the caller's room
+ * (span, car, the line's arrays) and the course's and planner's blocks (re-laid out by
+ * rc_ato_planner_relink, as rc_ato_planner_init lays them out), the ones that move while
+ * planning from a small code written beside the image. */
+
+/* writes to p (NULL: only counts), so that one code path gives the size and the bytes */
+typedef struct {
+    unsigned char *p;
+    size_t n;
+} state_sink;
+
+static unsigned char *put(state_sink *s, const void *data, size_t n)
+{
+    unsigned char *at = NULL;
+    if (s->p != NULL) {
+        at = s->p + s->n;
+        if (n)
+            memcpy(at, data, n);
+    }
+    s->n += n;
+    return at;
+}
+
+static void put_u32(state_sink *s, uint32_t v) { put(s, &v, sizeof v); }
+static void put_u64(state_sink *s, uint64_t v) { put(s, &v, sizeof v); }
+
+/* the pointer fields of an ato_controller (offsets); all are zeroed in its image */
+#define CTRL_POINTERS (2 + 3 + 2 + 7 + 8 * 3 + 3 + 2 + 1 + 7)
+#define TRACE_AT(k, field) \
+    (offsetof(ato_controller, planner.bufs) + (size_t)(k) * sizeof(rc_ato_trace) + \
+     offsetof(rc_ato_trace, field))
+
+static int controller_pointers(size_t *at)
+{
+    int n = 0;
+    at[n++] = offsetof(ato_controller, span);
+    at[n++] = offsetof(ato_controller, car);
+    at[n++] = offsetof(ato_controller, course.s);
+    at[n++] = offsetof(ato_controller, course.g);
+    at[n++] = offsetof(ato_controller, course.qlim);
+    at[n++] = offsetof(ato_controller, planner.c);
+    at[n++] = offsetof(ato_controller, planner.block);
+    at[n++] = offsetof(ato_controller, planner.hint_has);
+    at[n++] = offsetof(ato_controller, planner.hint_has_slope);
+    at[n++] = offsetof(ato_controller, planner.hint_x);
+    at[n++] = offsetof(ato_controller, planner.hint_slope);
+    at[n++] = offsetof(ato_controller, planner.qU);
+    at[n++] = offsetof(ato_controller, planner.fall0);
+    at[n++] = offsetof(ato_controller, planner.fall1);
+    for (int k = 0; k < 3; k++) {
+        at[n++] = TRACE_AT(k, s);
+        at[n++] = TRACE_AT(k, q);
+        at[n++] = TRACE_AT(k, t);
+        at[n++] = TRACE_AT(k, wF);
+        at[n++] = TRACE_AT(k, wR);
+        at[n++] = TRACE_AT(k, mode);
+        at[n++] = TRACE_AT(k, coast_x);
+        at[n++] = TRACE_AT(k, coast_end);
+    }
+    at[n++] = offsetof(ato_controller, planner.work);
+    at[n++] = offsetof(ato_controller, planner.spare);
+    at[n++] = offsetof(ato_controller, planner.best);
+    at[n++] = offsetof(ato_controller, planner.coast_x);
+    at[n++] = offsetof(ato_controller, planner.coast_end);
+    at[n++] = offsetof(ato_controller, planner.car);
+    at[n++] = offsetof(ato_controller, planner.plan.coast_x);
+    at[n++] = offsetof(ato_controller, planner.plan.coast_end);
+    at[n++] = offsetof(ato_controller, planner.plan.s);
+    at[n++] = offsetof(ato_controller, planner.plan.v);
+    at[n++] = offsetof(ato_controller, planner.plan.t);
+    at[n++] = offsetof(ato_controller, planner.plan.mode);
+    at[n++] = offsetof(ato_controller, planner.plan.qU);
+    return n;
+}
+
+static void zero_pointers(unsigned char *image, const size_t *at, int n)
+{
+    for (int i = 0; i < n; i++)
+        memset(image + at[i], 0, sizeof(void *));
+}
+
+/* the trace a planner's work / spare / best points at: 0..2 (bufs), 3 for anything else */
+static uint32_t trace_code(const rc_ato_planner *p, const rc_ato_trace *tr)
+{
+    for (uint32_t k = 0; k < 3; k++)
+        if (tr == &p->bufs[k])
+            return k;
+    return 3;
+}
+
+/* planner.car: 0 none, 1 the configured car, 2 car_now (the only cars a plan is made for) */
+static uint32_t car_code(const ato_controller *c)
+{
+    const rc_ato_plancar *car = c->planner.car;
+    return car == NULL ? 0 : car == &c->configured ? 1 : car == &c->car_now ? 2 : 3;
+}
+
+/* planner.plan.qU: 0 none, 1 the controller's envelope, 2 the planner's */
+static uint32_t envelope_code(const ato_controller *c)
+{
+    const double *qU = c->planner.plan.qU;
+    return qU == NULL ? 0 : qU == c->qU ? 1 : qU == c->planner.qU ? 2 : 3;
+}
+
+static void put_controller(state_sink *s, const ato_controller *c)
+{
+    size_t at[CTRL_POINTERS];
+    int n = controller_pointers(at);
+    const rc_ato_course *co = &c->course;
+    size_t total = (size_t)(co->g - co->s);       /* the course block: s, g, qlim of total */
+    unsigned char *image;
+    put_u64(s, sizeof *c);
+    if ((image = put(s, c, sizeof *c)) != NULL)
+        zero_pointers(image, at, n);
+    put_u32(s, trace_code(&c->planner, c->planner.work));
+    put_u32(s, trace_code(&c->planner, c->planner.spare));
+    put_u32(s, trace_code(&c->planner, c->planner.best));
+    put_u32(s, car_code(c));
+    put_u32(s, envelope_code(c));
+    put_u64(s, total);
+    put(s, co->s, sizeof(double) * (size_t)co->n);
+    put(s, co->g, sizeof(double) * (size_t)(co->n - 1));
+    put(s, co->qlim, sizeof(double) * (size_t)co->n);
+    put_u64(s, rc_ato_planner_block_size(co));
+    put(s, c->planner.block, rc_ato_planner_block_size(co));
+}
+
+static size_t put_line(state_sink *s, const ato_line *line)
+{
+    ato_line image = *line;
+    image.controllers = NULL;
+    image.dwell_s = image.boarding_t = NULL;
+    image.departures = NULL;
+    put_u64(s, sizeof image);
+    put(s, &image, sizeof image);
+    put(s, line->departures, sizeof(double) * (size_t)line->n);
+    for (int i = 0; i < line->n; i++)
+        put_controller(s, &line->controllers[i]);
+    return s->n;
+}
+
+size_t ato_line_state_size(const ato_line *line)
+{
+    state_sink s = {NULL, 0};
+    return put_line(&s, line);
+}
+
+void ato_line_state_write(const ato_line *line, unsigned char *out)
+{
+    state_sink s = {out, 0};
+    put_line(&s, line);
+}
+
+/* ---- reading */
+
+typedef struct {
+    const unsigned char *p, *end;
+    char *msg;
+    int ok;
+} state_source;
+
+/* the first problem, in msg: "<what>" */
+static int bad(state_source *r, const char *what)
+{
+    if (r->ok && r->msg != NULL)
+        snprintf(r->msg, ATO_TEXT_SIZE, "%s", what);
+    r->ok = 0;
+    return 0;
+}
+
+static int take(state_source *r, void *out, size_t n, const char *what)
+{
+    if (!r->ok)
+        return 0;
+    if ((size_t)(r->end - r->p) < n)
+        return bad(r, what);
+    if (n)
+        memcpy(out, r->p, n);
+    r->p += n;
+    return 1;
+}
+
+static uint32_t take_u32(state_source *r, const char *what)
+{
+    uint32_t v = 0;
+    take(r, &v, sizeof v, what);
+    return v;
+}
+
+static uint64_t take_u64(state_source *r, const char *what)
+{
+    uint64_t v = 0;
+    take(r, &v, sizeof v, what);
+    return v;
+}
+
+static int has_end(const char *text)
+{
+    return memchr(text, '\0', ATO_TEXT_SIZE) != NULL;
+}
+
+/* the numbers a step indexes or prints with: within their bounds */
+static int controller_sane(const ato_controller *c, int n_limits)
+{
+    const rc_ato_course *co = &c->course;
+    const rc_ato_planner *p = &c->planner;
+    if (co->n < 2 || co->n > ATO_MAX_NODES || co->i_relay < 0 || co->i_relay >= co->n ||
+        co->n_limits != n_limits)
+        return 0;
+    if (c->n_events < 0 || c->phase < ATO_PHASE_RUN || c->phase > ATO_PHASE_HOLD ||
+        c->settle < -1 || c->settle > 1 || p->n_trials < 0 || p->n_trials > RC_ATO_MAX_TRIALS)
+        return 0;
+    if (!has_end(c->supervisor.problem.text) || !has_end(c->supervisor.gate.text) ||
+        !has_end(c->supervisor.dead_problem.text))
+        return 0;
+    for (int k = 0; k < ATO_EVENT_RING; k++)
+        if (!has_end(c->events[k].text))
+            return 0;
+    return 1;
+}
+
+/* the counts of the planner's buffers (after rc_ato_planner_relink set their capacities) */
+static int planner_sane(const rc_ato_planner *p)
+{
+    for (int k = 0; k < 3; k++) {
+        const rc_ato_trace *tr = &p->bufs[k];
+        if (tr->n < 0 || tr->n > tr->cap || tr->n_coasts < 0 || tr->n_coasts > tr->coast_cap)
+            return 0;
+    }
+    return p->plan.n >= 0 && p->plan.n <= p->bufs[0].cap && p->plan.n_coasts >= 0 &&
+           p->plan.n_coasts <= p->coast_cap;
+}
+
+static void release_controller(ato_controller *c)
+{
+    free(c->course.s);
+    free(c->planner.block);
+    c->course.s = NULL;
+    c->planner.block = NULL;
+}
+
+static int take_controller(state_source *r, ato_controller *c, const rc_ato_span *span,
+                           const rc_ato_car *car)
+{
+    size_t at[CTRL_POINTERS];
+    int n = controller_pointers(at);
+    if (take_u64(r, "controller size") != sizeof *c)
+        return bad(r, "controller size");
+    if (!take(r, c, sizeof *c, "controller"))
+        return 0;
+    zero_pointers((unsigned char *)c, at, n);      /* from here on, release frees what is set */
+    uint32_t work = take_u32(r, "planner traces"), spare = take_u32(r, "planner traces");
+    uint32_t best = take_u32(r, "planner traces"), car_is = take_u32(r, "planner car");
+    uint32_t envelope_is = take_u32(r, "plan envelope");
+    uint64_t total = take_u64(r, "course size");
+    if (!r->ok)
+        return 0;
+    if (work > 2 || spare > 2 || best > 2 || car_is > 2 || envelope_is > 2)
+        return bad(r, "controller pointer codes");
+    if (!controller_sane(c, span->n_limits))
+        return bad(r, "controller counts");
+    if (total < (uint64_t)c->course.n || total > (uint64_t)(r->end - r->p) / sizeof(double))
+        return bad(r, "course size");
+    double *course = calloc(3 * (size_t)total, sizeof(double));
+    if (course == NULL)
+        return bad(r, "out of memory");
+    c->course.s = course;
+    c->course.g = course + total;
+    c->course.qlim = course + 2 * total;
+    take(r, c->course.s, sizeof(double) * (size_t)c->course.n, "course nodes");
+    take(r, c->course.g, sizeof(double) * (size_t)(c->course.n - 1), "course grades");
+    take(r, c->course.qlim, sizeof(double) * (size_t)c->course.n, "course limits");
+    size_t block_size = rc_ato_planner_block_size(&c->course);
+    if (r->ok && take_u64(r, "planner block size") != block_size)
+        bad(r, "planner block size");
+    if (r->ok && block_size > (size_t)(r->end - r->p))
+        bad(r, "planner block");
+    if (!r->ok) {
+        release_controller(c);
+        return 0;
+    }
+    void *block = malloc(block_size);
+    if (block == NULL) {
+        release_controller(c);
+        return bad(r, "out of memory");
+    }
+    take(r, block, block_size, "planner block");
+    rc_ato_planner_relink(&c->planner, &c->course, block);
+    c->span = span;
+    c->car = car;
+    c->planner.work = &c->planner.bufs[work];
+    c->planner.spare = &c->planner.bufs[spare];
+    c->planner.best = &c->planner.bufs[best];
+    c->planner.car = car_is == 0 ? NULL : car_is == 1 ? &c->configured : &c->car_now;
+    c->planner.plan.qU = envelope_is == 0 ? NULL : envelope_is == 1 ? c->qU : c->planner.qU;
+    if (!planner_sane(&c->planner))
+        bad(r, "planner counts");
+    if (!r->ok) {
+        release_controller(c);
+        return 0;
+    }
+    return 1;
+}
+
+rc_status ato_line_state_read(ato_line *line, int n, const rc_ato_span *spans,
+                              const double *dwell_s, const double *boarding_t,
+                              const rc_ato_car *car, ato_controller *controllers,
+                              double *departures, const unsigned char *in, size_t size,
+                              size_t *used, char *msg)
+{
+    state_source r = {in, in + size, msg, 1};
+    int done = 0;
+    if (msg != NULL)
+        msg[0] = '\0';
+    memset(line, 0, sizeof *line);
+    if (take_u64(&r, "line size") != sizeof *line)
+        bad(&r, "line size");
+    take(&r, line, sizeof *line, "line");
+    if (r.ok && (line->n != n || line->k < 0 || line->k >= n || line->n_departures < 0 ||
+                 line->n_departures > n))
+        bad(&r, "line counts");
+    if (r.ok && (size_t)n > (size_t)(r.end - r.p) / sizeof(double))
+        bad(&r, "departures");
+    take(&r, departures, sizeof(double) * (size_t)(r.ok ? n : 0), "departures");
+    for (; r.ok && done < n; done++)
+        if (!take_controller(&r, &controllers[done], &spans[done], car))
+            break;
+    if (!r.ok) {
+        for (int i = 0; i < done; i++)
+            release_controller(&controllers[i]);
+        memset(line, 0, sizeof *line);
+        return RC_BAD_CONFIG;
+    }
+    line->controllers = controllers;
+    line->dwell_s = dwell_s;
+    line->boarding_t = boarding_t;
+    line->departures = departures;
+    *used = (size_t)(r.p - in);
+    return RC_OK;
+}
+
+uint32_t ato_line_state_layout(void)
+{
+    size_t at[CTRL_POINTERS];
+    int n = controller_pointers(at);
+    size_t sizes[] = {sizeof(ato_line), sizeof(ato_controller), sizeof(rc_ato_planner),
+                      sizeof(rc_ato_course), sizeof(rc_ato_trace), sizeof(ato_supervisor),
+                      sizeof(ato_event), sizeof(long), (size_t)ATO_MAX_NODES,
+                      (size_t)ATO_EVENT_RING, (size_t)ATO_TEXT_SIZE};
+    uint32_t h = 2166136261u;                       /* FNV-1a over the sizes and offsets */
+    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0] + (size_t)n; i++) {
+        size_t v = i < sizeof sizes / sizeof sizes[0] ? sizes[i]
+                                                        : at[i - sizeof sizes / sizeof sizes[0]];
+        for (int b = 0; b < 8; b++) {
+            h ^= (uint32_t)((uint64_t)v >> (8 * b)) & 0xffu;
+            h *= 16777619u;
+        }
+    }
+    return h;
 }

@@ -11,6 +11,9 @@
 #ifndef RAILCAR_ATO_LINE_H
 #define RAILCAR_ATO_LINE_H
 
+#include <stddef.h>
+#include <stdint.h>
+
 #include "ato_controller.h"
 
 /* LineStep: the span (0-based), the command, a station dwell's holding brake, the passengers
@@ -49,5 +52,26 @@ void ato_line_free(ato_line *line);
  * est.station_stops (NaN where absent) */
 ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
                                double station_stops);
+
+/* FMU states (fmu_src/c/native_ato.c): the line's running state as bytes -- the line, its
+ * departures, and each controller whole (its struct, its course, its planner's buffers: the
+ * plans, hints, traces, events, supervision) -- in this machine's representation (the reader of
+ * another machine's or build's bytes is the caller's to refuse: ato_line_state_layout is a
+ * fingerprint of the sizes and offsets they rely on). Not in the bytes: the spans, car, dwells
+ * and boardings (the caller saves its configuration itself).
+ * size: the bytes write writes. read: a line from `size` bytes at `in` into the caller's room
+ * (as for ato_line_init: the spans, car, dwells and boardings the line was made with, room for
+ * n controllers and n departures); RC_OK with *used the bytes read, or RC_BAD_CONFIG with what
+ * is wrong in msg (ATO_TEXT_SIZE; "out of memory" too) and nothing left allocated. It never
+ * reads outside in[0 .. size - 1] and checks every count a step relies on before use; it
+ * allocates the controllers' grids (ato_line_free frees them). */
+size_t ato_line_state_size(const ato_line *line);
+void ato_line_state_write(const ato_line *line, unsigned char *out);
+rc_status ato_line_state_read(ato_line *line, int n, const rc_ato_span *spans,
+                              const double *dwell_s, const double *boarding_t,
+                              const rc_ato_car *car, ato_controller *controllers,
+                              double *departures, const unsigned char *in, size_t size,
+                              size_t *used, char *msg);
+uint32_t ato_line_state_layout(void);
 
 #endif

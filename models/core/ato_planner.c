@@ -1105,3 +1105,23 @@ rc_status rc_ato_fastest_run(const rc_ato_span *span, const rc_ato_car *car, dou
     rc_ato_course_free(&course);
     return rc;
 }
+
+/* ------------------------------------------------------------------ FMU states */
+
+size_t rc_ato_planner_block_size(const rc_ato_course *course)
+{
+    rc_ato_planner sizing;
+    memset(&sizing, 0, sizeof sizing);
+    sizing.c = course;
+    arena a = {NULL, 0, 0};
+    layout(&sizing, &a);
+    return a.used;
+}
+
+void rc_ato_planner_relink(rc_ato_planner *p, const rc_ato_course *course, void *block)
+{
+    p->c = course;
+    p->block = block;
+    arena a = {block, 0, rc_ato_planner_block_size(course)};
+    layout(p, &a);
+}

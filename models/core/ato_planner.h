@@ -8,6 +8,8 @@
 #ifndef RAILCAR_ATO_PLANNER_H
 #define RAILCAR_ATO_PLANNER_H
 
+#include <stddef.h>
+
 #include "ato_motion.h"
 
 /* a status code beyond rc_status: a capacity the planner's own sizing should never miss */
@@ -82,6 +84,13 @@ typedef struct {
     void *block;
 } rc_ato_planner;
 
+/* FMU states (fmu_src/c/native_ato.c): the bytes of the buffer block rc_ato_planner_init
+ * allocates for `course` (the same function lays both out), and a planner restored from its
+ * bytes made whole again: p->c = course, p->block = block (block_size bytes, its contents the
+ * saved ones), every pointer into the block and every buffer capacity as rc_ato_planner_init
+ * sets them. work, spare, best, car and plan.qU move while planning: they are the caller's. */
+size_t rc_ato_planner_block_size(const rc_ato_course *course);
+void rc_ato_planner_relink(rc_ato_planner *p, const rc_ato_course *course, void *block);
 rc_status rc_ato_planner_init(rc_ato_planner *p, const rc_ato_course *course, double tol,
                               double v_min, rc_error *err);
 void rc_ato_planner_free(rc_ato_planner *p);
