@@ -24,8 +24,40 @@
  *   ("t = %.3f s: [span k: ]<text>", the span named on a line of several); fmi2Warning when
  *   the command is the safe brake (ato.mode 9).
  *
- * Not covered: FMU states (the description says canGetAndSetFMUstate="false"; the glue answers
- * "not supported").
+ * FMU states (canGetAndSetFMUstate and canSerializeFMUstate "true"; NAT_STATE_OPS at the end of
+ * this file behind glue_common.c's state calls, which add header, token, checksum and the
+ * glue's own fields). The model's part is everything the controller's future outputs and log
+ * depend on: every variable's value (the inputs of the next step, the outputs published, the
+ * parameters), the start time and time, whether the line is built; then the line's
+ * configuration as built (span 1 and line.profile's spans: stop, length, schedule, limits;
+ * the grade with its integral; the car; dwells and boardings), the events logged so far, and
+ * the line's running state, models/core/ato_line.c's ato_line_state_*: the line struct, the
+ * departures, and each controller whole -- its struct's byte image (tuning, supervisor with its
+ * windows and latch, plans' envelope and supervision curve, the relay, the blended car, the
+ * episodes, the events ring: every number of it, nothing picked field by field), its course,
+ * and its planner's buffer block (hints, traces, the plan in force).
+ * Why this design (byte images with the pointers re-set) and not the others:
+ * - a replay of the inputs since initialisation grows without bound (a 24 h line) and replays
+ *   re-plans; this state's size is fixed by the line (spans, grid), not by how long it ran;
+ * - a rebuild (ato_line_init) plus copied numbers would re-read the profile files (they may
+ *   have changed or be absent where the state is restored) and run every span's first plan;
+ *   here nothing is read from files or recomputed, so a restore is exact by construction:
+ *   the bytes are the numbers;
+ * - one serializer per field would have to be kept in step with every struct; an image cannot
+ *   forget a number. What it must not carry are pointers: ato_line.c lists every pointer field
+ *   of a controller (zeroed in the image, so that equal states give equal bytes) and re-sets
+ *   each on reading -- span, car, the course's and planner's blocks as ato_controller_init and
+ *   rc_ato_planner_init set them (rc_ato_planner_relink lays the block out with the same code),
+ *   and the three that move while planning (work/spare/best, the plan's car and envelope) from
+ *   a code naming their target. A new pointer field must join that list; the fingerprint
+ *   (state_layout) changes with every size and offset the bytes rely on.
+ * Reading checks every count against the bytes left and against the structs before it
+ * allocates (span and limit rows, grade rows, the grid, the planner block's size for that
+ * grid, the traces' lengths within their capacities, the span running, the events logged, the
+ * texts ended, the verdicts' subjects), builds the whole line aside and only then swaps it in:
+ * a refused state (logged as "<function>: the FMU state is corrupt or of another build
+ * (<what>)") leaves the model as it was. Allocation happens in get/set/serialize only, never in
+ * a step; no globals.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -1099,8 +1131,9 @@ static int take_line(nat_source *r, nat_instance *st, nat_instance *m) {
         r->p += used;
     }
     st->span = st->spans[0];
-    for (k = 0; k < (int)n; k++)   /* the events counted by the line are the ones it has */
-        if (st->logged[k] > st->controllers[k].n_events) return corrupt(r, "events logged");
+    for (k = 0; k < (int)n; k++)   /* every step logs all events so far (and a step's loop runs
+                                      over those not yet logged: no more) */
+        if (st->logged[k] != st->controllers[k].n_events) return corrupt(r, "events logged");
     return 1;
 }
 

@@ -284,7 +284,8 @@ static void put_controller(state_sink *s, const ato_controller *c)
 
 static size_t put_line(state_sink *s, const ato_line *line)
 {
-    ato_line image = *line;
+    ato_line image;
+    memcpy(&image, line, sizeof image);           /* padding too: equal lines, equal bytes */
     image.controllers = NULL;
     image.dwell_s = image.boarding_t = NULL;
     image.departures = NULL;
@@ -356,6 +357,14 @@ static int has_end(const char *text)
     return memchr(text, '\0', ATO_TEXT_SIZE) != NULL;
 }
 
+/* a verdict's subject: none, an input, or one of supervision.h's (a step indexes with it) */
+static int subject_sane(int subject)
+{
+    return subject == ATO_SUBJECT_NONE || (subject >= 0 && subject < ATO_N_ALL_INPUTS) ||
+           subject == ATO_SUBJECT_TIME || subject == ATO_SUBJECT_CONSISTENCY ||
+           subject == ATO_SUBJECT_RECOVERY;
+}
+
 /* the numbers a step indexes or prints with: within their bounds */
 static int controller_sane(const ato_controller *c, int n_limits)
 {
@@ -367,8 +376,10 @@ static int controller_sane(const ato_controller *c, int n_limits)
     if (c->n_events < 0 || c->phase < ATO_PHASE_RUN || c->phase > ATO_PHASE_HOLD ||
         c->settle < -1 || c->settle > 1 || p->n_trials < 0 || p->n_trials > RC_ATO_MAX_TRIALS)
         return 0;
-    if (!has_end(c->supervisor.problem.text) || !has_end(c->supervisor.gate.text) ||
-        !has_end(c->supervisor.dead_problem.text))
+    const ato_supervisor *sup = &c->supervisor;
+    if (!has_end(sup->problem.text) || !has_end(sup->gate.text) ||
+        !has_end(sup->dead_problem.text) || !subject_sane(sup->problem.subject) ||
+        !subject_sane(sup->gate.subject) || !subject_sane(sup->dead_problem.subject))
         return 0;
     for (int k = 0; k < ATO_EVENT_RING; k++)
         if (!has_end(c->events[k].text))

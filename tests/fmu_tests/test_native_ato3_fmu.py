@@ -3,7 +3,7 @@ AtoControllerNative (fmu_src/c/native_ato.c) and the C core behind the FMI 3 glu
 (fmu_src/c/fmi3_glue.c), run through fmpy's FMU3Slave.
 
 - its description is the one table's in FMI 3 (Booleans as Boolean with "true"/"false" starts,
-  no FMU states, outputs without direct feedthrough), fmpy validates it, it is the writer's;
+  FMU states (test_native_ato_state.py), outputs without direct feedthrough), fmpy validates it, it is the writer's;
 - on ato_nominal's span, fed the closed loop's recorded inputs (test_native_ato_fmu.py's
   drivers, their ``Slave`` swapped for Slave3 here), every output at every step is the FMI 2
   native FMU's bit for bit (which test_native_ato_fmu.py holds to the pythonfmu AtoController),
@@ -161,7 +161,7 @@ def test_fmpy_validates_it_and_it_describes_the_table_in_fmi3(native_ato3, nativ
     md = native_ato3.md
     assert md.fmiVersion == "3.0" and native_ato3.path.name == f"{native_fmi3.ATO_NATIVE3_NAME}.fmu"
     assert md.coSimulation.modelIdentifier == ATO and not md.coSimulation.needsExecutionTool
-    assert not md.coSimulation.canGetAndSetFMUstate and not md.coSimulation.canSerializeFMUstate
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     table = variables_for(ATO)
     raw = read_model_description(str(native_ato3.path)).modelVariables
     assert [v.name for v in raw] == [v.name for v in table] + ["time"]

@@ -514,7 +514,8 @@ def test_fmpy_validates_the_fmu_and_it_states_what_it_is(native_ato):
     assert validate_fmu(str(native_ato.path)) == []
     md = native_ato.md
     assert md.coSimulation.modelIdentifier == ATO and not md.coSimulation.needsExecutionTool
-    assert not md.coSimulation.canGetAndSetFMUstate         # this backend saves no FMU state
+    # FMU states: saved and restored (test_native_ato_state.py)
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     assert [v.name for v in md.modelVariables] == [v.name for v in variables_for(ATO)]
     assert native_ato.path.name == f"{ATO_NATIVE_NAME}.fmu"
 

@@ -458,9 +458,10 @@ def test_bad_states_are_refused_and_the_instance_goes_on(atos, cases, name):
     check_bad_bytes(atos[name], atos[other], case_named(cases, "line mid-span"))
 
 
-def test_a_state_taken_before_initialisation_makes_a_running_instance_new_again(atos, cases):
+def test_states_taken_before_initialisation_and_before_the_first_step(atos, cases):
     """Set into a running instance, a state taken before initialisation refuses steps until
-    the instance is initialised again, and then it runs as a new instance does."""
+    the instance is initialised again, and then it runs as a new instance does; so does one
+    taken between initialisation and the first step."""
     case = case_named(cases, "nominal")
     for af in atos.values():
         unit = Unit(af, "early")
@@ -471,9 +472,13 @@ def test_a_state_taken_before_initialisation_makes_a_running_instance_new_again(
         assert unit.call("doStep", 5.0, 0.1) == ERROR
         assert "DoStep: not allowed in state 'instantiated'" in unit.errors(), af.name
         unit.initialize(case.parameters)
+        initialised = unit.get_state()         # and one taken before the first step
         again, _ = unit.run(case.rows, 0, 50)
         assert np.array_equal(bits(again), bits(first)), af.name
-        unit.fmu.freeFMUState(blank)
+        unit.fmu.setFMUState(initialised)
+        assert np.array_equal(bits(unit.run(case.rows, 0, 50)[0]), bits(first)), af.name
+        for s in (blank, initialised):
+            unit.fmu.freeFMUState(s)
         unit.close()
 
 
