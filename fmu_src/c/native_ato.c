@@ -41,19 +41,21 @@
  *   re-plans; this state's size is fixed by the line (spans, grid), not by how long it ran;
  * - a rebuild (ato_line_init) plus copied numbers would re-read the profile files (they may
  *   have changed or be absent where the state is restored) and run every span's first plan;
- *   here nothing is read from files or recomputed, so a restore is exact by construction:
- *   the bytes are the numbers;
+ *   here nothing is read from files and no plan is made: the bytes are the numbers. Only each
+ *   span's grid is made again (rc_ato_course_init, from the saved span and car, as the
+ *   controller made it) and it must equal the saved grid number for number;
  * - one serializer per field would have to be kept in step with every struct; an image cannot
  *   forget a number. What it must not carry are pointers: ato_line.c lists every pointer field
  *   of a controller (zeroed in the image, so that equal states give equal bytes) and re-sets
  *   each on reading -- span, car, the course's and planner's blocks as ato_controller_init and
- *   rc_ato_planner_init set them (rc_ato_planner_relink lays the block out with the same code),
+ *   rc_ato_planner_init set them (the planner's block comes from rc_ato_planner_init and
+ *   rc_ato_planner_relink lays it out with the same code),
  *   and the three that move while planning (work/spare/best, the plan's car and envelope) from
  *   a code naming their target. A new pointer field must join that list; the fingerprint
  *   (state_layout) changes with every size and offset the bytes rely on.
  * Reading checks every count against the bytes left and against the structs before it
- * allocates (span and limit rows, grade rows, the grid, the planner block's size for that
- * grid, the traces' lengths within their capacities, the span running, the events logged, the
+ * allocates (span and limit rows, grade rows, the grid and its numbers, the planner block's
+ * size for that grid, the traces' lengths within their capacities, the span running, the events logged, the
  * texts ended, the verdicts' subjects), builds the whole line aside and only then swaps it in:
  * a refused state (logged as "<function>: the FMU state is corrupt or of another build
  * (<what>)") leaves the model as it was. Allocation happens in get/set/serialize only, never in
@@ -1056,9 +1058,9 @@ static double *take_doubles(nat_source *r, uint64_t count, const char *what) {
     return block;
 }
 
-/* the line's configuration and running state into st (m: the instance the state is for; its
-   car field is where the controllers will find theirs) */
-static int take_line(nat_source *r, nat_instance *st, nat_instance *m) {
+/* the line's configuration and running state into st (its controllers point at st->car until
+   state_read moves st into the instance) */
+static int take_line(nat_source *r, nat_instance *st) {
     uint64_t grade_rows, car_size, limit_rows, used_rows = 0;
     uint32_t n;
     int k;
@@ -1122,7 +1124,7 @@ static int take_line(nat_source *r, nat_instance *st, nat_instance *m) {
         if (!r->ok) return 0;
         if (line_size != (uint64_t)(r->end - r->p)) return corrupt(r, "line size");
         if (ato_line_state_read(&st->line, (int)n, st->spans, st->line_block, st->line_block + n,
-                                &m->car, st->controllers, st->line_block + 2 * n, r->p,
+                                &st->car, st->controllers, st->line_block + 2 * n, r->p,
                                 (size_t)line_size, &used, why) != RC_OK) {
             if (!strcmp(why, "out of memory")) return no_memory(r);
             return corrupt(r, why);
@@ -1176,7 +1178,7 @@ static int state_read(GlueInstance *g, const char *function, const unsigned char
     }
     built = take_u32(&r, "built flag");
     if (r.ok && built > 1) corrupt(&r, "built flag");
-    if (r.ok && built) take_line(&r, st, m);
+    if (r.ok && built) take_line(&r, st);
     if (r.ok && r.p != r.end) corrupt(&r, "bytes left over");
     if (!r.ok || !commit) {
         free_staged(st);
@@ -1186,7 +1188,9 @@ static int state_read(GlueInstance *g, const char *function, const unsigned char
     drop_line(m);
     for (vr = 0; vr < NAT_NVARS; vr++) free(m->string[vr]);
     memcpy(st->input_vr, m->input_vr, sizeof st->input_vr);
-    *m = *st;                  /* the controllers point at m->car (take_line), nothing at st */
+    *m = *st;
+    /* the car moved into the instance with the rest; nothing else pointed into st */
+    for (vr = 0; vr < m->n_spans; vr++) m->controllers[vr].car = &m->car;
     free(st);
     return 1;
 }

@@ -156,9 +156,12 @@ ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
  * The line's running state as bytes (see ato_line.h). Each struct is written as its byte image
  * (so no number can be forgotten) with every pointer field zeroed; reading copies the image and
  * then sets every pointer field again: the ones fixed at construction from the caller's room
- * (span, car, the line's arrays) and the course's and planner's blocks (re-laid out by
- * rc_ato_planner_relink, as rc_ato_planner_init lays them out), the ones that move while
- * planning from a small code written beside the image. */
+ * (span, car, the line's arrays); the course, made again by rc_ato_course_init from the span
+ * and car and held to the saved nodes, grades and limits number for number (a build that
+ * computes another grid is refused); the planner's block, allocated by rc_ato_planner_init for
+ * that course, filled with the saved numbers and pointed into by rc_ato_planner_relink (the
+ * same layout code); the ones that move while planning from a small code written beside the
+ * image. Memory is allocated only by those two set-up functions, never in a step. */
 
 /* writes to p (NULL: only counts), so that one code path gives the size and the bytes */
 typedef struct {
@@ -264,7 +267,6 @@ static void put_controller(state_sink *s, const ato_controller *c)
     size_t at[CTRL_POINTERS];
     int n = controller_pointers(at);
     const rc_ato_course *co = &c->course;
-    size_t total = (size_t)(co->g - co->s);       /* the course block: s, g, qlim of total */
     unsigned char *image;
     put_u64(s, sizeof *c);
     if ((image = put(s, c, sizeof *c)) != NULL)
@@ -274,7 +276,7 @@ static void put_controller(state_sink *s, const ato_controller *c)
     put_u32(s, trace_code(&c->planner, c->planner.best));
     put_u32(s, car_code(c));
     put_u32(s, envelope_code(c));
-    put_u64(s, total);
+    put_u64(s, (uint64_t)co->n);
     put(s, co->s, sizeof(double) * (size_t)co->n);
     put(s, co->g, sizeof(double) * (size_t)(co->n - 1));
     put(s, co->qlim, sizeof(double) * (size_t)co->n);
@@ -420,26 +422,40 @@ static int take_controller(state_source *r, ato_controller *c, const rc_ato_span
     uint32_t work = take_u32(r, "planner traces"), spare = take_u32(r, "planner traces");
     uint32_t best = take_u32(r, "planner traces"), car_is = take_u32(r, "planner car");
     uint32_t envelope_is = take_u32(r, "plan envelope");
-    uint64_t total = take_u64(r, "course size");
+    uint64_t nodes = take_u64(r, "course nodes");
     if (!r->ok)
         return 0;
     if (work > 2 || spare > 2 || best > 2 || car_is > 2 || envelope_is > 2)
         return bad(r, "controller pointer codes");
     if (!controller_sane(c, span->n_limits))
         return bad(r, "controller counts");
-    if (total < (uint64_t)c->course.n || total > (uint64_t)(r->end - r->p) / sizeof(double))
-        return bad(r, "course size");
-    double *course = calloc(3 * (size_t)total, sizeof(double));
-    if (course == NULL)
-        return bad(r, "out of memory");
-    c->course.s = course;
-    c->course.g = course + total;
-    c->course.qlim = course + 2 * total;
-    take(r, c->course.s, sizeof(double) * (size_t)c->course.n, "course nodes");
-    take(r, c->course.g, sizeof(double) * (size_t)(c->course.n - 1), "course grades");
-    take(r, c->course.qlim, sizeof(double) * (size_t)c->course.n, "course limits");
-    size_t block_size = rc_ato_planner_block_size(&c->course);
-    if (r->ok && take_u64(r, "planner block size") != block_size)
+    /* the course: made again from the span and car as the controller made it (its own
+       allocation: rc_ato_course_init's), then held to the saved one number for number */
+    rc_ato_course saved = c->course;
+    rc_error err;
+    if (nodes != (uint64_t)saved.n ||
+        (3 * nodes - 1) > (uint64_t)(r->end - r->p) / sizeof(double))
+        return bad(r, "course nodes");
+    if (rc_ato_course_init(&c->course, span, car, saved.h, saved.margin, saved.v_relay,
+                           saved.a_ep, ATO_MAX_NODES, &err) != RC_OK) {
+        c->course.s = NULL;
+        return bad(r, "course: not the one of this span and car");
+    }
+    size_t row = sizeof(double) * (size_t)nodes;
+    const rc_ato_course *co = &c->course;
+    if (co->n != saved.n || co->i_relay != saved.i_relay || co->n_limits != saved.n_limits ||
+        memcmp(&co->stop, &saved.stop, sizeof co->stop) != 0 ||
+        memcmp(&co->d_relay, &saved.d_relay, sizeof co->d_relay) != 0 ||
+        memcmp(co->s, r->p, row) != 0 || memcmp(co->g, r->p + row, row - sizeof(double)) != 0 ||
+        memcmp(co->qlim, r->p + 2 * row - sizeof(double), row) != 0) {
+        release_controller(c);
+        return bad(r, "course: not the one of this span and car");
+    }
+    r->p += 3 * row - sizeof(double);
+    /* the planner's block: rc_ato_planner_init allocates one for this course (as at
+       construction), the saved numbers go in, rc_ato_planner_relink points into it */
+    size_t block_size = rc_ato_planner_block_size(co);
+    if (take_u64(r, "planner block size") != block_size)
         bad(r, "planner block size");
     if (r->ok && block_size > (size_t)(r->end - r->p))
         bad(r, "planner block");
@@ -447,11 +463,12 @@ static int take_controller(state_source *r, ato_controller *c, const rc_ato_span
         release_controller(c);
         return 0;
     }
-    void *block = malloc(block_size);
-    if (block == NULL) {
+    rc_ato_planner room;
+    if (rc_ato_planner_init(&room, co, c->planner.tol, c->planner.v_min, NULL) != RC_OK) {
         release_controller(c);
         return bad(r, "out of memory");
     }
+    void *block = room.block;
     take(r, block, block_size, "planner block");
     rc_ato_planner_relink(&c->planner, &c->course, block);
     c->span = span;

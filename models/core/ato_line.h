@@ -63,8 +63,9 @@ ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
  * (as for ato_line_init: the spans, car, dwells and boardings the line was made with, room for
  * n controllers and n departures); RC_OK with *used the bytes read, or RC_BAD_CONFIG with what
  * is wrong in msg (ATO_TEXT_SIZE; "out of memory" too) and nothing left allocated. It never
- * reads outside in[0 .. size - 1] and checks every count a step relies on before use; it
- * allocates the controllers' grids (ato_line_free frees them). */
+ * reads outside in[0 .. size - 1] and checks every count a step relies on before use; each
+ * controller's grid is made again (rc_ato_course_init) and must be the saved one, its planner's
+ * buffers come from rc_ato_planner_init (ato_line_free frees them). */
 size_t ato_line_state_size(const ato_line *line);
 void ato_line_state_write(const ato_line *line, unsigned char *out);
 rc_status ato_line_state_read(ato_line *line, int n, const rc_ato_span *spans,

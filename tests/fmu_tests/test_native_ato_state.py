@@ -86,8 +86,9 @@ class Unit:
             self.fmu = self.slave.fmu
         else:
             def logger(_env, status, category, message):
-                self.messages.append(LogMessage(int(status), category.decode() if category else None,
-                                                message.decode(errors="replace") if message else ""))
+                text = message.decode(errors="replace") if message else ""
+                self.messages.append(LogMessage(int(status),
+                                                category.decode() if category else None, text))
             self.fmu = FMU3Slave(guid=fmu.md.guid, unzipDirectory=fmu.unzipdir,
                                  modelIdentifier=fmu.md.coSimulation.modelIdentifier,
                                  instanceName=instance_name)
@@ -104,14 +105,15 @@ class Unit:
         two = self.af.version == 2
         for name, value in values.items():
             v = self.af.variables[name]
+            vr = [v.valueReference]
             if v.type in ("Real", "Float64"):
-                (self.fmu.setReal if two else self.fmu.setFloat64)([v.valueReference], [float(value)])
+                (self.fmu.setReal if two else self.fmu.setFloat64)(vr, [float(value)])
             elif v.type in ("Integer", "Int32"):
-                (self.fmu.setInteger if two else self.fmu.setInt32)([v.valueReference], [int(value)])
+                (self.fmu.setInteger if two else self.fmu.setInt32)(vr, [int(value)])
             elif v.type == "Boolean":
-                self.fmu.setBoolean([v.valueReference], [bool(value)])
+                self.fmu.setBoolean(vr, [bool(value)])
             else:
-                self.fmu.setString([v.valueReference], [str(value)])
+                self.fmu.setString(vr, [str(value)])
 
     def initialize(self, parameters: dict) -> None:
         if self.af.version == 2:
@@ -213,7 +215,8 @@ def line_cases(fmu: AtoFmu, line_run) -> list[Case]:  # noqa: F811
     out, _ = unit.run(rows, 0, len(rows))
     unit.close()
     names = [v.name for v in unit.ordered()]
-    span, mode, finished = (out[:, names.index(n)] for n in ("ato.span", "ato.mode", "ato.finished"))
+    span, mode, finished = (out[:, names.index(n)]
+                            for n in ("ato.span", "ato.mode", "ato.finished"))
     dwell = next(j for j in range(len(out)) if span[j] == 1 and finished[j] == 1) + 50
     assert mode[dwell] == HOLD and span[dwell] == 1, "not in station 2's dwell"
     departs = next(j for j in range(dwell, len(out)) if span[j] == 2)
