@@ -27,6 +27,7 @@ import math
 import os
 import random
 import shutil
+import struct
 import subprocess
 import sys
 from ctypes import byref, c_void_p, create_string_buffer
@@ -341,7 +342,8 @@ def model_fields(model_part: bytes) -> dict[str, int]:
     n = u32(at + 4)
     fields["grade rows"] = at + 8
     at += 8 + 8 + 3 * 8 * u64(at + 8)
-    at += 8 + u64(at)                                    # the car
+    fields["car"] = at + 8                    # rc_ato_car: mass, A0, A1, A2, gamma, length
+    at += 8 + u64(at)
     fields["limit rows"] = at
     at += 8
     for k in range(n):
@@ -395,6 +397,11 @@ def check_bad_bytes(fmu: AtoFmu, other: AtoFmu, case: Case) -> None:
             ("events logged", f["events logged"], 1 << 40, 8),
             ("line size", f["line size"], 12, 8), ("line counts", f["line image"], -1, 4)]:
         refused(unit, resealed(data, forged(model_part, at, value, width)), f"({what})")
+    # a longer car (the state's configuration): span 1's grid, made again, is not the saved one
+    length_at = f["car"] + 5 * 8
+    longer = struct.pack("=d", struct.unpack("=d", model_part[length_at:length_at + 8])[0] + 7.0)
+    refused(unit, resealed(data, model_part[:length_at] + longer + model_part[length_at + 8:]),
+            "(course: not the one of this span and car)")
     # the last controller's planner block size: the u64 just before its block, which ends the
     # bytes (the block's own numbers may look like a length of what follows them: the largest)
     tail = min(j for j in range(len(model_part) - 8, 0, -8)
