@@ -499,9 +499,9 @@ STATE_CALLS = ("init", "doStep", "doStepNaN", "setNaN", "reset", "getState", "se
 
 
 def random_state_calls(name: str, path: str, unzipdir: str, parameters: dict, rows: list,
-                       seed: int, n: int) -> list[int]:
+                       seed: int, n: int) -> list[list]:
     """``n`` calls drawn at random (seeded) on one instance, whatever its state, the state calls
-    among them; their statuses. Run in a child process: a crash is its exit code."""
+    among them; [call, status] of each. Run in a child process: a crash is its exit code."""
     rng = random.Random(seed)
     unit = Unit(AtoFmu(name, Path(path), unzipdir), "calls")
     states: list[c_void_p] = []
@@ -562,10 +562,10 @@ def random_state_calls(name: str, path: str, unzipdir: str, parameters: dict, ro
                                     if v.type in ("Real", "Float64")]),
                          unit.call("getString", [unit.af.variables["span.grade_profile"]
                                                  .valueReference]))
-        statuses.append(status)
+        statuses.append([call, status])
         if status == 4:
             break
-    statuses += [unit.call("terminate"), unit.call("freeInstance")]
+    statuses += [["terminate", unit.call("terminate")], ["freeInstance", unit.call("freeInstance")]]
     return statuses
 
 
@@ -585,9 +585,13 @@ def test_random_call_sequences_with_states_never_crash(atos, cases, tmp_path):
                               timeout=600, cwd=here, env=env)
         assert proc.returncode == 0, proc.stderr[-3000:]
         runs = json.loads(proc.stdout.strip().splitlines()[-1])
-        statuses = [s for run in runs for s in run]
+        calls = [tuple(c) for run in runs for c in run]
+        statuses = [status for _, status in calls]
         assert len(runs) == 12 and 4 not in statuses, af.name          # never fatal
         assert statuses.count(OK) > 300 and statuses.count(ERROR) > 30, af.name
+        for name in ("getState", "setState", "deserialize", "doStep"):   # states were used
+            assert (name, OK) in calls, (af.name, name)
+        assert ("deserializeCut", ERROR) in calls, af.name
 
 
 # ---------------------------------------------------------------------------- under sanitizers
