@@ -34,4 +34,11 @@ static inline double rc_min(double a, double b) { return b < a ? b : a; }
  * exponent): messages name a value as the Python code does (repr.c) */
 void rc_repr(double x, char *buf, int size);
 
+/* err's message from a printf format (when err is not NULL); returns status: the core's one way
+ * to refuse with a message (repr.c) */
+#if defined(__GNUC__)
+__attribute__((format(printf, 3, 4)))
+#endif
+rc_status rc_refuse(rc_error *err, rc_status status, const char *fmt, ...);
+
 #endif

@@ -1,7 +1,9 @@
-/* repr.c -- Python's repr() of a float, for messages that name a value as Python does. */
+/* repr.c -- the core's messages: Python's repr() of a float (a message names a value as Python
+ * does) and rc_refuse, which writes a refusal's message. */
 #include "rc_fp_contract.h"
 #include "rc_common.h"
 
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -56,4 +58,15 @@ void rc_repr(double x, char *buf, int size)
         snprintf(out + n, sizeof out - n, "%.*s.%s", decpt, digits, digits + decpt);
     }
     snprintf(buf, size, "%s", out);
+}
+
+rc_status rc_refuse(rc_error *err, rc_status status, const char *fmt, ...)
+{
+    if (err) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
+        va_end(ap);
+    }
+    return status;
 }

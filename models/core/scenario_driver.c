@@ -23,24 +23,13 @@ static const char *const PHASE_FIELD_NAMES[RC_PHASE_FIELDS] = {
     "until_brake_curve", "stop_at_m", "decel_mps2", "mass_change_t", "target_speed_mps"};
 
 /* The message (a printf format) into err; RC_BAD_CONFIG */
-static rc_status refuse(rc_error *err, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-    }
-    return RC_BAD_CONFIG;
-}
-
 /* "<where><name> <rule>, got <repr(v)>" */
 static rc_status refuse_value(rc_error *err, const char *where, const char *name, const char *rule,
                               double v)
 {
     char r[40];
     rc_repr(v, r, sizeof r);
-    return refuse(err, "%s%s %s, got %s", where, name, rule, r);
+    return rc_refuse(err, RC_BAD_CONFIG, "%s%s %s, got %s", where, name, rule, r);
 }
 
 /* A count in the header: a whole number in 0..MAX_COUNT, else -1 */
@@ -94,13 +83,13 @@ static rc_status read_phase(rc_phase *p, const double *v, long i, rc_error *err)
     if (p->target_speed_mps <= 0.0)
         return refuse_value(err, where, "target_speed_mps", "must be > 0", p->target_speed_mps);
     if (p->action == RC_ACTION_BRAKE_TO_STOP && isnan(p->stop_at_m))
-        return refuse(err, "%sstop_at_m: brake_to_stop needs it", where);
+        return rc_refuse(err, RC_BAD_CONFIG, "%sstop_at_m: brake_to_stop needs it", where);
     if (p->action == RC_ACTION_HOLD && isnan(p->until_time_s))
-        return refuse(err, "%suntil_time_s: hold needs it (the dwell)", where);
+        return rc_refuse(err, RC_BAD_CONFIG, "%suntil_time_s: hold needs it (the dwell)", where);
     if (p->action == RC_ACTION_CRUISE && isnan(p->target_speed_mps))
-        return refuse(err, "%starget_speed_mps: cruise needs it", where);
+        return rc_refuse(err, RC_BAD_CONFIG, "%starget_speed_mps: cruise needs it", where);
     if (p->mass_change_t != 0.0 && p->action != RC_ACTION_HOLD)
-        return refuse(err, "%smass_change_t: passengers board only in a hold phase", where);
+        return rc_refuse(err, RC_BAD_CONFIG, "%smass_change_t: passengers board only in a hold phase", where);
     return RC_OK;
 }
 
@@ -108,7 +97,7 @@ static rc_status read_phase(rc_phase *p, const double *v, long i, rc_error *err)
 static rc_status read_header(rc_script *s, const double *v, long n, rc_error *err)
 {
     if (n < RC_SCRIPT_HEADER)
-        return refuse(err, "script: expected at least %d values (the header), got %ld",
+        return rc_refuse(err, RC_BAD_CONFIG, "script: expected at least %d values (the header), got %ld",
                       RC_SCRIPT_HEADER, n);
     if (v[0] != RC_SCRIPT_PHASES && v[0] != RC_SCRIPT_TABLE)
         return refuse_value(err, "script ", "kind", "must be 0 (phases) or 1 (time table)", v[0]);
@@ -140,13 +129,13 @@ static rc_status read_header(rc_script *s, const double *v, long n, rc_error *er
     s->n_wind = c[2];
     long expected = RC_SCRIPT_HEADER + RC_PHASE_FIELDS * c[0] + 3 * c[1] + 2 * c[2];
     if (n != expected)
-        return refuse(err, "script: expected %ld values for %ld phases, %ld table rows and %ld "
+        return rc_refuse(err, RC_BAD_CONFIG, "script: expected %ld values for %ld phases, %ld table rows and %ld "
                       "wind steps, got %ld", expected, c[0], c[1], c[2], n);
     if (s->kind == RC_SCRIPT_PHASES && (c[0] < 1 || c[1] != 0))
-        return refuse(err, "script: a phase script needs phases and no time table (got %ld "
+        return rc_refuse(err, RC_BAD_CONFIG, "script: a phase script needs phases and no time table (got %ld "
                       "phases, %ld table rows)", c[0], c[1]);
     if (s->kind == RC_SCRIPT_TABLE && (c[1] < 1 || c[0] != 0))
-        return refuse(err, "script: a time-table script needs table rows and no phases (got %ld "
+        return rc_refuse(err, RC_BAD_CONFIG, "script: a time-table script needs table rows and no phases (got %ld "
                       "phases, %ld table rows)", c[0], c[1]);
     double steps = nearbyint(s->duration_s / s->step_s);   /* Python's round(): half to even */
     if (!(steps <= (double)RC_SCRIPT_MAX_STEPS))
@@ -196,7 +185,7 @@ rc_status rc_script_init(rc_script *s, const double *values, long n, rc_error *e
     s->table = malloc(sizeof *s->table * (size_t)(rows > 0 ? rows : 1));
     if (!s->phases || !s->table) {
         rc_script_free(s);
-        return refuse(err, "script: out of memory");
+        return rc_refuse(err, RC_BAD_CONFIG, "script: out of memory");
     }
     const double *v = values + RC_SCRIPT_HEADER;
     for (long i = 0; i < s->n_phases; i++, v += RC_PHASE_FIELDS)

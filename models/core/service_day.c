@@ -37,17 +37,6 @@ static const char *const DAY_NAMES[RC_SD_DAY_VALUES] = {
     "traction_force_max", "brake_force_max", "cruise_gain", "batch_size", "car_mass_t",
     "first_dwell_end", "first_payload"};
 
-static rc_status refuse(rc_error *err, rc_status st, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-    }
-    return st;
-}
-
 /* ------------------------------------------------------------------------------ set-up */
 
 static rc_status score_init(rc_sd_score *s, int n_outputs, int est_offset, long stops_cap,
@@ -78,22 +67,22 @@ size_t rc_service_day_size(void) { return sizeof(rc_service_day); }
 static rc_status check_day(const double *v, long n, rc_error *err)
 {
     if (n != RC_SD_DAY_VALUES)
-        return refuse(err, RC_BAD_CONFIG, "day: expected %d values, got %ld", RC_SD_DAY_VALUES, n);
+        return rc_refuse(err, RC_BAD_CONFIG, "day: expected %d values, got %ld", RC_SD_DAY_VALUES, n);
     for (int i = 0; i < RC_SD_DAY_VALUES; i++) {
         char r[40];
         rc_repr(v[i], r, sizeof r);
         if (!isfinite(v[i]))
-            return refuse(err, RC_BAD_CONFIG, "day.%s must be finite, got %s", DAY_NAMES[i], r);
+            return rc_refuse(err, RC_BAD_CONFIG, "day.%s must be finite, got %s", DAY_NAMES[i], r);
         if (v[i] < 0.0 && i != RC_SD_PAYLOAD_LO && i != RC_SD_PAYLOAD_HI
                 && i != RC_SD_FIRST_PAYLOAD)
-            return refuse(err, RC_BAD_CONFIG, "day.%s must be >= 0, got %s", DAY_NAMES[i], r);
+            return rc_refuse(err, RC_BAD_CONFIG, "day.%s must be >= 0, got %s", DAY_NAMES[i], r);
     }
     if (!(v[RC_SD_STEP_S] > 0.0))
-        return refuse(err, RC_BAD_CONFIG, "day.step_s must be > 0");
+        return rc_refuse(err, RC_BAD_CONFIG, "day.step_s must be > 0");
     if (v[RC_SD_STEPS] != floor(v[RC_SD_STEPS]) || v[RC_SD_STEPS] > (double)RC_SD_MAX_STEPS)
-        return refuse(err, RC_BAD_CONFIG, "day.steps must be a whole number in 0..1e9");
+        return rc_refuse(err, RC_BAD_CONFIG, "day.steps must be a whole number in 0..1e9");
     if (!(v[RC_SD_DECEL_LO] > 0.0 && v[RC_SD_DECEL_HI] > 0.0))
-        return refuse(err, RC_BAD_CONFIG, "day.decel_mps2 must be > 0");
+        return rc_refuse(err, RC_BAD_CONFIG, "day.decel_mps2 must be > 0");
     return RC_OK;
 }
 
@@ -101,24 +90,24 @@ static rc_status check_rows(const double *wind, long n_wind, const double *fault
                             long n_steps, rc_error *err)
 {
     if (n_wind < 1)
-        return refuse(err, RC_BAD_CONFIG, "wind: the schedule needs at least one row");
+        return rc_refuse(err, RC_BAD_CONFIG, "wind: the schedule needs at least one row");
     for (long i = 0; i < 2 * n_wind; i++)
         if (!isfinite(wind[i]))
-            return refuse(err, RC_BAD_CONFIG, "wind row %ld: must be finite", i / 2);
+            return rc_refuse(err, RC_BAD_CONFIG, "wind row %ld: must be finite", i / 2);
     for (long i = 0; i < n_faults; i++) {
         const double *f = faults + 3 * i;
         if (!(f[0] >= 0.0 && f[0] == floor(f[0]) && f[0] <= (double)RC_SD_MAX_STEPS))
-            return refuse(err, RC_BAD_CONFIG, "faults row %ld: step must be a whole number >= 0", i);
+            return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: step must be a whole number >= 0", i);
         if (i > 0 && !(f[0] > f[-3]))
-            return refuse(err, RC_BAD_CONFIG, "faults row %ld: steps must increase", i);
+            return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: steps must increase", i);
         if (!(f[1] >= 0.0 && f[1] < RC_SD_FAULT_KINDS && f[1] == floor(f[1])))
-            return refuse(err, RC_BAD_CONFIG, "faults row %ld: kind must be 0..3 (speed, position, "
+            return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: kind must be 0..3 (speed, position, "
                           "zero, hold)", i);
         if (!isfinite(f[2]))
-            return refuse(err, RC_BAD_CONFIG, "faults row %ld: value must be finite", i);
+            return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: value must be finite", i);
         int dropout = f[1] >= RC_SD_FAULT_ZERO;
         if (dropout && !(f[2] >= 1.0 && f[2] == floor(f[2]) && f[2] <= (double)n_steps + 1.0))
-            return refuse(err, RC_BAD_CONFIG, "faults row %ld: a dropout's value must be its "
+            return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: a dropout's value must be its "
                           "samples, a whole number >= 1", i);
     }
     return RC_OK;
@@ -141,18 +130,18 @@ rc_status rc_service_day_init(rc_service_day *d, const double *day, long n_day,
     if ((st = check_rows(wind, n_wind, faults, n_faults, d->n_steps, err)) != RC_OK)
         return st;
     if (n_grade < 1)
-        return refuse(err, RC_BAD_CONFIG, "grade: the profile needs at least one point");
+        return rc_refuse(err, RC_BAD_CONFIG, "grade: the profile needs at least one point");
     rc_chain_config pc;
     memset(&pc, 0, sizeof pc);
     long expected = rc_chain_config_from_values(&pc, plant, n_plant);
     if (expected)
-        return refuse(err, RC_BAD_CONFIG, "plant config: the C core takes %ld values, got %ld",
+        return rc_refuse(err, RC_BAD_CONFIG, "plant config: the C core takes %ld values, got %ld",
                       expected, n_plant);
     rc_estchain_config ec;
     memset(&ec, 0, sizeof ec);
     expected = rc_estchain_config_from_values(&ec, est, n_est);
     if (expected)
-        return refuse(err, RC_BAD_CONFIG, "estimator config: the C core takes %ld values, got %ld",
+        return rc_refuse(err, RC_BAD_CONFIG, "estimator config: the C core takes %ld values, got %ld",
                       expected, n_est);
     pc.grade_distances = ec.grade_distances = grade_distances;
     pc.grades = ec.grades = grades;
@@ -168,7 +157,7 @@ rc_status rc_service_day_init(rc_service_day *d, const double *day, long n_day,
             || score_init(&d->score[0], RC_CHAIN_OUTPUTS, OUT_EST, stops, hours) != RC_OK
             || score_init(&d->score[1], RC_EST_OUTPUTS, 0, stops, hours) != RC_OK) {
         rc_service_day_free(d);
-        return refuse(err, RC_BAD_CONFIG, "service day: out of memory");
+        return rc_refuse(err, RC_BAD_CONFIG, "service day: out of memory");
     }
     memcpy(d->wind, wind, sizeof *d->wind * (size_t)(2 * n_wind));
     memcpy(d->faults, faults, sizeof *d->faults * (size_t)(3 * n_faults));
@@ -355,7 +344,7 @@ static rc_status score_add(rc_sd_score *s, const double *out, double t, long hou
                 s->sigma_in++;
         }
         if (hour >= s->hours_cap)
-            return refuse(err, RC_BAD_CONFIG, "hour %ld past the day's %ld", hour, s->hours_cap);
+            return rc_refuse(err, RC_BAD_CONFIG, "hour %ld past the day's %ld", hour, s->hours_cap);
         while (s->hour_len <= hour)
             s->hour_len++;                   /* the sums start at 0 (calloc) */
         s->hour_se[hour] += e * e;
@@ -365,7 +354,7 @@ static rc_status score_add(rc_sd_score *s, const double *out, double t, long hou
     }
     if (v <= 0.0 && 0.0 < v_prev) {         /* arrival: stop_indices' definition */
         if (s->n_stops >= s->stops_cap)
-            return refuse(err, RC_BAD_CONFIG, "stop errors: more than %ld", s->stops_cap);
+            return rc_refuse(err, RC_BAD_CONFIG, "stop errors: more than %ld", s->stops_cap);
         s->stop_errors[s->n_stops++] = (est[EST_MASS] - mass) / mass;
     }
     s->se_all += e * e;
@@ -380,7 +369,7 @@ static rc_status score_add(rc_sd_score *s, const double *out, double t, long hou
         i++;
     if (i == s->n_status) {
         if (s->n_status >= RC_SD_STATUS_MAX)
-            return refuse(err, RC_BAD_CONFIG, "est.status: more than %d distinct values",
+            return rc_refuse(err, RC_BAD_CONFIG, "est.status: more than %d distinct values",
                           RC_SD_STATUS_MAX);
         s->status_value[s->n_status++] = st;
     }
@@ -405,7 +394,7 @@ rc_status rc_service_day_run(rc_service_day *d, long steps, const double *draws,
     if (err)
         err->msg[0] = '\0';
     if (steps < 0 || steps > d->n_steps - d->k)
-        return refuse(err, RC_BAD_CONFIG, "steps: %ld asked at step %ld of a day of %ld", steps,
+        return rc_refuse(err, RC_BAD_CONFIG, "steps: %ld asked at step %ld of a day of %ld", steps,
                       d->k, d->n_steps);
     const double *day = d->day;
     const double h = day[RC_SD_STEP_S];
@@ -415,7 +404,7 @@ rc_status rc_service_day_run(rc_service_day *d, long steps, const double *draws,
         long k = d->k;
         if (r.end - r.next < RC_SD_DRAWS_PER_STEP) {
             *used = (long)(r.next - draws);
-            return refuse(err, RC_BAD_CONFIG, "driver draws: %ld left before step %ld, a step may "
+            return rc_refuse(err, RC_BAD_CONFIG, "driver draws: %ld left before step %ld, a step may "
                           "take %d (give more draws)", (long)(r.end - r.next), k,
                           RC_SD_DRAWS_PER_STEP);
         }

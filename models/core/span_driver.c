@@ -15,22 +15,11 @@
 
 #define MAX_COUNT 10000000.0       /* spans, limits, grade rows, wind steps: a sanity bound */
 
-static rc_status refuse(rc_error *err, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-    }
-    return RC_BAD_CONFIG;
-}
-
 static rc_status refuse_value(rc_error *err, const char *where, const char *rule, double v)
 {
     char r[40];
     rc_repr(v, r, sizeof r);
-    return refuse(err, "%s %s, got %s", where, rule, r);
+    return rc_refuse(err, RC_BAD_CONFIG, "%s %s, got %s", where, rule, r);
 }
 
 /* A count: a whole number in 0..MAX_COUNT, else -1 */
@@ -45,7 +34,7 @@ static long count_of(double v)
 static rc_status read_header(rc_span_script *s, const double *v, long n, rc_error *err)
 {
     if (n < RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS)
-        return refuse(err, "span script: expected at least %d values (the header, the car and the "
+        return rc_refuse(err, RC_BAD_CONFIG, "span script: expected at least %d values (the header, the car and the "
                       "tuning), got %ld", RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS, n);
     s->step_s = v[0];
     s->duration_s = v[1];
@@ -79,7 +68,7 @@ static long arrays_needed(const rc_span_script *s, const double *v, long n, rc_e
     long at = RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS, need = 2 * s->n_spans;
     for (int i = 0; i < s->n_spans; i++) {
         if (at + RC_SPAN_FIELDS > n) {
-            refuse(err, "span script: span[%d] is missing (%ld values given)", i, n);
+            rc_refuse(err, RC_BAD_CONFIG, "span script: span[%d] is missing (%ld values given)", i, n);
             return -1;
         }
         long nl = count_of(v[at + 5]), ng = count_of(v[at + 6]);
@@ -98,7 +87,7 @@ static long arrays_needed(const rc_span_script *s, const double *v, long n, rc_e
         need += 2 * nl + 3 * ng;
     }
     if (n != at + 2 * s->n_wind) {
-        refuse(err, "span script: expected %ld values for %d spans and %ld wind steps, got %ld",
+        rc_refuse(err, RC_BAD_CONFIG, "span script: expected %ld values for %d spans and %ld wind steps, got %ld",
                at + 2 * s->n_wind, s->n_spans, s->n_wind, n);
         return -1;
     }
@@ -120,7 +109,7 @@ rc_status rc_span_script_init(rc_span_script *s, const double *values, long n, r
     s->arrays = malloc(sizeof *s->arrays * (size_t)need);
     if (!s->spans || !s->arrays) {
         rc_span_script_free(s);
-        return refuse(err, "span script: out of memory");
+        return rc_refuse(err, RC_BAD_CONFIG, "span script: out of memory");
     }
     const double *v = values + RC_SPAN_HEADER;
     ato_car_from_values(&s->car, v);
@@ -153,7 +142,7 @@ rc_status rc_span_script_init(rc_span_script *s, const double *values, long n, r
                 char where[64];
                 snprintf(where, sizeof where, "span[%d]: grade row %ld", i, j);
                 rc_span_script_free(s);
-                return refuse(err, "%s must be finite with increasing distances", where);
+                return rc_refuse(err, RC_BAD_CONFIG, "%s must be finite with increasing distances", where);
             }
         double *cum = a + 2 * nl + 2 * ng;
         rc_grade_cumulate(sp->grade.distances, sp->grade.grades, ng, cum);
@@ -276,7 +265,7 @@ rc_status rc_span_run(const rc_span_script *s, rc_chain *chain, rc_span_output *
         free(controllers);
         free(departures);
         free(seen);
-        return refuse(err, "span run: out of memory");
+        return rc_refuse(err, RC_BAD_CONFIG, "span run: out of memory");
     }
     ato_line line;
     char msg[ATO_TEXT_SIZE];

@@ -12,23 +12,12 @@
 #define MAX_SLOPE_WINDOW 1000L          /* identification.MAX_SLOPE_WINDOW */
 
 /* The message (a printf format) into err; RC_BAD_CONFIG */
-static rc_status refuse(rc_error *err, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-    }
-    return RC_BAD_CONFIG;
-}
-
 /* "<name> <rule>, got <repr(v)>" */
 static rc_status refuse_value(rc_error *err, const char *name, const char *rule, double v)
 {
     char r[40];
     rc_repr(v, r, sizeof r);
-    return refuse(err, "%s %s, got %s", name, rule, r);
+    return rc_refuse(err, RC_BAD_CONFIG, "%s %s, got %s", name, rule, r);
 }
 
 static void clear(rc_error *err)
@@ -54,7 +43,7 @@ rc_status rc_track_sensors_validate(double spacing, double base, double resoluti
         char a[40], b[40];
         rc_repr(spacing, a, sizeof a);
         rc_repr(base, b, sizeof b);
-        return refuse(err, "sensor.track_spacing (%s) must exceed sensor.track_base (%s)", a, b);
+        return rc_refuse(err, RC_BAD_CONFIG, "sensor.track_spacing (%s) must exceed sensor.track_base (%s)", a, b);
     }
     return RC_OK;
 }
@@ -77,22 +66,22 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
                                    "%s.fmu (pythonfmu) for it";
     clear(err);
     if (c->batch_size < 4)
-        return refuse(err, "est.batch_size must be >= 4 (4 parameters), got %ld", c->batch_size);
+        return rc_refuse(err, RC_BAD_CONFIG, "est.batch_size must be >= 4 (4 parameters), got %ld", c->batch_size);
     if (!(method >= 0 && method <= 3))                 /* identification.METHODS */
-        return refuse(err, "est.method must be 0 (paper LS), 1 (LS + filter-error refit), "
+        return rc_refuse(err, RC_BAD_CONFIG, "est.method must be 0 (paper LS), 1 (LS + filter-error refit), "
                            "2 (LS on Sidorenko's slopes), 3 (LS mass + Meleshin's coasting EKF), "
                            "got %d", method);
     if (native_fmu && method != 0 && method != 2)
-        return refuse(err, fmt, "est.method", method, native_fmu,
+        return rc_refuse(err, RC_BAD_CONFIG, fmt, "est.method", method, native_fmu,
                       "the paper's LS, or 2, LS on Sidorenko's slopes", native_fmu);
     if (!(sigma2_method == 0 || sigma2_method == 1))
-        return refuse(err, "est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
+        return rc_refuse(err, RC_BAD_CONFIG, "est.sigma2_method must be 0 (LAG sums of the LS residuals) or 1 "
                            "(innovation likelihood), got %d", sigma2_method);
     if (!(physical == 0 || physical == 1))
-        return refuse(err, "est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got %d",
+        return rc_refuse(err, RC_BAD_CONFIG, "est.physical must be 0 (as identified) or 1 (A0, A2 >= 0), got %d",
                       physical);
     if (slope_window < 2)
-        return refuse(err, "est.slope_window must be >= 2 (a first-order fit), got %ld",
+        return rc_refuse(err, RC_BAD_CONFIG, "est.slope_window must be >= 2 (a first-order fit), got %ld",
                       slope_window);
     if (!(0.0 <= c->run_forgetting && c->run_forgetting < 1.0))
         return refuse_value(err, "est.run_forgetting", "must be in [0, 1)", c->run_forgetting);
@@ -144,15 +133,15 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
         char q0[40], q1[40];
         rc_repr(c->A0_drift_std, q0, sizeof q0);
         rc_repr(c->A1_drift_std, q1, sizeof q1);
-        return refuse(err, "est.A0_drift_std and est.A1_drift_std apply to est.method 0 and 2 (the "
+        return rc_refuse(err, RC_BAD_CONFIG, "est.A0_drift_std and est.A1_drift_std apply to est.method 0 and 2 (the "
                            "LS's carried A's), got est.A0_drift_std = %s, est.A1_drift_std = %s "
                            "with est.method %d", q0, q1, method);
     }
     if (c->batch_size > MAX_BATCH_SIZE)
-        return refuse(err, "est.batch_size must be <= %ld (the first batch is held in memory "
+        return rc_refuse(err, RC_BAD_CONFIG, "est.batch_size must be <= %ld (the first batch is held in memory "
                            "until solved), got %ld", MAX_BATCH_SIZE, c->batch_size);
     if (slope_window > MAX_SLOPE_WINDOW)
-        return refuse(err, "est.slope_window must be <= %ld, got %ld", MAX_SLOPE_WINDOW,
+        return rc_refuse(err, RC_BAD_CONFIG, "est.slope_window must be <= %ld, got %ld", MAX_SLOPE_WINDOW,
                       slope_window);
     return RC_OK;
 }
@@ -180,7 +169,7 @@ static rc_status estimator_validate(const rc_ident_config *ident, const rc_filte
         char q0[40], R[40];            /* ProcessNoiseBank's check (LikelihoodNoise.from_config) */
         rc_repr(id.sigma2_initial, q0, sizeof q0);
         rc_repr(filt->speed_std * filt->speed_std, R, sizeof R);
-        return refuse(err, "est.sigma2_method 1 (the likelihood bank) needs est.sigma2_initial > 0 "
+        return rc_refuse(err, RC_BAD_CONFIG, "est.sigma2_method 1 (the likelihood bank) needs est.sigma2_initial > 0 "
                       "and a speed measurement variance > 0 (sensor.speed_std), got "
                       "est.sigma2_initial = %s, sensor.speed_std^2 = %s", q0, R);
     }
@@ -202,7 +191,7 @@ rc_status rc_chain_validate(const rc_chain_config *cfg, long slope_window, int h
                                         cfg->track_resolution, cfg->track_jitter, err)))
         return st;
     if (!(cfg->seed >= 0 && cfg->seed <= SEED_MAX))
-        return refuse(err, "seed must be in 0..2147483647 (a 32-bit fmi2Integer), got %ld",
+        return rc_refuse(err, RC_BAD_CONFIG, "seed must be in 0..2147483647 (a 32-bit fmi2Integer), got %ld",
                       cfg->seed);
     if (!(cfg->sample_period > 0 && isfinite(cfg->sample_period)))
         return refuse_value(err, "sensor.sample_period", "must be > 0", cfg->sample_period);
@@ -217,7 +206,7 @@ rc_status rc_chain_validate(const rc_chain_config *cfg, long slope_window, int h
         char a[40], b[40];
         rc_repr(cfg->solver_step, a, sizeof a);
         rc_repr(cfg->sample_period, b, sizeof b);
-        return refuse(err, "solver.step (%s) must not exceed sensor.sample_period (%s)", a, b);
+        return rc_refuse(err, RC_BAD_CONFIG, "solver.step (%s) must not exceed sensor.sample_period (%s)", a, b);
     }
     /* RailCarChain.__init__ */
     if (!isfinite(cfg->start_time))
