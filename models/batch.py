@@ -15,7 +15,9 @@ The metrics of a recorded run that run a model again are here too, in C
 (models/core/run_metrics.h): ``oracle_filter`` (the estimator with a frozen identifier holding
 the truth, replaying the measurements), ``interval_forces``, ``coast_segments`` and
 ``coast_times``; harness.metrics.estimation calls them when the C core runs (its Python functions
-stay the reference, equal bit for bit). Only numbers here: this module sits in the models base
+stay the reference, equal bit for bit). ``ServiceDay`` runs studies/service_day.py's 24 h day in
+blocks of steps (models/core/service_day.h: its driver, faulty sensors, both chains and scores;
+the driver's draws handed in from the study's numpy Generator). Only numbers here: this module sits in the models base
 layer (docs/architecture.md), importing nothing of ours but its extension.
 """
 from __future__ import annotations
