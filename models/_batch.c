@@ -17,6 +17,7 @@
 
 #include "core/run_metrics.h"
 #include "core/scenario_driver.h"
+#include "core/service_day.h"
 #include "core/span_driver.h"
 
 #define RUN_ARRAYS 6   /* config, grade_distances, grades, speed_distances, speeds, script */
@@ -611,72 +612,11 @@ done:
     return result;
 }
 
-static PyObject *batch_service_day(PyObject *module, PyObject *args);   /* at the end */
-
-static PyMethodDef methods[] = {
-    {"run", batch_run, METH_VARARGS,
-     "run(runs, outputs, inputs, error) -> [(rows, finished), ...]: whole scripted runs; each run "
-     "a tuple of float64 arrays (config, grade_distances, grades, speed_distances, speeds, "
-     "script); outputs runs x (steps + 1) x OUTPUTS, inputs runs x steps x INPUTS; a rejected "
-     "step raises error naming the run and the step"},
-    {"run_spans", batch_run_spans, METH_VARARGS,
-     "run_spans(runs, outputs, inputs, steps, log_cap, error) -> [(rows, finished, calls, "
-     "log_lines, [line, ...]), ...]: whole span runs (the ATO drives); each run a tuple of float64 "
-     "arrays (config, grade_distances, grades, speed_distances, speeds, span_script); steps runs x "
-     "steps x SPAN_STEP_FIELDS (one row per ATO call)"},
-    {"interval_forces", batch_interval_forces, METH_VARARGS,
-     "interval_forces(vehicle, speed, mass, traction_demand, brake_demand, traction_mean, "
-     "brake_mean): harness.metrics.estimation._interval_forces with recorded demands"},
-    {"oracle_filter", batch_oracle_filter, METH_VARARGS,
-     "oracle_filter(config, grade_distances, grades, speed_distances, speeds, A, step, wind, time, "
-     "mass, speed_meas, position_meas, traction_mean, brake_mean, v_out, x_out): "
-     "harness.metrics.estimation.oracle_filter's loop"},
-    {"coast_segments", batch_coast_segments, METH_VARARGS,
-     "coast_segments(mode, min_rows) -> [(first, last), ...]: harness.metrics.estimation.coast_segments"},
-    {"coast_times", batch_coast_times, METH_VARARGS,
-     "coast_times(vehicle, grade_distances, grades, wind, h, t_max, coasts, out): "
-     "harness.metrics.estimation.coast_time of each coast row (v0, x0, x1, A0, A1, A2, mass, t0)"},
-    {"service_day", batch_service_day, METH_VARARGS,
-     "service_day(day, plant, est, grade_distances, grade_values, wind, faults, error) -> "
-     "ServiceDay: studies/service_day.py's day in C (models/core/service_day.h), run in blocks"},
-    {NULL, NULL, 0, NULL},
-};
-
-static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "models._batch",
-    "Whole scripted runs in the C core (models/core/scenario_driver.h): see models/batch.py.", -1,
-    methods, NULL, NULL, NULL, NULL,
-};
-
-PyMODINIT_FUNC PyInit__batch(void)
-{
-    PyObject *m = PyModule_Create(&module);
-    if (!m)
-        return NULL;
-    if (PyModule_AddIntConstant(m, "OUTPUTS", RC_CHAIN_OUTPUTS) < 0
-            || PyModule_AddIntConstant(m, "INPUTS", RC_SCRIPT_INPUTS) < 0
-            || PyModule_AddIntConstant(m, "HEADER", RC_SCRIPT_HEADER) < 0
-            || PyModule_AddIntConstant(m, "PHASE_FIELDS", RC_PHASE_FIELDS) < 0
-            || PyModule_AddIntConstant(m, "MAX_STEPS", RC_SCRIPT_MAX_STEPS) < 0
-            || PyModule_AddIntConstant(m, "VEHICLE_VALUES", VEHICLE_VALUES) < 0
-            || PyModule_AddIntConstant(m, "COAST_VALUES", COAST_VALUES) < 0
-            || PyModule_AddIntConstant(m, "SPAN_HEADER", RC_SPAN_HEADER) < 0
-            || PyModule_AddIntConstant(m, "SPAN_STEP_FIELDS", RC_SPAN_STEP_FIELDS) < 0
-            || PyModule_AddIntConstant(m, "SPAN_TUNING_FIELDS", ATO_N_TUNING_FIELDS) < 0
-            || PyModule_AddIntConstant(m, "SPAN_STATION_STOPS", RC_SPAN_STATION_STOPS) < 0) {
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
-}
-
-
-/* ------------------------------------------------------------------ the service day (issue 31)
+/* ------------------------------------------------------------------ the service day
  * studies/service_day.py's run_day loop in C (models/core/service_day.h): service_day(...) builds
  * a ServiceDay (its flat float64 arrays checked, copied), whose run(steps, draws) runs a block of
  * steps with the GIL released and whose export() gives the figures so far (a float64 bytearray
  * in service_day.h's export layout). models/batch.py's ServiceDay is its Python face. */
-#include "core/service_day.h"
 
 typedef struct {
     PyObject_HEAD
@@ -808,4 +748,65 @@ done:
     for (int k = 0; k < held; k++)
         PyBuffer_Release(&v[k]);
     return (PyObject *)self;
+}
+
+
+static PyMethodDef methods[] = {
+    {"run", batch_run, METH_VARARGS,
+     "run(runs, outputs, inputs, error) -> [(rows, finished), ...]: whole scripted runs; each run "
+     "a tuple of float64 arrays (config, grade_distances, grades, speed_distances, speeds, "
+     "script); outputs runs x (steps + 1) x OUTPUTS, inputs runs x steps x INPUTS; a rejected "
+     "step raises error naming the run and the step"},
+    {"run_spans", batch_run_spans, METH_VARARGS,
+     "run_spans(runs, outputs, inputs, steps, log_cap, error) -> [(rows, finished, calls, "
+     "log_lines, [line, ...]), ...]: whole span runs (the ATO drives); each run a tuple of float64 "
+     "arrays (config, grade_distances, grades, speed_distances, speeds, span_script); steps runs x "
+     "steps x SPAN_STEP_FIELDS (one row per ATO call)"},
+    {"interval_forces", batch_interval_forces, METH_VARARGS,
+     "interval_forces(vehicle, speed, mass, traction_demand, brake_demand, traction_mean, "
+     "brake_mean): harness.metrics.estimation._interval_forces with recorded demands"},
+    {"oracle_filter", batch_oracle_filter, METH_VARARGS,
+     "oracle_filter(config, grade_distances, grades, speed_distances, speeds, A, step, wind, time, "
+     "mass, speed_meas, position_meas, traction_mean, brake_mean, v_out, x_out): "
+     "harness.metrics.estimation.oracle_filter's loop"},
+    {"coast_segments", batch_coast_segments, METH_VARARGS,
+     "coast_segments(mode, min_rows) -> [(first, last), ...]: harness.metrics.estimation.coast_segments"},
+    {"coast_times", batch_coast_times, METH_VARARGS,
+     "coast_times(vehicle, grade_distances, grades, wind, h, t_max, coasts, out): "
+     "harness.metrics.estimation.coast_time of each coast row (v0, x0, x1, A0, A1, A2, mass, t0)"},
+    {"service_day", batch_service_day, METH_VARARGS,
+     "service_day(day, plant, est, grade_distances, grade_values, wind, faults, error) -> "
+     "ServiceDay: studies/service_day.py's day in C (models/core/service_day.h), run in blocks"},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "models._batch",
+    "Whole scripted runs in the C core (models/core/scenario_driver.h): see models/batch.py.", -1,
+    methods, NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__batch(void)
+{
+    PyObject *m = PyModule_Create(&module);
+    if (!m)
+        return NULL;
+    if (PyModule_AddIntConstant(m, "OUTPUTS", RC_CHAIN_OUTPUTS) < 0
+            || PyModule_AddIntConstant(m, "INPUTS", RC_SCRIPT_INPUTS) < 0
+            || PyModule_AddIntConstant(m, "HEADER", RC_SCRIPT_HEADER) < 0
+            || PyModule_AddIntConstant(m, "PHASE_FIELDS", RC_PHASE_FIELDS) < 0
+            || PyModule_AddIntConstant(m, "MAX_STEPS", RC_SCRIPT_MAX_STEPS) < 0
+            || PyModule_AddIntConstant(m, "VEHICLE_VALUES", VEHICLE_VALUES) < 0
+            || PyModule_AddIntConstant(m, "COAST_VALUES", COAST_VALUES) < 0
+            || PyModule_AddIntConstant(m, "SPAN_HEADER", RC_SPAN_HEADER) < 0
+            || PyModule_AddIntConstant(m, "SPAN_STEP_FIELDS", RC_SPAN_STEP_FIELDS) < 0
+            || PyModule_AddIntConstant(m, "SPAN_TUNING_FIELDS", ATO_N_TUNING_FIELDS) < 0
+            || PyModule_AddIntConstant(m, "SPAN_STATION_STOPS", RC_SPAN_STATION_STOPS) < 0
+            || PyModule_AddIntConstant(m, "SERVICE_DAY_VALUES", RC_SD_DAY_VALUES) < 0
+            || PyModule_AddIntConstant(m, "SERVICE_DAY_EXPORT_FIXED", RC_SD_X_DAY) < 0
+            || PyModule_AddIntConstant(m, "SERVICE_DAY_SCORE_FIXED", RC_SD_S_FIXED) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

@@ -400,6 +400,11 @@ class ServiceDay:
                  rejected: type[Exception] = ValueError):
         if _batch is None:
             raise RuntimeError("the C scenario runner (models._batch) is not compiled")
+        built = tuple(getattr(_batch, name, None) for name in (
+            "SERVICE_DAY_VALUES", "SERVICE_DAY_EXPORT_FIXED", "SERVICE_DAY_SCORE_FIXED"))
+        if built != (len(SERVICE_DAY_FIELDS), _DAY_FIXED, _SCORE_FIXED):
+            raise RuntimeError(f"models._batch's service day layout {built} is not this module's "
+                               "(a stale build): setup.py build_ext --inplace")
         if len(day) != len(SERVICE_DAY_FIELDS):
             raise ValueError(f"service day: expected {len(SERVICE_DAY_FIELDS)} day values "
                              f"{SERVICE_DAY_FIELDS}, got {len(day)}")

@@ -337,6 +337,10 @@ def day_on(lib_path: Path, monkeypatch, hours: float) -> dict:
     lib.rc_service_day_free.argtypes = [ctypes.c_void_p]
 
     class Module:
+        SERVICE_DAY_VALUES = sd.batch._batch.SERVICE_DAY_VALUES                # the layout: as built
+        SERVICE_DAY_EXPORT_FIXED = sd.batch._batch.SERVICE_DAY_EXPORT_FIXED
+        SERVICE_DAY_SCORE_FIXED = sd.batch._batch.SERVICE_DAY_SCORE_FIXED
+
         @staticmethod
         def service_day(*arrays_and_error):
             return _CtypesTwin(lib, arrays_and_error[:-1])
