@@ -42,7 +42,7 @@ import uuid
 import zlib
 from collections import Counter
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from harness.run.runner import FmuRunner, RunError
 from harness.sweep.spec import RunSpec, Sweep
@@ -453,22 +453,69 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
     return ran
 
 
-def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool],
-                   in_flight: int) -> int:
-    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk), at most ``in_flight``
-    chunks submitted at a time (the next one as one ends), so that the scheduler holds a bounded
-    number of tasks and their runs whatever the sweep's size; each row goes to ``record`` as its chunk
-    ends. A chunk that kept killing its worker becomes failed rows. The rows recorded (a retried
-    chunk's rows come once: dask gives a task's result once, and ``record`` drops a run id it has)."""
+class RunStream:
+    """The runs of ``ids`` (of ``runs``, a harness.sweep.spec.SweepRuns), built in order as they are
+    taken -- a chunk at a time, so that only the runs of the chunks in flight are held -- the
+    invalid ones (RunSpec.error) handed to ``on_invalid`` as they are met."""
+
+    def __init__(self, runs, ids, on_invalid: Callable[[RunSpec], None]):
+        self.runs, self.on_invalid = runs, on_invalid
+        self._ids = iter(ids)
+        self._left = len(ids)
+        self._held: list[RunSpec] = []
+
+    def take(self, n: int) -> list[RunSpec]:
+        """Up to ``n`` valid runs, the next ones; fewer only at the end."""
+        out, self._held = self._held[:n], self._held[n:]
+        while len(out) < n and self._left:
+            spec = self.runs.build(next(self._ids))
+            self._left -= 1
+            if spec.error is not None:
+                self.on_invalid(spec)
+            else:
+                out.append(spec)
+        return out
+
+    def put_back(self, specs: list[RunSpec]) -> None:
+        """``specs`` taken will be the next ones taken again."""
+        self._held = list(specs) + self._held
+
+    def left(self) -> int:
+        """Runs not taken yet (valid or not)."""
+        return self._left + len(self._held)
+
+
+TAIL_SHARE = 2
+"""A chunk of the default size (chunk_size) takes at most 1 / (TAIL_SHARE x workers) of the runs
+not submitted yet: chunks shrink towards the sweep's end, so that the workers end together (one
+chunk of 100 station_day runs left to one worker is ~0.9 s of the other one idle)."""
+
+
+def next_chunk(first: int, left: int, workers: int) -> int:
+    """Runs of the next chunk of a sweep in chunks of at most ``first`` (chunk_size) runs with
+    ``left`` runs not submitted yet on ``workers``: ``first``, shrinking towards the end (TAIL_SHARE),
+    never below a run_batch call's CALL_RUNS (nor ``first``)."""
+    return max(min(first, CALL_RUNS), min(first, -(-left // (TAIL_SHARE * max(1, workers)))))
+
+
+def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, workers: int,
+                   record: Callable[[dict], bool], in_flight: int) -> int:
+    """The runs of ``stream`` in chunks, a dask task each (execute_chunk), at most ``in_flight``
+    chunks submitted at a time (the next one built and submitted as one ends), so that this
+    process and the scheduler hold a bounded number of runs whatever the sweep's size; each row
+    goes to ``record`` as its chunk ends. ``chunk`` runs a chunk if given, else next_chunk (at most
+    chunk_size, shrinking at the end). A chunk that kept killing its worker becomes failed rows.
+    The rows recorded (a retried chunk's rows come once: dask gives a task's result once, and
+    ``record`` drops a run id it has)."""
     from distributed import as_completed
     nonce = uuid.uuid4().hex[:8]
-    parts = (specs[k:k + chunk] for k in range(0, len(specs), chunk))
+    first = chunk or chunk_size(stream.left(), workers)
     futures = {}
     done = as_completed(with_results=True, raise_errors=False)
 
     def submit_next() -> None:
-        part = next(parts, None)
-        if part is not None:
+        part = stream.take(chunk or next_chunk(first, stream.left(), workers))
+        if part:
             f = client.submit(execute_packed_chunk, pack_chunk(part), pure=False, retries=2,
                               key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
             futures[f.key] = (f, part)
@@ -505,29 +552,34 @@ IN_FLIGHT_PER_WORKER = 4
 worker busy while rows come back, few enough that the scheduler's memory does not grow with the runs."""
 
 
-def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid: str | None,
+def execute_runs(sweep: Sweep, ids: Sequence[int], fmu_path: Path | None, guid: str | None,
                  record: Callable[[dict], bool], client=None, scheduler: str | None = None,
                  workers: int | None = None, log=print, engine: str = "fmu",
                  chunk: int | None = None) -> tuple[int, int]:
-    """Run ``specs`` and hand each row to ``record`` (True if it kept the row): the invalid ones
-    at once, here, the others on dask (see dask_client): ``engine`` "fmu", a run a task through
-    the FMU at ``fmu_path``; "batch", ``chunk`` runs a task (default chunk_size) on the batch
-    engine (execute_chunk). Returns (rows recorded, dask workers)."""
+    """Run the runs of ``sweep`` whose ids are ``ids`` and hand each row to ``record`` (True if it
+    kept the row): each run is built (sweep.runs.build) when its chunk is prepared; an invalid one
+    becomes its row here, at once, the others run on dask (see dask_client): ``engine`` "fmu", a
+    run a task through the FMU at ``fmu_path`` (every run built before the first is submitted, as
+    the tasks are); "batch", ``chunk`` runs a task (default next_chunk) on the batch engine
+    (execute_chunk). No cluster is started when no run is valid. Returns (rows recorded, dask workers)."""
     if engine not in ("fmu", "batch"):
         raise ValueError(f"engine: expected 'fmu' or 'batch', got {engine!r}")
-    ran = 0
-    for spec in [s for s in specs if s.error is not None]:        # invalid scenarios: rows now
-        row = execute_run(str(fmu_path), guid, spec) if engine == "fmu" else execute_chunk([spec])[0]
-        record(row)
-        ran += 1
-    valid = [s for s in specs if s.error is None]
-    if not valid:
-        return ran, 0
+    invalid_rows = 0
+
+    def on_invalid(spec: RunSpec) -> None:                  # invalid scenario: its row now
+        nonlocal invalid_rows
+        record(execute_run(str(fmu_path), guid, spec) if engine == "fmu" else execute_chunk([spec])[0])
+        invalid_rows += 1
+
+    stream = RunStream(sweep.runs, ids, on_invalid)
+    first = stream.take(1)
+    if not first:
+        return invalid_rows, 0
+    stream.put_back(first)
     with dask_client(client, scheduler, workers) as (c, extract_root):
         n_workers = check_workers(c, fmu_path if engine == "fmu" else None, log)
         if engine == "fmu":
-            ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
+            ran = _submit_all(c, sweep, stream.take(stream.left()), str(fmu_path), guid, record, extract_root)
         else:
-            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record,
-                                  IN_FLIGHT_PER_WORKER * n_workers)
-    return ran, n_workers
+            ran = _submit_chunks(c, sweep, stream, chunk, n_workers, record, IN_FLIGHT_PER_WORKER * n_workers)
+    return ran + invalid_rows, n_workers

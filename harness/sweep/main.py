@@ -101,7 +101,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
         fmu_path = None
         core = core_identity()
     writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind, engine=engine, core=core)
-    todo = [s for s in sweep.runs if s.run_id not in writer.done]
+    # run ids, not runs: a run is built when its chunk is prepared (harness.sweep.execute)
+    todo = [i for i in sweep.runs.ids if i not in writer.done] if writer.done else sweep.runs.ids
     if limit is not None:
         todo = todo[:limit]
     t0 = time.monotonic()
@@ -120,7 +121,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
         writer.close()
     stats, done, sample = streamed_end(out_dir, sweep, plots)
     outcome = SweepOutcome(stats=stats, ran=ran, resumed=writer.resumed,
-                           missing=[s.run_id for s in sweep.runs if s.run_id not in done],
+                           missing=[i for i in sweep.runs.ids if i not in done],
                            wall_s=time.monotonic() - t0, workers=n_workers,
                            fmu=(fmu_note or f"{kind} {fmu_path}") if engine == "fmu" else "",
                            engine=(engine_note or "batch") if engine == "batch" else "",
@@ -175,7 +176,7 @@ def choose_engine(asked: str, fmu_asked: str | None, sweep: Sweep) -> tuple[str,
     FMU path), else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs on
     run_on_chain, the Python reference: the engine column says "python")."""
     from harness.run.batch import not_covered
-    uncovered = next(((s.run_id, why) for s in sweep.runs if s.scenario is not None
+    uncovered = next(((s.run_id, why) for s in sweep.runs.representatives() if s.scenario is not None
                       for why in [not_covered(s.scenario)] if why), None)
     if asked == "fmu":
         return "fmu", "--engine fmu"
@@ -206,7 +207,8 @@ def cli_sweep(args) -> int:
     choice = None
     if engine == "fmu":
         choice = select(getattr(args, "fmu", None) or "auto", "RailCar", args.dist, args.rebuild,
-                        [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
+                        [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs.representatives()
+                         if r.scenario is not None])
     where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
     print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)
     print(f"engine: {engine} ({why})", flush=True)
