@@ -229,17 +229,21 @@ def execute_chunk(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict
     return rows
 
 
-def pack_chunk(specs: list[RunSpec]) -> bytes:
-    """A chunk's specs as one compressed pickle (~60 bytes a run where the runs differ in a few
-    values, ~1.7 kB a run as objects): the dask scheduler keeps the arguments of tasks it has
-    finished (measured: ~11 kB a run of a 300-step sweep, 1 GB at 100,000 runs), so a chunk ships
-    as bytes."""
-    return zlib.compress(pickle.dumps(specs, protocol=pickle.HIGHEST_PROTOCOL), 1)
+def pack_chunk(recipe, points: list[tuple[int, dict]]) -> bytes:
+    """A chunk as one compressed pickle: the sweep's ``recipe`` (harness.sweep.spec.RunPlan.recipe:
+    the base scenario's data and the fixed values, a few kB) and each run's (run id, swept values):
+    the worker builds the runs (execute_packed_chunk), so that this process, which also hosts an
+    embedded cluster's scheduler, is free to hand out chunks and write rows. Bytes: the dask
+    scheduler keeps the arguments of tasks it has finished (measured: ~11 kB a run of a 300-step
+    sweep as objects, 1 GB at 100,000 runs)."""
+    return zlib.compress(pickle.dumps((recipe, points), protocol=pickle.HIGHEST_PROTOCOL), 1)
 
 
 def execute_packed_chunk(packed: bytes) -> list[dict]:
-    """execute_chunk of a pack_chunk'ed chunk (on a worker)."""
-    return execute_chunk(pickle.loads(zlib.decompress(packed)))
+    """execute_chunk of a pack_chunk'ed chunk, its runs built here first (on a worker; ~0.4 ms a
+    station_day run, not in its wall_time, as building at load was not)."""
+    recipe, points = pickle.loads(zlib.decompress(packed))
+    return execute_chunk([recipe.make(run_id, values) for run_id, values in points])
 
 
 def _batch_rows(specs: list[RunSpec]) -> list[dict]:
@@ -454,35 +458,21 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
 
 
 class RunStream:
-    """The runs of ``ids`` (of ``runs``, a harness.sweep.spec.SweepRuns), built in order as they are
-    taken -- a chunk at a time, so that only the runs of the chunks in flight are held -- the
-    invalid ones (RunSpec.error) handed to ``on_invalid`` as they are met."""
+    """The run ids of a sweep's runs not taken yet, a chunk at a time (``take``); the runs
+    themselves are built where they run (execute_packed_chunk)."""
 
-    def __init__(self, runs, ids, on_invalid: Callable[[RunSpec], None]):
-        self.runs, self.on_invalid = runs, on_invalid
-        self._ids = iter(ids)
-        self._left = len(ids)
-        self._held: list[RunSpec] = []
+    def __init__(self, ids: Sequence[int]):
+        self.ids, self.pos = ids, 0
 
-    def take(self, n: int) -> list[RunSpec]:
-        """Up to ``n`` valid runs, the next ones; fewer only at the end."""
-        out, self._held = self._held[:n], self._held[n:]
-        while len(out) < n and self._left:
-            spec = self.runs.build(next(self._ids))
-            self._left -= 1
-            if spec.error is not None:
-                self.on_invalid(spec)
-            else:
-                out.append(spec)
-        return out
-
-    def put_back(self, specs: list[RunSpec]) -> None:
-        """``specs`` taken will be the next ones taken again."""
-        self._held = list(specs) + self._held
+    def take(self, n: int) -> Sequence[int]:
+        """The next ``n`` run ids (fewer only at the end)."""
+        part = self.ids[self.pos:self.pos + n]
+        self.pos += len(part)
+        return part
 
     def left(self) -> int:
-        """Runs not taken yet (valid or not)."""
-        return self._left + len(self._held)
+        """Run ids not taken yet."""
+        return len(self.ids) - self.pos
 
 
 TAIL_SHARE = 2
@@ -500,9 +490,9 @@ def next_chunk(first: int, left: int, workers: int) -> int:
 
 def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, workers: int,
                    record: Callable[[dict], bool], in_flight: int) -> int:
-    """The runs of ``stream`` in chunks, a dask task each (execute_chunk), at most ``in_flight``
-    chunks submitted at a time (the next one built and submitted as one ends), so that this
-    process and the scheduler hold a bounded number of runs whatever the sweep's size; each row
+    """The runs of ``stream``'s ids in chunks, a dask task each (execute_packed_chunk: its worker
+    builds the runs), at most ``in_flight`` chunks submitted at a time (the next one as one ends),
+    so that this process and the scheduler hold a bounded number of runs whatever the sweep's size; each row
     goes to ``record`` as its chunk ends. ``chunk`` runs a chunk if given, else next_chunk (at most
     chunk_size, shrinking at the end). A chunk that kept killing its worker becomes failed rows.
     The rows recorded (a retried chunk's rows come once: dask gives a task's result once, and
@@ -513,11 +503,15 @@ def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, w
     futures = {}
     done = as_completed(with_results=True, raise_errors=False)
 
+    plan = sweep.runs.plan
+    recipe = plan.recipe()
+
     def submit_next() -> None:
         part = stream.take(chunk or next_chunk(first, stream.left(), workers))
         if part:
-            f = client.submit(execute_packed_chunk, pack_chunk(part), pure=False, retries=2,
-                              key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
+            packed = pack_chunk(recipe, [(i, plan.point(i)) for i in part])
+            f = client.submit(execute_packed_chunk, packed, pure=False, retries=2,
+                              key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0]}-{part[-1]}")
             futures[f.key] = (f, part)
             done.add(f)
 
@@ -532,8 +526,8 @@ def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, w
                 rows = result
             else:                    # an exception: KilledWorker (the chunk killed its worker every time), ...
                 rows = []
-                for spec in part:
-                    row = base_row(spec)
+                for run_id in part:
+                    row = base_row(plan.build(run_id))
                     row.update(status=TEXT_STATUS_FAILED, wall_time=None,
                                error=_one_line(f"dask: {type(result).__name__}: {result}"))
                     rows.append(row)
@@ -557,29 +551,36 @@ def execute_runs(sweep: Sweep, ids: Sequence[int], fmu_path: Path | None, guid: 
                  workers: int | None = None, log=print, engine: str = "fmu",
                  chunk: int | None = None) -> tuple[int, int]:
     """Run the runs of ``sweep`` whose ids are ``ids`` and hand each row to ``record`` (True if it
-    kept the row): each run is built (sweep.runs.build) when its chunk is prepared; an invalid one
-    becomes its row here, at once, the others run on dask (see dask_client): ``engine`` "fmu", a
-    run a task through the FMU at ``fmu_path`` (every run built before the first is submitted, as
-    the tasks are); "batch", ``chunk`` runs a task (default next_chunk) on the batch engine
-    (execute_chunk). No cluster is started when no run is valid. Returns (rows recorded, dask workers)."""
+    kept the row), on dask (see dask_client): ``engine`` "fmu", a run a task through the FMU at
+    ``fmu_path``, every run built here (sweep.runs.build) before the first is submitted, as the
+    tasks are, an invalid one's row recorded here at once; "batch", ``chunk`` runs a task (default
+    next_chunk) on the batch engine (execute_chunk), each chunk's runs built by its worker (an
+    invalid one's row made there). The runs up to the first valid one are built here: invalid, their
+    rows now, and no cluster is started when none is valid. Returns (rows recorded, dask workers)."""
     if engine not in ("fmu", "batch"):
         raise ValueError(f"engine: expected 'fmu' or 'batch', got {engine!r}")
-    invalid_rows = 0
-
-    def on_invalid(spec: RunSpec) -> None:                  # invalid scenario: its row now
-        nonlocal invalid_rows
+    invalid_rows, first_valid = 0, len(ids)
+    for pos, run_id in enumerate(ids):
+        spec = sweep.runs.build(run_id)
+        if spec.error is None:
+            first_valid = pos
+            break
         record(execute_run(str(fmu_path), guid, spec) if engine == "fmu" else execute_chunk([spec])[0])
         invalid_rows += 1
-
-    stream = RunStream(sweep.runs, ids, on_invalid)
-    first = stream.take(1)
-    if not first:
+    if first_valid == len(ids):
         return invalid_rows, 0
-    stream.put_back(first)
+    ids = ids[first_valid:]
     with dask_client(client, scheduler, workers) as (c, extract_root):
         n_workers = check_workers(c, fmu_path if engine == "fmu" else None, log)
         if engine == "fmu":
-            ran = _submit_all(c, sweep, stream.take(stream.left()), str(fmu_path), guid, record, extract_root)
+            valid = []
+            for spec in (sweep.runs.build(i) for i in ids):
+                if spec.error is None:
+                    valid.append(spec)
+                else:
+                    record(execute_run(str(fmu_path), guid, spec))
+                    invalid_rows += 1
+            ran = _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
         else:
-            ran = _submit_chunks(c, sweep, stream, chunk, n_workers, record, IN_FLIGHT_PER_WORKER * n_workers)
+            ran = _submit_chunks(c, sweep, RunStream(ids), chunk, n_workers, record, IN_FLIGHT_PER_WORKER * n_workers)
     return ran + invalid_rows, n_workers

@@ -131,7 +131,15 @@ class RunPlan:
     def build(self, run_id: int) -> RunSpec:
         """Run ``run_id``: its scenario (the base with the fixed and the run's values), or why it
         is invalid (a RunSpec with the reason: a "failed" row when the sweep runs)."""
-        values = self.point(run_id)
+        return self.make(run_id, self.point(run_id))
+
+    def recipe(self) -> "RunPlan":
+        """This plan without its factors: what ``make`` needs, a few kB whatever the runs (a
+        chunk of runs ships it with the runs' ids and points, and its worker builds them)."""
+        return RunPlan(base=self.base, base_path=self.base_path, fixed=self.fixed, axes=self.axes, factors=())
+
+    def make(self, run_id: int, values: dict) -> RunSpec:
+        """``build`` of run ``run_id`` whose swept values (``point``) are ``values``."""
         ordered = tuple((n, values[n]) for n in self.axes)
         data = _apply(self.base, {**self.fixed, **values})
         try:

@@ -1,19 +1,22 @@
 """A sweep's runs built when asked for (harness/sweep/spec.py SweepRuns, RunPlan; issue 31): the
 same runs, ids and fingerprint as building them all at load did, a load whose memory does not grow
 with the number of runs, and the chunks a sweep is cut into (harness/sweep/execute.py RunStream,
-next_chunk). No FMU and no dask here: fast."""
+next_chunk); a packed chunk's runs built and run by its worker. No FMU and no dask here."""
 from __future__ import annotations
 
 import hashlib
 import itertools
 import json
+import pickle
 import tracemalloc
+import zlib
 from pathlib import Path
 
 import pytest
 
 from harness.run.scenario import PATH_PARAMETERS, ScenarioError, scenario_from_dict
-from harness.sweep.execute import CALL_RUNS, RunStream, chunk_size, next_chunk
+from harness.sweep.execute import (CALL_RUNS, RunStream, chunk_size, execute_packed_chunk, next_chunk,
+                                   pack_chunk)
 from harness.sweep.spec import load_sweep
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -125,15 +128,20 @@ def test_loading_takes_the_same_memory_for_ten_or_fifty_thousand_runs(tmp_path):
     assert large[1] - small[1] < 2_000_000, (small, large)
 
 
-def test_a_stream_builds_runs_as_they_are_taken_and_hands_on_the_invalid_ones(tmp_path):
+def test_a_stream_hands_out_run_ids_and_a_packed_chunk_builds_its_runs_on_the_worker(tmp_path):
     sweep = load_sweep(write(tmp_path, MIXED))
-    invalid = []
-    stream = RunStream(sweep.runs, [0, 1, 30, 2, 31, 32, 33], invalid.append)
-    first = stream.take(1)                                  # runs 0, 1 are invalid (car.mass -5 t)
-    assert [s.run_id for s in first] == [30] and [s.run_id for s in invalid] == [0, 1] and stream.left() == 4
-    stream.put_back(first)
-    assert [s.run_id for s in stream.take(2)] == [30, 31] and [s.run_id for s in invalid] == [0, 1, 2]
-    assert [s.run_id for s in stream.take(10)] == [32, 33] and stream.take(3) == [] and stream.left() == 0
+    stream = RunStream(range(28, 40))
+    assert list(stream.take(3)) == [28, 29, 30] and stream.left() == 9
+    assert list(stream.take(20)) == list(range(31, 40)) and list(stream.take(1)) == [] and stream.left() == 0
+    plan = sweep.runs.plan
+    ids = [0, 30, 31, 71]                                       # run 0: car.mass -5 t, invalid
+    packed = pack_chunk(plan.recipe(), [(i, plan.point(i)) for i in ids])
+    assert len(packed) < 3000                                     # the recipe and four points, compressed
+    recipe, points = pickle.loads(zlib.decompress(packed))
+    assert recipe.factors == () and [recipe.make(i, p) for i, p in points] == [sweep.runs.build(i) for i in ids]
+    rows = execute_packed_chunk(packed)
+    assert [r["run_id"] for r in rows] == ids and [r["status"] for r in rows] == ["failed", "ok", "ok", "ok"]
+    assert "invalid scenario" in rows[0]["error"] and [r["seed"] for r in rows[1:]] == [7, 9, 11]
 
 
 def test_chunks_shrink_towards_the_end_of_a_sweep():
