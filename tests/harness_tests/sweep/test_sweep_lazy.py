@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from harness.run.scenario import PATH_PARAMETERS, ScenarioError, scenario_from_dict
-from harness.sweep.execute import (CALL_RUNS, RunStream, chunk_size, execute_packed_chunk, next_chunk,
+from harness.sweep.execute import (MIN_CHUNK, RunStream, chunk_size, execute_packed_chunk, next_chunk,
                                    pack_chunk)
 from harness.sweep.spec import load_sweep
 
@@ -151,5 +151,5 @@ def test_chunks_shrink_towards_the_end_of_a_sweep():
         sizes.append(min(left, next_chunk(first, left, 2)))
         left -= sizes[-1]
     assert sizes[0] == first == 100 and sum(sizes) == 1000
-    assert sizes == sorted(sizes, reverse=True) and sizes[-2] == CALL_RUNS and sizes[-1] <= CALL_RUNS
+    assert sizes == sorted(sizes, reverse=True) and sizes[-2] == MIN_CHUNK and sizes[-1] <= MIN_CHUNK
     assert next_chunk(1, 5, 2) == 1 and next_chunk(5, 3, 2) == 5                 # never above chunk_size
