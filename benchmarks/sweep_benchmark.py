@@ -58,7 +58,8 @@ from harness.run.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: 
 from harness.metrics.estimation import summarise  # noqa: E402
 from harness.run.runner import FmuRunner  # noqa: E402
 from harness.sweep.main import run_sweep  # noqa: E402
-from harness.sweep.execute import CALL_RUNS, ReusableRunner, execute_chunk, execute_run  # noqa: E402
+from harness.sweep.execute import (CALL_RUNS, WORKER_CONFIG, ReusableRunner, execute_chunk,  # noqa: E402
+                                   execute_run)
 from harness.sweep.spec import load_sweep  # noqa: E402
 
 STEPS = 1500
@@ -129,11 +130,13 @@ def timed_sweep(n_workers: int, fmu: Path | None, sweep, folder: Path, cpu: dict
     idle host of that many cores could reach, times the cores)."""
     import dataclasses
     import logging
+    import dask
     from distributed import Client, LocalCluster
     first = sweep.runs[0]
     warm = [dataclasses.replace(first, run_id=-1 - k) for k in range(n_workers)]
-    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                      host="127.0.0.1", silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with dask.config.set(WORKER_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                                      dashboard_address=None, host="127.0.0.1",
+                                                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         client.wait_for_workers(n_workers)
         workers = client.scheduler_info()["workers"]
         if fmu is None:
@@ -451,8 +454,11 @@ def part_hundredk(args, tmp: Path) -> None:
           f"sweep file ({total:,} runs) loaded in {load_s:.1f} s, main RSS {rss0 * 1e-6:.0f} -> {rss1 * 1e-6:.0f} MB "
           f"(the runs are built a chunk at a time as the sweep runs, none at load)", flush=True)
     print(" local cluster of 2 worker processes:", flush=True)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, host="127.0.0.1",
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client, MemorySampler() as sampler:
+    import dask
+    with dask.config.set(WORKER_CONFIG), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                                      dashboard_address=None, host="127.0.0.1",
+                                                      silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client, MemorySampler() as sampler:
         hundredk_legs(sweep, tmp / "hundredk_local", first, sampler, client=client)
     print(" external scheduler (python -m dask scheduler + 2 x dask worker --nthreads 1 on 127.0.0.1):", flush=True)
     sched_file = tmp / "scheduler.json"

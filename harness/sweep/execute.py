@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from harness.run.runner import FmuRunner, RunError
+from harness.sweep.chunks import MIN_CHUNK, RunStream, heap_kept, next_chunk  # noqa: F401 (MIN_CHUNK: tests)
 from harness.sweep.spec import RunSpec, Sweep
 from harness.sweep.table import TEXT_STATUS_FAILED, TEXT_STATUS_OK, calibration, flatten_summary, run_ato_row
 
@@ -61,9 +62,6 @@ CALL_RUNS = 1
 turns them while they are still in the cache (measured on a station_day chunk: 7.95 ms a run with
 its metrics, against 8.26 ms at 8 runs a call), and keeps a worker's memory flat in the chunk's size."""
 MAX_CHUNK = 100
-MIN_CHUNK = 8
-"""The fewest runs of a chunk that next_chunk cuts (the last one may have fewer): a dask task costs a
-few milliseconds of this process's and the scheduler's time."""
 
 
 # ======================================================================== the worker side
@@ -228,6 +226,11 @@ def execute_chunk(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict
     execute_run's (the same metrics code on the same arrays) but for ``engine`` ("c", or "python"
     for a run the C core does not cover: run_on_chain), ``fmu`` ('': no FMU ran) and
     ``wall_time`` (the run's share of its call plus its metrics)."""
+    with heap_kept():
+        return _chunk_rows(specs, call_runs)
+
+
+def _chunk_rows(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict]:
     rows = []
     for k in range(0, len(specs), call_runs):
         rows += _batch_rows(specs[k:k + call_runs])
@@ -248,7 +251,8 @@ def execute_packed_chunk(packed: bytes) -> list[dict]:
     """execute_chunk of a pack_chunk'ed chunk, its runs built here first (on a worker; ~0.4 ms a
     station_day run, not in its wall_time, as building at load was not)."""
     recipe, points = pickle.loads(zlib.decompress(packed))
-    return execute_chunk([recipe.make(run_id, values) for run_id, values in points])
+    with heap_kept():
+        return _chunk_rows([recipe.make(run_id, values) for run_id, values in points])
 
 
 def _batch_rows(specs: list[RunSpec]) -> list[dict]:
@@ -368,6 +372,12 @@ def workers_ignore_ctrl_c():
         signal.signal(signal.SIGINT, previous)
 
 
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+"""dask settings of the embedded cluster's workers: no statistical profiler (it samples the running
+task's stack every 10 ms for the dashboard, which an embedded cluster does not serve: measured
+0.7 ms of a station_day run's 10 ms on the batch engine)."""
+
+
 @contextlib.contextmanager
 def dask_client(client=None, scheduler: str | None = None, workers: int | None = None):
     """(client, extract_root): ``client`` as given, or one of the scheduler at ``scheduler``, or
@@ -386,8 +396,9 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
             own.close()
         return
     import logging
+    import dask
     with scratch_folder() as root:
-        with workers_ignore_ctrl_c():
+        with workers_ignore_ctrl_c(), dask.config.set(WORKER_CONFIG):
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                    processes=True, dashboard_address=None, host="127.0.0.1",
                                    silence_logs=logging.ERROR, local_directory=root,
@@ -465,37 +476,6 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
         for f, _ in futures.values():
             f.cancel()
     return ran
-
-
-class RunStream:
-    """The run ids of a sweep's runs not taken yet, a chunk at a time (``take``); the runs
-    themselves are built where they run (execute_packed_chunk)."""
-
-    def __init__(self, ids: Sequence[int]):
-        self.ids, self.pos = ids, 0
-
-    def take(self, n: int) -> Sequence[int]:
-        """The next ``n`` run ids (fewer only at the end)."""
-        part = self.ids[self.pos:self.pos + n]
-        self.pos += len(part)
-        return part
-
-    def left(self) -> int:
-        """Run ids not taken yet."""
-        return len(self.ids) - self.pos
-
-
-TAIL_SHARE = 2
-"""A chunk of the default size (chunk_size) takes at most 1 / (TAIL_SHARE x workers) of the runs
-not submitted yet: chunks shrink towards the sweep's end, so that the workers end together (one
-chunk of 100 station_day runs left to one worker is ~0.9 s of the other one idle)."""
-
-
-def next_chunk(first: int, left: int, workers: int) -> int:
-    """Runs of the next chunk of a sweep in chunks of at most ``first`` (chunk_size) runs with
-    ``left`` runs not submitted yet on ``workers``: ``first``, shrinking towards the end (TAIL_SHARE),
-    never below MIN_CHUNK (nor ``first``)."""
-    return max(min(first, MIN_CHUNK), min(first, -(-left // (TAIL_SHARE * max(1, workers)))))
 
 
 def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, workers: int,

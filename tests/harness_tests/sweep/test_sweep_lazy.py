@@ -153,3 +153,38 @@ def test_chunks_shrink_towards_the_end_of_a_sweep():
     assert sizes[0] == first == 100 and sum(sizes) == 1000
     assert sizes == sorted(sizes, reverse=True) and sizes[-2] == MIN_CHUNK and sizes[-1] <= MIN_CHUNK
     assert next_chunk(1, 5, 2) == 1 and next_chunk(5, 3, 2) == 5                 # never above chunk_size
+
+
+HEAP_PROBE = """
+import resource, numpy as np
+from harness.sweep.execute import heap_kept
+
+def faults():
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(50):                         # a batch run's output arrays, allocated and freed
+        a = np.empty((9001, 34)); a.fill(1.0); del a
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+faults()
+outside = faults()
+with heap_kept():
+    faults()
+    inside = faults()
+print(outside, inside, faults())
+"""
+
+
+def test_a_chunk_keeps_freed_memory_in_the_heap_under_dasks_trim_threshold(tmp_path):
+    """dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536: every 2.4 MB array was mapped
+    again page by page; inside heap_kept it is not; after it, the worker's setting is back."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, MALLOC_TRIM_THRESHOLD_="65536", PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, "-c", HEAP_PROBE], env=env, cwd=ROOT, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    outside, inside, after = (int(x) for x in out.stdout.split())
+    assert outside >= 50 * 500                 # ~600 pages a time: mapped afresh every time
+    assert inside < outside / 20
+    assert after >= 50 * 500                   # dask's setting is back after the chunk
