@@ -58,7 +58,7 @@ from harness.run.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: 
 from harness.metrics.estimation import summarise  # noqa: E402
 from harness.run.runner import FmuRunner  # noqa: E402
 from harness.sweep.main import run_sweep  # noqa: E402
-from harness.sweep.execute import (CALL_RUNS, WORKER_CONFIG, ReusableRunner, execute_chunk,  # noqa: E402
+from harness.sweep.execute import (CALL_RUNS, CLUSTER_CONFIG, ReusableRunner, execute_chunk,  # noqa: E402
                                    execute_run)
 from harness.sweep.spec import load_sweep  # noqa: E402
 
@@ -134,7 +134,7 @@ def timed_sweep(n_workers: int, fmu: Path | None, sweep, folder: Path, cpu: dict
     from distributed import Client, LocalCluster
     first = sweep.runs[0]
     warm = [dataclasses.replace(first, run_id=-1 - k) for k in range(n_workers)]
-    with dask.config.set(WORKER_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+    with dask.config.set(CLUSTER_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                                       dashboard_address=None, host="127.0.0.1",
                                                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         client.wait_for_workers(n_workers)
@@ -455,7 +455,7 @@ def part_hundredk(args, tmp: Path) -> None:
           f"(the runs are built a chunk at a time as the sweep runs, none at load)", flush=True)
     print(" local cluster of 2 worker processes:", flush=True)
     import dask
-    with dask.config.set(WORKER_CONFIG), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+    with dask.config.set(CLUSTER_CONFIG), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                                       dashboard_address=None, host="127.0.0.1",
                                                       silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client, MemorySampler() as sampler:
