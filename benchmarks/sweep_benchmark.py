@@ -301,7 +301,7 @@ def part_engines(fmus: dict, args, tmp: Path) -> None:
     print(f"  the two results tables, every cell but wall_time, engine and fmu: "
           f"{'identical bit for bit' if same else 'DIFFERENT'}")
     e, m = split["engine"], split["metrics"]
-    print(f"  one run on one process (medians of {args.repeats}, {CALL_RUNS} runs a call): batch engine {1000 * e:.1f} ms "
+    print(f"  one run on one process (medians of {args.repeats}, {CALL_RUNS} run(s) a call): batch engine {1000 * e:.1f} ms "
           f"({1e9 * e / split['steps']:.0f} ns/step) + metrics {1000 * m:.1f} ms = {1000 * (e + m):.1f} ms; "
           f"metrics {100 * m / (e + m):.0f} % of it")
     per_1000 = 1000 * (e + m) / 2
@@ -348,7 +348,7 @@ def part_ratio(fmus: dict, args, tmp: Path) -> None:
     exe = nb.build_host(tmp)
     cycle = nb.host_rate(exe, native_fmu, 200_000, 5, cycle_s=nb.CYCLE_S)
     once = nb.host_rate(exe, native_fmu, 200_000, 5)
-    print(f"ratio: the batch engine's time per step (station_day, {CALL_RUNS} runs a call, driver + wind + chain, "
+    print(f"ratio: the batch engine's time per step (station_day, {CALL_RUNS} run(s) a call, driver + wind + chain, "
           f"no metrics; median of {args.repeats}) vs the model in a C host (native_benchmark.py's host, best of 5, "
           f"FMI calls and every output read included):")
     print(f"  batch engine               {engine_ns:8.0f} ns/step")
