@@ -58,7 +58,8 @@ from harness.run.fmus import DIST, ensure_built, fmu_guid, native_path  # noqa: 
 from harness.metrics.estimation import summarise  # noqa: E402
 from harness.run.runner import FmuRunner  # noqa: E402
 from harness.sweep.main import run_sweep  # noqa: E402
-from harness.sweep.execute import CALL_RUNS, ReusableRunner, execute_chunk, execute_run  # noqa: E402
+from harness.sweep.execute import (CALL_RUNS, CLUSTER_CONFIG, ReusableRunner, execute_chunk,  # noqa: E402
+                                   execute_run)
 from harness.sweep.spec import load_sweep  # noqa: E402
 
 STEPS = 1500
@@ -86,6 +87,7 @@ class ForeignLoad:
         import psutil
         self.psutil = psutil
         self.t0, self.busy0, self.own0 = time.monotonic(), self._busy(), self._own()
+        self.main0 = sum(self.psutil.Process().cpu_times()[:2])
         return self
 
     def _busy(self) -> float:
@@ -103,7 +105,9 @@ class ForeignLoad:
         return total
 
     def stop(self) -> None:                                    # call while the workers still live
-        self.share = max(0.0, (self._busy() - self.busy0) - (self._own() - self.own0)) / (
+        self.own = self._own() - self.own0                     # [s] CPU of this process and its workers
+        self.main = sum(self.psutil.Process().cpu_times()[:2]) - self.main0      # [s] of this process
+        self.share = max(0.0, (self._busy() - self.busy0) - self.own) / (
             (time.monotonic() - self.t0) * (self.psutil.cpu_count() or 1))
 
     def __exit__(self, *exc):
@@ -117,18 +121,22 @@ def throughput(n_workers: int, fmu: Path, runs: int, folder: Path, sweep=None) -
     return len(o.table.rows) / o.wall_s, statistics.mean(r["wall_time"] for r in o.table.rows), share
 
 
-def timed_sweep(n_workers: int, fmu: Path | None, sweep, folder: Path):
+def timed_sweep(n_workers: int, fmu: Path | None, sweep, folder: Path, cpu: dict | None = None):
     """(SweepOutcome, CPU share of other processes) of ``sweep`` on a LocalCluster of
     ``n_workers``, each warmed up first with one run of the sweep's scenario (FMU extracted and
     loaded, or the batch engine imported): o.wall_s is the sweep's own wall time, without the
-    cluster's start-up. ``fmu`` None: the batch engine (--engine batch)."""
+    cluster's start-up. ``fmu`` None: the batch engine (--engine batch). ``cpu``, if given, gets
+    "own": the CPU seconds this process and the workers used during the sweep (the wall time an
+    idle host of that many cores could reach, times the cores)."""
     import dataclasses
     import logging
+    import dask
     from distributed import Client, LocalCluster
     first = sweep.runs[0]
     warm = [dataclasses.replace(first, run_id=-1 - k) for k in range(n_workers)]
-    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                      host="127.0.0.1", silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with dask.config.set(CLUSTER_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                                      dashboard_address=None, host="127.0.0.1",
+                                                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         client.wait_for_workers(n_workers)
         workers = client.scheduler_info()["workers"]
         if fmu is None:
@@ -142,6 +150,8 @@ def timed_sweep(n_workers: int, fmu: Path | None, sweep, folder: Path):
             o = run_sweep(sweep, folder / f"out_{n_workers}_{time.monotonic_ns()}", fmu, client=client,
                           plots=False, progress=False, log=lambda *a: None)
             load.stop()
+    if cpu is not None:
+        cpu["own"], cpu["main"] = load.own, load.main
     assert all(r["status"] == "ok" for r in o.table.rows), [r["error"] for r in o.table.rows if r["error"]]
     return o, load.share
 
@@ -291,7 +301,7 @@ def part_engines(fmus: dict, args, tmp: Path) -> None:
     print(f"  the two results tables, every cell but wall_time, engine and fmu: "
           f"{'identical bit for bit' if same else 'DIFFERENT'}")
     e, m = split["engine"], split["metrics"]
-    print(f"  one run on one process (medians of {args.repeats}, {CALL_RUNS} runs a call): batch engine {1000 * e:.1f} ms "
+    print(f"  one run on one process (medians of {args.repeats}, {CALL_RUNS} run(s) a call): batch engine {1000 * e:.1f} ms "
           f"({1e9 * e / split['steps']:.0f} ns/step) + metrics {1000 * m:.1f} ms = {1000 * (e + m):.1f} ms; "
           f"metrics {100 * m / (e + m):.0f} % of it")
     per_1000 = 1000 * (e + m) / 2
@@ -303,7 +313,8 @@ def part_thousand(fmus: dict, args, tmp: Path) -> None:
     """The issue's target: 1,000 station_day runs on 2 local workers, metrics included, <= 5 s."""
     sweep = load_sweep(sweep_file(tmp, args.thousand, first_seed=0, scenario="station_day", duration_s=None))
     print(f"  {args.thousand} station_day runs on --engine batch ...", flush=True)
-    batch, load_b = timed_sweep(2, None, sweep, tmp)
+    cpu: dict = {}
+    batch, load_b = timed_sweep(2, None, sweep, tmp, cpu)
     n = min(args.fmu_runs, args.thousand)
     part = load_sweep(sweep_file(tmp, n, first_seed=0, scenario="station_day", duration_s=None))
     print(f"  the first {n} of them on --engine fmu (native FMU) ...", flush=True)
@@ -313,6 +324,9 @@ def part_thousand(fmus: dict, args, tmp: Path) -> None:
     print(f"  --engine batch: {batch.wall_s:7.2f} s wall for {args.thousand} runs ({args.thousand / batch.wall_s:.0f} "
           f"runs/s; other processes took {100 * load_b:4.1f} % of the CPUs) -- target <= 5 s: "
           f"{'met' if batch.wall_s <= 5.0 and args.thousand >= 1000 else 'MISSED' if args.thousand >= 1000 else 'n/a'}")
+    print(f"  --engine batch CPU: {cpu['own']:.2f} s of this process and the 2 workers together "
+          f"({1000 * cpu['own'] / args.thousand:.2f} ms a run; / 2 cores: {cpu['own'] / 2:.2f} s, the wall time's "
+          f"floor on an idle host), of it this process (the sweep, the scheduler, the rows written) {cpu['main']:.2f} s")
     scaled = fmu.wall_s * args.thousand / n
     print(f"  --engine fmu  : {fmu.wall_s:7.2f} s wall for {n} runs (other processes took {100 * load_f:4.1f} %); "
           f"scaled to {args.thousand} runs: {scaled:.1f} s ({'measured' if n == args.thousand else 'scaled linearly'})")
@@ -334,7 +348,7 @@ def part_ratio(fmus: dict, args, tmp: Path) -> None:
     exe = nb.build_host(tmp)
     cycle = nb.host_rate(exe, native_fmu, 200_000, 5, cycle_s=nb.CYCLE_S)
     once = nb.host_rate(exe, native_fmu, 200_000, 5)
-    print(f"ratio: the batch engine's time per step (station_day, {CALL_RUNS} runs a call, driver + wind + chain, "
+    print(f"ratio: the batch engine's time per step (station_day, {CALL_RUNS} run(s) a call, driver + wind + chain, "
           f"no metrics; median of {args.repeats}) vs the model in a C host (native_benchmark.py's host, best of 5, "
           f"FMI calls and every output read included):")
     print(f"  batch engine               {engine_ns:8.0f} ns/step")
@@ -427,18 +441,24 @@ def part_hundredk(args, tmp: Path) -> None:
     import dataclasses
     from distributed import Client, LocalCluster
     import psutil
+    rss0 = psutil.Process().memory_info().rss
     t0 = time.monotonic()
     sweep = load_sweep(ROOT / "scenarios" / "sweeps" / "mc_short_run.toml")
+    load_s, rss1 = time.monotonic() - t0, psutil.Process().memory_info().rss
+    total = len(sweep.runs)
     if args.hundredk < len(sweep.runs):
         sweep = dataclasses.replace(sweep, runs=sweep.runs[:args.hundredk])
     n = len(sweep.runs)
     first = max(1, n // 10)
-    print(f"hundredk: {sweep.name}, {n:,} runs of 300 steps; the sweep file loaded in {time.monotonic() - t0:.0f} s, "
-          f"main RSS then {psutil.Process().memory_info().rss * 1e-6:.0f} MB (the sweep's runs, held from the start)",
-          flush=True)
+    print(f"hundredk: {sweep.name}, {n:,} runs of 300 steps{f' (cut from {total:,})' if n < total else ''}; the "
+          f"sweep file ({total:,} runs) loaded in {load_s:.1f} s, main RSS {rss0 * 1e-6:.0f} -> {rss1 * 1e-6:.0f} MB "
+          f"(the runs are built a chunk at a time as the sweep runs, none at load)", flush=True)
     print(" local cluster of 2 worker processes:", flush=True)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, host="127.0.0.1",
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client, MemorySampler() as sampler:
+    import dask
+    with dask.config.set(CLUSTER_CONFIG), LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                                      dashboard_address=None, host="127.0.0.1",
+                                                      silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client, MemorySampler() as sampler:
         hundredk_legs(sweep, tmp / "hundredk_local", first, sampler, client=client)
     print(" external scheduler (python -m dask scheduler + 2 x dask worker --nthreads 1 on 127.0.0.1):", flush=True)
     sched_file = tmp / "scheduler.json"

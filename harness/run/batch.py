@@ -164,18 +164,36 @@ def run_chains(runs: Sequence[tuple[ChainConfig, GradeProfile, SpeedProfile | No
     return batch.run_spans(flat, StepRejected) if spans else batch.run_scripts(flat, StepRejected)
 
 
+TRANSPOSE_ROWS = 512
+"""Rows per block of ``_columns``' transposition: a block (512 x 34 doubles, 139 kB) stays in the
+cache while it is turned; the whole run at once (2.4 MB for 9000 steps) does not."""
+
+
+def _columns(rows: np.ndarray) -> np.ndarray:
+    """``rows`` (steps x outputs) transposed into a new C-ordered array (outputs x steps), a block of
+    TRANSPOSE_ROWS rows at a time: the same values as ``rows.T.copy()``, ~1/3 less time for a
+    station_day run (0.3 vs 0.45 ms, measured), a run's largest cost after the engine's own."""
+    out = np.empty((rows.shape[1], rows.shape[0]))
+    for first in range(0, rows.shape[0], TRANSPOSE_ROWS):
+        out[:, first:first + TRANSPOSE_ROWS] = rows[first:first + TRANSPOSE_ROWS].T
+    return out
+
+
 def result_of(scenario: Scenario, done: batch.BatchRuns, r: int) -> RunResult:
     """Run ``r`` of ``done`` as drive()'s Trace.result makes it: its own copies of the rows
     written, the integer outputs as integers, the last step's inputs repeated on the last row."""
     rows = int(done.rows[r])
-    columns = done.outputs[r, :rows].T.copy()
+    columns = _columns(done.outputs[r, :rows])
     signals = {name: (columns[j].astype(np.int64) if name in INTEGER_OUTPUTS else columns[j])
                for j, name in enumerate(OUTPUT_NAMES)}
     u = done.inputs[r, :rows - 1]
-    u = np.vstack([u, u[-1:]]) if len(u) else np.zeros((1, len(INPUTS)))
+    held = np.zeros((len(INPUTS), max(rows, 1)))         # one column per input, the last step's repeated
+    if len(u):
+        held[:, :len(u)] = u.T
+        held[:, len(u):] = u[-1][:, None]
     h = scenario.step_s
     return RunResult(scenario, np.arange(rows) * h, signals, {},
-                     inputs={n: u[:, j].copy() for j, n in enumerate(INPUTS)},
+                     inputs={n: held[j] for j, n in enumerate(INPUTS)},
                      driver_steps=None, driver_log=[])
 
 

@@ -42,9 +42,10 @@ import uuid
 import zlib
 from collections import Counter
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from harness.run.runner import FmuRunner, RunError
+from harness.sweep.chunks import MIN_CHUNK, RunStream, heap_kept, next_chunk  # noqa: F401 (MIN_CHUNK: tests)
 from harness.sweep.spec import RunSpec, Sweep
 from harness.sweep.table import TEXT_STATUS_FAILED, TEXT_STATUS_OK, calibration, flatten_summary, run_ato_row
 
@@ -55,9 +56,11 @@ ENGINE_FMU, ENGINE_C, ENGINE_PYTHON = "fmu", "c", "python"
 """The ``engine`` column: the FMU (``fmu`` column: which), the C batch engine, or run_on_chain (the
 Python reference, for runs the C core does not cover)."""
 ENGINES = ("auto", "batch", "fmu")
-CALL_RUNS = 8
+CALL_RUNS = 1
 """Runs per run_batch call inside a chunk: the call's output arrays hold every run's rows at once
-(~2.5 MB for a 9000-step run), so a call of 8 keeps a worker's memory flat in the chunk's size."""
+(~2.5 MB for a 9000-step run) and the run's RunResult turns them into columns; one run a call
+turns them while they are still in the cache (measured on a station_day chunk: 7.95 ms a run with
+its metrics, against 8.26 ms at 8 runs a call), and keeps a worker's memory flat in the chunk's size."""
 MAX_CHUNK = 100
 
 
@@ -223,23 +226,33 @@ def execute_chunk(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict
     execute_run's (the same metrics code on the same arrays) but for ``engine`` ("c", or "python"
     for a run the C core does not cover: run_on_chain), ``fmu`` ('': no FMU ran) and
     ``wall_time`` (the run's share of its call plus its metrics)."""
+    with heap_kept():
+        return _chunk_rows(specs, call_runs)
+
+
+def _chunk_rows(specs: list[RunSpec], call_runs: int = CALL_RUNS) -> list[dict]:
     rows = []
     for k in range(0, len(specs), call_runs):
         rows += _batch_rows(specs[k:k + call_runs])
     return rows
 
 
-def pack_chunk(specs: list[RunSpec]) -> bytes:
-    """A chunk's specs as one compressed pickle (~60 bytes a run where the runs differ in a few
-    values, ~1.7 kB a run as objects): the dask scheduler keeps the arguments of tasks it has
-    finished (measured: ~11 kB a run of a 300-step sweep, 1 GB at 100,000 runs), so a chunk ships
-    as bytes."""
-    return zlib.compress(pickle.dumps(specs, protocol=pickle.HIGHEST_PROTOCOL), 1)
+def pack_chunk(recipe, points: list[tuple[int, dict]]) -> bytes:
+    """A chunk as one compressed pickle: the sweep's ``recipe`` (harness.sweep.spec.RunPlan.recipe:
+    the base scenario's data and the fixed values, a few kB) and each run's (run id, swept values):
+    the worker builds the runs (execute_packed_chunk), so that this process, which also hosts an
+    embedded cluster's scheduler, is free to hand out chunks and write rows. Bytes: the dask
+    scheduler keeps the arguments of tasks it has finished (measured: ~11 kB a run of a 300-step
+    sweep as objects, 1 GB at 100,000 runs)."""
+    return zlib.compress(pickle.dumps((recipe, points), protocol=pickle.HIGHEST_PROTOCOL), 1)
 
 
 def execute_packed_chunk(packed: bytes) -> list[dict]:
-    """execute_chunk of a pack_chunk'ed chunk (on a worker)."""
-    return execute_chunk(pickle.loads(zlib.decompress(packed)))
+    """execute_chunk of a pack_chunk'ed chunk, its runs built here first (on a worker; ~0.4 ms a
+    station_day run, not in its wall_time, as building at load was not)."""
+    recipe, points = pickle.loads(zlib.decompress(packed))
+    with heap_kept():
+        return _chunk_rows([recipe.make(run_id, values) for run_id, values in points])
 
 
 def _batch_rows(specs: list[RunSpec]) -> list[dict]:
@@ -259,7 +272,12 @@ def _batch_rows(specs: list[RunSpec]) -> list[dict]:
         results = run_batch(scenarios)
         share = (time.perf_counter() - t0) / len(scenarios)
         outcomes = [(r, None, share) for r in results]
-    except Exception:
+    except Exception as e:
+        if len(scenarios) == 1:                  # the run alone: its error is its own
+            outcomes = [(None, e, time.perf_counter() - t0)]
+        else:
+            outcomes = None
+    if outcomes is None:
         # one run refused or rejected a step: the call raises for all; each alone keeps the others' rows
         outcomes = []
         for sc in scenarios:
@@ -354,6 +372,19 @@ def workers_ignore_ctrl_c():
         signal.signal(signal.SIGINT, previous)
 
 
+CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
+                  "distributed.admin.tick.interval": "1s",
+                  "distributed.admin.system-monitor.interval": "5s",
+                  "distributed.worker.memory.monitor-interval": "1s"}
+"""dask settings of the embedded cluster (its scheduler and nannies live in the sweep's process):
+no statistical profiler on the workers (it samples the running task's stack every 10 ms for the
+dashboard, which an embedded cluster does not serve: 0.7 ms of a station_day run's ~10 ms on the
+batch engine), and the event loop's tick check (default 20 ms), the system monitor (500 ms) and
+the nannies' memory checks (100 ms) less often: with them the event loop took ~0.7 s of CPU while
+1,000 station_day runs ran, ~0.3 s less this way. A worker over its memory limit is still stopped,
+within a second."""
+
+
 @contextlib.contextmanager
 def dask_client(client=None, scheduler: str | None = None, workers: int | None = None):
     """(client, extract_root): ``client`` as given, or one of the scheduler at ``scheduler``, or
@@ -372,8 +403,9 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
             own.close()
         return
     import logging
+    import dask
     with scratch_folder() as root:
-        with workers_ignore_ctrl_c():
+        with workers_ignore_ctrl_c(), dask.config.set(CLUSTER_CONFIG):
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                    processes=True, dashboard_address=None, host="127.0.0.1",
                                    silence_logs=logging.ERROR, local_directory=root,
@@ -453,24 +485,30 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
     return ran
 
 
-def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, record: Callable[[dict], bool],
-                   in_flight: int) -> int:
-    """The specs in chunks of ``chunk`` runs, a dask task each (execute_chunk), at most ``in_flight``
-    chunks submitted at a time (the next one as one ends), so that the scheduler holds a bounded
-    number of tasks and their runs whatever the sweep's size; each row goes to ``record`` as its chunk
-    ends. A chunk that kept killing its worker becomes failed rows. The rows recorded (a retried
-    chunk's rows come once: dask gives a task's result once, and ``record`` drops a run id it has)."""
+def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, workers: int,
+                   record: Callable[[dict], bool], in_flight: int) -> int:
+    """The runs of ``stream``'s ids in chunks, a dask task each (execute_packed_chunk: its worker
+    builds the runs), at most ``in_flight`` chunks submitted at a time (the next one as one ends),
+    so that this process and the scheduler hold a bounded number of runs whatever the sweep's size; each row
+    goes to ``record`` as its chunk ends. ``chunk`` runs a chunk if given, else next_chunk (at most
+    chunk_size, shrinking at the end). A chunk that kept killing its worker becomes failed rows.
+    The rows recorded (a retried chunk's rows come once: dask gives a task's result once, and
+    ``record`` drops a run id it has)."""
     from distributed import as_completed
     nonce = uuid.uuid4().hex[:8]
-    parts = (specs[k:k + chunk] for k in range(0, len(specs), chunk))
+    first = chunk or chunk_size(stream.left(), workers)
     futures = {}
     done = as_completed(with_results=True, raise_errors=False)
 
+    plan = sweep.runs.plan
+    recipe = plan.recipe()
+
     def submit_next() -> None:
-        part = next(parts, None)
-        if part is not None:
-            f = client.submit(execute_packed_chunk, pack_chunk(part), pure=False, retries=2,
-                              key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0].run_id}-{part[-1].run_id}")
+        part = stream.take(chunk or next_chunk(first, stream.left(), workers))
+        if part:
+            packed = pack_chunk(recipe, [(i, plan.point(i)) for i in part])
+            f = client.submit(execute_packed_chunk, packed, pure=False, retries=2,
+                              key=f"railcar-sweep-{sweep.fingerprint[:8]}-{nonce}-{part[0]}-{part[-1]}")
             futures[f.key] = (f, part)
             done.add(f)
 
@@ -485,8 +523,8 @@ def _submit_chunks(client, sweep: Sweep, specs: list[RunSpec], chunk: int, recor
                 rows = result
             else:                    # an exception: KilledWorker (the chunk killed its worker every time), ...
                 rows = []
-                for spec in part:
-                    row = base_row(spec)
+                for run_id in part:
+                    row = base_row(plan.build(run_id))
                     row.update(status=TEXT_STATUS_FAILED, wall_time=None,
                                error=_one_line(f"dask: {type(result).__name__}: {result}"))
                     rows.append(row)
@@ -505,29 +543,41 @@ IN_FLIGHT_PER_WORKER = 4
 worker busy while rows come back, few enough that the scheduler's memory does not grow with the runs."""
 
 
-def execute_runs(sweep: Sweep, specs: list[RunSpec], fmu_path: Path | None, guid: str | None,
+def execute_runs(sweep: Sweep, ids: Sequence[int], fmu_path: Path | None, guid: str | None,
                  record: Callable[[dict], bool], client=None, scheduler: str | None = None,
                  workers: int | None = None, log=print, engine: str = "fmu",
                  chunk: int | None = None) -> tuple[int, int]:
-    """Run ``specs`` and hand each row to ``record`` (True if it kept the row): the invalid ones
-    at once, here, the others on dask (see dask_client): ``engine`` "fmu", a run a task through
-    the FMU at ``fmu_path``; "batch", ``chunk`` runs a task (default chunk_size) on the batch
-    engine (execute_chunk). Returns (rows recorded, dask workers)."""
+    """Run the runs of ``sweep`` whose ids are ``ids`` and hand each row to ``record`` (True if it
+    kept the row), on dask (see dask_client): ``engine`` "fmu", a run a task through the FMU at
+    ``fmu_path``, every run built here (sweep.runs.build) before the first is submitted, as the
+    tasks are, an invalid one's row recorded here at once; "batch", ``chunk`` runs a task (default
+    next_chunk) on the batch engine (execute_chunk), each chunk's runs built by its worker (an
+    invalid one's row made there). The runs up to the first valid one are built here: invalid, their
+    rows now, and no cluster is started when none is valid. Returns (rows recorded, dask workers)."""
     if engine not in ("fmu", "batch"):
         raise ValueError(f"engine: expected 'fmu' or 'batch', got {engine!r}")
-    ran = 0
-    for spec in [s for s in specs if s.error is not None]:        # invalid scenarios: rows now
-        row = execute_run(str(fmu_path), guid, spec) if engine == "fmu" else execute_chunk([spec])[0]
-        record(row)
-        ran += 1
-    valid = [s for s in specs if s.error is None]
-    if not valid:
-        return ran, 0
+    invalid_rows, first_valid = 0, len(ids)
+    for pos, run_id in enumerate(ids):
+        spec = sweep.runs.build(run_id)
+        if spec.error is None:
+            first_valid = pos
+            break
+        record(execute_run(str(fmu_path), guid, spec) if engine == "fmu" else execute_chunk([spec])[0])
+        invalid_rows += 1
+    if first_valid == len(ids):
+        return invalid_rows, 0
+    ids = ids[first_valid:]
     with dask_client(client, scheduler, workers) as (c, extract_root):
         n_workers = check_workers(c, fmu_path if engine == "fmu" else None, log)
         if engine == "fmu":
-            ran += _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
+            valid = []
+            for spec in (sweep.runs.build(i) for i in ids):
+                if spec.error is None:
+                    valid.append(spec)
+                else:
+                    record(execute_run(str(fmu_path), guid, spec))
+                    invalid_rows += 1
+            ran = _submit_all(c, sweep, valid, str(fmu_path), guid, record, extract_root)
         else:
-            ran += _submit_chunks(c, sweep, valid, chunk or chunk_size(len(valid), n_workers), record,
-                                  IN_FLIGHT_PER_WORKER * n_workers)
-    return ran, n_workers
+            ran = _submit_chunks(c, sweep, RunStream(ids), chunk, n_workers, record, IN_FLIGHT_PER_WORKER * n_workers)
+    return ran + invalid_rows, n_workers

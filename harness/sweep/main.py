@@ -12,8 +12,9 @@ The parts, one module each:
 - harness/sweep/results.py: the results folder: CSV/Parquet, sweep.json, lock, --resume/--overwrite
 - harness/sweep/plots.py: the plots
 
-The end of a sweep reads results.csv once, a row at a time (``streamed_end``): the summary from
-SweepStats, the plots from a bounded sample, so that it ends in flat memory at any number of runs.
+The end of a sweep reads results.csv once, a row at a time, in the pass that writes results.parquet
+(``StreamedEnd``; ``streamed_end`` without pyarrow): the summary from SweepStats, the plots from a
+bounded sample, so that it ends in flat memory at any number of runs.
 """
 from __future__ import annotations
 
@@ -101,7 +102,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
         fmu_path = None
         core = core_identity()
     writer = ResultsWriter(out_dir, sweep, guid, resume, overwrite, fmu_kind=kind, engine=engine, core=core)
-    todo = [s for s in sweep.runs if s.run_id not in writer.done]
+    # run ids, not runs: a run is built when its chunk is prepared (harness.sweep.execute)
+    todo = [i for i in sweep.runs.ids if i not in writer.done] if writer.done else sweep.runs.ids
     if limit is not None:
         todo = todo[:limit]
     t0 = time.monotonic()
@@ -113,14 +115,16 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
         bar.advance(f"run {row['run_id']}", failed=row["status"] != TEXT_STATUS_OK)
         return True
 
+    end = StreamedEnd(out_dir, sweep, plots)
+    passed = False
     try:
         ran, n_workers = execute_runs(sweep, todo, fmu_path, guid, record, client=client, scheduler=scheduler,
                                       workers=workers, log=log, engine=engine, chunk=chunk)
     finally:
-        writer.close()
-    stats, done, sample = streamed_end(out_dir, sweep, plots)
+        passed = writer.close(on_row=end.add)       # the Parquet pass over results.csv feeds ``end``
+    stats, done, sample = end.result() if passed else streamed_end(out_dir, sweep, plots)
     outcome = SweepOutcome(stats=stats, ran=ran, resumed=writer.resumed,
-                           missing=[s.run_id for s in sweep.runs if s.run_id not in done],
+                           missing=[i for i in sweep.runs.ids if i not in done],
                            wall_s=time.monotonic() - t0, workers=n_workers,
                            fmu=(fmu_note or f"{kind} {fmu_path}") if engine == "fmu" else "",
                            engine=(engine_note or "batch") if engine == "batch" else "",
@@ -132,21 +136,36 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, fmu_path: str | Path | None = N
     return outcome
 
 
+class StreamedEnd:
+    """What the end of a sweep needs from DIR/results.csv, gathered a row at a time (``add``): the
+    summary's SweepStats, the run ids there, the plots' sample (at most PLOT_SAMPLE_ROWS rows, by
+    run id, of the plots' columns only). Its memory is that of the sample, the ids and the
+    summary's 8 bytes per run and metric, whatever the number of runs."""
+
+    def __init__(self, out_dir: Path, sweep: Sweep, plots: bool = True):
+        self.cols = [Column(*c) for c in read_meta(out_dir / "sweep.json")["columns"]]
+        self.keep = {c.key for c in self.cols if c.kind != "str"} | {"status"} | set(sweep.axes)
+        self.plots = plots
+        self.stats, self.done, self.sample = SweepStats(), set(), PlotSample(PLOT_SAMPLE_ROWS)
+
+    def add(self, row: dict) -> None:
+        self.stats.add(row)
+        self.done.add(row["run_id"])
+        if self.plots:
+            self.sample.offer({k: v for k, v in row.items() if k in self.keep})
+
+    def result(self) -> tuple[SweepStats, set, Table]:
+        return self.stats, self.done, Table(self.cols, self.sample.rows())
+
+
 def streamed_end(out_dir: Path, sweep: Sweep, plots: bool = True) -> tuple[SweepStats, set, Table]:
-    """One pass over DIR/results.csv, a row at a time: (the summary's SweepStats, the run ids there,
-    the plots' sample: at most PLOT_SAMPLE_ROWS rows, by run id, of the plots' columns only). The
-    memory is that of the sample, the ids and the summary's 8 bytes per run and metric, whatever the
-    number of runs; a sweep of at most PLOT_SAMPLE_ROWS runs is plotted whole, as before."""
-    cols = [Column(*c) for c in read_meta(out_dir / "sweep.json")["columns"]]
-    keep = {c.key for c in cols if c.kind != "str"} | {"status"} | set(sweep.axes)
-    stats, done, sample = SweepStats(), set(), PlotSample(PLOT_SAMPLE_ROWS)
-    for row in iter_csv_rows(out_dir / "results.csv", cols):
-        stats.add(row)
-        done.add(row["run_id"])
-        if plots:
-            sample.offer({k: v for k, v in row.items() if k in keep})
-    return stats, done, Table(cols, sample.rows())
-    return outcome
+    """One pass over DIR/results.csv, a row at a time: StreamedEnd's (SweepStats, run ids, plot
+    sample); a sweep of at most PLOT_SAMPLE_ROWS runs is plotted whole. run_sweep gathers the same
+    in the pass that writes results.parquet (ResultsWriter.close), and calls this without pyarrow."""
+    end = StreamedEnd(out_dir, sweep, plots)
+    for row in iter_csv_rows(out_dir / "results.csv", end.cols):
+        end.add(row)
+    return end.result()
 
 
 def _usage_error(args) -> str | None:
@@ -175,7 +194,7 @@ def choose_engine(asked: str, fmu_asked: str | None, sweep: Sweep) -> tuple[str,
     FMU path), else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs on
     run_on_chain, the Python reference: the engine column says "python")."""
     from harness.run.batch import not_covered
-    uncovered = next(((s.run_id, why) for s in sweep.runs if s.scenario is not None
+    uncovered = next(((s.run_id, why) for s in sweep.runs.representatives() if s.scenario is not None
                       for why in [not_covered(s.scenario)] if why), None)
     if asked == "fmu":
         return "fmu", "--engine fmu"
@@ -206,7 +225,8 @@ def cli_sweep(args) -> int:
     choice = None
     if engine == "fmu":
         choice = select(getattr(args, "fmu", None) or "auto", "RailCar", args.dist, args.rebuild,
-                        [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs if r.scenario is not None])
+                        [(f"run {r.run_id}", r.scenario.parameters) for r in sweep.runs.representatives()
+                         if r.scenario is not None])
     where = args.scheduler or f"a local cluster of {args.workers or os.cpu_count()} worker processes"
     print(f"sweep '{sweep.name}': {len(sweep.runs)} runs of {sweep.base_path} on {where} -> {out}", flush=True)
     print(f"engine: {engine} ({why})", flush=True)

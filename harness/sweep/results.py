@@ -3,7 +3,8 @@
 One row per run is appended to ``DIR/results.csv`` as runs finish (completion order, units in
 the header cells ``name [unit]``); the writer keeps only the run ids, so its memory does not grow
 with the rows' contents. ``DIR/results.parquet`` (when pyarrow is importable) is written from the
-CSV when the sweep ends, also after an error or Ctrl-C, streamed in row groups of PARQUET_ROWS.
+CSV when the sweep ends, also after an error or Ctrl-C, streamed in row groups of PARQUET_ROWS;
+that pass also feeds the sweep's summary and plot sample (``close(on_row)``).
 ``read_results(DIR)`` returns the table sorted by run id. ``--resume`` skips the run ids
 already in results.csv (ok or failed) if the sweep, its base scenario and the FMU build are
 unchanged (``DIR/sweep.json``: the FMU's GUID, or for the batch engine the C core's identity,
@@ -215,15 +216,31 @@ class ResultsWriter:
         self._f.flush()
         return True
 
-    def write_parquet(self) -> Path | None:
-        """DIR/results.parquet from results.csv (every row there, as written); None without pyarrow."""
-        return write_parquet_rows(self.cols, iter_csv_rows(self.csv_path, self.cols), self.parquet_path)
+    def write_parquet(self, on_row=None) -> Path | None:
+        """DIR/results.parquet from results.csv (every row there, as written); None without pyarrow.
+        ``on_row``: called with each row read, as it is converted (the sweep's end needs one pass
+        over the rows, harness.sweep.main.StreamedEnd: this one), unless pyarrow is missing."""
+        rows = iter_csv_rows(self.csv_path, self.cols)
+        if on_row is not None:
+            rows = _passed_to(on_row, rows)
+        return write_parquet_rows(self.cols, rows, self.parquet_path)
 
-    def close(self) -> None:
+    def close(self, on_row=None) -> bool:
+        """Close results.csv, write results.parquet (``on_row`` sees each row then: write_parquet)
+        and release the lock; True if ``on_row`` saw every row of results.csv, False if not (no
+        pyarrow: no pass was made)."""
         if not self._f.closed:
             self._f.close()
-        self.write_parquet()
-        self._unlock()
+        try:
+            return self.write_parquet(on_row) is not None
+        finally:
+            self._unlock()
+
+
+def _passed_to(on_row, rows):
+    for row in rows:
+        on_row(row)
+        yield row
 
 
 def _lock_folder(out_dir: Path):

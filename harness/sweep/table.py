@@ -202,6 +202,8 @@ def calibration(result) -> dict:
 
 def cell_text(value) -> str:
     """A value as a CSV cell: floats by repr (read back bit for bit), None as ''."""
+    if type(value) is float:           # most cells: the checks below give the same text, slower
+        return repr(value)
     if value is None:
         return ""
     if isinstance(value, bool):

@@ -154,3 +154,28 @@ def test_the_end_of_a_sweep_reads_its_rows_in_flat_memory(tmp_path, monkeypatch)
 
 if __name__ == "__main__":
     pytest.main([__file__, "-q"])
+
+
+def test_the_parquet_pass_gathers_the_end_that_a_pass_of_its_own_gathers(tmp_path):
+    """run_sweep's end comes from the pass that writes results.parquet (ResultsWriter.close(on_row)):
+    the same SweepStats, run ids and plot sample as streamed_end's own pass over results.csv."""
+    from harness.sweep.main import StreamedEnd
+    path = tmp_path / "s.toml"
+    path.write_text(f'name = "s"\nscenario = "{(ROOT / "scenarios/library/level_run.toml").as_posix()}"\n'
+                    f'seeds = 400\n', encoding="utf-8")
+    sweep = load_sweep(path)
+    out = tmp_path / "out"
+    writer = ResultsWriter(out, sweep, None, resume=False, engine="batch", core="c test")
+    rows = synthetic_rows(400, seed=5)
+    random.Random(6).shuffle(rows)                                   # completion order
+    for row in rows:
+        writer.write({**row, "seed": row["run_id"] + 1})
+    end = StreamedEnd(out, sweep)
+    assert writer.close(on_row=end.add) is True                       # pyarrow is there: the pass was made
+    stats, done, sample = end.result()
+    stats2, done2, sample2 = streamed_end(out, sweep)
+    assert done == done2 == set(range(400)) and stats.rows == stats2.rows == 400
+    outcome = SweepOutcome(stats=stats, ran=400, resumed=0, missing=[], wall_s=1.0, workers=2)
+    outcome2 = SweepOutcome(stats=stats2, ran=400, resumed=0, missing=[], wall_s=1.0, workers=2)
+    assert format_sweep_summary(sweep, outcome) == format_sweep_summary(sweep, outcome2)
+    assert [repr(r) for r in sample.rows] == [repr(r) for r in sample2.rows] and len(sample.rows) == 400   # nan: by text
