@@ -79,7 +79,8 @@ def heap_kept():
     to CHUNK_HEAP_KEPT for the chunk, then set back to the worker's and the heap trimmed
     (malloc_trim), so that between chunks the worker holds what dask expects. Nothing changes where
     MALLOC_TRIM_THRESHOLD_ is not set (glibc adjusts its thresholds itself) or glibc is not the C
-    library."""
+    library. The thresholds are the process's: in a worker of several threads (a sweep warns about
+    those) one chunk's end sets them back while another runs, which costs time, not results."""
     trim = os.environ.get("MALLOC_TRIM_THRESHOLD_")
     libc = _glibc() if trim is not None and trim.strip().isdigit() else None
     if libc is None:
@@ -90,6 +91,7 @@ def heap_kept():
     try:
         yield
     finally:
-        libc.mallopt(M_MMAP_THRESHOLD, GLIBC_MMAP_THRESHOLD)
+        mmap = os.environ.get("MALLOC_MMAP_THRESHOLD_", "")        # the worker's own, if it set one
+        libc.mallopt(M_MMAP_THRESHOLD, int(mmap) if mmap.strip().isdigit() else GLIBC_MMAP_THRESHOLD)
         libc.mallopt(M_TRIM_THRESHOLD, int(trim))
         libc.malloc_trim(0)

@@ -4,9 +4,10 @@ batch engine).
 
 Two engines (``--engine``), the same rows bit for bit but for the ``engine``, ``fmu`` and
 ``wall_time`` columns (add_metrics builds the rest for both). The batch engine (execute_chunk):
-a dask task runs a chunk of runs (chunk_size) through harness.run.batch.run_batch -- whole runs in
-the C core, CALL_RUNS a call -- and computes their rows; a run that fails in a call is re-run
-alone so that the chunk's other runs keep their rows. The FMU path (execute_run), below.
+a dask task runs a chunk of runs (sized by harness/sweep/chunks.py next_chunk, smaller towards the
+sweep's end) through harness.run.batch.run_batch -- whole runs in the C core, CALL_RUNS (1) a call -- and
+computes their rows; a run that fails becomes its failed row and the chunk's other runs keep
+theirs. The FMU path (execute_run), below.
 
 With the FMU path every run is one dask task on a worker *process* (one thread each: FMU calls hold the GIL).
 Each worker process extracts the FMU once and keeps one live instance, reset between runs

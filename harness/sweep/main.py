@@ -194,17 +194,18 @@ def choose_engine(asked: str, fmu_asked: str | None, sweep: Sweep) -> tuple[str,
     FMU path), else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs on
     run_on_chain, the Python reference: the engine column says "python")."""
     from harness.run.batch import not_covered
-    uncovered = next(((s.run_id, why) for s in sweep.runs.representatives() if s.scenario is not None
-                      for why in [not_covered(s.scenario)] if why), None)
     if asked == "fmu":
         return "fmu", "--engine fmu"
+    if asked == "auto" and fmu_asked is not None:
+        return "fmu", f"--engine auto: --fmu {fmu_asked} asks for an FMU"
+    if asked not in ENGINES:
+        raise SweepError(f"--engine {asked}: expected one of {', '.join(ENGINES)}")
+    # one run per point is built here (a seed changes no coverage): only when the answer needs it
+    uncovered = next(((s.run_id, why) for s in sweep.runs.representatives() if s.scenario is not None
+                      for why in [not_covered(s.scenario)] if why), None)
     if asked == "batch":
         return "batch", ("--engine batch: C core" if uncovered is None else
                          f"--engine batch: run {uncovered[0]} and maybe others on the Python reference: {uncovered[1]}")
-    if asked != "auto":
-        raise SweepError(f"--engine {asked}: expected one of {', '.join(ENGINES)}")
-    if fmu_asked is not None:
-        return "fmu", f"--engine auto: --fmu {fmu_asked} asks for an FMU"
     if uncovered is not None:
         return "fmu", f"--engine auto: the C batch engine does not cover run {uncovered[0]}: {uncovered[1]}"
     return "batch", "--engine auto: the C core covers every run"

@@ -11,8 +11,7 @@
 #define MAX_BATCH_SIZE 100000L          /* identification.MAX_BATCH_SIZE */
 #define MAX_SLOPE_WINDOW 1000L          /* identification.MAX_SLOPE_WINDOW */
 
-/* The message (a printf format) into err; RC_BAD_CONFIG */
-/* "<name> <rule>, got <repr(v)>" */
+/* RC_BAD_CONFIG with "<name> <rule>, got <repr(v)>" */
 static rc_status refuse_value(rc_error *err, const char *name, const char *rule, double v)
 {
     char r[40];

@@ -19,6 +19,8 @@ safe brake, its latch and its warning are part of what must repeat:
 - random call sequences with the state calls mixed in (seeded) never crash the host or go fatal;
 - all but the last once more with both binaries built with -fsanitize=address,undefined, in a
   Python process preloading the sanitizer runtimes (as test_fmu_state.py does).
+Over 600 lines: one fmpy-level harness of state calls serves both standards, both scenarios and the
+sanitized build, which kept apart would repeat it.
 """
 from __future__ import annotations
 

@@ -163,7 +163,8 @@ def test_the_whole_library_gives_one_table_on_either_engine(dist, tmp_path, caps
 def test_auto_runs_the_uncovered_scenario_on_the_fmu(dist, tmp_path, monkeypatch, capsys):
     short, method3 = cut_level_run(tmp_path, "short"), cut_level_run(tmp_path, "method3", '"est.method" = 3\n')
     use_library(monkeypatch, [short, method3])
-    assert main(["report", "--engine", "auto", "--dist", str(dist), "--out", str(tmp_path / "out")]) in (0, 1)
+    code = main(["report", "--engine", "auto", "--dist", str(dist), "--out", str(tmp_path / "out")])
+    assert code == 0                                # both cut runs meet the targets on either engine
     out = capsys.readouterr().out.splitlines()
     assert "engine: batch for short (--engine auto: the C core covers it)" in out
     assert [x for x in out if x.startswith("fmu: ")] == [
