@@ -648,7 +648,8 @@ static void service_day_dealloc(ServiceDayObject *self)
 
 /* run(steps, draws) -> draws used: the next steps of the day; draws a float64 array of the
  * driver's Generator.random() doubles. ValueError naming a short supply or the day's end (the
- * steps before it done), error naming a chain's refused step. */
+ * steps before it done), error (StepRejected) or ArithmeticError (RC_MATH) naming a step refused
+ * mid-way, after which the day is stopped (ValueError "the day stopped at step k: ..."). */
 static PyObject *service_day_run(ServiceDayObject *self, PyObject *args)
 {
     long steps;
