@@ -11,6 +11,10 @@
  * It also binds the metrics of a recorded run that run a model again (models/core/run_metrics.h:
  * the oracle filter, the interval forces, the coasts and their re-run times), the same way: flat
  * float64 arrays in and out, every length checked and a wrong one named.
+ *
+ * Over 600 lines because it is one extension module with one shared set of buffer helpers: the
+ * scripted runs, the span runs, the metrics and the service day each bind a different C entry
+ * point, and splitting them into modules would duplicate the helpers and setup.py's source list.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -19,6 +23,13 @@
 #include "core/scenario_driver.h"
 #include "core/service_day.h"
 #include "core/span_driver.h"
+
+/* The exception class of a refusal: StepRejected (the caller's) for RC_REJECTED, ArithmeticError
+ * for RC_MATH (where Python raises ZeroDivisionError or OverflowError), ValueError otherwise */
+static PyObject *status_exception(rc_status st, PyObject *rejected)
+{
+    return st == RC_REJECTED ? rejected : st == RC_MATH ? PyExc_ArithmeticError : PyExc_ValueError;
+}
 
 #define RUN_ARRAYS 6   /* config, grade_distances, grades, speed_distances, speeds, script */
 
@@ -199,7 +210,7 @@ static PyObject *batch_run(PyObject *Py_UNUSED(module), PyObject *args)
     }
     Py_END_ALLOW_THREADS
     if (st != RC_OK) {
-        PyErr_Format(st == RC_REJECTED ? error : PyExc_ValueError, "run %zd: %s", failed, err.msg);
+        PyErr_Format(status_exception(st, error), "run %zd: %s", failed, err.msg);
         goto done;
     }
     result = PyList_New(n);
@@ -319,7 +330,7 @@ static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
     }
     Py_END_ALLOW_THREADS
     if (st != RC_OK) {
-        PyErr_Format(st == RC_REJECTED ? error : PyExc_ValueError, "run %zd: %s", failed, err.msg);
+        PyErr_Format(status_exception(st, error), "run %zd: %s", failed, err.msg);
         goto done;
     }
     result = PyList_New(n);
@@ -637,7 +648,8 @@ static void service_day_dealloc(ServiceDayObject *self)
 
 /* run(steps, draws) -> draws used: the next steps of the day; draws a float64 array of the
  * driver's Generator.random() doubles. ValueError naming a short supply or the day's end (the
- * steps before it done), error naming a chain's refused step. */
+ * steps before it done), error (StepRejected) or ArithmeticError (RC_MATH) naming a step refused
+ * mid-way, after which the day is stopped (ValueError "the day stopped at step k: ..."). */
 static PyObject *service_day_run(ServiceDayObject *self, PyObject *args)
 {
     long steps;
@@ -661,20 +673,31 @@ static PyObject *service_day_run(ServiceDayObject *self, PyObject *args)
     self->busy = 0;
     PyBuffer_Release(&draws);
     if (st != RC_OK) {
-        PyErr_Format(st == RC_BAD_CONFIG ? PyExc_ValueError : self->error, "service day: %s",
-                     err.msg);
+        PyErr_Format(status_exception(st, self->error), "service day: %s", err.msg);
         return NULL;
     }
     return PyLong_FromLong(used);
 }
 
-/* export() -> bytearray of float64: the figures so far (service_day.h's export layout) */
+/* export() -> bytearray of float64: the figures so far (service_day.h's export layout).
+ * RuntimeError while a run is under way in another thread (it moves the figures unlocked). */
 static PyObject *service_day_export(ServiceDayObject *self, PyObject *Py_UNUSED(ignored))
 {
+    if (self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "ServiceDay.export: a run is under way in another thread");
+        return NULL;
+    }
     long n = rc_service_day_export(self->day, NULL, 0);
     PyObject *out = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)n * (Py_ssize_t)sizeof(double));
-    if (out)
-        rc_service_day_export(self->day, (double *)(void *)PyByteArray_AS_STRING(out), n);
+    if (!out)
+        return NULL;
+    long written = rc_service_day_export(self->day, (double *)(void *)PyByteArray_AS_STRING(out), n);
+    if (written != n) {
+        Py_DECREF(out);
+        PyErr_Format(PyExc_RuntimeError, "ServiceDay.export: the figures' size changed from %ld to "
+                     "%ld values between the size and the copy", n, written);
+        return NULL;
+    }
     return out;
 }
 
@@ -786,6 +809,48 @@ static struct PyModuleDef module = {
     methods, NULL, NULL, NULL, NULL,
 };
 
+/* SERVICE_DAY_EXPORT_OFFSETS and SERVICE_DAY_SCORE_OFFSETS: {name: index} of service_day.h's
+ * export layout (RC_SD_X_*, RC_SD_S_*), so that models/batch.py reads the export by name */
+static int add_offsets(PyObject *m, const char *attr, const char *const *names, const int *at, int n)
+{
+    PyObject *d = PyDict_New();
+    if (!d)
+        return -1;
+    for (int i = 0; i < n; i++) {
+        PyObject *v = PyLong_FromLong(at[i]);
+        if (!v || PyDict_SetItemString(d, names[i], v) < 0) {
+            Py_XDECREF(v);
+            Py_DECREF(d);
+            return -1;
+        }
+        Py_DECREF(v);
+    }
+    if (PyModule_AddObject(m, attr, d) < 0) {
+        Py_DECREF(d);
+        return -1;
+    }
+    return 0;
+}
+
+static int add_service_day_offsets(PyObject *m)
+{
+    static const char *const x_names[] = {"steps_done", "stops", "long_cruises", "cruise_s",
+        "distance_m", "moving_steps", "mass_min", "mass_max", "faults", "rejected"};
+    static const int x_at[] = {RC_SD_X_STEPS_DONE, RC_SD_X_STOPS, RC_SD_X_LONG_CRUISES,
+        RC_SD_X_CRUISE_S, RC_SD_X_DISTANCE, RC_SD_X_MOVING_STEPS, RC_SD_X_MASS_MIN, RC_SD_X_MASS_MAX,
+        RC_SD_X_FAULTS, RC_SD_X_REJECTED};
+    static const char *const s_names[] = {"nonfinite", "has_first", "first_t", "first_output",
+        "sigma_in", "sigma_n", "se_all", "n_all", "has_rejected", "rejected_last", "rejected_max",
+        "hour_len", "n_stops", "n_status", "n_outputs"};
+    static const int s_at[] = {RC_SD_S_NONFINITE, RC_SD_S_HAS_FIRST, RC_SD_S_FIRST_T,
+        RC_SD_S_FIRST_OUTPUT, RC_SD_S_SIGMA_IN, RC_SD_S_SIGMA_N, RC_SD_S_SE_ALL, RC_SD_S_N_ALL,
+        RC_SD_S_HAS_REJECTED, RC_SD_S_REJECTED_LAST, RC_SD_S_REJECTED_MAX, RC_SD_S_HOUR_LEN,
+        RC_SD_S_N_STOPS, RC_SD_S_N_STATUS, RC_SD_S_N_OUTPUTS};
+    enum { X_N = sizeof x_at / sizeof x_at[0], S_N = sizeof s_at / sizeof s_at[0] };
+    return add_offsets(m, "SERVICE_DAY_EXPORT_OFFSETS", x_names, x_at, X_N) < 0
+        ? -1 : add_offsets(m, "SERVICE_DAY_SCORE_OFFSETS", s_names, s_at, S_N);
+}
+
 PyMODINIT_FUNC PyInit__batch(void)
 {
     PyObject *m = PyModule_Create(&module);
@@ -804,7 +869,9 @@ PyMODINIT_FUNC PyInit__batch(void)
             || PyModule_AddIntConstant(m, "SPAN_STATION_STOPS", RC_SPAN_STATION_STOPS) < 0
             || PyModule_AddIntConstant(m, "SERVICE_DAY_VALUES", RC_SD_DAY_VALUES) < 0
             || PyModule_AddIntConstant(m, "SERVICE_DAY_EXPORT_FIXED", RC_SD_X_DAY) < 0
-            || PyModule_AddIntConstant(m, "SERVICE_DAY_SCORE_FIXED", RC_SD_S_FIXED) < 0) {
+            || PyModule_AddIntConstant(m, "SERVICE_DAY_SCORE_FIXED", RC_SD_S_FIXED) < 0
+            || PyModule_AddIntConstant(m, "SERVICE_DAY_DRAWS_PER_STEP", RC_SD_DRAWS_PER_STEP) < 0
+            || add_service_day_offsets(m) < 0) {
         Py_DECREF(m);
         return NULL;
     }

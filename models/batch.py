@@ -309,10 +309,54 @@ SERVICE_DAY_FIELDS = ("steps", "step_s", "run_time_lo", "run_time_hi", "dwell_lo
 payload [t] are the Python driver's first draws."""
 FAULT_KINDS = ("speed", "position", "zero", "hold")
 """FaultySensors' fault kinds, codes 0..3 (service_day.h RC_SD_FAULT_*)."""
-SERVICE_DAY_DRAWS_PER_STEP = 7
-"""The most driver draws one step takes (departure 5, arrival 1, boarding 1)."""
-_DAY_FIXED = 13          # service_day.h RC_SD_X_DAY
-_SCORE_FIXED = 15        # service_day.h RC_SD_S_FIXED
+SERVICE_DAY_DRAWS_PER_STEP = getattr(_batch, "SERVICE_DAY_DRAWS_PER_STEP", None)
+"""The most driver draws one step takes (departure 5, arrival 1, boarding 1): service_day.h's
+RC_SD_DRAWS_PER_STEP as built (None without models._batch)."""
+SERVICE_DAY_EXPORT_NAMES = ("steps_done", "stops", "long_cruises", "cruise_s", "distance_m",
+                            "moving_steps", "mass_min", "mass_max", "faults", "rejected")
+"""The day part of the export, read by name (service_day.h RC_SD_X_*; "faults" starts
+len(FAULT_KINDS) counts)."""
+SERVICE_DAY_SCORE_NAMES = ("nonfinite", "has_first", "first_t", "first_output", "sigma_in",
+                           "sigma_n", "se_all", "n_all", "has_rejected", "rejected_last",
+                           "rejected_max", "hour_len", "n_stops", "n_status", "n_outputs")
+"""An estimator's fixed part of the export, read by name (service_day.h RC_SD_S_*)."""
+
+
+@dataclass(frozen=True)
+class _ExportLayout:
+    """service_day.h's export layout as models._batch was built with it: the fixed sizes and
+    {name: index} of the day part and of an estimator's part."""
+    day_fixed: int
+    score_fixed: int
+    day: dict
+    score: dict
+
+
+def _service_day_layout() -> _ExportLayout:
+    """The built module's layout, checked against this module's names (RuntimeError: a stale
+    build)."""
+    stale = "(a stale build): setup.py build_ext --inplace"
+    names = ("SERVICE_DAY_VALUES", "SERVICE_DAY_EXPORT_FIXED", "SERVICE_DAY_SCORE_FIXED",
+             "SERVICE_DAY_DRAWS_PER_STEP", "SERVICE_DAY_EXPORT_OFFSETS", "SERVICE_DAY_SCORE_OFFSETS")
+    missing = [name for name in names if not hasattr(_batch, name)]
+    if missing:
+        raise RuntimeError(f"models._batch has no {', '.join(missing)} {stale}")
+    if _batch.SERVICE_DAY_VALUES != len(SERVICE_DAY_FIELDS):
+        raise RuntimeError(f"models._batch takes {_batch.SERVICE_DAY_VALUES} day values, this "
+                           f"module writes {len(SERVICE_DAY_FIELDS)} {stale}")
+    layout = _ExportLayout(int(_batch.SERVICE_DAY_EXPORT_FIXED), int(_batch.SERVICE_DAY_SCORE_FIXED),
+                           dict(_batch.SERVICE_DAY_EXPORT_OFFSETS), dict(_batch.SERVICE_DAY_SCORE_OFFSETS))
+    for part, offsets, expected, fixed in (("day", layout.day, SERVICE_DAY_EXPORT_NAMES, layout.day_fixed),
+                                           ("score", layout.score, SERVICE_DAY_SCORE_NAMES,
+                                            layout.score_fixed)):
+        if set(offsets) != set(expected) or not all(0 <= at < fixed for at in offsets.values()):
+            raise RuntimeError(f"models._batch's service day export ({part} part) {offsets} does not "
+                               f"hold this module's names {expected} within {fixed} values {stale}")
+    if layout.day["rejected"] != layout.day["faults"] + len(FAULT_KINDS):
+        raise RuntimeError(f"models._batch's service day export counts faults of "
+                           f"{layout.day['rejected'] - layout.day['faults']} kinds, this module "
+                           f"{len(FAULT_KINDS)} {stale}")
+    return layout
 
 
 @dataclass
@@ -357,9 +401,11 @@ class ServiceDayFigures:
     faulty: ServiceDayScore
 
 
-def _score_of(x: np.ndarray, at: int) -> tuple[ServiceDayScore, int]:
-    n_out, hours, n_status, n_stops = (int(x[at + i]) for i in (14, 11, 13, 12))
-    p = at + _SCORE_FIXED
+def _score_of(x: np.ndarray, at: int, layout: _ExportLayout) -> tuple[ServiceDayScore, int]:
+    """The estimator's part of the export starting at ``at`` and where the next starts."""
+    f = {name: x[at + i] for name, i in layout.score.items()}
+    n_out, hours, n_status, n_stops = (int(f[n]) for n in ("n_outputs", "hour_len", "n_status", "n_stops"))
+    p = at + layout.score_fixed
     by_output = [int(c) for c in x[p:p + n_out]]
     first_seen = [int(c) for c in x[p + n_out:p + 2 * n_out]]
     p += 2 * n_out
@@ -370,13 +416,14 @@ def _score_of(x: np.ndarray, at: int) -> tuple[ServiceDayScore, int]:
     p += 2 * n_status
     stops = [float(v) for v in x[p:p + n_stops]]
     p += n_stops
-    has_rej = x[at + 8] != 0.0
+    has_rej = f["has_rejected"] != 0.0
     score = ServiceDayScore(
-        nonfinite=int(x[at]), nonfinite_by_output=by_output, first_seen=first_seen,
-        first=(float(x[at + 2]), int(x[at + 3])) if x[at + 1] != 0.0 else None,
-        sigma_in=int(x[at + 4]), sigma_n=int(x[at + 5]), se_all=float(x[at + 6]), n_all=int(x[at + 7]),
-        hour_se=hour_se, hour_n=hour_n, rejected_last=float(x[at + 9]) if has_rej else None,
-        rejected_max=float(x[at + 10]) if has_rej else None, status=status, stop_errors=stops)
+        nonfinite=int(f["nonfinite"]), nonfinite_by_output=by_output, first_seen=first_seen,
+        first=(float(f["first_t"]), int(f["first_output"])) if f["has_first"] != 0.0 else None,
+        sigma_in=int(f["sigma_in"]), sigma_n=int(f["sigma_n"]), se_all=float(f["se_all"]),
+        n_all=int(f["n_all"]), hour_se=hour_se, hour_n=hour_n,
+        rejected_last=float(f["rejected_last"]) if has_rej else None,
+        rejected_max=float(f["rejected_max"]) if has_rej else None, status=status, stop_errors=stops)
     return score, p
 
 
@@ -393,18 +440,19 @@ class ServiceDay:
     [(from time [s], wind [m/s])]; ``faults``: {step: (kind in FAULT_KINDS, value)} (FaultySensors'
     schedule); ``rejected``: the class a chain's refused step raises (StepRejected). The chains'
     configurations are taken as validated (open_chain does). RuntimeError if models._batch is not
-    compiled; ValueError naming a bad value."""
+    compiled or is a stale build; ValueError naming a bad value.
+
+    A refusal in the middle of a step (``rejected`` for a plant's StepRejected or the retry's,
+    ArithmeticError for RC_MATH where Python raises, ValueError otherwise) ends the day: every
+    later ``run`` raises ValueError "the day stopped at step k: ...". A short supply of draws
+    does not (nothing moved: more draws and the day goes on)."""
 
     def __init__(self, day: Sequence[float], plant: Sequence[float], est: Sequence[float],
                  grade: tuple, wind: Sequence[tuple[float, float]], faults: Mapping[int, tuple],
                  rejected: type[Exception] = ValueError):
         if _batch is None:
             raise RuntimeError("the C scenario runner (models._batch) is not compiled")
-        built = tuple(getattr(_batch, name, None) for name in (
-            "SERVICE_DAY_VALUES", "SERVICE_DAY_EXPORT_FIXED", "SERVICE_DAY_SCORE_FIXED"))
-        if built != (len(SERVICE_DAY_FIELDS), _DAY_FIXED, _SCORE_FIXED):
-            raise RuntimeError(f"models._batch's service day layout {built} is not this module's "
-                               "(a stale build): setup.py build_ext --inplace")
+        self._layout = _service_day_layout()
         if len(day) != len(SERVICE_DAY_FIELDS):
             raise ValueError(f"service day: expected {len(SERVICE_DAY_FIELDS)} day values "
                              f"{SERVICE_DAY_FIELDS}, got {len(day)}")
@@ -420,16 +468,22 @@ class ServiceDay:
                                        _doubles([x for w in wind for x in w]), _doubles(rows), rejected)
 
     def run(self, steps: int, draws: np.ndarray) -> int:
-        """The next ``steps`` steps; returns the draws taken from the front of ``draws``."""
+        """The next ``steps`` steps; returns the draws taken from the front of ``draws``.
+        RuntimeError if another thread's run is under way (export() too)."""
         return self._day.run(int(steps), _doubles(draws))
 
     def export(self) -> ServiceDayFigures:
         """The figures so far."""
+        layout = self._layout
         x = np.frombuffer(self._day.export(), dtype=float)
-        clean, at = _score_of(x, _DAY_FIXED)
-        faulty, _ = _score_of(x, at)
+        clean, at = _score_of(x, layout.day_fixed, layout)
+        faulty, _ = _score_of(x, at, layout)
+        d = {name: x[i] for name, i in layout.day.items()}
+        faults = layout.day["faults"]
         return ServiceDayFigures(
-            steps_done=int(x[0]), stops=int(x[1]), long_cruises=int(x[2]), cruise_s=float(x[3]),
-            distance_m=float(x[4]), moving_steps=int(x[5]), mass_min=float(x[6]), mass_max=float(x[7]),
-            faults={kind: int(x[8 + i]) for i, kind in enumerate(FAULT_KINDS)}, rejected=int(x[12]),
-            clean=clean, faulty=faulty)
+            steps_done=int(d["steps_done"]), stops=int(d["stops"]), long_cruises=int(d["long_cruises"]),
+            cruise_s=float(d["cruise_s"]), distance_m=float(d["distance_m"]),
+            moving_steps=int(d["moving_steps"]), mass_min=float(d["mass_min"]),
+            mass_max=float(d["mass_max"]),
+            faults={kind: int(x[faults + i]) for i, kind in enumerate(FAULT_KINDS)},
+            rejected=int(d["rejected"]), clean=clean, faulty=faulty)

@@ -58,6 +58,10 @@ Figures (one table, both estimators; targets printed PASS/FAIL, exit 0 anyway):
 
 ``run_day(hours, seed, ...)`` computes and returns a dict (tests/test_service_day.py uses it);
 ``main`` prints.
+
+Over 600 lines because the Python loop's parts (FaultySensors, ServiceDriver, _Score) are the
+reference that models/core/service_day.c twins expression for expression: kept beside the loop
+and the C engine's hand-over so that one file shows both sides of the equality.
 """
 from __future__ import annotations
 

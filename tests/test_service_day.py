@@ -242,6 +242,106 @@ def test_service_day_refuses_bad_input_by_name():
                    {3: ("smoke", 1.0)})
     with pytest.raises(ValueError, match="plant config: the C core takes"):
         ServiceDay([1.0] * len(SERVICE_DAY_FIELDS), [1.0], [], ((0.0,), (0.0,)), [(0.0, 0.0)], {})
+    at = SERVICE_DAY_FIELDS.index("step_s")
+    for step_s, shown in [(3600.5, "3600.5"), (0.0, "0.0"), (-0.1, "-0.1")]:   # models.chain's MAX_STEP
+        day = [1.0] * len(SERVICE_DAY_FIELDS)
+        day[at] = step_s
+        with pytest.raises(ValueError, match=rf"day.step_s must (be in \(0, 3600\] s|be >= 0), got {shown}"):
+            ServiceDay(day, [], [], ((0.0,), (0.0,)), [(0.0, 0.0)], {})
+
+
+def test_a_stale_build_is_named(monkeypatch):
+    """models.batch reads the export by the names models._batch exports: a build without them,
+    or with other names or a shorter layout, is refused as stale before it is read."""
+    import types
+    good = dict(LAYOUT_CONSTANTS)
+    for broken in ({k: v for k, v in good.items() if k != "SERVICE_DAY_SCORE_OFFSETS"},
+                   {**good, "SERVICE_DAY_EXPORT_OFFSETS": {**good["SERVICE_DAY_EXPORT_OFFSETS"],
+                                                           "stops": good["SERVICE_DAY_EXPORT_FIXED"]}},
+                   {**good, "SERVICE_DAY_SCORE_OFFSETS": {"nonfinite": 0}},
+                   {**good, "SERVICE_DAY_VALUES": good["SERVICE_DAY_VALUES"] + 1}):
+        monkeypatch.setattr(sd.batch, "_batch", types.SimpleNamespace(**broken))
+        with pytest.raises(RuntimeError, match=r"stale build\): setup.py build_ext --inplace"):
+            sd.batch.ServiceDay([1.0] * len(sd.batch.SERVICE_DAY_FIELDS), [], [], ((0.0,), (0.0,)),
+                                [(0.0, 0.0)], {})
+
+
+def test_the_draws_per_step_are_the_cores():
+    assert sd.batch.SERVICE_DAY_DRAWS_PER_STEP == sd.batch._batch.SERVICE_DAY_DRAWS_PER_STEP == 7
+
+
+def test_a_dropout_past_the_days_end_runs_as_in_python(monkeypatch):
+    """A dropout longer than the day (its counter outlives it in Python) runs in C too, clamped
+    to the day: the summaries equal, the held speed to the end."""
+    schedule = sd.fault_schedule
+
+    def with_long_dropout(*args):
+        out = schedule(*args)
+        out[300] = ("hold", 10 ** 7)              # far past the 1800 steps
+        return {k: v for k, v in out.items() if k <= 300}
+
+    monkeypatch.setattr(sd, "fault_schedule", with_long_dropout)
+    py = sd.run_day(0.05, SEED, rss_every_s=600.0, engine="python")
+    c = sd.run_day(0.05, SEED, rss_every_s=600.0, engine="c")
+    assert_same_day(py, c)
+    assert c["day"]["faults"]["hold"] >= 1
+
+
+def refusing_day(monkeypatch, made: list):
+    """run_day's ServiceDay recorded in ``made``, its first payload 1e6 t: past the plant's
+    10 x car.mass, so the RailCar chain refuses step 0 after the driver has moved."""
+    class Overloaded(sd.batch.ServiceDay):
+        def __init__(self, day, *args, **kwargs):
+            day = list(day)
+            day[sd.batch.SERVICE_DAY_FIELDS.index("first_payload")] = 1e6
+            super().__init__(day, *args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(sd.batch, "ServiceDay", Overloaded)
+
+
+def test_a_refused_step_ends_the_day(monkeypatch):
+    """After a chain's refusal in the middle of a step (the driver, the payload, the faults may
+    have moved, the step count not), a later run refuses by name instead of redoing the step."""
+    made = []
+    refusing_day(monkeypatch, made)
+    with pytest.raises(sd.StepRejected, match=r"service day: step 0 \(RailCar chain\): car.payload"):
+        sd.run_day(0.05, SEED, engine="c")
+    day = made[0]
+    for _ in range(2):
+        with pytest.raises(ValueError, match=r"the day stopped at step 0: step 0 \(RailCar chain\): "
+                                             r"car.payload"):
+            day.run(1, np.full(7, 0.5))
+    assert day.export().steps_done == 0
+
+
+def test_export_is_refused_while_a_run_is_under_way(monkeypatch):
+    """run() releases the GIL: export() from another thread meanwhile is refused, not a read of
+    figures being written; afterwards it gives them."""
+    import threading
+    made = []
+
+    class Recording(sd.batch.ServiceDay):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(sd.batch, "ServiceDay", Recording)
+    monkeypatch.setattr(sd.batch, "SERVICE_DAY_DRAWS_PER_STEP", 0)   # stops at step 0: a fresh day
+    with pytest.raises(ValueError, match="driver draws: 0 left before step 0"):
+        sd.run_day(1.0, SEED, engine="c")
+    day, steps, ran = made[0], 30_000, {}
+    worker = threading.Thread(target=lambda: ran.setdefault("used", day.run(steps, np.full(7 * steps, 0.5))))
+    refused = None
+    worker.start()                                    # 30,000 steps: ~0.2 s of C without the GIL
+    while worker.is_alive() and refused is None:
+        try:
+            day.export()
+        except RuntimeError as e:
+            refused = e
+    worker.join()
+    assert refused is not None and "ServiceDay.export: a run is under way in another thread" in str(refused)
+    assert ran["used"] > 0 and day.export().steps_done == steps
 
 
 # ---------------------------------------------------------------- one ulp in the C twin is seen
@@ -293,8 +393,8 @@ def build_twin(core_objects, directory: Path, mutation: tuple[str, ...] | None) 
 class _CtypesTwin:
     """models._batch's ServiceDay object (run, export) over a ctypes-loaded build of the core."""
 
-    def __init__(self, lib, arrays):
-        self.lib = lib
+    def __init__(self, lib, arrays, rejected):
+        self.lib, self.rejected = lib, rejected
         self.keep = [np.ascontiguousarray(a, dtype=float) for a in arrays]
         self.state = ctypes.create_string_buffer(lib.rc_service_day_size())
         self.err = ctypes.create_string_buffer(256)
@@ -306,11 +406,15 @@ class _CtypesTwin:
         assert st == 0, self.err.value
 
     def run(self, steps, draws):
+        """As models._batch's: RC_REJECTED raises the given class, RC_MATH ArithmeticError, the
+        others ValueError."""
         draws = np.ascontiguousarray(draws, dtype=float)
         used = ctypes.c_long()
         st = self.lib.rc_service_day_run(self.state, steps, draws.ctypes.data_as(ctypes.c_void_p),
                                          len(draws), ctypes.byref(used), self.err)
-        assert st == 0, self.err.value
+        if st != 0:
+            raised = {1: self.rejected, 3: ArithmeticError}.get(st, ValueError)
+            raise raised(f"service day: {self.err.value.decode()}")
         return used.value
 
     def export(self):
@@ -323,8 +427,14 @@ class _CtypesTwin:
         self.lib.rc_service_day_free(self.state)
 
 
-def day_on(lib_path: Path, monkeypatch, hours: float) -> dict:
-    """run_day(engine="c") with the twin from lib_path in place of models._batch's."""
+# models._batch's service day layout (copied into the ctypes fake of it: models.batch checks them)
+LAYOUT_CONSTANTS = {name: getattr(sd.batch._batch, name) for name in (
+    "SERVICE_DAY_VALUES", "SERVICE_DAY_EXPORT_FIXED", "SERVICE_DAY_SCORE_FIXED",
+    "SERVICE_DAY_DRAWS_PER_STEP", "SERVICE_DAY_EXPORT_OFFSETS", "SERVICE_DAY_SCORE_OFFSETS")}
+
+
+def ctypes_batch(lib_path: Path):
+    """A stand-in for models._batch whose service_day is the twin built at lib_path."""
     lib = ctypes.CDLL(str(lib_path))
     lib.rc_service_day_size.restype = ctypes.c_size_t
     array = [ctypes.c_void_p, ctypes.c_long]                          # a double * and its length
@@ -336,17 +446,16 @@ def day_on(lib_path: Path, monkeypatch, hours: float) -> dict:
     lib.rc_service_day_export.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long]
     lib.rc_service_day_free.argtypes = [ctypes.c_void_p]
 
-    class Module:
-        SERVICE_DAY_VALUES = sd.batch._batch.SERVICE_DAY_VALUES                # the layout: as built
-        SERVICE_DAY_EXPORT_FIXED = sd.batch._batch.SERVICE_DAY_EXPORT_FIXED
-        SERVICE_DAY_SCORE_FIXED = sd.batch._batch.SERVICE_DAY_SCORE_FIXED
+    def service_day(*arrays_and_error):
+        return _CtypesTwin(lib, arrays_and_error[:-1], arrays_and_error[-1])
 
-        @staticmethod
-        def service_day(*arrays_and_error):
-            return _CtypesTwin(lib, arrays_and_error[:-1])
+    return type("Module", (), {**LAYOUT_CONSTANTS, "service_day": staticmethod(service_day)})
 
+
+def day_on(lib_path: Path, monkeypatch, hours: float) -> dict:
+    """run_day(engine="c") with the twin from lib_path in place of models._batch's."""
     with monkeypatch.context() as m:
-        m.setattr(sd.batch, "_batch", Module)
+        m.setattr(sd.batch, "_batch", ctypes_batch(lib_path))
         return sd.run_day(hours, SEED, rss_every_s=600.0, engine="c")
 
 
@@ -379,3 +488,71 @@ def test_pure_python_switch_runs_the_reference(monkeypatch):
     with pytest.raises(RuntimeError, match="engine='c'.*RAILCAR_PURE_PYTHON"):
         sd.run_day(0.01, SEED, engine="c")
     assert sd.run_day(0.01, SEED)["steps"] == 360
+
+
+# ---------------------------------------------------------------- the faulty estimator's statuses
+
+FORCED_STEP = 100
+ESTIMATOR_STEP = "st = rc_estchain_step(&d->est, t, h, f_app, b_app, speed, position, 0.0, 0.0, err);"
+
+
+def forced_status(status: str) -> tuple[str, str]:
+    """service_day.c with the faulty estimator's step at FORCED_STEP returning ``status``."""
+    return (ESTIMATOR_STEP, f"st = k == {FORCED_STEP} ? rc_refuse(err, {status}, \"forced %ld\", k) : "
+                            + ESTIMATOR_STEP[len("st = "):])
+
+
+def test_only_a_rejected_estimator_step_is_retried(core_objects, tmp_path, monkeypatch):
+    """As the Python loop's ``except StepRejected``: a refused step (RC_REJECTED) is counted and
+    redone with the held sample and the day goes on; another status (RC_MATH: Python's
+    ZeroDivisionError, OverflowError) ends the day at that step, named, and stays ended."""
+    hours = 0.05                                      # 1800 steps
+    plain = day_on(build_twin(core_objects, tmp_path, None), monkeypatch, hours)
+    (tmp_path / "rejected").mkdir()
+    retried = day_on(build_twin(core_objects, tmp_path / "rejected", forced_status("RC_REJECTED")),
+                     monkeypatch, hours)
+    assert retried["steps"] == 1800 and retried["rejected_steps"] == plain["rejected_steps"] + 1
+
+    (tmp_path / "math").mkdir()
+    module = ctypes_batch(build_twin(core_objects, tmp_path / "math", forced_status("RC_MATH")))
+    made = []
+
+    class Recording(sd.batch.ServiceDay):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(sd.batch, "_batch", module)
+    monkeypatch.setattr(sd.batch, "ServiceDay", Recording)
+    with pytest.raises(ArithmeticError,
+                       match=rf"service day: step {FORCED_STEP} \(faulty estimator\): forced {FORCED_STEP}$"):
+        sd.run_day(hours, SEED, engine="c")
+    day = made[0]
+    figures = day.export()
+    assert figures.steps_done == FORCED_STEP and figures.rejected == 0     # not retried
+    with pytest.raises(ValueError, match=rf"the day stopped at step {FORCED_STEP}: step {FORCED_STEP} "
+                                         r"\(faulty estimator\): forced"):
+        day.run(1, np.full(7, 0.5))
+
+
+def test_the_python_loop_ends_the_day_on_an_arithmetic_error(monkeypatch):
+    """The reference the C twin follows: only StepRejected is retried; ZeroDivisionError from
+    the estimator's step ends run_day."""
+    opened = sd.open_estimator_chain
+
+    class Failing:
+        def __init__(self, chain):
+            self.chain, self.steps = chain, 0
+
+        def __getattr__(self, name):
+            return getattr(self.chain, name)
+
+        def do_step(self, *args):
+            self.steps += 1
+            if self.steps == FORCED_STEP + 1:
+                raise ZeroDivisionError("forced")
+            return self.chain.do_step(*args)
+
+    monkeypatch.setattr(sd, "open_estimator_chain", lambda *a, **k: Failing(opened(*a, **k)))
+    with pytest.raises(ZeroDivisionError, match="forced"):
+        sd.run_day(0.05, SEED, engine="python")

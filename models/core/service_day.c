@@ -77,8 +77,12 @@ static rc_status check_day(const double *v, long n, rc_error *err)
                 && i != RC_SD_FIRST_PAYLOAD)
             return rc_refuse(err, RC_BAD_CONFIG, "day.%s must be >= 0, got %s", DAY_NAMES[i], r);
     }
-    if (!(v[RC_SD_STEP_S] > 0.0))
-        return rc_refuse(err, RC_BAD_CONFIG, "day.step_s must be > 0");
+    if (!(v[RC_SD_STEP_S] > 0.0 && v[RC_SD_STEP_S] <= RC_SD_MAX_STEP_S)) {
+        char r[40];
+        rc_repr(v[RC_SD_STEP_S], r, sizeof r);
+        return rc_refuse(err, RC_BAD_CONFIG, "day.step_s must be in (0, %g] s, got %s",
+                         RC_SD_MAX_STEP_S, r);
+    }
     if (v[RC_SD_STEPS] != floor(v[RC_SD_STEPS]) || v[RC_SD_STEPS] > (double)RC_SD_MAX_STEPS)
         return rc_refuse(err, RC_BAD_CONFIG, "day.steps must be a whole number in 0..1e9");
     if (!(v[RC_SD_DECEL_LO] > 0.0 && v[RC_SD_DECEL_HI] > 0.0))
@@ -87,7 +91,7 @@ static rc_status check_day(const double *v, long n, rc_error *err)
 }
 
 static rc_status check_rows(const double *wind, long n_wind, const double *faults, long n_faults,
-                            long n_steps, rc_error *err)
+                            rc_error *err)
 {
     if (n_wind < 1)
         return rc_refuse(err, RC_BAD_CONFIG, "wind: the schedule needs at least one row");
@@ -106,7 +110,7 @@ static rc_status check_rows(const double *wind, long n_wind, const double *fault
         if (!isfinite(f[2]))
             return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: value must be finite", i);
         int dropout = f[1] >= RC_SD_FAULT_ZERO;
-        if (dropout && !(f[2] >= 1.0 && f[2] == floor(f[2]) && f[2] <= (double)n_steps + 1.0))
+        if (dropout && !(f[2] >= 1.0 && f[2] == floor(f[2])))
             return rc_refuse(err, RC_BAD_CONFIG, "faults row %ld: a dropout's value must be its "
                           "samples, a whole number >= 1", i);
     }
@@ -127,7 +131,7 @@ rc_status rc_service_day_init(rc_service_day *d, const double *day, long n_day,
         return st;
     memcpy(d->day, day, sizeof d->day);
     d->n_steps = (long)day[RC_SD_STEPS];
-    if ((st = check_rows(wind, n_wind, faults, n_faults, d->n_steps, err)) != RC_OK)
+    if ((st = check_rows(wind, n_wind, faults, n_faults, err)) != RC_OK)
         return st;
     if (n_grade < 1)
         return rc_refuse(err, RC_BAD_CONFIG, "grade: the profile needs at least one point");
@@ -161,6 +165,13 @@ rc_status rc_service_day_init(rc_service_day *d, const double *day, long n_day,
     }
     memcpy(d->wind, wind, sizeof *d->wind * (size_t)(2 * n_wind));
     memcpy(d->faults, faults, sizeof *d->faults * (size_t)(3 * n_faults));
+    /* a dropout past the day's end runs as one that ends with it (Python's counter outlives the
+     * day): clamped to n_steps + 1 samples so that (long) of it cannot overflow */
+    for (long i = 0; i < n_faults; i++) {
+        double *f = d->faults + 3 * i;
+        if (f[1] >= RC_SD_FAULT_ZERO && f[2] > (double)d->n_steps + 1.0)
+            f[2] = (double)d->n_steps + 1.0;
+    }
     d->n_wind = n_wind;
     d->n_faults = n_faults;
     if ((st = rc_chain_init(&d->plant, &pc, err)) != RC_OK) {
@@ -377,13 +388,16 @@ static rc_status score_add(rc_sd_score *s, const double *out, double t, long hou
     return RC_OK;
 }
 
-static rc_status step_refused(rc_error *err, rc_status st, long k, const char *who)
+/* A refusal mid-step: the driver, payload, fault cursor and chains may have moved but d->k has
+ * not, so the day is marked failed (rc_service_day_run refuses to go on) and keeps the reason. */
+static rc_status step_refused(rc_service_day *d, rc_error *err, rc_status st, long k, const char *who)
 {
-    if (err) {
-        char why[RC_MSG_SIZE];
-        memcpy(why, err->msg, sizeof why);
-        snprintf(err->msg, sizeof err->msg, "step %ld (%s): %.200s", k, who, why);
-    }
+    char why[RC_MSG_SIZE];
+    memcpy(why, err ? err->msg : "", err ? sizeof why : 1);
+    d->failed = 1;
+    snprintf(d->failed_msg, sizeof d->failed_msg, "step %ld (%s): %.200s", k, who, why);
+    if (err)
+        memcpy(err->msg, d->failed_msg, sizeof err->msg);
     return st;
 }
 
@@ -393,6 +407,9 @@ rc_status rc_service_day_run(rc_service_day *d, long steps, const double *draws,
     *used = 0;
     if (err)
         err->msg[0] = '\0';
+    if (d->failed)
+        return rc_refuse(err, RC_BAD_CONFIG, "the day stopped at step %ld: %.200s", d->k,
+                         d->failed_msg);
     if (steps < 0 || steps > d->n_steps - d->k)
         return rc_refuse(err, RC_BAD_CONFIG, "steps: %ld asked at step %ld of a day of %ld", steps,
                       d->k, d->n_steps);
@@ -424,21 +441,25 @@ rc_status rc_service_day_run(rc_service_day *d, long steps, const double *draws,
         rc_status st = rc_chain_step(&d->plant, t, h, traction, brake, d->wind_now, d->payload, err);
         if (st != RC_OK) {
             *used = (long)(r.next - draws);
-            return step_refused(err, st, k, "RailCar chain");
+            return step_refused(d, err, st, k, "RailCar chain");
         }
         rc_chain_outputs(&d->plant, new_out);
         double f_app = new_out[OUT_TRACTION], b_app = new_out[OUT_BRAKE];
-        if (rc_estchain_step(&d->est, t, h, f_app, b_app, speed, position, 0.0, 0.0, err) == RC_OK) {
+        st = rc_estchain_step(&d->est, t, h, f_app, b_app, speed, position, 0.0, 0.0, err);
+        if (st == RC_OK) {
             d->held_speed = speed;
             d->held_position = position;
-        } else {                             /* StepRejected: redo with the last accepted sample */
+        } else if (st == RC_REJECTED) {      /* StepRejected (nothing changed): redo held */
             d->rejected++;
             st = rc_estchain_step(&d->est, t, h, f_app, b_app, d->held_speed, d->held_position,
                                   0.0, 0.0, err);
             if (st != RC_OK) {
                 *used = (long)(r.next - draws);
-                return step_refused(err, st, k, "faulty estimator, the held sample");
+                return step_refused(d, err, st, k, "faulty estimator, the held sample");
             }
+        } else {                             /* RC_MATH, RC_BAD_CONFIG: Python's raise ends the day */
+            *used = (long)(r.next - draws);
+            return step_refused(d, err, st, k, "faulty estimator");
         }
         rc_estchain_outputs(&d->est, d->est_out);
         double t1 = t + h;
@@ -449,7 +470,7 @@ rc_status rc_service_day_run(rc_service_day *d, long steps, const double *draws,
             rc_sd_score *s = &d->score[e];
             if ((st = score_add(s, outs[e], t1, hour, vt, v_prev, mt, day[RC_SD_BATCH], err)) != RC_OK) {
                 *used = (long)(r.next - draws);
-                return step_refused(err, st, k, e ? "faulty score" : "clean score");
+                return step_refused(d, err, st, k, e ? "faulty score" : "clean score");
             }
         }
         if (vt > 0.0) {

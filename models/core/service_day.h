@@ -57,6 +57,7 @@ enum { RC_SD_FAULT_SPEED, RC_SD_FAULT_POSITION, RC_SD_FAULT_ZERO, RC_SD_FAULT_HO
 #define RC_SD_DRAWS_PER_STEP 7   /* departure 5, arrival 1, boarding 1 */
 #define RC_SD_STATUS_MAX 16      /* distinct est.status values counted */
 #define RC_SD_MAX_STEPS 1000000000L
+#define RC_SD_MAX_STEP_S 3600.0  /* [s] models.chain's MAX_STEP: bounds the hours and stops sized */
 
 /* The export's day part (rc_service_day_export), then the clean and the faulty estimator's part */
 enum {
@@ -136,6 +137,8 @@ typedef struct {
     double distance;             /* [m] */
     long moving_steps, rejected;
     rc_sd_score score[2];        /* clean, faulty */
+    int failed;                  /* a refusal mid-step: the state moved, d->k did not; no more runs */
+    char failed_msg[RC_MSG_SIZE];
 } rc_service_day;
 
 /* sizeof(rc_service_day), for callers that allocate it without this header (ctypes) */
@@ -156,8 +159,11 @@ void rc_service_day_free(rc_service_day *d);
 
 /* The next `steps` steps of the day with the driver's draws (*used: how many it took). RC_OK;
  * RC_BAD_CONFIG when the steps go past the day or a step might need more draws than are left
- * (err names it; the steps before it done); a chain's refusal (a plant step, or an estimator step
- * refused twice) with err naming the step and the chain. */
+ * (err names it; the steps before it done, the day can go on); a refusal mid-step with err naming
+ * the step and who refused: the plant's status, the faulty estimator's when it is not RC_REJECTED
+ * (RC_MATH, RC_BAD_CONFIG: Python's exception), or its retry's on the held sample after an
+ * RC_REJECTED, or a score's RC_BAD_CONFIG. After a refusal mid-step the day is failed: every later
+ * run refuses (RC_BAD_CONFIG, "the day stopped at step k: ..."). */
 rc_status rc_service_day_run(rc_service_day *d, long steps, const double *draws, long n_draws,
                              long *used, rc_error *err);
 
