@@ -23,13 +23,8 @@
 #include "core/scenario_driver.h"
 #include "core/service_day.h"
 #include "core/span_driver.h"
+#include "_status.h"
 
-/* The exception class of a refusal: StepRejected (the caller's) for RC_REJECTED, ArithmeticError
- * for RC_MATH (where Python raises ZeroDivisionError or OverflowError), ValueError otherwise */
-static PyObject *status_exception(rc_status st, PyObject *rejected)
-{
-    return st == RC_REJECTED ? rejected : st == RC_MATH ? PyExc_ArithmeticError : PyExc_ValueError;
-}
 
 #define RUN_ARRAYS 6   /* config, grade_distances, grades, speed_distances, speeds, script */
 

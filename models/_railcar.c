@@ -15,6 +15,7 @@
 
 #include "core/ato_closed_loop.h"
 #include "core/railcar.h"
+#include "_status.h"
 
 /* A sequence of numbers into a new malloc'd array of doubles (*n its length) */
 static double *doubles(PyObject *seq, Py_ssize_t *n, const char *what)
@@ -238,8 +239,9 @@ static PyObject *chain_do_step(ChainObject *self, PyObject *const *args, size_t 
                                 "do_step") < 0)
         return NULL;
     rc_error err;
-    if (rc_chain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], &err) != RC_OK) {
-        PyErr_SetString(self->error, err.msg);
+    rc_status st = rc_chain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], &err);
+    if (st != RC_OK) {
+        PyErr_SetString(status_exception(st, self->error), err.msg);
         return NULL;
     }
     Py_RETURN_NONE;
@@ -325,7 +327,7 @@ static PyObject *chain_run(ChainObject *self, PyObject *args)
         rc_chain_outputs(self->chain, y);
     }
     if (st != RC_OK) {
-        PyErr_Format(self->error, "inputs row %zd: %s", i, err.msg);
+        PyErr_Format(status_exception(st, self->error), "inputs row %zd: %s", i, err.msg);
         goto done;
     }
     result = Py_NewRef(Py_None);
@@ -515,8 +517,9 @@ static PyObject *estimator_do_step(EstimatorObject *self, PyObject *const *args,
                 "do_step") < 0)
         return NULL;
     rc_error err;
-    if (rc_estchain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], &err) != RC_OK) {
-        PyErr_SetString(self->error, err.msg);
+    rc_status st = rc_estchain_step(self->chain, x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], &err);
+    if (st != RC_OK) {
+        PyErr_SetString(status_exception(st, self->error), err.msg);
         return NULL;
     }
     Py_RETURN_NONE;
@@ -655,7 +658,7 @@ static PyObject *run_ato_closed_loop(PyObject *Py_UNUSED(module), PyObject *args
         }
         Py_END_ALLOW_THREADS
         if (st != RC_OK) {
-            PyErr_SetString(st == RC_REJECTED ? error : PyExc_ValueError, msg);
+            PyErr_SetString(status_exception(st, error), msg);
             Py_CLEAR(result);
             goto done;
         }

@@ -133,7 +133,8 @@ def validate(cfg: ChainConfig, speed_profile: SpeedProfile | None, start_time: f
 
 class CompiledChain(_railcar.Chain if _railcar is not None else object):
     """RailCarChain in C: ``do_step``, ``outputs``, ``next_sample_time``, ``reset`` and the
-    batched ``run``. Raises StepRejected (naming the variable) on bad input, as RailCarChain."""
+    batched ``run``. Raises StepRejected (naming the variable) on bad input, as RailCarChain;
+    ArithmeticError where Python's arithmetic would raise (an overflowing square)."""
 
     engine = "c"
 
@@ -156,7 +157,8 @@ class CompiledChain(_railcar.Chain if _railcar is not None else object):
 
     def run_steps(self, inputs) -> np.ndarray:
         """Many steps at once: ``inputs`` rows are INPUT_COLUMNS; returns the outputs after each
-        step, one row per step, columns OUTPUT_NAMES. Raises StepRejected naming the row."""
+        step, one row per step, columns OUTPUT_NAMES. Raises StepRejected (or ArithmeticError, as
+        do_step) naming the row."""
         x = np.ascontiguousarray(inputs, dtype=float)
         if x.ndim != 2 or x.shape[1] != len(INPUT_COLUMNS):
             raise ValueError(f"inputs must have {len(INPUT_COLUMNS)} columns {INPUT_COLUMNS}, "
