@@ -184,54 +184,51 @@ static unsigned char *put(state_sink *s, const void *data, size_t n)
 static void put_u32(state_sink *s, uint32_t v) { put(s, &v, sizeof v); }
 static void put_u64(state_sink *s, uint64_t v) { put(s, &v, sizeof v); }
 
-/* the pointer fields of an ato_controller (offsets); all are zeroed in its image */
-#define CTRL_POINTERS (2 + 3 + 2 + 7 + 8 * 3 + 3 + 2 + 1 + 7)
+/* the pointer fields of an ato_controller (offsets); all are zeroed in its image. The list's
+   length is counted from the list itself, so a field added here cannot outgrow an array. */
 #define TRACE_AT(k, field) \
     (offsetof(ato_controller, planner.bufs) + (size_t)(k) * sizeof(rc_ato_trace) + \
      offsetof(rc_ato_trace, field))
+#define TRACE_POINTERS(k) \
+    TRACE_AT(k, s), TRACE_AT(k, q), TRACE_AT(k, t), TRACE_AT(k, wF), TRACE_AT(k, wR), \
+    TRACE_AT(k, mode), TRACE_AT(k, coast_x), TRACE_AT(k, coast_end)
 
-static int controller_pointers(size_t *at)
-{
-    int n = 0;
-    at[n++] = offsetof(ato_controller, span);
-    at[n++] = offsetof(ato_controller, car);
-    at[n++] = offsetof(ato_controller, course.s);
-    at[n++] = offsetof(ato_controller, course.g);
-    at[n++] = offsetof(ato_controller, course.qlim);
-    at[n++] = offsetof(ato_controller, planner.c);
-    at[n++] = offsetof(ato_controller, planner.block);
-    at[n++] = offsetof(ato_controller, planner.hint_has);
-    at[n++] = offsetof(ato_controller, planner.hint_has_slope);
-    at[n++] = offsetof(ato_controller, planner.hint_x);
-    at[n++] = offsetof(ato_controller, planner.hint_slope);
-    at[n++] = offsetof(ato_controller, planner.qU);
-    at[n++] = offsetof(ato_controller, planner.fall0);
-    at[n++] = offsetof(ato_controller, planner.fall1);
-    for (int k = 0; k < 3; k++) {
-        at[n++] = TRACE_AT(k, s);
-        at[n++] = TRACE_AT(k, q);
-        at[n++] = TRACE_AT(k, t);
-        at[n++] = TRACE_AT(k, wF);
-        at[n++] = TRACE_AT(k, wR);
-        at[n++] = TRACE_AT(k, mode);
-        at[n++] = TRACE_AT(k, coast_x);
-        at[n++] = TRACE_AT(k, coast_end);
-    }
-    at[n++] = offsetof(ato_controller, planner.work);
-    at[n++] = offsetof(ato_controller, planner.spare);
-    at[n++] = offsetof(ato_controller, planner.best);
-    at[n++] = offsetof(ato_controller, planner.coast_x);
-    at[n++] = offsetof(ato_controller, planner.coast_end);
-    at[n++] = offsetof(ato_controller, planner.car);
-    at[n++] = offsetof(ato_controller, planner.plan.coast_x);
-    at[n++] = offsetof(ato_controller, planner.plan.coast_end);
-    at[n++] = offsetof(ato_controller, planner.plan.s);
-    at[n++] = offsetof(ato_controller, planner.plan.v);
-    at[n++] = offsetof(ato_controller, planner.plan.t);
-    at[n++] = offsetof(ato_controller, planner.plan.mode);
-    at[n++] = offsetof(ato_controller, planner.plan.qU);
-    return n;
-}
+static const size_t CTRL_POINTERS[] = {
+    offsetof(ato_controller, span),
+    offsetof(ato_controller, car),
+    offsetof(ato_controller, course.s),
+    offsetof(ato_controller, course.g),
+    offsetof(ato_controller, course.qlim),
+    offsetof(ato_controller, planner.c),
+    offsetof(ato_controller, planner.block),
+    offsetof(ato_controller, planner.hint_has),
+    offsetof(ato_controller, planner.hint_has_slope),
+    offsetof(ato_controller, planner.hint_x),
+    offsetof(ato_controller, planner.hint_slope),
+    offsetof(ato_controller, planner.qU),
+    offsetof(ato_controller, planner.fall0),
+    offsetof(ato_controller, planner.fall1),
+    TRACE_POINTERS(0),
+    TRACE_POINTERS(1),
+    TRACE_POINTERS(2),
+    offsetof(ato_controller, planner.work),
+    offsetof(ato_controller, planner.spare),
+    offsetof(ato_controller, planner.best),
+    offsetof(ato_controller, planner.coast_x),
+    offsetof(ato_controller, planner.coast_end),
+    offsetof(ato_controller, planner.car),
+    offsetof(ato_controller, planner.plan.coast_x),
+    offsetof(ato_controller, planner.plan.coast_end),
+    offsetof(ato_controller, planner.plan.s),
+    offsetof(ato_controller, planner.plan.v),
+    offsetof(ato_controller, planner.plan.t),
+    offsetof(ato_controller, planner.plan.mode),
+    offsetof(ato_controller, planner.plan.qU),
+};
+#define N_CTRL_POINTERS ((int)(sizeof CTRL_POINTERS / sizeof CTRL_POINTERS[0]))
+/* three traces' pointers are in bufs[0..2]: a fourth buffer must join the list */
+typedef char ctrl_pointers_name_every_trace[
+    sizeof ((rc_ato_planner *)0)->bufs / sizeof(rc_ato_trace) == 3 ? 1 : -1];
 
 static void zero_pointers(unsigned char *image, const size_t *at, int n)
 {
@@ -264,13 +261,11 @@ static uint32_t envelope_code(const ato_controller *c)
 
 static void put_controller(state_sink *s, const ato_controller *c)
 {
-    size_t at[CTRL_POINTERS];
-    int n = controller_pointers(at);
     const rc_ato_course *co = &c->course;
     unsigned char *image;
     put_u64(s, sizeof *c);
     if ((image = put(s, c, sizeof *c)) != NULL)
-        zero_pointers(image, at, n);
+        zero_pointers(image, CTRL_POINTERS, N_CTRL_POINTERS);
     put_u32(s, trace_code(&c->planner, c->planner.work));
     put_u32(s, trace_code(&c->planner, c->planner.spare));
     put_u32(s, trace_code(&c->planner, c->planner.best));
@@ -412,13 +407,12 @@ static void release_controller(ato_controller *c)
 static int take_controller(state_source *r, ato_controller *c, const rc_ato_span *span,
                            const rc_ato_car *car)
 {
-    size_t at[CTRL_POINTERS];
-    int n = controller_pointers(at);
     if (take_u64(r, "controller size") != sizeof *c)
         return bad(r, "controller size");
     if (!take(r, c, sizeof *c, "controller"))
         return 0;
-    zero_pointers((unsigned char *)c, at, n);      /* from here on, release frees what is set */
+    /* from here on, release frees what is set */
+    zero_pointers((unsigned char *)c, CTRL_POINTERS, N_CTRL_POINTERS);
     uint32_t work = take_u32(r, "planner traces"), spare = take_u32(r, "planner traces");
     uint32_t best = take_u32(r, "planner traces"), car_is = take_u32(r, "planner car");
     uint32_t envelope_is = take_u32(r, "plan envelope");
@@ -526,14 +520,14 @@ rc_status ato_line_state_read(ato_line *line, int n, const rc_ato_span *spans,
 
 uint32_t ato_line_state_layout(void)
 {
-    size_t at[CTRL_POINTERS];
-    int n = controller_pointers(at);
+    const size_t *at = CTRL_POINTERS;
+    size_t n = (size_t)N_CTRL_POINTERS;
     size_t sizes[] = {sizeof(ato_line), sizeof(ato_controller), sizeof(rc_ato_planner),
                       sizeof(rc_ato_course), sizeof(rc_ato_trace), sizeof(ato_supervisor),
                       sizeof(ato_event), sizeof(long), (size_t)ATO_MAX_NODES,
                       (size_t)ATO_EVENT_RING, (size_t)ATO_TEXT_SIZE};
     uint32_t h = 2166136261u;                       /* FNV-1a over the sizes and offsets */
-    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0] + (size_t)n; i++) {
+    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0] + n; i++) {
         size_t v = i < sizeof sizes / sizeof sizes[0] ? sizes[i]
                                                         : at[i - sizeof sizes / sizeof sizes[0]];
         for (int b = 0; b < 8; b++) {
