@@ -1,9 +1,9 @@
 /* native_ato_state.c -- the FMU states of the native AtoController (native_ato.c's instance,
  * native_ato.h), as native_state.c is for RailCar and RailCarEstimator.
  *
- * (canGetAndSetFMUstate and canSerializeFMUstate "true"; NAT_STATE_OPS at the end of this
- * file behind glue_common.c's state calls, which add header, token, checksum and the
- * glue's own fields). The model's part is everything the controller's future outputs and log
+ * canGetAndSetFMUstate and canSerializeFMUstate are "true": NAT_STATE_OPS at the end of this
+ * file is behind glue_common.c's state calls, which add header, token, checksum and the
+ * glue's own fields. The model's part is everything the controller's future outputs and log
  * depend on: every variable's value (the inputs of the next step, the outputs published, the
  * parameters), the start time and time, whether the line is built; then the line's
  * configuration as built (span 1 and line.profile's spans: stop, length, schedule, limits;
