@@ -181,7 +181,7 @@ def fmi2(fmu: str, guid: str, generation_tool: str, *, needs_execution_tool: boo
     return _serialise(root)
 
 
-def fmi3(fmu: str, token: str, generation_tool: str, *, fmu_states: bool = True) -> bytes:
+def fmi3(fmu: str, token: str, generation_tool: str) -> bytes:
     """FMI 3.0 co-simulation modelDescription.xml of ``fmu`` (a native FMU: needs no tool).
 
     The variables of the FMI 2 FMU with the same names and value references (= their order):
@@ -189,20 +189,17 @@ def fmi3(fmu: str, token: str, generation_tool: str, *, fmu_states: bool = True)
     and inputs carry their start values, outputs are ``initial="calculated"`` (FMI 3 allows them
     no start value) and are listed as Output (``dependencies=""`` for NO_DIRECT_FEEDTHROUGH, as
     in fmi2) and InitialUnknown. "time", the independent variable FMI 3 requires, follows them
-    (value reference = their number, as fmu_src/c/fmi3_glue.c expects). ``fmu_states``: false
-    for a backend that saves no FMU state (native_ato.c): canGetAndSetFMUState and
-    canSerializeFMUState say "false"."""
+    (value reference = their number, as fmu_src/c/fmi3_glue.c expects). canGetAndSetFMUState
+    and canSerializeFMUState say "true": every native backend saves FMU states (native_state.c,
+    native_ato_state.c)."""
     table = variables_for(fmu)
     description, author = slave_metadata(fmu)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": fmu, "instantiationToken": token,
         "description": description + FMI3_DESCRIPTION_SUFFIX, "author": author,
         "generationTool": generation_tool, "variableNamingConvention": "structured"})
-    options = dict(_FMI3_OPTIONS)
-    if not fmu_states:
-        options.update(canGetAndSetFMUState="false", canSerializeFMUState="false")
     ET.SubElement(root, "CoSimulation", {"modelIdentifier": fmu, "needsExecutionTool": "false",
-                                         **options})
+                                         **_FMI3_OPTIONS})
     _unit_definitions(root, _real_units(table) | {"s"})          # "s": time's unit
     cats = ET.SubElement(root, "LogCategories")
     for name in LOG_CATEGORIES:

@@ -512,13 +512,13 @@ def build_native_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
 # fmu_src/c/native_ato.c, the C core's LineController (models/core/ato_line.h) behind the FMI 2.0
 # glue. It has no flat configuration (NativeSpec): native_ato.c reads its parameters by value
 # reference (the generated NAT_VR_* names) and builds the controller itself, so it has its own
-# table header, sources (no native_common.c, native_state.c: its FMU states are its own, at the end
-# of native_ato.c) and build.
+# table header, sources (no native_common.c, native_state.c: its FMU states are its own,
+# native_ato_state.c, sharing the instance through native_ato.h) and build.
 
 ATO_NATIVE_NAME = "AtoControllerNative"
 ATO_TABLE_HEADER = C_DIR / "native_ato_table.h"
-ATO_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_ato.c"]
-ATO_HEADERS = ["fmi2_glue.h", "glue_common.h"]
+ATO_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_ato.c", "native_ato_state.c"]
+ATO_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_ato.h"]
 _GLUE_ATO = {**_GLUE, "Boolean": "GLUE_BOOLEAN"}
 
 
@@ -614,7 +614,7 @@ def ato_build_inputs(fmu_name: str, python_fmu=None, targets=None) -> tuple:
 def build_native_ato(dest_dir, python_fmu=None, targets=None) -> Path:
     """``dest_dir/AtoControllerNative.fmu`` (FMI 2.0) from the pythonfmu AtoController.fmu
     ``python_fmu`` (default dist/'s): build_native's recipe with native_ato.c. Its description
-    says canGetAndSetFMUstate="true" and canSerializeFMUstate="true": native_ato.c saves and
+    says canGetAndSetFMUstate="true" and canSerializeFMUstate="true": native_ato_state.c saves and
     restores the whole controller (its FMU states)."""
     targets, python_fmu = ato_build_inputs(ATO_NATIVE_NAME, python_fmu, targets)
     dest = Path(dest_dir)

@@ -24,42 +24,8 @@
  *   ("t = %.3f s: [span k: ]<text>", the span named on a line of several); fmi2Warning when
  *   the command is the safe brake (ato.mode 9).
  *
- * FMU states (canGetAndSetFMUstate and canSerializeFMUstate "true"; NAT_STATE_OPS at the end of
- * this file behind glue_common.c's state calls, which add header, token, checksum and the
- * glue's own fields). The model's part is everything the controller's future outputs and log
- * depend on: every variable's value (the inputs of the next step, the outputs published, the
- * parameters), the start time and time, whether the line is built; then the line's
- * configuration as built (span 1 and line.profile's spans: stop, length, schedule, limits;
- * the grade with its integral; the car; dwells and boardings), the events logged so far, and
- * the line's running state, models/core/ato_line.c's ato_line_state_*: the line struct, the
- * departures, and each controller whole -- its struct's byte image (tuning, supervisor with its
- * windows and latch, plans' envelope and supervision curve, the relay, the blended car, the
- * episodes, the events ring: every number of it, nothing picked field by field), its course,
- * and its planner's buffer block (hints, traces, the plan in force).
- * Why this design (byte images with the pointers re-set) and not the others:
- * - a replay of the inputs since initialisation grows without bound (a 24 h line) and replays
- *   re-plans; this state's size is fixed by the line (spans, grid), not by how long it ran;
- * - a rebuild (ato_line_init) plus copied numbers would re-read the profile files (they may
- *   have changed or be absent where the state is restored) and run every span's first plan;
- *   here nothing is read from files and no plan is made: the bytes are the numbers. Only each
- *   span's grid is made again (rc_ato_course_init, from the saved span and car, as the
- *   controller made it) and it must equal the saved grid number for number;
- * - one serializer per field would have to be kept in step with every struct; an image cannot
- *   forget a number. What it must not carry are pointers: ato_line.c lists every pointer field
- *   of a controller (zeroed in the image, so that equal states give equal bytes) and re-sets
- *   each on reading -- span, car, the course's and planner's blocks as ato_controller_init and
- *   rc_ato_planner_init set them (the planner's block comes from rc_ato_planner_init and
- *   rc_ato_planner_relink lays it out with the same code),
- *   and the three that move while planning (work/spare/best, the plan's car and envelope) from
- *   a code naming their target. A new pointer field must join that list; the fingerprint
- *   (state_layout) changes with every size and offset the bytes rely on.
- * Reading checks every count against the bytes left and against the structs before it
- * allocates (span and limit rows, grade rows, the grid and its numbers, the planner block's
- * size for that grid, the traces' lengths within their capacities, the span running, the events logged, the
- * texts ended, the verdicts' subjects), builds the whole line aside and only then swaps it in:
- * a refused state (logged as "<function>: the FMU state is corrupt or of another build
- * (<what>)") leaves the model as it was. Allocation happens in get/set/serialize only, never in
- * a step; no globals.
+ * FMU states (canGetAndSetFMUstate and canSerializeFMUstate "true"): native_ato_state.c (the
+ * instance, nat_instance, is native_ato.h's).
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -67,16 +33,12 @@
 #include <limits.h>
 #include <math.h>
 #include <stdarg.h>
-#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 
-#include "ato_line.h"
-#include "ato_line_profile.h"
-#include "fmi2_glue.h"
-#include "native_ato_table.h"
+#include "native_ato.h"
 #include "plant.h"
 #include "profile.h"
 #include "rc_common.h"
@@ -91,32 +53,6 @@ GLUE_EXPORT const char *railcar_fmu_binary_id(void) {
     return "railcar-fmu fmi2 binary 1: C99 FMI 2.0 glue + native C core backend";
 }
 
-typedef struct {
-    double real[NAT_NVARS];          /* Real variables by vr */
-    fmi2Integer integer[NAT_NVARS];  /* Integer and Boolean variables by vr */
-    char *string[NAT_NVARS];         /* malloc'd; NULL: the start value */
-    double start_time;               /* fmi2SetupExperiment's */
-    double time;                     /* [s] the end of the last step taken */
-    int input_vr[ATO_N_ALL_INPUTS];  /* ALL_INPUTS order -> vr */
-    /* the line, after a successful initialisation (built) */
-    int built;
-    double *grade_block;             /* the grade's distances, grades and integral */
-    double *limit_block;             /* span 1's limits: distances and speeds */
-    rc_ato_span span;                /* span 1 (span.*), as open_ato reads it */
-    rc_ato_car car;
-    int n_spans;                     /* span 1 and line.profile's rows */
-    rc_ato_span *spans;              /* n_spans; the later ones over span 1's grade */
-    double *line_block;              /* n_spans each: dwells, boardings, departures, and two
-                                        for a later span without limit rows: 0, span.speed_limit */
-    ato_line_limits line_limits;     /* line.speed_limit_profile's */
-    ato_controller *controllers;     /* n_spans */
-    ato_line line;
-    long *logged;                    /* n_spans: each controller's events logged so far */
-} nat_instance;
-
-#define MODEL(g) ((nat_instance *)(g)->model)
-
-static const GlueStateOps NAT_STATE_OPS;     /* FMU states: at the end of the file */
 
 static const char *string_of(const nat_instance *m, int vr) {
     return m->string[vr] ? m->string[vr] : NAT_VARS[vr].start_string;
@@ -135,7 +71,7 @@ static void start_values(nat_instance *m) {
     m->time = 0.0;
 }
 
-static void drop_line(nat_instance *m) {
+void nat_drop_line(nat_instance *m) {
     if (m->built) ato_line_free(&m->line);
     m->built = 0;
     free(m->controllers);
@@ -202,7 +138,7 @@ void model_free(GlueInstance *g) {
     nat_instance *m = g->model;
     int vr;
     if (!m) return;
-    drop_line(m);
+    nat_drop_line(m);
     for (vr = 0; vr < NAT_NVARS; vr++) free(m->string[vr]);
     free(m);
     g->model = NULL;
@@ -210,7 +146,7 @@ void model_free(GlueInstance *g) {
 
 fmi2Status model_reset(GlueInstance *g) {
     nat_instance *m = MODEL(g);
-    drop_line(m);
+    nat_drop_line(m);
     start_values(m);
     return fmi2OK;
 }
@@ -825,10 +761,10 @@ fmi2Status model_exit_initialization_mode(GlueInstance *g) {
     nat_instance *m = MODEL(g);
     char msg[MSG_SIZE];
     msg[0] = '\0';
-    drop_line(m);
+    nat_drop_line(m);
     memset(&m->span, 0, sizeof m->span);
     if (!build(g, m, msg)) {
-        drop_line(m);
+        nat_drop_line(m);
         glue_log(g, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: initialisation "
                  "failed: %s", msg);
         return fmi2Error;
@@ -902,312 +838,3 @@ fmi2Status model_do_step(GlueInstance *g, double current_time, double step_size)
     m->time = current_time + step_size;
     return step.command.mode == ATO_MODE_SAFE ? fmi2Warning : fmi2OK;
 }
-
-/* ------------------------------------------------------------------------- FMU states */
-
-/* The model's part of an FMU state (NAT_STATE_OPS; the glue adds its header, the token, its own
-   fields and the checksum). Numbers in the machine's representation, in this order:
-     nvars                                   uint32
-     every Real, every Integer               double[nvars], fmi2Integer[nvars]
-     the start time, the time                double, double
-     every String                            uint64 length (NO_STRING: the start value) + bytes
-     built                                   uint32; then, if so, the line's configuration:
-       spans n                               uint32
-       the grade                             uint64 rows + double[3 rows] (distances, grades,
-                                             its integral)
-       the car                               uint64 size + rc_ato_car
-       the limits of all spans               uint64 rows
-       each span                             length, schedule, stop; uint64 rows + distances,
-                                             speeds
-       dwells, boardings                     double[n] each
-       events logged so far                  int64[n] (by span)
-     and its running state                   uint64 size + ato_line_state_write's bytes
-   See the file's header for why this is complete. */
-
-#define NO_STRING UINT64_MAX
-
-typedef struct {
-    unsigned char *p;
-    size_t n;
-} nat_sink;
-
-static void put(nat_sink *s, const void *data, size_t n) {
-    if (s->p && n) memcpy(s->p + s->n, data, n);
-    s->n += n;
-}
-
-static void put_u32(nat_sink *s, uint32_t v) { put(s, &v, sizeof v); }
-static void put_u64(nat_sink *s, uint64_t v) { put(s, &v, sizeof v); }
-static void put_double(nat_sink *s, double v) { put(s, &v, sizeof v); }
-
-static void put_model(nat_sink *s, GlueInstance *g) {
-    const nat_instance *m = MODEL(g);
-    int vr, k;
-    put_u32(s, NAT_NVARS);
-    put(s, m->real, sizeof m->real);
-    put(s, m->integer, sizeof m->integer);
-    put_double(s, m->start_time);
-    put_double(s, m->time);
-    for (vr = 0; vr < NAT_NVARS; vr++) {
-        const char *str = m->string[vr];
-        put_u64(s, str ? (uint64_t)strlen(str) : NO_STRING);
-        if (str) put(s, str, strlen(str));
-    }
-    put_u32(s, (uint32_t)m->built);
-    if (!m->built) return;
-    put_u32(s, (uint32_t)m->n_spans);
-    put_u64(s, (uint64_t)m->span.grade.n);
-    put(s, m->grade_block, 3 * (size_t)m->span.grade.n * sizeof(double));
-    put_u64(s, sizeof m->car);
-    put(s, &m->car, sizeof m->car);
-    {
-        uint64_t rows = 0;
-        for (k = 0; k < m->n_spans; k++) rows += (uint64_t)m->spans[k].n_limits;
-        put_u64(s, rows);
-    }
-    for (k = 0; k < m->n_spans; k++) {
-        const rc_ato_span *sp = &m->spans[k];
-        put_double(s, sp->length);
-        put_double(s, sp->schedule);
-        put_double(s, sp->stop);
-        put_u64(s, (uint64_t)sp->n_limits);
-        put(s, sp->limit_distances, (size_t)sp->n_limits * sizeof(double));
-        put(s, sp->limit_speeds, (size_t)sp->n_limits * sizeof(double));
-    }
-    put(s, m->line.dwell_s, (size_t)m->n_spans * sizeof(double));
-    put(s, m->line.boarding_t, (size_t)m->n_spans * sizeof(double));
-    for (k = 0; k < m->n_spans; k++) {
-        int64_t logged = m->logged[k];
-        put(s, &logged, sizeof logged);
-    }
-    {
-        size_t line_size = ato_line_state_size(&m->line);
-        put_u64(s, line_size);
-        if (s->p) ato_line_state_write(&m->line, s->p + s->n);
-        s->n += line_size;
-    }
-}
-
-static size_t state_size(GlueInstance *g) {
-    nat_sink s = {NULL, 0};
-    put_model(&s, g);
-    return s.n;
-}
-
-static void state_write(GlueInstance *g, unsigned char *out) {
-    nat_sink s = {NULL, 0};
-    s.p = out;
-    put_model(&s, g);
-}
-
-typedef struct {
-    const unsigned char *p, *end;
-    GlueInstance *g;
-    const char *function;
-    int ok;
-} nat_source;
-
-/* "<function>: the FMU state is corrupt or of another build (<what>)", once per read */
-static int corrupt(nat_source *r, const char *what) {
-    if (r->ok)
-        glue_log(r->g, fmi2Error, "logStatusError", "%s: the FMU state is corrupt or of another "
-                 "build (%s)", r->function, what);
-    r->ok = 0;
-    return 0;
-}
-
-static int no_memory(nat_source *r) {
-    if (r->ok) glue_log(r->g, fmi2Error, "logStatusError", "%s: out of memory", r->function);
-    r->ok = 0;
-    return 0;
-}
-
-static int take(nat_source *r, void *out, size_t n, const char *what) {
-    if (!r->ok) return 0;
-    if ((size_t)(r->end - r->p) < n) return corrupt(r, what);
-    if (n) memcpy(out, r->p, n);
-    r->p += n;
-    return 1;
-}
-
-static uint32_t take_u32(nat_source *r, const char *what) {
-    uint32_t v = 0;
-    take(r, &v, sizeof v, what);
-    return v;
-}
-
-static uint64_t take_u64(nat_source *r, const char *what) {
-    uint64_t v = 0;
-    take(r, &v, sizeof v, what);
-    return v;
-}
-
-/* count doubles, allocated and read; NULL (logged) when they are not all there */
-static double *take_doubles(nat_source *r, uint64_t count, const char *what) {
-    double *block;
-    if (!r->ok) return NULL;
-    if (count > (uint64_t)(r->end - r->p) / sizeof(double)) {
-        corrupt(r, what);
-        return NULL;
-    }
-    if (!(block = malloc(count ? (size_t)count * sizeof(double) : 1))) {
-        no_memory(r);
-        return NULL;
-    }
-    take(r, block, (size_t)count * sizeof(double), what);
-    return block;
-}
-
-/* the line's configuration and running state into st (its controllers point at st->car until
-   state_read moves st into the instance) */
-static int take_line(nat_source *r, nat_instance *st) {
-    uint64_t grade_rows, car_size, limit_rows, used_rows = 0;
-    uint32_t n;
-    int k;
-    n = take_u32(r, "span count");
-    grade_rows = take_u64(r, "grade rows");
-    if (!r->ok) return 0;
-    /* each span takes at least 4 doubles and a count below: n is bounded by the bytes */
-    if (n < 1 || n > (uint64_t)(r->end - r->p) / (5 * sizeof(double)))
-        return corrupt(r, "span count");
-    if (grade_rows < 1 || grade_rows > LONG_MAX / 3) return corrupt(r, "grade rows");
-    st->grade_block = take_doubles(r, 3 * grade_rows, "grade");
-    car_size = take_u64(r, "car size");
-    if (r->ok && car_size != sizeof st->car) return corrupt(r, "car size");
-    take(r, &st->car, sizeof st->car, "car");
-    limit_rows = take_u64(r, "limit rows");
-    if (r->ok && (limit_rows < n || limit_rows > (uint64_t)(r->end - r->p) / sizeof(double)))
-        return corrupt(r, "limit rows");
-    if (!r->ok) return 0;
-    st->n_spans = (int)n;
-    st->spans = calloc(n, sizeof *st->spans);
-    st->line_block = calloc(5 * (size_t)n, sizeof(double));
-    st->controllers = calloc(n, sizeof *st->controllers);
-    st->logged = calloc(n, sizeof *st->logged);
-    st->limit_block = malloc(2 * (size_t)limit_rows * sizeof(double));
-    if (!st->spans || !st->line_block || !st->controllers || !st->logged || !st->limit_block)
-        return no_memory(r);
-    for (k = 0; k < (int)n && r->ok; k++) {
-        rc_ato_span *sp = &st->spans[k];
-        uint64_t rows;
-        double *at = st->limit_block + 2 * used_rows;
-        take(r, &sp->length, sizeof sp->length, "span");
-        take(r, &sp->schedule, sizeof sp->schedule, "span");
-        take(r, &sp->stop, sizeof sp->stop, "span");
-        rows = take_u64(r, "span limit rows");
-        if (r->ok && (rows < 1 || rows > limit_rows - used_rows))
-            return corrupt(r, "span limit rows");
-        take(r, at, (size_t)rows * sizeof(double), "span limits");
-        take(r, at + rows, (size_t)rows * sizeof(double), "span limits");
-        used_rows += rows;
-        sp->n_limits = (int)rows;
-        sp->limit_distances = at;
-        sp->limit_speeds = at + rows;
-        sp->grade.n = (long)grade_rows;
-        sp->grade.distances = st->grade_block;
-        sp->grade.grades = st->grade_block + grade_rows;
-        sp->grade.cum = st->grade_block + 2 * grade_rows;
-    }
-    if (r->ok && used_rows != limit_rows) return corrupt(r, "limit rows");
-    take(r, st->line_block, n * sizeof(double), "dwells");
-    take(r, st->line_block + n, n * sizeof(double), "boardings");
-    for (k = 0; k < (int)n && r->ok; k++) {
-        int64_t logged = 0;
-        take(r, &logged, sizeof logged, "events logged");
-        if (r->ok && logged < 0) return corrupt(r, "events logged");
-        st->logged[k] = (long)logged;
-    }
-    {
-        uint64_t line_size = take_u64(r, "line size");
-        size_t used = 0;
-        char why[ATO_TEXT_SIZE];
-        if (!r->ok) return 0;
-        if (line_size != (uint64_t)(r->end - r->p)) return corrupt(r, "line size");
-        if (ato_line_state_read(&st->line, (int)n, st->spans, st->line_block, st->line_block + n,
-                                &st->car, st->controllers, st->line_block + 2 * n, r->p,
-                                (size_t)line_size, &used, why) != RC_OK) {
-            if (!strcmp(why, "out of memory")) return no_memory(r);
-            return corrupt(r, why);
-        }
-        st->built = 1;             /* from here on drop_line frees the controllers' grids */
-        r->p += used;
-    }
-    st->span = st->spans[0];
-    for (k = 0; k < (int)n; k++)   /* every step logs all events so far (and a step's loop runs
-                                      over those not yet logged: no more) */
-        if (st->logged[k] != st->controllers[k].n_events) return corrupt(r, "events logged");
-    return 1;
-}
-
-static void free_staged(nat_instance *st) {
-    int vr;
-    drop_line(st);
-    for (vr = 0; vr < NAT_NVARS; vr++) free(st->string[vr]);
-    free(st);
-}
-
-static int state_read(GlueInstance *g, const char *function, const unsigned char *in, size_t n,
-                      int commit) {
-    nat_instance *m = MODEL(g), *st = calloc(1, sizeof *st);
-    nat_source r;
-    uint32_t built;
-    int vr;
-    r.p = in;
-    r.end = in + n;
-    r.g = g;
-    r.function = function;
-    r.ok = 1;
-    if (!st) return no_memory(&r);
-    if (take_u32(&r, "variable count") != NAT_NVARS) corrupt(&r, "variable count");
-    take(&r, st->real, sizeof st->real, "Real values");
-    take(&r, st->integer, sizeof st->integer, "Integer values");
-    take(&r, &st->start_time, sizeof st->start_time, "start time");
-    take(&r, &st->time, sizeof st->time, "time");
-    for (vr = 0; vr < NAT_NVARS && r.ok; vr++) {
-        uint64_t len = take_u64(&r, "string length");
-        if (!r.ok || len == NO_STRING) continue;
-        if (len > (uint64_t)(r.end - r.p)) {
-            corrupt(&r, "string length");
-        } else if (!(st->string[vr] = malloc((size_t)len + 1))) {
-            no_memory(&r);
-        } else {
-            take(&r, st->string[vr], (size_t)len, "string");
-            st->string[vr][len] = '\0';
-            if (strlen(st->string[vr]) != len) corrupt(&r, "string with a NUL");
-        }
-    }
-    built = take_u32(&r, "built flag");
-    if (r.ok && built > 1) corrupt(&r, "built flag");
-    if (r.ok && built) take_line(&r, st);
-    if (r.ok && r.p != r.end) corrupt(&r, "bytes left over");
-    if (!r.ok || !commit) {
-        free_staged(st);
-        return r.ok;
-    }
-    /* all read: now the instance changes (nothing can fail from here) */
-    drop_line(m);
-    for (vr = 0; vr < NAT_NVARS; vr++) free(m->string[vr]);
-    memcpy(st->input_vr, m->input_vr, sizeof st->input_vr);
-    *m = *st;
-    /* the car moved into the instance with the rest; nothing else pointed into st */
-    for (vr = 0; vr < m->n_spans; vr++) m->controllers[vr].car = &m->car;
-    free(st);
-    return 1;
-}
-
-/* FNV-1a over the sizes the bytes rely on, and the line's own fingerprint */
-static uint32_t state_layout(void) {
-    size_t sizes[] = {NAT_NVARS, sizeof(fmi2Integer), sizeof(rc_ato_car), sizeof(rc_ato_span),
-                      sizeof(long)};
-    uint32_t h = ato_line_state_layout();
-    size_t i;
-    int b;
-    for (i = 0; i < sizeof sizes / sizeof sizes[0]; i++)
-        for (b = 0; b < 8; b++) {
-            h ^= (uint32_t)((uint64_t)sizes[i] >> (8 * b)) & 0xffu;
-            h *= 16777619u;
-        }
-    return h;
-}
-
-static const GlueStateOps NAT_STATE_OPS = {state_size, state_write, state_read, state_layout};

@@ -22,6 +22,7 @@
  * itself points into the copy (the kind's offsets, native_common.h). Reading checks every count
  * against the bytes left and against the struct's own fields before allocating, so a corrupt
  * state is refused (logged), never read past its end; nothing changes until all of it is read.
+ * The bytes are written and read with models/core/rc_bytes.h (the one byte writer and reader).
  * No globals; allocates only in get/set/serialize, never in a step.
  */
 #include <stddef.h>
@@ -32,6 +33,7 @@
 #include "estimator.h"
 #include "native_common.h"
 #include "noise.h"
+#include "rc_bytes.h"
 #include "track.h"
 
 #define MODEL(g) ((native_instance *)(g)->model)
@@ -80,95 +82,76 @@ static const size_t SLOPE_POINTERS[] = {
 
 /* --------------------------------------------------------------------------------- writing */
 
-/* Writes to p (NULL: only counts): one code path gives size() and write(). */
-typedef struct {
-    unsigned char *p;
-    size_t n;
-} sink;
-
-static unsigned char *emit(sink *s, const void *data, size_t n) {
-    unsigned char *at = NULL;
-    if (s->p) {
-        at = s->p + s->n;
-        if (n) memcpy(at, data, n);
-    }
-    s->n += n;
-    return at;
+static void emit_array(rc_byte_sink *s, const void *data, size_t count, size_t element) {
+    rc_put_u64(s, count);
+    rc_put(s, data, count * element);
 }
 
-static void emit_u32(sink *s, uint32_t v) { emit(s, &v, sizeof v); }
-static void emit_u64(sink *s, uint64_t v) { emit(s, &v, sizeof v); }
-
-static void emit_array(sink *s, const void *data, size_t count, size_t element) {
-    emit_u64(s, count);
-    emit(s, data, count * element);
-}
-
-static void emit_estimator(sink *s, const rc_estimator *e) {
+static void emit_estimator(rc_byte_sink *s, const rc_estimator *e) {
     const rc_slope_ls *w = e->slope;
     size_t rows = (size_t)e->ident.cfg.batch_size;
-    emit_u32(s, e->filter.speed != NULL);
-    emit_u64(s, rows);
-    emit(s, e->ident.batch_phi, 4 * rows * sizeof(double));
-    emit(s, e->ident.batch_y, rows * sizeof(double));
-    emit(s, e->ident.batch_contiguous, rows * sizeof(int));
-    emit_u32(s, w != NULL);
+    rc_put_u32(s, e->filter.speed != NULL);
+    rc_put_u64(s, rows);
+    rc_put(s, e->ident.batch_phi, 4 * rows * sizeof(double));
+    rc_put(s, e->ident.batch_y, rows * sizeof(double));
+    rc_put(s, e->ident.batch_contiguous, rows * sizeof(int));
+    rc_put_u32(s, w != NULL);
     if (w) {
         size_t size = (size_t)w->size;
         unsigned char *copy;
-        emit_u64(s, sizeof *w);
-        if ((copy = emit(s, w, sizeof *w))) zero_pointers(copy, SLOPE_POINTERS, N_SLOPE_POINTERS);
-        emit(s, w->v, (size + 1) * sizeof(double));
-        emit(s, w->i, 4 * size * sizeof(double));
-        emit(s, w->dts, size * sizeof(double));
-        emit(s, w->w, size * sizeof(double));
-        emit(s, w->c, size * sizeof(double));
+        rc_put_u64(s, sizeof *w);
+        if ((copy = rc_put(s, w, sizeof *w))) zero_pointers(copy, SLOPE_POINTERS, N_SLOPE_POINTERS);
+        rc_put(s, w->v, (size + 1) * sizeof(double));
+        rc_put(s, w->i, 4 * size * sizeof(double));
+        rc_put(s, w->dts, size * sizeof(double));
+        rc_put(s, w->w, size * sizeof(double));
+        rc_put(s, w->c, size * sizeof(double));
     }
 }
 
-static void emit_chain(sink *s, const native_chain_kind *k, const void *chain) {
+static void emit_chain(rc_byte_sink *s, const native_chain_kind *k, const void *chain) {
     size_t at[MAX_POINTERS];
     int n = chain_pointers(k, at);
     unsigned char *copy;
     const rc_grade_profile *grade = AT(chain, k->at_grade, const rc_grade_profile);
     const rc_speed_profile *speed = AT(chain, k->at_speed, const rc_speed_profile);
-    emit_u64(s, k->chain_size);
-    if ((copy = emit(s, chain, k->chain_size))) zero_pointers(copy, at, n);
+    rc_put_u64(s, k->chain_size);
+    if ((copy = rc_put(s, chain, k->chain_size))) zero_pointers(copy, at, n);
     emit_array(s, *AT(chain, k->at_profiles, double *),
                3 * (size_t)grade->n + 2 * (size_t)speed->n, sizeof(double));
-    emit_u32(s, k->has_estimator(chain) != 0);
+    rc_put_u32(s, k->has_estimator(chain) != 0);
     if (k->has_estimator(chain)) emit_estimator(s, AT(chain, k->at_est, const rc_estimator));
 }
 
-static void emit_model(sink *s, GlueInstance *g) {
+static void emit_model(rc_byte_sink *s, GlueInstance *g) {
     const native_instance *m = MODEL(g);
     const native_model *md = m->v.md;
     const native_chain_kind *k = NATIVE_BACKEND.kind;
     size_t nvars = (size_t)md->nvars;
     int vr;
-    emit_u32(s, (uint32_t)md->nvars);
-    emit_u32(s, (uint32_t)md->noutputs);
-    emit(s, m->v.real, nvars * sizeof *m->v.real);
-    emit(s, m->v.integer, nvars * sizeof *m->v.integer);
-    emit(s, &m->v.start_time, sizeof m->v.start_time);
+    rc_put_u32(s, (uint32_t)md->nvars);
+    rc_put_u32(s, (uint32_t)md->noutputs);
+    rc_put(s, m->v.real, nvars * sizeof *m->v.real);
+    rc_put(s, m->v.integer, nvars * sizeof *m->v.integer);
+    rc_put(s, &m->v.start_time, sizeof m->v.start_time);
     for (vr = 0; vr < md->nvars; vr++) {
         const char *str = m->v.string[vr];
-        emit_u64(s, str ? (uint64_t)strlen(str) : NO_STRING);
-        if (str) emit(s, str, strlen(str));
+        rc_put_u64(s, str ? (uint64_t)strlen(str) : NO_STRING);
+        if (str) rc_put(s, str, strlen(str));
     }
-    emit(s, m->outputs, (size_t)md->noutputs * sizeof *m->outputs);
-    emit_u32(s, k && m->chain);
+    rc_put(s, m->outputs, (size_t)md->noutputs * sizeof *m->outputs);
+    rc_put_u32(s, k && m->chain);
     if (k && m->chain) emit_chain(s, k, m->chain);
 }
 
 static size_t state_size(GlueInstance *g) {
-    sink s = {NULL, 0};
+    rc_byte_sink s = {NULL, 0};
     emit_model(&s, g);
     return s.n;
 }
 
 static void state_write(GlueInstance *g, unsigned char *out) {
-    sink s;
+    rc_byte_sink s;
     s.p = out;
     s.n = 0;
     emit_model(&s, g);
@@ -176,40 +159,27 @@ static void state_write(GlueInstance *g, unsigned char *out) {
 
 /* --------------------------------------------------------------------------------- reading */
 
+typedef rc_byte_source reader;
+
+/* whose state is read: a reader's context */
 typedef struct {
-    const unsigned char *p, *end;
     GlueInstance *g;
     const char *function;
-    int ok;
-} reader;
+} state_reader;
 
-/* "the FMU state is corrupt (<what>)", once per read */
-static int corrupt(reader *r, const char *what) {
-    if (r->ok)
-        glue_log(r->g, fmi2Error, "logStatusError", "%s: the FMU state is corrupt or of another "
-                 "build (%s)", r->function, what);
+#define READER(r) ((const state_reader *)(r)->context)
+
+/* "<function>: the FMU state is corrupt or of another build (<what>)", once per read */
+static void state_corrupt(reader *r, const char *what) {
+    glue_log(READER(r)->g, fmi2Error, "logStatusError", "%s: the FMU state is corrupt or of "
+             "another build (%s)", READER(r)->function, what);
+}
+
+/* "<function>: out of memory"; the read stops */
+static int no_memory(reader *r) {
+    glue_log(READER(r)->g, fmi2Error, "logStatusError", "%s: out of memory", READER(r)->function);
     r->ok = 0;
     return 0;
-}
-
-static int take(reader *r, void *out, size_t n, const char *what) {
-    if (!r->ok) return 0;
-    if ((size_t)(r->end - r->p) < n) return corrupt(r, what);
-    if (n) memcpy(out, r->p, n);
-    r->p += n;
-    return 1;
-}
-
-static uint32_t take_u32(reader *r, const char *what) {
-    uint32_t v = 0;
-    take(r, &v, sizeof v, what);
-    return v;
-}
-
-static uint64_t take_u64(reader *r, const char *what) {
-    uint64_t v = 0;
-    take(r, &v, sizeof v, what);
-    return v;
 }
 
 /* count elements of `element` bytes, allocated and read (count 0: NULL, fine); NULL logged when
@@ -218,15 +188,14 @@ static void *take_block(reader *r, size_t count, size_t element, const char *wha
     void *block;
     if (!r->ok) return NULL;
     if (count > (size_t)(r->end - r->p) / element) {
-        corrupt(r, what);
+        rc_bytes_refuse(r, what);
         return NULL;
     }
     if (!(block = malloc(count ? count * element : 1))) {
-        glue_log(r->g, fmi2Error, "logStatusError", "%s: out of memory", r->function);
-        r->ok = 0;
+        no_memory(r);
         return NULL;
     }
-    take(r, block, count * element, what);
+    rc_take(r, block, count * element, what);
     return block;
 }
 
@@ -256,18 +225,17 @@ static void release_chain(const native_chain_kind *k, void *chain) {
 static int read_slope(reader *r, rc_estimator *e) {
     rc_slope_ls *w;
     size_t size;
-    if (take_u64(r, "slope window struct size") != sizeof *w)
-        return r->ok ? corrupt(r, "slope window struct size") : 0;
+    if (rc_take_u64(r, "slope window struct size") != sizeof *w)
+        return r->ok ? rc_bytes_refuse(r, "slope window struct size") : 0;
     if (!(w = calloc(1, sizeof *w))) {
-        glue_log(r->g, fmi2Error, "logStatusError", "%s: out of memory", r->function);
-        return r->ok = 0;
+        return no_memory(r);
     }
     e->slope = w;                           /* released with the chain on failure */
-    if (!take(r, w, sizeof *w, "slope window")) return 0;
+    if (!rc_take(r, w, sizeof *w, "slope window")) return 0;
     zero_pointers((unsigned char *)w, SLOPE_POINTERS, N_SLOPE_POINTERS);
     if (w->size < 2 || w->len < 0 || w->len > w->size ||
         (size_t)w->size > (size_t)(r->end - r->p) / sizeof(double))
-        return corrupt(r, "slope window size or length");
+        return rc_bytes_refuse(r, "slope window size or length");
     size = (size_t)w->size;
     w->v = take_block(r, size + 1, sizeof(double), "slope window speeds");
     w->i = take_block(r, 4 * size, sizeof(double), "slope window intervals");
@@ -281,26 +249,26 @@ static int read_estimator(reader *r, void *chain, const native_chain_kind *k) {
     rc_estimator *e = AT(chain, k->at_est, rc_estimator);
     const rc_grade_profile *grade = AT(chain, k->at_grade, rc_grade_profile);
     const rc_speed_profile *speed = AT(chain, k->at_speed, rc_speed_profile);
-    uint32_t has_speed = take_u32(r, "filter speed-profile flag");
-    uint64_t rows = take_u64(r, "identifier batch size");
+    uint32_t has_speed = rc_take_u32(r, "filter speed-profile flag");
+    uint64_t rows = rc_take_u64(r, "identifier batch size");
     if (!r->ok) return 0;
     if (has_speed > 1 || (has_speed && speed->n < 1))
-        return corrupt(r, "filter speed-profile flag");
+        return rc_bytes_refuse(r, "filter speed-profile flag");
     if (e->ident.cfg.batch_size < 1 || rows != (uint64_t)e->ident.cfg.batch_size ||
         e->ident.batch_len < 0 || e->ident.batch_len > e->ident.cfg.batch_size ||
         e->ident.window_len < 0 || e->ident.window_len > RC_LAG || e->ident.window_start < 0 ||
         e->ident.window_start >= RC_LAG || rows > (uint64_t)(r->end - r->p) / sizeof(double))
-        return corrupt(r, "identifier batch or window counts");
+        return rc_bytes_refuse(r, "identifier batch or window counts");
     e->grade = grade;
     e->filter.grade = grade;
     e->filter.speed = has_speed ? speed : NULL;
     e->ident.batch_phi = take_block(r, 4 * (size_t)rows, sizeof(double), "identifier batch");
     e->ident.batch_y = take_block(r, (size_t)rows, sizeof(double), "identifier batch");
     e->ident.batch_contiguous = take_block(r, (size_t)rows, sizeof(int), "identifier batch");
-    switch (take_u32(r, "slope window flag")) {
+    switch (rc_take_u32(r, "slope window flag")) {
     case 0: return r->ok;
     case 1: return read_slope(r, e);
-    default: return corrupt(r, "slope window flag");
+    default: return rc_bytes_refuse(r, "slope window flag");
     }
 }
 
@@ -314,29 +282,28 @@ static void *read_chain(reader *r, const native_chain_kind *k) {
     rc_speed_profile *speed;
     const native_profile_offsets *p = &k->profiles;
     uint32_t has_est;
-    if (take_u64(r, "chain struct size") != k->chain_size) {
-        if (r->ok) corrupt(r, "chain struct size");
+    if (rc_take_u64(r, "chain struct size") != k->chain_size) {
+        if (r->ok) rc_bytes_refuse(r, "chain struct size");
         return NULL;
     }
     if (!(chain = malloc(k->chain_size))) {
-        glue_log(r->g, fmi2Error, "logStatusError", "%s: out of memory", r->function);
-        r->ok = 0;
+        no_memory(r);
         return NULL;
     }
-    if (!take(r, chain, k->chain_size, "chain struct")) {
+    if (!rc_take(r, chain, k->chain_size, "chain struct")) {
         free(chain);
         return NULL;
     }
     zero_pointers(chain, at, n);          /* from here on release_chain frees what is set */
     grade = AT(chain, k->at_grade, rc_grade_profile);
     speed = AT(chain, k->at_speed, rc_speed_profile);
-    count = (size_t)take_u64(r, "profile count");
+    count = (size_t)rc_take_u64(r, "profile count");
     if (r->ok && (grade->n < 1 || speed->n < 0 || (size_t)grade->n > count ||
                   (size_t)speed->n > count ||
                   count != 3 * (size_t)grade->n + 2 * (size_t)speed->n ||
                   *AT(chain, k->at_cfg + p->grade_n, long) != grade->n ||
                   *AT(chain, k->at_cfg + p->speed_n, long) != speed->n))
-        corrupt(r, "profile lengths");
+        rc_bytes_refuse(r, "profile lengths");
     profiles = take_block(r, count, sizeof(double), "profiles");
     *AT(chain, k->at_profiles, double *) = profiles;
     if (!r->ok) {
@@ -352,9 +319,9 @@ static void *read_chain(reader *r, const native_chain_kind *k) {
     *AT(chain, k->at_cfg + p->grades, const double *) = grade->grades;
     *AT(chain, k->at_cfg + p->speed_distances, const double *) = speed->distances;
     *AT(chain, k->at_cfg + p->speeds, const double *) = speed->speeds;
-    has_est = take_u32(r, "estimator flag");
+    has_est = rc_take_u32(r, "estimator flag");
     if (r->ok && has_est != (uint32_t)(k->has_estimator(chain) != 0))
-        corrupt(r, "estimator flag");
+        rc_bytes_refuse(r, "estimator flag");
     if (r->ok && has_est) read_estimator(r, chain, k);
     if (!r->ok) {
         release_chain(k, chain);
@@ -386,19 +353,17 @@ static void free_staged(const native_chain_kind *k, staged *st, int nvars) {
 static int read_strings(reader *r, staged *st, int nvars) {
     int vr;
     if (!(st->string = calloc((size_t)nvars, sizeof *st->string))) {
-        glue_log(r->g, fmi2Error, "logStatusError", "%s: out of memory", r->function);
-        return r->ok = 0;
+        return no_memory(r);
     }
     for (vr = 0; vr < nvars && r->ok; vr++) {
-        uint64_t len = take_u64(r, "string length");
+        uint64_t len = rc_take_u64(r, "string length");
         char *copy;
         if (!r->ok || len == NO_STRING) continue;
-        if (len > (uint64_t)(r->end - r->p)) return corrupt(r, "string length");
+        if (len > (uint64_t)(r->end - r->p)) return rc_bytes_refuse(r, "string length");
         if (!(copy = malloc((size_t)len + 1))) {
-            glue_log(r->g, fmi2Error, "logStatusError", "%s: out of memory", r->function);
-            return r->ok = 0;
+            return no_memory(r);
         }
-        take(r, copy, (size_t)len, "string");
+        rc_take(r, copy, (size_t)len, "string");
         copy[len] = '\0';
         st->string[vr] = copy;
     }
@@ -415,26 +380,25 @@ static int state_read(GlueInstance *g, const char *function, const unsigned char
     staged st;
     uint32_t has_chain;
     int vr;
-    r.p = in;
-    r.end = in + n;
-    r.g = g;
-    r.function = function;
-    r.ok = 1;
+    state_reader who;
+    who.g = g;
+    who.function = function;
+    rc_bytes_source(&r, in, n, state_corrupt, &who);
     memset(&st, 0, sizeof st);
-    if (take_u32(&r, "variable count") != (uint32_t)md->nvars ||
-        take_u32(&r, "output count") != (uint32_t)md->noutputs) {
-        if (r.ok) corrupt(&r, "variable or output count");
+    if (rc_take_u32(&r, "variable count") != (uint32_t)md->nvars ||
+        rc_take_u32(&r, "output count") != (uint32_t)md->noutputs) {
+        if (r.ok) rc_bytes_refuse(&r, "variable or output count");
         return 0;
     }
     st.real = take_block(&r, nvars, sizeof *st.real, "Real values");
     st.integer = take_block(&r, nvars, sizeof *st.integer, "Integer values");
-    take(&r, &st.start_time, sizeof st.start_time, "start time");
+    rc_take(&r, &st.start_time, sizeof st.start_time, "start time");
     if (r.ok) read_strings(&r, &st, md->nvars);
     st.outputs = take_block(&r, (size_t)md->noutputs, sizeof *st.outputs, "outputs");
-    has_chain = take_u32(&r, "chain flag");
-    if (r.ok && (has_chain > 1 || (has_chain && !k))) corrupt(&r, "chain flag");
+    has_chain = rc_take_u32(&r, "chain flag");
+    if (r.ok && (has_chain > 1 || (has_chain && !k))) rc_bytes_refuse(&r, "chain flag");
     if (r.ok && has_chain) st.chain = read_chain(&r, k);
-    if (r.ok && r.p != r.end) corrupt(&r, "bytes left over");
+    if (r.ok && r.p != r.end) rc_bytes_refuse(&r, "bytes left over");
     if (!r.ok || !commit) {
         free_staged(k, &st, md->nvars);
         return r.ok;

@@ -1,7 +1,8 @@
 /* ato_line.c -- LineController (models/ato/line.py) in the C core, and its running state as bytes
- * (the FMU states of fmu_src/c/native_ato.c); see ato_line.h. */
+ * (the FMU states of fmu_src/c/native_ato_state.c); see ato_line.h. */
 #include "rc_fp_contract.h"
 #include "ato_line.h"
+#include "rc_bytes.h"
 
 #include <stddef.h>
 #include <stdint.h>
@@ -163,75 +164,51 @@ ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
  * same layout code); the ones that move while planning from a small code written beside the
  * image. Memory is allocated only by those two set-up functions, never in a step. */
 
-/* writes to p (NULL: only counts), so that one code path gives the size and the bytes */
-typedef struct {
-    unsigned char *p;
-    size_t n;
-} state_sink;
-
-static unsigned char *put(state_sink *s, const void *data, size_t n)
-{
-    unsigned char *at = NULL;
-    if (s->p != NULL) {
-        at = s->p + s->n;
-        if (n)
-            memcpy(at, data, n);
-    }
-    s->n += n;
-    return at;
-}
-
-static void put_u32(state_sink *s, uint32_t v) { put(s, &v, sizeof v); }
-static void put_u64(state_sink *s, uint64_t v) { put(s, &v, sizeof v); }
-
-/* the pointer fields of an ato_controller (offsets); all are zeroed in its image */
-#define CTRL_POINTERS (2 + 3 + 2 + 7 + 8 * 3 + 3 + 2 + 1 + 7)
+/* the pointer fields of an ato_controller (offsets); all are zeroed in its image. The list's
+   length is counted from the list itself, so a field added here cannot outgrow an array. */
 #define TRACE_AT(k, field) \
     (offsetof(ato_controller, planner.bufs) + (size_t)(k) * sizeof(rc_ato_trace) + \
      offsetof(rc_ato_trace, field))
+#define TRACE_POINTERS(k) \
+    TRACE_AT(k, s), TRACE_AT(k, q), TRACE_AT(k, t), TRACE_AT(k, wF), TRACE_AT(k, wR), \
+    TRACE_AT(k, mode), TRACE_AT(k, coast_x), TRACE_AT(k, coast_end)
 
-static int controller_pointers(size_t *at)
-{
-    int n = 0;
-    at[n++] = offsetof(ato_controller, span);
-    at[n++] = offsetof(ato_controller, car);
-    at[n++] = offsetof(ato_controller, course.s);
-    at[n++] = offsetof(ato_controller, course.g);
-    at[n++] = offsetof(ato_controller, course.qlim);
-    at[n++] = offsetof(ato_controller, planner.c);
-    at[n++] = offsetof(ato_controller, planner.block);
-    at[n++] = offsetof(ato_controller, planner.hint_has);
-    at[n++] = offsetof(ato_controller, planner.hint_has_slope);
-    at[n++] = offsetof(ato_controller, planner.hint_x);
-    at[n++] = offsetof(ato_controller, planner.hint_slope);
-    at[n++] = offsetof(ato_controller, planner.qU);
-    at[n++] = offsetof(ato_controller, planner.fall0);
-    at[n++] = offsetof(ato_controller, planner.fall1);
-    for (int k = 0; k < 3; k++) {
-        at[n++] = TRACE_AT(k, s);
-        at[n++] = TRACE_AT(k, q);
-        at[n++] = TRACE_AT(k, t);
-        at[n++] = TRACE_AT(k, wF);
-        at[n++] = TRACE_AT(k, wR);
-        at[n++] = TRACE_AT(k, mode);
-        at[n++] = TRACE_AT(k, coast_x);
-        at[n++] = TRACE_AT(k, coast_end);
-    }
-    at[n++] = offsetof(ato_controller, planner.work);
-    at[n++] = offsetof(ato_controller, planner.spare);
-    at[n++] = offsetof(ato_controller, planner.best);
-    at[n++] = offsetof(ato_controller, planner.coast_x);
-    at[n++] = offsetof(ato_controller, planner.coast_end);
-    at[n++] = offsetof(ato_controller, planner.car);
-    at[n++] = offsetof(ato_controller, planner.plan.coast_x);
-    at[n++] = offsetof(ato_controller, planner.plan.coast_end);
-    at[n++] = offsetof(ato_controller, planner.plan.s);
-    at[n++] = offsetof(ato_controller, planner.plan.v);
-    at[n++] = offsetof(ato_controller, planner.plan.t);
-    at[n++] = offsetof(ato_controller, planner.plan.mode);
-    at[n++] = offsetof(ato_controller, planner.plan.qU);
-    return n;
-}
+static const size_t CTRL_POINTERS[] = {
+    offsetof(ato_controller, span),
+    offsetof(ato_controller, car),
+    offsetof(ato_controller, course.s),
+    offsetof(ato_controller, course.g),
+    offsetof(ato_controller, course.qlim),
+    offsetof(ato_controller, planner.c),
+    offsetof(ato_controller, planner.block),
+    offsetof(ato_controller, planner.hint_has),
+    offsetof(ato_controller, planner.hint_has_slope),
+    offsetof(ato_controller, planner.hint_x),
+    offsetof(ato_controller, planner.hint_slope),
+    offsetof(ato_controller, planner.qU),
+    offsetof(ato_controller, planner.fall0),
+    offsetof(ato_controller, planner.fall1),
+    TRACE_POINTERS(0),
+    TRACE_POINTERS(1),
+    TRACE_POINTERS(2),
+    offsetof(ato_controller, planner.work),
+    offsetof(ato_controller, planner.spare),
+    offsetof(ato_controller, planner.best),
+    offsetof(ato_controller, planner.coast_x),
+    offsetof(ato_controller, planner.coast_end),
+    offsetof(ato_controller, planner.car),
+    offsetof(ato_controller, planner.plan.coast_x),
+    offsetof(ato_controller, planner.plan.coast_end),
+    offsetof(ato_controller, planner.plan.s),
+    offsetof(ato_controller, planner.plan.v),
+    offsetof(ato_controller, planner.plan.t),
+    offsetof(ato_controller, planner.plan.mode),
+    offsetof(ato_controller, planner.plan.qU),
+};
+#define N_CTRL_POINTERS ((int)(sizeof CTRL_POINTERS / sizeof CTRL_POINTERS[0]))
+/* three traces' pointers are in bufs[0..2]: a fourth buffer must join the list */
+typedef char ctrl_pointers_name_every_trace[
+    sizeof ((rc_ato_planner *)0)->bufs / sizeof(rc_ato_trace) == 3 ? 1 : -1];
 
 static void zero_pointers(unsigned char *image, const size_t *at, int n)
 {
@@ -262,38 +239,36 @@ static uint32_t envelope_code(const ato_controller *c)
     return qU == NULL ? 0 : qU == c->qU ? 1 : qU == c->planner.qU ? 2 : 3;
 }
 
-static void put_controller(state_sink *s, const ato_controller *c)
+static void put_controller(rc_byte_sink *s, const ato_controller *c)
 {
-    size_t at[CTRL_POINTERS];
-    int n = controller_pointers(at);
     const rc_ato_course *co = &c->course;
     unsigned char *image;
-    put_u64(s, sizeof *c);
-    if ((image = put(s, c, sizeof *c)) != NULL)
-        zero_pointers(image, at, n);
-    put_u32(s, trace_code(&c->planner, c->planner.work));
-    put_u32(s, trace_code(&c->planner, c->planner.spare));
-    put_u32(s, trace_code(&c->planner, c->planner.best));
-    put_u32(s, car_code(c));
-    put_u32(s, envelope_code(c));
-    put_u64(s, (uint64_t)co->n);
-    put(s, co->s, sizeof(double) * (size_t)co->n);
-    put(s, co->g, sizeof(double) * (size_t)(co->n - 1));
-    put(s, co->qlim, sizeof(double) * (size_t)co->n);
-    put_u64(s, rc_ato_planner_block_size(co));
-    put(s, c->planner.block, rc_ato_planner_block_size(co));
+    rc_put_u64(s, sizeof *c);
+    if ((image = rc_put(s, c, sizeof *c)) != NULL)
+        zero_pointers(image, CTRL_POINTERS, N_CTRL_POINTERS);
+    rc_put_u32(s, trace_code(&c->planner, c->planner.work));
+    rc_put_u32(s, trace_code(&c->planner, c->planner.spare));
+    rc_put_u32(s, trace_code(&c->planner, c->planner.best));
+    rc_put_u32(s, car_code(c));
+    rc_put_u32(s, envelope_code(c));
+    rc_put_u64(s, (uint64_t)co->n);
+    rc_put(s, co->s, sizeof(double) * (size_t)co->n);
+    rc_put(s, co->g, sizeof(double) * (size_t)(co->n - 1));
+    rc_put(s, co->qlim, sizeof(double) * (size_t)co->n);
+    rc_put_u64(s, rc_ato_planner_block_size(co));
+    rc_put(s, c->planner.block, rc_ato_planner_block_size(co));
 }
 
-static size_t put_line(state_sink *s, const ato_line *line)
+static size_t put_line(rc_byte_sink *s, const ato_line *line)
 {
     ato_line image;
     memcpy(&image, line, sizeof image);           /* padding too: equal lines, equal bytes */
     image.controllers = NULL;
     image.dwell_s = image.boarding_t = NULL;
     image.departures = NULL;
-    put_u64(s, sizeof image);
-    put(s, &image, sizeof image);
-    put(s, line->departures, sizeof(double) * (size_t)line->n);
+    rc_put_u64(s, sizeof image);
+    rc_put(s, &image, sizeof image);
+    rc_put(s, line->departures, sizeof(double) * (size_t)line->n);
     for (int i = 0; i < line->n; i++)
         put_controller(s, &line->controllers[i]);
     return s->n;
@@ -301,57 +276,23 @@ static size_t put_line(state_sink *s, const ato_line *line)
 
 size_t ato_line_state_size(const ato_line *line)
 {
-    state_sink s = {NULL, 0};
+    rc_byte_sink s = {NULL, 0};
     return put_line(&s, line);
 }
 
 void ato_line_state_write(const ato_line *line, unsigned char *out)
 {
-    state_sink s = {out, 0};
+    rc_byte_sink s = {out, 0};
     put_line(&s, line);
 }
 
 /* ---- reading */
 
-typedef struct {
-    const unsigned char *p, *end;
-    char *msg;
-    int ok;
-} state_source;
-
-/* the first problem, in msg: "<what>" */
-static int bad(state_source *r, const char *what)
+/* the first problem, in the source's msg (context; may be NULL): "<what>" */
+static void say_what(rc_byte_source *r, const char *what)
 {
-    if (r->ok && r->msg != NULL)
-        snprintf(r->msg, ATO_TEXT_SIZE, "%s", what);
-    r->ok = 0;
-    return 0;
-}
-
-static int take(state_source *r, void *out, size_t n, const char *what)
-{
-    if (!r->ok)
-        return 0;
-    if ((size_t)(r->end - r->p) < n)
-        return bad(r, what);
-    if (n)
-        memcpy(out, r->p, n);
-    r->p += n;
-    return 1;
-}
-
-static uint32_t take_u32(state_source *r, const char *what)
-{
-    uint32_t v = 0;
-    take(r, &v, sizeof v, what);
-    return v;
-}
-
-static uint64_t take_u64(state_source *r, const char *what)
-{
-    uint64_t v = 0;
-    take(r, &v, sizeof v, what);
-    return v;
+    if (r->context != NULL)
+        snprintf((char *)r->context, ATO_TEXT_SIZE, "%s", what);
 }
 
 static int has_end(const char *text)
@@ -409,37 +350,36 @@ static void release_controller(ato_controller *c)
     c->planner.block = NULL;
 }
 
-static int take_controller(state_source *r, ato_controller *c, const rc_ato_span *span,
+static int take_controller(rc_byte_source *r, ato_controller *c, const rc_ato_span *span,
                            const rc_ato_car *car)
 {
-    size_t at[CTRL_POINTERS];
-    int n = controller_pointers(at);
-    if (take_u64(r, "controller size") != sizeof *c)
-        return bad(r, "controller size");
-    if (!take(r, c, sizeof *c, "controller"))
+    if (rc_take_u64(r, "controller size") != sizeof *c)
+        return rc_bytes_refuse(r, "controller size");
+    if (!rc_take(r, c, sizeof *c, "controller"))
         return 0;
-    zero_pointers((unsigned char *)c, at, n);      /* from here on, release frees what is set */
-    uint32_t work = take_u32(r, "planner traces"), spare = take_u32(r, "planner traces");
-    uint32_t best = take_u32(r, "planner traces"), car_is = take_u32(r, "planner car");
-    uint32_t envelope_is = take_u32(r, "plan envelope");
-    uint64_t nodes = take_u64(r, "course nodes");
+    /* from here on, release frees what is set */
+    zero_pointers((unsigned char *)c, CTRL_POINTERS, N_CTRL_POINTERS);
+    uint32_t work = rc_take_u32(r, "planner traces"), spare = rc_take_u32(r, "planner traces");
+    uint32_t best = rc_take_u32(r, "planner traces"), car_is = rc_take_u32(r, "planner car");
+    uint32_t envelope_is = rc_take_u32(r, "plan envelope");
+    uint64_t nodes = rc_take_u64(r, "course nodes");
     if (!r->ok)
         return 0;
     if (work > 2 || spare > 2 || best > 2 || car_is > 2 || envelope_is > 2)
-        return bad(r, "controller pointer codes");
+        return rc_bytes_refuse(r, "controller pointer codes");
     if (!controller_sane(c, span->n_limits))
-        return bad(r, "controller counts");
+        return rc_bytes_refuse(r, "controller counts");
     /* the course: made again from the span and car as the controller made it (its own
        allocation: rc_ato_course_init's), then held to the saved one number for number */
     rc_ato_course saved = c->course;
     rc_error err;
     if (nodes != (uint64_t)saved.n ||
         (3 * nodes - 1) > (uint64_t)(r->end - r->p) / sizeof(double))
-        return bad(r, "course nodes");
+        return rc_bytes_refuse(r, "course nodes");
     if (rc_ato_course_init(&c->course, span, car, saved.h, saved.margin, saved.v_relay,
                            saved.a_ep, ATO_MAX_NODES, &err) != RC_OK) {
         c->course.s = NULL;
-        return bad(r, "course: not the one of this span and car");
+        return rc_bytes_refuse(r, "course: not the one of this span and car");
     }
     size_t row = sizeof(double) * (size_t)nodes;
     const rc_ato_course *co = &c->course;
@@ -449,16 +389,16 @@ static int take_controller(state_source *r, ato_controller *c, const rc_ato_span
         memcmp(co->s, r->p, row) != 0 || memcmp(co->g, r->p + row, row - sizeof(double)) != 0 ||
         memcmp(co->qlim, r->p + 2 * row - sizeof(double), row) != 0) {
         release_controller(c);
-        return bad(r, "course: not the one of this span and car");
+        return rc_bytes_refuse(r, "course: not the one of this span and car");
     }
     r->p += 3 * row - sizeof(double);
     /* the planner's block: rc_ato_planner_init allocates one for this course (as at
        construction), the saved numbers go in, rc_ato_planner_relink points into it */
     size_t block_size = rc_ato_planner_block_size(co);
-    if (take_u64(r, "planner block size") != block_size)
-        bad(r, "planner block size");
+    if (rc_take_u64(r, "planner block size") != block_size)
+        rc_bytes_refuse(r, "planner block size");
     if (r->ok && block_size > (size_t)(r->end - r->p))
-        bad(r, "planner block");
+        rc_bytes_refuse(r, "planner block");
     if (!r->ok) {
         release_controller(c);
         return 0;
@@ -466,10 +406,10 @@ static int take_controller(state_source *r, ato_controller *c, const rc_ato_span
     rc_ato_planner room;
     if (rc_ato_planner_init(&room, co, c->planner.tol, c->planner.v_min, NULL) != RC_OK) {
         release_controller(c);
-        return bad(r, "out of memory");
+        return rc_bytes_refuse(r, "out of memory");
     }
     void *block = room.block;
-    take(r, block, block_size, "planner block");
+    rc_take(r, block, block_size, "planner block");
     rc_ato_planner_relink(&c->planner, &c->course, block);
     c->span = span;
     c->car = car;
@@ -479,7 +419,7 @@ static int take_controller(state_source *r, ato_controller *c, const rc_ato_span
     c->planner.car = car_is == 0 ? NULL : car_is == 1 ? &c->configured : &c->car_now;
     c->planner.plan.qU = envelope_is == 0 ? NULL : envelope_is == 1 ? c->qU : c->planner.qU;
     if (!planner_sane(&c->planner))
-        bad(r, "planner counts");
+        rc_bytes_refuse(r, "planner counts");
     if (!r->ok) {
         release_controller(c);
         return 0;
@@ -493,20 +433,21 @@ rc_status ato_line_state_read(ato_line *line, int n, const rc_ato_span *spans,
                               double *departures, const unsigned char *in, size_t size,
                               size_t *used, char *msg)
 {
-    state_source r = {in, in + size, msg, 1};
+    rc_byte_source r;
     int done = 0;
     if (msg != NULL)
         msg[0] = '\0';
+    rc_bytes_source(&r, in, size, say_what, msg);
     memset(line, 0, sizeof *line);
-    if (take_u64(&r, "line size") != sizeof *line)
-        bad(&r, "line size");
-    take(&r, line, sizeof *line, "line");
+    if (rc_take_u64(&r, "line size") != sizeof *line)
+        rc_bytes_refuse(&r, "line size");
+    rc_take(&r, line, sizeof *line, "line");
     if (r.ok && (line->n != n || line->k < 0 || line->k >= n || line->n_departures < 0 ||
                  line->n_departures > n))
-        bad(&r, "line counts");
+        rc_bytes_refuse(&r, "line counts");
     if (r.ok && (size_t)n > (size_t)(r.end - r.p) / sizeof(double))
-        bad(&r, "departures");
-    take(&r, departures, sizeof(double) * (size_t)(r.ok ? n : 0), "departures");
+        rc_bytes_refuse(&r, "departures");
+    rc_take(&r, departures, sizeof(double) * (size_t)(r.ok ? n : 0), "departures");
     for (; r.ok && done < n; done++)
         if (!take_controller(&r, &controllers[done], &spans[done], car))
             break;
@@ -526,14 +467,14 @@ rc_status ato_line_state_read(ato_line *line, int n, const rc_ato_span *spans,
 
 uint32_t ato_line_state_layout(void)
 {
-    size_t at[CTRL_POINTERS];
-    int n = controller_pointers(at);
+    const size_t *at = CTRL_POINTERS;
+    size_t n = (size_t)N_CTRL_POINTERS;
     size_t sizes[] = {sizeof(ato_line), sizeof(ato_controller), sizeof(rc_ato_planner),
                       sizeof(rc_ato_course), sizeof(rc_ato_trace), sizeof(ato_supervisor),
                       sizeof(ato_event), sizeof(long), (size_t)ATO_MAX_NODES,
                       (size_t)ATO_EVENT_RING, (size_t)ATO_TEXT_SIZE};
     uint32_t h = 2166136261u;                       /* FNV-1a over the sizes and offsets */
-    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0] + (size_t)n; i++) {
+    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0] + n; i++) {
         size_t v = i < sizeof sizes / sizeof sizes[0] ? sizes[i]
                                                         : at[i - sizeof sizes / sizeof sizes[0]];
         for (int b = 0; b < 8; b++) {

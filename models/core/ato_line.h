@@ -53,7 +53,7 @@ void ato_line_free(ato_line *line);
 ato_line_step ato_line_demands(ato_line *line, double t, const double *inputs,
                                double station_stops);
 
-/* FMU states (fmu_src/c/native_ato.c): the line's running state as bytes -- the line, its
+/* FMU states (fmu_src/c/native_ato_state.c): the line's running state as bytes -- the line, its
  * departures, and each controller whole (its struct, its course, its planner's buffers: the
  * plans, hints, traces, events, supervision) -- in this machine's representation (the reader of
  * another machine's or build's bytes is the caller's to refuse: ato_line_state_layout is a

@@ -4,23 +4,10 @@
 #include "ato_planner.h"
 #include "ato_stopping.h"
 
-#include <stdarg.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #define EPS_Q 1e-12          /* planner._EPS_Q: relative tolerance on q = V^2 comparisons */
-
-/* the message of an error (cut at RC_MSG_SIZE - 1 characters); err may be NULL */
-static void say(rc_error *err, const char *fmt, ...)
-{
-    if (err == NULL)
-        return;
-    va_list args;
-    va_start(args, fmt);
-    vsnprintf(err->msg, RC_MSG_SIZE, fmt, args);
-    va_end(args);
-}
 
 static void set_ok(rc_error *err)
 {
@@ -48,7 +35,7 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
         if (!(isfinite(vals[k]) && vals[k] > 0.0)) {
             if (err) {
                 rc_repr(vals[k], a, sizeof a);
-                say(err, "%s must be > 0 and finite, got %s", names[k], a);
+                rc_refuse(err, RC_BAD_CONFIG, "%s must be > 0 and finite, got %s", names[k], a);
             }
             return RC_BAD_CONFIG;
         }
@@ -56,14 +43,14 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
     if (!(isfinite(limit_margin) && limit_margin >= 0.0)) {
         if (err) {
             rc_repr(limit_margin, a, sizeof a);
-            say(err, "limit_margin must be >= 0 and finite [m/s], got %s", a);
+            rc_refuse(err, RC_BAD_CONFIG, "limit_margin must be >= 0 and finite [m/s], got %s", a);
         }
         return RC_BAD_CONFIG;
     }
     if (!(isfinite(v_relay) && v_relay > 0.0)) {
         if (err) {
             rc_repr(v_relay, a, sizeof a);
-            say(err, "v_relay must be > 0 and finite [m/s], got %s", a);
+            rc_refuse(err, RC_BAD_CONFIG, "v_relay must be > 0 and finite [m/s], got %s", a);
         }
         return RC_BAD_CONFIG;
     }
@@ -75,7 +62,8 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
                 rc_repr(v, a, sizeof a);
                 rc_repr(span->limit_distances[k], b, sizeof b);
                 rc_repr(limit_margin, m, sizeof m);
-                say(err, "span.limit_speeds[%d] = %s m/s (from s = %s m) "
+                rc_refuse(err, RC_BAD_CONFIG,
+                         "span.limit_speeds[%d] = %s m/s (from s = %s m) "
                          "cannot be met with the speed margin %s m/s: the planned limit %.3f m/s "
                          "is not above the relay speed %.3f m/s", k, a, b, m, v - limit_margin,
                          v_relay);
@@ -93,7 +81,8 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
     if (c->d_relay >= span->stop) {
         if (err) {
             rc_repr(span->stop, a, sizeof a);
-            say(err, "span.stop = %s m is shorter than the final "
+            rc_refuse(err, RC_BAD_CONFIG,
+                     "span.stop = %s m is shorter than the final "
                      "electro-pneumatic braking curve (%.1f m)", a, c->d_relay);
         }
         return RC_BAD_CONFIG;
@@ -103,7 +92,8 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
      * MAX_GRID_NODES first, with its own message) */
     double cells = ceil(span->stop / step);
     if (!(cells + 2.0 <= (double)max_nodes)) {
-        say(err, "the re-planner's grid would have at least %.4g nodes (span.stop = %g m, step "
+        rc_refuse(err, RC_BAD_CONFIG,
+                 "the re-planner's grid would have at least %.4g nodes (span.stop = %g m, step "
             "%g m): at most %d", cells + 2.0, span->stop, step, max_nodes);
         return RC_BAD_CONFIG;
     }
@@ -112,7 +102,7 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
     int total = n + 1 + bound + 1;
     double *block = malloc(sizeof(double) * (size_t)total * 3);
     if (block == NULL) {
-        say(err, "out of memory for the re-planner's grid");
+        rc_refuse(err, RC_BAD_CONFIG, "out of memory for the re-planner's grid");
         return RC_BAD_CONFIG;
     }
     double *s = block;
@@ -124,7 +114,8 @@ rc_status rc_ato_course_init(rc_ato_course *c, const rc_ato_span *span, const rc
     s[m++] = span->stop - c->d_relay;
     if (m > max_nodes) {
         free(block);
-        say(err, "the re-planner's grid would have %d nodes (span.stop = %g m, step %g m, %d "
+        rc_refuse(err, RC_BAD_CONFIG,
+                 "the re-planner's grid would have %d nodes (span.stop = %g m, step %g m, %d "
             "grade and limit changes): at most %d", m, span->stop, step, breaks, max_nodes);
         return RC_BAD_CONFIG;
     }
@@ -234,7 +225,7 @@ rc_status rc_ato_planner_init(rc_ato_planner *p, const rc_ato_course *course, do
     p->block = calloc(1, a.used);
     if (p->block == NULL) {
         if (err)
-            say(err, "out of memory for the re-planner's buffers");
+            rc_refuse(err, RC_BAD_CONFIG, "out of memory for the re-planner's buffers");
         return RC_BAD_CONFIG;
     }
     a.base = p->block;
@@ -290,7 +281,8 @@ rc_status rc_ato_envelope(const rc_ato_planner *p, const rc_ato_plancar *car, do
                 char gr[40], st[40];
                 rc_repr(g[i], gr, sizeof gr);
                 rc_repr(c->stop, st, sizeof st);
-                say(err, "the span cannot be run: at s = %.1f m (grade %s "
+                rc_refuse(err, RC_BAD_CONFIG,
+                         "the span cannot be run: at s = %.1f m (grade %s "
                          "permille) the service brake (%g of the electric brake) cannot keep a "
                          "%.1f t car within the speed limit / stop it at span.stop = %s m", s[i],
                          gr, car->share, car->brake_mass, st);
@@ -871,7 +863,8 @@ static rc_status capped_result(rc_ato_planner *p, const rc_ato_trace *tr, int st
 {
     if (stalled) {
         if (err)
-            say(err, "no holding speed runs the rest of the span from "
+            rc_refuse(err, RC_BAD_CONFIG,
+                     "no holding speed runs the rest of the span from "
                      "s = %.1f m, V = %.2f m/s: the car would stall", p->s0, sqrt(p->q0));
         return RC_BAD_CONFIG;
     }
@@ -972,7 +965,7 @@ static rc_status internal(rc_ato_planner *p, rc_status rc, rc_error *err)
 {
     if (p->overflow) {
         if (err)
-            say(err, "internal: a re-planner buffer was too small");
+            rc_refuse(err, RC_ATO_INTERNAL, "internal: a re-planner buffer was too small");
         return RC_ATO_INTERNAL;
     }
     return rc;
@@ -993,7 +986,7 @@ rc_status rc_ato_plan_run(rc_ato_planner *p, const rc_ato_plancar *car, double s
     p->q0 = v0c * v0c;
     if (isinf(p->q0) && isfinite(v0c)) {
         if (err)
-            say(err, "(34, 'Numerical result out of range')");
+            rc_refuse(err, RC_MATH, "(34, 'Numerical result out of range')");
         return RC_MATH;          /* fpmath.square's OverflowError */
     }
     p->t0 = t0;
@@ -1040,7 +1033,8 @@ rc_status rc_ato_min_time(rc_ato_planner *p, const rc_ato_plancar *car, const do
             char at[40], st[40];
             rc_repr(stall_at, at, sizeof at);
             rc_repr(p->c->stop, st, sizeof st);
-            say(err, "the span cannot be run: at full traction from rest the %.1f t car comes "
+            rc_refuse(err, RC_BAD_CONFIG,
+                     "the span cannot be run: at full traction from rest the %.1f t car comes "
                      "to rest at s = %s m, before span.stop = %s m (a climb beyond its traction)",
                 car->mass, at, st);
         }

@@ -3,7 +3,6 @@
 #include "rc_fp_contract.h"
 #include "railcar.h"
 
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -34,12 +33,11 @@ static rc_status check_inputs(const rc_chain *c, rc_error *err, double current_t
 
 /* ------------------------------------------------------------------ the chain */
 
+/* a configuration the core leaves to Python: "the C core does not cover <what> ..." */
 static rc_status refuse(rc_error *err, const char *what)
 {
-    if (err)
-        snprintf(err->msg, sizeof err->msg, "the C core does not cover %s (the Python chain runs it)",
-                 what);
-    return RC_BAD_CONFIG;
+    return rc_refuse(err, RC_BAD_CONFIG, "the C core does not cover %s (the Python chain runs it)",
+                     what);
 }
 
 
@@ -141,9 +139,7 @@ static rc_status start(rc_chain *c, rc_error *err)
                           c->speed.n ? &c->speed : NULL, c->cfg.sample_period,
                           c->cfg.method == 2 ? c->cfg.slope_window : 0, c->cfg.physical,
                           c->cfg.sigma2_method) != 0) {
-        if (err)
-            snprintf(err->msg, sizeof err->msg, "out of memory for the identifier's batch");
-        return RC_BAD_CONFIG;
+        return rc_refuse(err, RC_BAD_CONFIG, "out of memory for the identifier's batch");
     }
     c->sample_index = 0;
     c->sensor_speed = c->sensor_position = 0.0;
@@ -167,11 +163,9 @@ rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
         return refuse(err, why);
     if (rc_profiles_copy(cfg->grade_distances, cfg->grades, cfg->grade_n, cfg->speed_distances,
                          cfg->speeds, cfg->speed_n, &c->profiles, &c->grade, &c->speed) != 0) {
-        if (err)
-            snprintf(err->msg, sizeof err->msg, cfg->grade_n < 1 || cfg->speed_n < 0
-                     ? "track.grade_profile must have at least one row"
-                     : "out of memory for the profiles");
-        return RC_BAD_CONFIG;
+        return rc_refuse(err, RC_BAD_CONFIG, "%s", cfg->grade_n < 1 || cfg->speed_n < 0
+                         ? "track.grade_profile must have at least one row"
+                         : "out of memory for the profiles");
     }
     c->cfg = *cfg;
     c->cfg.grade_distances = c->grade.distances;
@@ -237,10 +231,8 @@ rc_status rc_chain_step(rc_chain *c, double current_time, double step_size, doub
         char p[40], m[40];
         rc_repr(payload, p, sizeof p);
         rc_repr(c->base_mass, m, sizeof m);
-        if (err)
-            snprintf(err->msg, sizeof err->msg,
-                     "car.payload %s t leaves a mass <= 0 (car.mass %s t)", p, m);
-        return RC_REJECTED;
+        return rc_refuse(err, RC_REJECTED, "car.payload %s t leaves a mass <= 0 (car.mass %s t)",
+                         p, m);
     }
     c->plant.p.mass = mass;
     double t_end = current_time + step_size;
@@ -249,10 +241,8 @@ rc_status rc_chain_step(rc_chain *c, double current_time, double step_size, doub
         char a[40], b[40];
         rc_repr(current_time + c->start_time, a, sizeof a);
         rc_repr(c->plant.time + c->start_time, b, sizeof b);
-        if (err)
-            snprintf(err->msg, sizeof err->msg,
-                     "current time %s s does not continue the FMU's time %s s", a, b);
-        return RC_REJECTED;
+        return rc_refuse(err, RC_REJECTED,
+                         "current time %s s does not continue the FMU's time %s s", a, b);
     }
     for (;;) {
         double t_sample = rc_chain_next_sample_time(c);

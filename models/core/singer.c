@@ -1,7 +1,6 @@
 /* singer.c -- see singer.h; the bodies of models/filtering/singer.py's scalar path, expression for
  * expression (operands, order and association kept; x ** n is libm pow as in CPython). */
 #include "rc_fp_contract.h"
-#include <stdio.h>
 #include <string.h>
 
 #include "fpmath.h"
@@ -410,26 +409,19 @@ rc_status rc_singer_update_speed_distance(rc_singer *s, double speed, double dis
 
 /* ------------------------------------------------------------------ the settings */
 
-static rc_status refuse(rc_error *err, const char *text)
-{
-    if (err)
-        snprintf(err->msg, sizeof err->msg, "%s", text);
-    return RC_BAD_CONFIG;
-}
-
 rc_status rc_singer_params(double tau, double p0, double p_plus, double p_minus,
                            double w_max_plus, double w_max_minus, double *m_w, double *sigma_w,
                            rc_error *err)
 {
-    char r0[32], r1[32], r2[32], msg[RC_MSG_SIZE];
+    char r0[32], r1[32], r2[32];
     double a = w_max_plus, b = w_max_minus, probs[3], rest, h, m, var, sq[2], cu[2], s2;
     if (err)
         err->msg[0] = '\0';
     /* FilterConfig.singer_params */
     if (!(tau > 0 && isfinite(tau))) {
         rc_repr(tau, r0, sizeof r0);
-        snprintf(msg, sizeof msg, "filter.singer_tau must be > 0, got %s", r0);
-        return refuse(err, msg);
+        return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_tau must be > 0, got %s",
+                         r0);
     }
     /* singer_mixture_moments */
     probs[0] = p0;
@@ -440,29 +432,28 @@ rc_status rc_singer_params(double tau, double p0, double p_plus, double p_minus,
             rc_repr(p0, r0, sizeof r0);
             rc_repr(p_plus, r1, sizeof r1);
             rc_repr(p_minus, r2, sizeof r2);
-            snprintf(msg, sizeof msg, "filter.singer_*: probabilities must be finite and >= 0, "
-                     "got (%s, %s, %s)", r0, r1, r2);
-            return refuse(err, msg);
+            return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_*: probabilities must be "
+                             "finite and >= 0, got (%s, %s, %s)", r0, r1, r2);
         }
     rest = 1.0 - (0.0 + probs[0] + probs[1] + probs[2]);   /* Python 3.11's sum() */
     if (rest < -1e-12) {
         rc_repr(0.0 + probs[0] + probs[1] + probs[2], r0, sizeof r0);
-        snprintf(msg, sizeof msg, "filter.singer_*: P0 + P+ + P- must be <= 1, got %s", r0);
-        return refuse(err, msg);
+        return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_*: P0 + P+ + P- must be <= 1, "
+                         "got %s", r0);
     }
     rest = rc_max(rest, 0.0);
     if (!(isfinite(a) && isfinite(b) && b <= 0.0 && 0.0 <= a && a > b)) {
         rc_repr(w_max_minus, r0, sizeof r0);
         rc_repr(w_max_plus, r1, sizeof r1);
-        snprintf(msg, sizeof msg, "filter.singer_*: need w_max_minus <= 0 <= w_max_plus and "
-                 "w_max_minus < w_max_plus [m/s^2], got %s, %s", r0, r1);
-        return refuse(err, msg);
+        return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_*: need w_max_minus <= 0 <= "
+                         "w_max_plus and w_max_minus < w_max_plus [m/s^2], got %s, %s", r0, r1);
     }
     h = rest / (a - b);                                                  /* eq. (3) */
     m = probs[1] * a + probs[2] * b + 0.5 * h * (a * a - b * b);         /* eq. (4) */
     if (rc_power(a - m, 2, &sq[0]) || rc_power(b - m, 2, &sq[1]) || rc_power(a - m, 3, &cu[0])
             || rc_power(b - m, 3, &cu[1]))
-        return refuse(err, "filter.singer_*: (w_max - m_w) ** n overflows (OverflowError)");
+        return rc_refuse(err, RC_BAD_CONFIG, 
+                         "filter.singer_*: (w_max - m_w) ** n overflows (OverflowError)");
     var = (probs[0] * m * m + probs[1] * sq[0] + probs[2] * sq[1]
            + h * (cu[0] - cu[1]) / 3.0);                                 /* eqs. (5), (6) */
     /* SingerParams.__post_init__ (tau checked above) */
@@ -470,23 +461,22 @@ rc_status rc_singer_params(double tau, double p0, double p_plus, double p_minus,
     *m_w = m;
     if (!(*sigma_w >= 0.0 && isfinite(*sigma_w))) {
         rc_repr(*sigma_w, r0, sizeof r0);
-        snprintf(msg, sizeof msg, "filter.singer_*: sigma_w must be >= 0 and finite [m/s^2], "
-                 "got %s", r0);
-        return refuse(err, msg);
+        return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_*: sigma_w must be >= 0 and "
+                         "finite [m/s^2], got %s", r0);
     }
     if (!isfinite(m)) {
         rc_repr(m, r0, sizeof r0);
-        snprintf(msg, sizeof msg, "filter.singer_*: m_w must be finite [m/s^2], got %s", r0);
-        return refuse(err, msg);
+        return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_*: m_w must be finite [m/s^2], "
+                         "got %s", r0);
     }
     /* what Python meets later: sigma_w ** 2 at a restart, alpha = 1 / tau at a prediction */
     if (rc_power(*sigma_w, 2, &s2))
-        return refuse(err, "filter.singer_*: sigma_w ** 2 overflows (OverflowError)");
+        return rc_refuse(err, RC_BAD_CONFIG, 
+                         "filter.singer_*: sigma_w ** 2 overflows (OverflowError)");
     if (!isfinite(1.0 / tau)) {
         rc_repr(tau, r0, sizeof r0);
-        snprintf(msg, sizeof msg, "filter.singer_tau is too small: 1 / tau overflows, got %s",
-                 r0);
-        return refuse(err, msg);
+        return rc_refuse(err, RC_BAD_CONFIG, "filter.singer_tau is too small: 1 / tau "
+                         "overflows, got %s", r0);
     }
     return RC_OK;
 }

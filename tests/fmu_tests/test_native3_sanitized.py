@@ -113,6 +113,7 @@ def _compile_all(out: Path) -> dict[str, Path]:
     jobs["host_leak_host"] = (HOST, ["-DNATIVE3_LEAK_HOST"])
     jobs["host_leak_instance"] = (HOST, ["-DNATIVE3_LEAK_INSTANCE"])
     jobs["native_ato"] = (toolchain.C_DIR / "native_ato.c", [])
+    jobs["native_ato_state"] = (toolchain.C_DIR / "native_ato_state.c", [])
     jobs["host_ato"] = (ATO_HOST, ["-DATO_FMI3"])
 
     def compile_one(item):

@@ -76,6 +76,7 @@ def _compile_all(out: Path) -> dict[str, Path]:
     jobs["host_estimator"] = ([str(HOST)], ["-DNATIVE_ESTIMATOR"])
     jobs["host_leak"] = ([str(HOST)], ["-DNATIVE_CYCLES_LEAK"])
     jobs["native_ato"] = ([str(native.C_DIR / "native_ato.c")], [])
+    jobs["native_ato_state"] = ([str(native.C_DIR / "native_ato_state.c")], [])
     jobs["host_ato"] = ([str(ATO_HOST)], [])
 
     def compile_one(item):

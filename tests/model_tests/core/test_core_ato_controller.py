@@ -51,7 +51,7 @@ CORE = ROOT / "models" / "core"
 SHIM = ROOT / "tests" / "core_cases" / "ato_controller_shim.c"
 SOURCES = [CORE / f for f in ("ato_controller.c", "ato_line.c", "ato_supervision.c", "ato_tuning.c",
                               "ato_span.c", "track.c", "ato_motion.c", "ato_stopping.c",
-                              "ato_planner.c", "repr.c")]
+                              "ato_planner.c", "repr.c", "rc_bytes.c")]
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic",
          "-fPIC"]
 SANITIZE = ["-g", "-O1", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
