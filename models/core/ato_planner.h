@@ -84,7 +84,7 @@ typedef struct {
     void *block;
 } rc_ato_planner;
 
-/* FMU states (fmu_src/c/native_ato.c): the bytes of the buffer block rc_ato_planner_init
+/* FMU states (fmu_src/c/native_ato_state.c): the bytes of the buffer block rc_ato_planner_init
  * allocates for `course` (the same function lays both out), and a planner restored from its
  * bytes made whole again: p->c = course, p->block = block (block_size bytes, its contents the
  * saved ones), every pointer into the block and every buffer capacity as rc_ato_planner_init

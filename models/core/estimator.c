@@ -73,11 +73,11 @@ static rc_slope_ls *slope_new(long size)
     if (!s)
         return NULL;
     s->size = size;
-    s->v = malloc((size_t)(size + 1) * sizeof(double));   /* one more before the oldest goes */
-    s->i = malloc((size_t)size * 4 * sizeof(double));
-    s->dts = malloc((size_t)size * sizeof(double));
-    s->w = malloc((size_t)size * sizeof(double));
-    s->c = malloc((size_t)size * sizeof(double));
+    s->v = calloc((size_t)(size + 1), sizeof(double));   /* one more before the oldest goes */
+    s->i = calloc((size_t)size * 4, sizeof(double));
+    s->dts = calloc((size_t)size, sizeof(double));
+    s->w = calloc((size_t)size, sizeof(double));
+    s->c = calloc((size_t)size, sizeof(double));
     if (!s->v || !s->i || !s->dts || !s->w || !s->c) {
         slope_free(s);
         return NULL;
