@@ -187,17 +187,27 @@ def test_driver_draws_are_generator_random():
     assert float(a.uniform()) == float(b.random(1)[0])
 
 
-def test_running_out_of_draws_is_refused_by_name(monkeypatch):
-    """Handed fewer draws than a step may take, the C twin refuses before that step, naming it
-    and the draws left (it never reads past the array); the steps before it are done."""
+def days_made(monkeypatch, **day_values) -> list:
+    """The C twins (models.batch.ServiceDay) run_day makes from now on, in a list; ``day_values``
+    (SERVICE_DAY_FIELDS names) replace what the study hands them."""
     made = []
 
     class Recording(sd.batch.ServiceDay):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
+        def __init__(self, day, *args, **kwargs):
+            day = list(day)
+            for name, value in day_values.items():
+                day[sd.batch.SERVICE_DAY_FIELDS.index(name)] = value
+            super().__init__(day, *args, **kwargs)
             made.append(self)
 
     monkeypatch.setattr(sd.batch, "ServiceDay", Recording)
+    return made
+
+
+def test_running_out_of_draws_is_refused_by_name(monkeypatch):
+    """Handed fewer draws than a step may take, the C twin refuses before that step, naming it
+    and the draws left (it never reads past the array); the steps before it are done."""
+    made = days_made(monkeypatch)
     monkeypatch.setattr(sd.batch, "SERVICE_DAY_DRAWS_PER_STEP", 0)   # the study under-supplies
     with pytest.raises(ValueError,
                        match=r"service day: driver draws: 0 left before step 0, a step may take 7"):
@@ -287,24 +297,16 @@ def test_a_dropout_past_the_days_end_runs_as_in_python(monkeypatch):
     assert c["day"]["faults"]["hold"] >= 1
 
 
-def refusing_day(monkeypatch, made: list):
-    """run_day's ServiceDay recorded in ``made``, its first payload 1e6 t: past the plant's
-    10 x car.mass, so the RailCar chain refuses step 0 after the driver has moved."""
-    class Overloaded(sd.batch.ServiceDay):
-        def __init__(self, day, *args, **kwargs):
-            day = list(day)
-            day[sd.batch.SERVICE_DAY_FIELDS.index("first_payload")] = 1e6
-            super().__init__(day, *args, **kwargs)
-            made.append(self)
-
-    monkeypatch.setattr(sd.batch, "ServiceDay", Overloaded)
+def refusing_day(monkeypatch) -> list:
+    """days_made with a first payload of 1e6 t: past the plant's 10 x car.mass, so the RailCar
+    chain refuses step 0 after the driver has moved."""
+    return days_made(monkeypatch, first_payload=1e6)
 
 
 def test_a_refused_step_ends_the_day(monkeypatch):
     """After a chain's refusal in the middle of a step (the driver, the payload, the faults may
     have moved, the step count not), a later run refuses by name instead of redoing the step."""
-    made = []
-    refusing_day(monkeypatch, made)
+    made = refusing_day(monkeypatch)
     with pytest.raises(sd.StepRejected, match=r"service day: step 0 \(RailCar chain\): car.payload"):
         sd.run_day(0.05, SEED, engine="c")
     day = made[0]
@@ -319,14 +321,7 @@ def test_export_is_refused_while_a_run_is_under_way(monkeypatch):
     """run() releases the GIL: export() from another thread meanwhile is refused, not a read of
     figures being written; afterwards it gives them."""
     import threading
-    made = []
-
-    class Recording(sd.batch.ServiceDay):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            made.append(self)
-
-    monkeypatch.setattr(sd.batch, "ServiceDay", Recording)
+    made = days_made(monkeypatch)
     monkeypatch.setattr(sd.batch, "SERVICE_DAY_DRAWS_PER_STEP", 0)   # stops at step 0: a fresh day
     with pytest.raises(ValueError, match="driver draws: 0 left before step 0"):
         sd.run_day(1.0, SEED, engine="c")
@@ -515,15 +510,8 @@ def test_only_a_rejected_estimator_step_is_retried(core_objects, tmp_path, monke
 
     (tmp_path / "math").mkdir()
     module = ctypes_batch(build_twin(core_objects, tmp_path / "math", forced_status("RC_MATH")))
-    made = []
-
-    class Recording(sd.batch.ServiceDay):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            made.append(self)
-
     monkeypatch.setattr(sd.batch, "_batch", module)
-    monkeypatch.setattr(sd.batch, "ServiceDay", Recording)
+    made = days_made(monkeypatch)
     with pytest.raises(ArithmeticError,
                        match=rf"service day: step {FORCED_STEP} \(faulty estimator\): forced {FORCED_STEP}$"):
         sd.run_day(hours, SEED, engine="c")

@@ -83,6 +83,30 @@ def estimator_inputs(n_steps: int, seed: int = 7) -> list[dict]:
     return rows
 
 
+
+def get_state(fmu, version: int, state: c_void_p | None = None) -> c_void_p:
+    """A new FMU state of fmpy's ``fmu`` (FMI ``version`` 2 or 3), or ``state`` overwritten (the
+    standard's *FMUstate != NULL, which fmpy's getFMUState does not offer)."""
+    if state is None:
+        return fmu.getFMUState()
+    fn = fmu.fmi2GetFMUstate if version == 2 else fmu.fmi3GetFMUState
+    fn(fmu.component, byref(state))
+    return state
+
+
+def deserialize(fmu, version: int, data: bytes, state: c_void_p | None = None) -> c_void_p:
+    """``data`` deserialized into a new state or into ``state`` (fmpy's FMU3Slave.deserializeFMUState
+    returns nothing: the standard's function is called directly)."""
+    state = c_void_p() if state is None else state
+    buffer = create_string_buffer(data, len(data))
+    if version == 2:
+        fmu.fmi2DeSerializeFMUstate(fmu.component, buffer, len(data), byref(state))
+    else:
+        from ctypes import POINTER, cast
+        from fmpy.fmi3 import fmi3Byte
+        fmu.fmi3DeserializeFMUState(fmu.component, cast(buffer, POINTER(fmi3Byte)), len(data), byref(state))
+    return state
+
 class Unit:
     """One instance of a native FMU through fmpy (FMU2Slave or FMU3Slave), variables by name;
     ``call`` returns the status instead of raising, ``messages`` collects the log."""
@@ -149,24 +173,10 @@ class Unit:
 
     # -- FMU states (fmpy's FMU3Slave.deserializeFMUState returns nothing: called directly)
     def get_state(self, state: c_void_p | None = None) -> c_void_p:
-        """A new state, or `state` overwritten (the standard's *FMUstate != NULL)."""
-        if state is None:
-            return self.fmu.getFMUState()
-        fn = self.fmu.fmi2GetFMUstate if self.nf.version == 2 else self.fmu.fmi3GetFMUState
-        fn(self.fmu.component, byref(state))
-        return state
+        return get_state(self.fmu, self.nf.version, state)
 
     def deserialize(self, data: bytes, state: c_void_p | None = None) -> c_void_p:
-        state = c_void_p() if state is None else state
-        buffer = create_string_buffer(data, len(data))
-        if self.nf.version == 2:
-            self.fmu.fmi2DeSerializeFMUstate(self.fmu.component, buffer, len(data), byref(state))
-        else:
-            from ctypes import POINTER, cast
-            from fmpy.fmi3 import fmi3Byte
-            self.fmu.fmi3DeserializeFMUState(self.fmu.component, cast(buffer, POINTER(fmi3Byte)),
-                                             len(data), byref(state))
-        return state
+        return deserialize(self.fmu, self.nf.version, data, state)
 
     def errors(self) -> str:
         return "\n".join(m.message for m in self.messages if m.status == ERROR)

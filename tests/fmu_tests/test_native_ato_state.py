@@ -32,7 +32,7 @@ import shutil
 import struct
 import subprocess
 import sys
-from ctypes import byref, c_void_p, create_string_buffer
+from ctypes import c_void_p
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +44,7 @@ from fmpy.fmi3 import FMU3Slave
 
 from conftest import ERROR, OK, ROOT, FmuFile, LogMessage, Slave
 from fmu_src.build import native, native_fmi3, toolchain
-from test_fmu_state import bits, resealed
+from test_fmu_state import bits, deserialize, get_state, resealed
 from test_native_ato_fmu import closed_loop, line_run, profiles  # noqa: F401  (fixtures)
 
 WARNING = 1
@@ -163,23 +163,10 @@ class Unit:
 
     # -- FMU states (fmpy's FMU3Slave.deserializeFMUState returns nothing: called directly)
     def get_state(self, state: c_void_p | None = None) -> c_void_p:
-        if state is None:
-            return self.fmu.getFMUState()
-        fn = self.fmu.fmi2GetFMUstate if self.af.version == 2 else self.fmu.fmi3GetFMUState
-        fn(self.fmu.component, byref(state))
-        return state
+        return get_state(self.fmu, self.af.version, state)
 
     def deserialize(self, data: bytes, state: c_void_p | None = None) -> c_void_p:
-        state = c_void_p() if state is None else state
-        buffer = create_string_buffer(data, len(data))
-        if self.af.version == 2:
-            self.fmu.fmi2DeSerializeFMUstate(self.fmu.component, buffer, len(data), byref(state))
-        else:
-            from ctypes import POINTER, cast
-            from fmpy.fmi3 import fmi3Byte
-            self.fmu.fmi3DeserializeFMUState(self.fmu.component, cast(buffer, POINTER(fmi3Byte)),
-                                             len(data), byref(state))
-        return state
+        return deserialize(self.fmu, self.af.version, data, state)
 
     def close(self) -> None:
         self.fmu.terminate()
