@@ -39,7 +39,7 @@ typedef struct {                 /* one run, parsed */
     int has_script;
     rc_span_script span;         /* run_spans' runs: the span script instead */
     int has_span;
-    rc_span_output out;
+    rc_span_output out;          /* the arrays the run writes (a scripted run: outputs and inputs only) */
     long rows;                   /* output rows written */
     int finished;
 } Run;
@@ -137,94 +137,141 @@ static int parse_run(PyObject *item, Run *run, Py_ssize_t r)
     return 0;
 }
 
-/* run(runs, outputs, inputs, error) -> [(rows, finished), ...] */
-static PyObject *batch_run(PyObject *Py_UNUSED(module), PyObject *args)
+/* One call of many runs (run, run_spans): the runs' sequence, their parsed Runs, one chain
+ * reused run after run and the writable arrays (outputs, inputs[, steps]) they fill */
+#define CALL_ARRAYS 3
+
+typedef struct {
+    PyObject *fast;
+    Py_ssize_t n;
+    Run *runs;
+    rc_chain *chain;
+    Py_buffer view[CALL_ARRAYS];   /* outputs, inputs, steps */
+    int held;
+} RunsCall;
+
+/* c from the runs' sequence and n_arrays writable float64 arrays; -1 with the error set (call
+ * runs_call_close in any case) */
+static int runs_call_open(RunsCall *c, PyObject *seq, PyObject *const *arrays, int n_arrays)
 {
-    PyObject *seq, *out_obj, *in_obj, *error;
-    if (!PyArg_ParseTuple(args, "OOOO:run", &seq, &out_obj, &in_obj, &error))
-        return NULL;
-    if (!PyExceptionClass_Check(error)) {
-        PyErr_SetString(PyExc_TypeError, "error must be an exception class");
-        return NULL;
-    }
-    PyObject *fast = PySequence_Fast(seq, "runs must be a sequence of tuples");
-    if (!fast)
-        return NULL;
-    Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
-    Run *runs = PyMem_Calloc((size_t)(n > 0 ? n : 1), sizeof *runs);
-    rc_chain *chain = PyMem_Malloc(sizeof *chain);
-    Py_buffer out, in;
-    int have_out = 0, have_in = 0;
-    PyObject *result = NULL;
-    if (!runs || !chain) {
+    static const char *const names[CALL_ARRAYS] = {"outputs", "inputs", "steps"};
+    memset(c, 0, sizeof *c);
+    c->fast = PySequence_Fast(seq, "runs must be a sequence of tuples");
+    if (!c->fast)
+        return -1;
+    c->n = PySequence_Fast_GET_SIZE(c->fast);
+    c->runs = PyMem_Calloc((size_t)(c->n > 0 ? c->n : 1), sizeof *c->runs);
+    c->chain = PyMem_Malloc(sizeof *c->chain);
+    if (!c->runs || !c->chain) {
         PyErr_NoMemory();
-        goto done;
+        return -1;
     }
-    if (double_buffer(out_obj, &out, 1, -1, "outputs") < 0)
-        goto done;
-    have_out = 1;
-    if (double_buffer(in_obj, &in, 1, -1, "inputs") < 0)
-        goto done;
-    have_in = 1;
-    /* outputs: n x (steps + 1) x RC_CHAIN_OUTPUTS, inputs: n x steps x RC_SCRIPT_INPUTS */
-    Py_ssize_t out_rows = n ? length(&out) / (n * RC_CHAIN_OUTPUTS) : 0;
-    Py_ssize_t in_rows = n ? length(&in) / (n * RC_SCRIPT_INPUTS) : 0;
-    if (n && (length(&out) != n * out_rows * RC_CHAIN_OUTPUTS
-              || length(&in) != n * in_rows * RC_SCRIPT_INPUTS || out_rows != in_rows + 1)) {
-        PyErr_Format(PyExc_ValueError, "outputs must be runs x (steps + 1) x %d and inputs runs x "
-                     "steps x %d float64 (%zd runs), got %zd and %zd values", RC_CHAIN_OUTPUTS,
-                     RC_SCRIPT_INPUTS, n, (Py_ssize_t)length(&out), (Py_ssize_t)length(&in));
-        goto done;
-    }
-    for (Py_ssize_t r = 0; r < n; r++) {
-        if (parse_run(PySequence_Fast_GET_ITEM(fast, r), &runs[r], r) < 0)
-            goto done;
-        if (runs[r].script.steps > in_rows) {
-            PyErr_Format(PyExc_ValueError, "run %zd: %ld steps, the arrays have room for %zd",
-                         r, runs[r].script.steps, in_rows);
-            goto done;
-        }
-    }
+    for (; c->held < n_arrays; c->held++)
+        if (double_buffer(arrays[c->held], &c->view[c->held], 1, -1, names[c->held]) < 0)
+            return -1;
+    return 0;
+}
+
+static void runs_call_close(RunsCall *c)
+{
+    if (c->runs)
+        release_runs(c->runs, c->n);
+    PyMem_Free(c->chain);
+    for (int k = 0; k < c->held; k++)
+        PyBuffer_Release(&c->view[k]);
+    Py_XDECREF(c->fast);
+}
+
+/* Every run of c through one(run, chain, err) on a chain set up for it, the GIL released; the
+ * first refusal stops them: -1 with it raised as "run r: ..." (status_exception) */
+static int runs_call_each(RunsCall *c, rc_status (*one)(Run *, rc_chain *, rc_error *),
+                          PyObject *error)
+{
     rc_status st = RC_OK;
     Py_ssize_t failed = -1;
     rc_error err;
     err.msg[0] = '\0';
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t r = 0; r < n && st == RC_OK; r++) {
-        double *y = (double *)out.buf + r * out_rows * RC_CHAIN_OUTPUTS;
-        double *u = (double *)in.buf + r * in_rows * RC_SCRIPT_INPUTS;
-        st = rc_chain_init(chain, &runs[r].cfg, &err);
+    for (Py_ssize_t r = 0; r < c->n && st == RC_OK; r++) {
+        st = rc_chain_init(c->chain, &c->runs[r].cfg, &err);
         if (st != RC_OK) {
             failed = r;
             break;
         }
-        st = rc_script_run(&runs[r].script, chain, y, u, &runs[r].rows, &runs[r].finished, &err);
-        rc_chain_free(chain);
+        st = one(&c->runs[r], c->chain, &err);
+        rc_chain_free(c->chain);
         if (st != RC_OK)
             failed = r;
     }
     Py_END_ALLOW_THREADS
     if (st != RC_OK) {
         PyErr_Format(status_exception(st, error), "run %zd: %s", failed, err.msg);
+        return -1;
+    }
+    return 0;
+}
+
+static rc_status script_run_one(Run *run, rc_chain *chain, rc_error *err)
+{
+    return rc_script_run(&run->script, chain, run->out.outputs, run->out.inputs, &run->rows,
+                         &run->finished, err);
+}
+
+static rc_status span_run_one(Run *run, rc_chain *chain, rc_error *err)
+{
+    return rc_span_run(&run->span, chain, &run->out, err);
+}
+
+/* run(runs, outputs, inputs, error) -> [(rows, finished), ...] */
+static PyObject *batch_run(PyObject *Py_UNUSED(module), PyObject *args)
+{
+    PyObject *seq, *arrays[2], *error;
+    if (!PyArg_ParseTuple(args, "OOOO:run", &seq, &arrays[0], &arrays[1], &error))
+        return NULL;
+    if (!PyExceptionClass_Check(error)) {
+        PyErr_SetString(PyExc_TypeError, "error must be an exception class");
+        return NULL;
+    }
+    RunsCall c;
+    PyObject *result = NULL;
+    if (runs_call_open(&c, seq, arrays, 2) < 0)
+        goto done;
+    Py_ssize_t n = c.n;
+    const Py_buffer *out = &c.view[0], *in = &c.view[1];
+    /* outputs: n x (steps + 1) x RC_CHAIN_OUTPUTS, inputs: n x steps x RC_SCRIPT_INPUTS */
+    Py_ssize_t out_rows = n ? length(out) / (n * RC_CHAIN_OUTPUTS) : 0;
+    Py_ssize_t in_rows = n ? length(in) / (n * RC_SCRIPT_INPUTS) : 0;
+    if (n && (length(out) != n * out_rows * RC_CHAIN_OUTPUTS
+              || length(in) != n * in_rows * RC_SCRIPT_INPUTS || out_rows != in_rows + 1)) {
+        PyErr_Format(PyExc_ValueError, "outputs must be runs x (steps + 1) x %d and inputs runs x "
+                     "steps x %d float64 (%zd runs), got %zd and %zd values", RC_CHAIN_OUTPUTS,
+                     RC_SCRIPT_INPUTS, n, (Py_ssize_t)length(out), (Py_ssize_t)length(in));
         goto done;
     }
+    for (Py_ssize_t r = 0; r < n; r++) {
+        Run *run = &c.runs[r];
+        if (parse_run(PySequence_Fast_GET_ITEM(c.fast, r), run, r) < 0)
+            goto done;
+        if (run->script.steps > in_rows) {
+            PyErr_Format(PyExc_ValueError, "run %zd: %ld steps, the arrays have room for %zd",
+                         r, run->script.steps, in_rows);
+            goto done;
+        }
+        run->out.outputs = (double *)out->buf + r * out_rows * RC_CHAIN_OUTPUTS;
+        run->out.inputs = (double *)in->buf + r * in_rows * RC_SCRIPT_INPUTS;
+    }
+    if (runs_call_each(&c, script_run_one, error) < 0)
+        goto done;
     result = PyList_New(n);
     for (Py_ssize_t r = 0; result && r < n; r++) {
-        PyObject *pair = Py_BuildValue("(lO)", runs[r].rows, runs[r].finished ? Py_True : Py_False);
+        PyObject *pair = Py_BuildValue("(lO)", c.runs[r].rows, c.runs[r].finished ? Py_True : Py_False);
         if (!pair)
             Py_CLEAR(result);
         else
             PyList_SET_ITEM(result, r, pair);
     }
 done:
-    if (runs)
-        release_runs(runs, n);
-    PyMem_Free(chain);
-    if (have_out)
-        PyBuffer_Release(&out);
-    if (have_in)
-        PyBuffer_Release(&in);
-    Py_DECREF(fast);
+    runs_call_close(&c);
     return result;
 }
 
@@ -235,10 +282,10 @@ done:
  * run (log_lines counts them all) */
 static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
 {
-    PyObject *seq, *out_obj, *in_obj, *steps_obj, *error;
+    PyObject *seq, *arrays[3], *error;
     long log_cap;
-    if (!PyArg_ParseTuple(args, "OOOOlO:run_spans", &seq, &out_obj, &in_obj, &steps_obj, &log_cap,
-                          &error))
+    if (!PyArg_ParseTuple(args, "OOOOlO:run_spans", &seq, &arrays[0], &arrays[1], &arrays[2],
+                          &log_cap, &error))
         return NULL;
     if (!PyExceptionClass_Check(error)) {
         PyErr_SetString(PyExc_TypeError, "error must be an exception class");
@@ -248,43 +295,27 @@ static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
         PyErr_Format(PyExc_ValueError, "log_cap must be in 0..100000, got %ld", log_cap);
         return NULL;
     }
-    PyObject *fast = PySequence_Fast(seq, "runs must be a sequence of tuples");
-    if (!fast)
-        return NULL;
-    Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
-    Run *runs = PyMem_Calloc((size_t)(n > 0 ? n : 1), sizeof *runs);
-    rc_chain *chain = PyMem_Malloc(sizeof *chain);
-    Py_buffer out, in, steps;
-    int have_out = 0, have_in = 0, have_steps = 0;
+    RunsCall c;
     PyObject *result = NULL;
-    if (!runs || !chain) {
-        PyErr_NoMemory();
+    if (runs_call_open(&c, seq, arrays, 3) < 0)
         goto done;
-    }
-    if (double_buffer(out_obj, &out, 1, -1, "outputs") < 0)
-        goto done;
-    have_out = 1;
-    if (double_buffer(in_obj, &in, 1, -1, "inputs") < 0)
-        goto done;
-    have_in = 1;
-    if (double_buffer(steps_obj, &steps, 1, -1, "steps") < 0)
-        goto done;
-    have_steps = 1;
-    Py_ssize_t out_rows = n ? length(&out) / (n * RC_CHAIN_OUTPUTS) : 0;
-    Py_ssize_t in_rows = n ? length(&in) / (n * RC_SPAN_INPUTS) : 0;
-    if (n && (length(&out) != n * out_rows * RC_CHAIN_OUTPUTS
-              || length(&in) != n * in_rows * RC_SPAN_INPUTS || out_rows != in_rows + 1
-              || length(&steps) != n * in_rows * RC_SPAN_STEP_FIELDS)) {
+    Py_ssize_t n = c.n;
+    const Py_buffer *out = &c.view[0], *in = &c.view[1], *steps = &c.view[2];
+    Py_ssize_t out_rows = n ? length(out) / (n * RC_CHAIN_OUTPUTS) : 0;
+    Py_ssize_t in_rows = n ? length(in) / (n * RC_SPAN_INPUTS) : 0;
+    if (n && (length(out) != n * out_rows * RC_CHAIN_OUTPUTS
+              || length(in) != n * in_rows * RC_SPAN_INPUTS || out_rows != in_rows + 1
+              || length(steps) != n * in_rows * RC_SPAN_STEP_FIELDS)) {
         PyErr_Format(PyExc_ValueError, "outputs must be runs x (steps + 1) x %d, inputs runs x "
                      "steps x %d and steps runs x steps x %d float64 (%zd runs), got %zd, %zd and "
                      "%zd values", RC_CHAIN_OUTPUTS, RC_SPAN_INPUTS, RC_SPAN_STEP_FIELDS, n,
-                     (Py_ssize_t)length(&out), (Py_ssize_t)length(&in),
-                     (Py_ssize_t)length(&steps));
+                     (Py_ssize_t)length(out), (Py_ssize_t)length(in),
+                     (Py_ssize_t)length(steps));
         goto done;
     }
     for (Py_ssize_t r = 0; r < n; r++) {
-        Run *run = &runs[r];
-        if (parse_chain(PySequence_Fast_GET_ITEM(fast, r), run, r) < 0)
+        Run *run = &c.runs[r];
+        if (parse_chain(PySequence_Fast_GET_ITEM(c.fast, r), run, r) < 0)
             goto done;
         rc_error err;
         if (rc_span_script_init(&run->span, run->view[5].buf, length(&run->view[5]), &err) != RC_OK) {
@@ -297,9 +328,9 @@ static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
                          r, run->span.steps, in_rows);
             goto done;
         }
-        run->out.outputs = (double *)out.buf + r * out_rows * RC_CHAIN_OUTPUTS;
-        run->out.inputs = (double *)in.buf + r * in_rows * RC_SPAN_INPUTS;
-        run->out.steps = (double *)steps.buf + r * in_rows * RC_SPAN_STEP_FIELDS;
+        run->out.outputs = (double *)out->buf + r * out_rows * RC_CHAIN_OUTPUTS;
+        run->out.inputs = (double *)in->buf + r * in_rows * RC_SPAN_INPUTS;
+        run->out.steps = (double *)steps->buf + r * in_rows * RC_SPAN_STEP_FIELDS;
         run->out.log_cap = log_cap;
         run->out.log = PyMem_Malloc((size_t)(log_cap > 0 ? log_cap : 1) * RC_SPAN_LOG_SIZE);
         if (!run->out.log) {
@@ -307,30 +338,11 @@ static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
             goto done;
         }
     }
-    rc_status st = RC_OK;
-    Py_ssize_t failed = -1;
-    rc_error err;
-    err.msg[0] = '\0';
-    Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t r = 0; r < n && st == RC_OK; r++) {
-        st = rc_chain_init(chain, &runs[r].cfg, &err);
-        if (st != RC_OK) {
-            failed = r;
-            break;
-        }
-        st = rc_span_run(&runs[r].span, chain, &runs[r].out, &err);
-        rc_chain_free(chain);
-        if (st != RC_OK)
-            failed = r;
-    }
-    Py_END_ALLOW_THREADS
-    if (st != RC_OK) {
-        PyErr_Format(status_exception(st, error), "run %zd: %s", failed, err.msg);
+    if (runs_call_each(&c, span_run_one, error) < 0)
         goto done;
-    }
     result = PyList_New(n);
     for (Py_ssize_t r = 0; result && r < n; r++) {
-        const rc_span_output *o = &runs[r].out;
+        const rc_span_output *o = &c.runs[r].out;
         long kept = o->log_lines < log_cap ? o->log_lines : log_cap;
         PyObject *lines = PyList_New(kept);
         for (long k = 0; lines && k < kept; k++) {
@@ -348,16 +360,7 @@ static PyObject *batch_run_spans(PyObject *Py_UNUSED(module), PyObject *args)
             PyList_SET_ITEM(result, r, row);
     }
 done:
-    if (runs)
-        release_runs(runs, n);
-    PyMem_Free(chain);
-    if (have_out)
-        PyBuffer_Release(&out);
-    if (have_in)
-        PyBuffer_Release(&in);
-    if (have_steps)
-        PyBuffer_Release(&steps);
-    Py_DECREF(fast);
+    runs_call_close(&c);
     return result;
 }
 

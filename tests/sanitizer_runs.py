@@ -44,3 +44,18 @@ def clean(proc) -> None:
     assert proc.returncode == 0, _report(proc)
     assert proc.stdout.rstrip().endswith("ok"), _report(proc)
     assert "FAILED" not in proc.stdout, _report(proc)
+
+
+def check_ato_host(proc, figures) -> None:
+    """What tests/fmu_cases/native_ato_cycles.c (FMI 2 or, -DATO_FMI3, FMI 3) must print: a clean
+    run, a bad input with the safe brake's warning, a discarded step, reset bit-identical to a
+    fresh instance (one ulp off differing), 20 refused initialisations, 200 cycles, the live heap
+    bytes equal after cycles 20 and 200; no sanitizer report."""
+    clean(proc)
+    out = proc.stdout
+    assert "bad_input warning with the safe brake; step of 0 discarded" in out, out
+    assert re.search(r"^reset 300 steps x 5 outputs bit-identical to a fresh instance; "
+                     r"one ulp off differs from step \d+$", out, re.M), out
+    assert "failed_inits 20 refused naming the parameter" in out and "cycles 200" in out, out
+    live = figures["live_bytes"]
+    assert set(live) == {20, 200} and live[200] == live[20], f"live heap bytes: {live}"

@@ -456,6 +456,14 @@ def check_workers(client, fmu_path: Path | None, log) -> int:
     return len(checks)
 
 
+def _dask_failed_row(spec: RunSpec, failure: BaseException) -> dict:
+    """The failed row of a run whose task dask could not finish (KilledWorker, ...)."""
+    row = base_row(spec)
+    row.update(status=TEXT_STATUS_FAILED, wall_time=None,
+               error=_one_line(f"dask: {type(failure).__name__}: {failure}"))
+    return row
+
+
 def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid, record: Callable[[dict], bool],
                 extract_root: str | None) -> int:
     """Every spec as a dask task; each row goes to ``record`` as it comes. The rows recorded."""
@@ -474,9 +482,7 @@ def _submit_all(client, sweep: Sweep, specs: list[RunSpec], fmu_path: str, guid,
             if isinstance(result, dict):
                 row = result
             else:                    # an exception: KilledWorker (the run killed its worker every time), ...
-                row = base_row(spec)
-                row.update(status=TEXT_STATUS_FAILED, wall_time=None,
-                           error=_one_line(f"dask: {type(result).__name__}: {result}"))
+                row = _dask_failed_row(spec, result)
             f.release()
             if record(row):
                 ran += 1
@@ -523,12 +529,7 @@ def _submit_chunks(client, sweep: Sweep, stream: RunStream, chunk: int | None, w
             if isinstance(result, list):
                 rows = result
             else:                    # an exception: KilledWorker (the chunk killed its worker every time), ...
-                rows = []
-                for run_id in part:
-                    row = base_row(plan.build(run_id))
-                    row.update(status=TEXT_STATUS_FAILED, wall_time=None,
-                               error=_one_line(f"dask: {type(result).__name__}: {result}"))
-                    rows.append(row)
+                rows = [_dask_failed_row(plan.build(run_id), result) for run_id in part]
             f.release()
             for row in rows:
                 if record(row):

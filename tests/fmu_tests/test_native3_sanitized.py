@@ -76,8 +76,8 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
-from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMIT_KB, clean,
-                            no_sanitizer_report, run_host)
+from sanitizer_runs import (ASAN_DEFAULT, ASAN_SMALL_QUARANTINE, RSS_GROWTH_LIMIT_KB, check_ato_host,
+                            clean, no_sanitizer_report, run_host)
 from fmu_src.build import native_fmi3, toolchain
 
 # conftest.layer_of marks modules named test_native_* as "core"; this one (test_native3_*) is
@@ -259,12 +259,4 @@ def test_the_atocontroller_on_a_short_span_clean_under_sanitizers(hosts):
     warning naming it), a discarded step, reset bit-identical to a fresh instance (and one ulp
     off differing), 20 refused initialisations, 200 cycles; no sanitizer report, no leak, the
     live heap bytes equal after cycles 20 and 200."""
-    proc, figures = run_host(hosts["exes"]["ato"], hosts["args"][:2], ASAN_DEFAULT)
-    clean(proc)
-    out = proc.stdout
-    assert "bad_input warning with the safe brake; step of 0 discarded" in out, out
-    assert re.search(r"^reset 300 steps x 5 outputs bit-identical to a fresh instance; "
-                     r"one ulp off differs from step \d+$", out, re.M), out
-    assert "failed_inits 20 refused naming the parameter" in out and "cycles 200" in out, out
-    live = figures["live_bytes"]
-    assert set(live) == {20, 200} and live[200] == live[20], f"live heap bytes: {live}"
+    check_ato_host(*run_host(hosts["exes"]["ato"], hosts["args"][:2], ASAN_DEFAULT))

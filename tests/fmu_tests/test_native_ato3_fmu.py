@@ -37,32 +37,20 @@ from fmpy.validation import validate_fmu
 import conftest
 import test_ato_supervision as catalogue
 import test_native_ato_fmu as ato2
-from conftest import FmuFile, LogMessage, Slave
+from conftest import FmuFile, Slave
 from fmu_src.build import native_fmi3
 from fmu_src.build.toolchain import available_targets
 from fmu_src.variables import ATO, variables_for
 from test_native_ato_fmu import (closed_loop, monkeypatch_module, native_ato,  # noqa: F401
                                  profiles)
-from test_native_fmi3 import Fmi3AsFmi2, _Fmi2Typed
+from test_native_fmi3 import Fmi3AsFmi2, _Md3
+from test_native_fmi3 import Slave3 as Fmi3Slave
 
 STEP = ato2.STEP             # [s]
 HERE = Path(__file__).resolve().parent
 
 
 # ------------------------------------------------------------- FMI 3 under FMI 2's names
-
-class _Md3:
-    """An FMI 3 model description with FMI 2 type names and without "time", as the FMI 2
-    drivers read it."""
-
-    def __init__(self, md):
-        self._md = md
-        self.modelVariables = [_Fmi2Typed(v) for v in md.modelVariables
-                               if v.causality != "independent"]
-
-    def __getattr__(self, name):
-        return getattr(self._md, name)
-
 
 class _RawDoStep:
     """fmi3DoStep answering as test_ato_supervision's raw fmi2DoStep call does: the status,
@@ -102,29 +90,14 @@ class AtoFmi3AsFmi2(Fmi3AsFmi2):
         return self.fmu.getFloat64([self.time_vr])[0]
 
 
-class Slave3(Slave):
-    """conftest.Slave on AtoControllerNative3 (FMU3Slave, logging on); ``fmu``: fmi2_view's."""
+class Slave3(Fmi3Slave):
+    """test_native_fmi3.Slave3 on AtoControllerNative3, its FMI 2 face AtoFmi3AsFmi2."""
 
-    def __init__(self, fmu: FmuFile, instance_name: str = "instance", logging_on: bool = True):
-        self.fmu_file = fmu
-        self.messages: list[LogMessage] = []
-
-        def logger(_env, status, category, message):
-            self.messages.append(LogMessage(
-                int(status), category.decode("utf-8", "replace") if category else None,
-                message.decode("utf-8", "replace") if message else ""))
-
-        self._callbacks = logger
-        fmu3 = FMU3Slave(guid=fmu.md.guid, unzipDirectory=fmu.unzipdir,
-                         modelIdentifier=fmu.md.coSimulation.modelIdentifier,
-                         instanceName=instance_name)
-        fmu3.instantiate(loggingOn=logging_on, logMessage=logger)
+    @staticmethod
+    def adapter(fmu3: FMU3Slave, fmu: FmuFile) -> AtoFmi3AsFmi2:
         time_vr = next(v.valueReference for v in fmu.md._md.modelVariables
                        if v.causality == "independent")
-        self.fmu = AtoFmi3AsFmi2(fmu3, time_vr)
-        self.fatal = False
-        self.freed = False
-        self.time = 0.0
+        return AtoFmi3AsFmi2(fmu3, time_vr)
 
 
 def fmi2_view(fmu: FmuFile) -> FmuFile:

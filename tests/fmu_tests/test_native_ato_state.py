@@ -44,7 +44,7 @@ from fmpy.fmi3 import FMU3Slave
 
 from conftest import ERROR, OK, ROOT, FmuFile, LogMessage, Slave
 from fmu_src.build import native, native_fmi3, toolchain
-from test_fmu_state import bits, deserialize, get_state, resealed
+from test_fmu_state import bits, deserialize, get_state, refused, resealed
 from test_native_ato_fmu import closed_loop, line_run, profiles  # noqa: F401  (fixtures)
 
 WARNING = 1
@@ -300,21 +300,6 @@ def check_rolling_back(fmu: AtoFmu, case: Case) -> None:
         unit.fmu.freeFMUState(s)
     unit.close()
     assert unit.errors() == ""
-
-
-def refused(unit: Unit, data: bytes, phrase: str) -> None:
-    """deserialize(data) -> Error with `phrase` logged; nothing written to the state pointer."""
-    state = c_void_p()
-    before = len(unit.messages)
-    try:
-        unit.deserialize(data, state)
-        status = OK
-    except FMICallException as e:
-        status = e.status
-    new = [m.message for m in unit.messages[before:] if m.status == ERROR]
-    assert status == ERROR, f"{phrase}: status {status}"
-    assert state.value is None
-    assert any(phrase in m for m in new), f"expected '{phrase}' in {new}"
 
 
 def model_fields(model_part: bytes) -> dict[str, int]:

@@ -17,53 +17,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description
-from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
 import test_native_estimator_fmu as est2
-from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, LogMessage, Slave
+from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, Slave
 from fmu_src.build import native_fmi3
 from fmu_src.variables import ESTIMATOR, variables_for
 from test_native_estimator_fmu import native_fmu, railcar_runner  # noqa: F401  (fixtures)
-from test_native_fmi3 import Fmi3AsFmi2, _Fmi2Typed
+from test_native_fmi3 import Slave3, _Md3
 
 SCENARIOS = tuple(sorted(p.stem for p in (ROOT / "scenarios" / "library").glob("*.toml")))
-
-
-class _Md3:
-    """An FMI 3 model description with FMI 2 type names and without "time", as the FMI 2
-    drivers read it."""
-
-    def __init__(self, md):
-        self._md = md
-        self.modelVariables = [_Fmi2Typed(v) for v in md.modelVariables
-                               if v.causality != "independent"]
-
-    def __getattr__(self, name):
-        return getattr(self._md, name)
-
-
-class Slave3(Slave):
-    """conftest.Slave on an FMI 3 co-simulation FMU (FMU3Slave, logging on)."""
-
-    def __init__(self, fmu: FmuFile, instance_name: str = "instance", logging_on: bool = True):
-        self.fmu_file = fmu
-        self.messages: list[LogMessage] = []
-
-        def logger(_env, status, category, message):
-            self.messages.append(LogMessage(
-                int(status), category.decode("utf-8", "replace") if category else None,
-                message.decode("utf-8", "replace") if message else ""))
-
-        self._callbacks = logger
-        fmu3 = FMU3Slave(guid=fmu.md.guid, unzipDirectory=fmu.unzipdir,
-                         modelIdentifier=fmu.md.coSimulation.modelIdentifier,
-                         instanceName=instance_name)
-        fmu3.instantiate(loggingOn=logging_on, logMessage=logger)
-        self.fmu = Fmi3AsFmi2(fmu3)
-        self.fatal = False
-        self.freed = False
-        self.time = 0.0
 
 
 def _any_slave(fmu: FmuFile, *args, **kwargs) -> Slave:

@@ -21,7 +21,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
-from conftest import DISCARD, ERROR, OK, ROOT
+from conftest import DISCARD, ERROR, OK, ROOT, FmuFile, LogMessage, Slave
 from fmu_src.build import native, native_fmi3, toolchain
 from fmu_src.variables import RAILCAR, variables_for
 from harness.run.runner import FmuRunner
@@ -100,6 +100,47 @@ class _Fmi2Typed:
 
     def __getattr__(self, name):
         return getattr(self._var, name)
+
+
+class _Md3:
+    """An FMI 3 model description with FMI 2 type names and without "time", as the FMI 2
+    drivers read it."""
+
+    def __init__(self, md):
+        self._md = md
+        self.modelVariables = [_Fmi2Typed(v) for v in md.modelVariables
+                               if v.causality != "independent"]
+
+    def __getattr__(self, name):
+        return getattr(self._md, name)
+
+
+class Slave3(Slave):
+    """conftest.Slave on an FMI 3 co-simulation FMU (FMU3Slave, logging on; ``fmu``'s description
+    as _Md3 gives it); ``adapter`` makes the FMI 2 face the drivers call."""
+
+    @staticmethod
+    def adapter(fmu3: FMU3Slave, fmu: FmuFile) -> "Fmi3AsFmi2":
+        return Fmi3AsFmi2(fmu3)
+
+    def __init__(self, fmu: FmuFile, instance_name: str = "instance", logging_on: bool = True):
+        self.fmu_file = fmu
+        self.messages: list[LogMessage] = []
+
+        def logger(_env, status, category, message):
+            self.messages.append(LogMessage(
+                int(status), category.decode("utf-8", "replace") if category else None,
+                message.decode("utf-8", "replace") if message else ""))
+
+        self._callbacks = logger
+        fmu3 = FMU3Slave(guid=fmu.md.guid, unzipDirectory=fmu.unzipdir,
+                         modelIdentifier=fmu.md.coSimulation.modelIdentifier,
+                         instanceName=instance_name)
+        fmu3.instantiate(loggingOn=logging_on, logMessage=logger)
+        self.fmu = self.adapter(fmu3, fmu)
+        self.fatal = False
+        self.freed = False
+        self.time = 0.0
 
 
 class Fmi3Runner(FmuRunner):

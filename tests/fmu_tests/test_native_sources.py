@@ -37,7 +37,7 @@ from fmpy import extract, read_model_description
 from conftest import OK, ROOT, FmuFile, Slave
 from harness.run.runner import FmuRunner
 from harness.run.scenario import load_scenario
-from test_native_estimator_fmi3 import Slave3, _Md3
+from test_native_fmi3 import Slave3, _Md3
 from test_native_fmi3 import Fmi3Runner
 
 STEMS = ("steep_grades", "etcs_noisy_sensors")

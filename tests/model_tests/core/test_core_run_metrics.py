@@ -9,11 +9,7 @@ and settings are refused by name.
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-import shutil
-import subprocess
-import sysconfig
 from pathlib import Path
 
 import numpy as np
@@ -26,13 +22,10 @@ from harness.run.scenario import load_scenario, scenario_from_dict
 from models import batch
 from models.plant.dynamics import VehicleParams
 
-ROOT = Path(__file__).resolve().parents[3]
-CORE = ROOT / "models" / "core"
+from batch_build import CORE, ONE_ULP, ROOT, build_batch, compile_objects
+
 SOURCE = CORE / "run_metrics.c"
 LIBRARY = ROOT / "scenarios" / "library"
-FLAGS = ["-std=c99", "-O1", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-Wall", "-Wextra",
-         "-Werror"]
-ONE_ULP = "(1.0 + 2.220446049250313e-16)"
 
 GUSTS = {   # a speed profile (filter.kind 1 by default) and a wind that changes during the coast
     "name": "gusts", "step_s": 0.1, "duration_s": 300.0,
@@ -279,38 +272,16 @@ MUTATIONS = {
 one-ulp change: an operand times (1 + 2**-52), or a product re-associated)"""
 
 
-def gcc() -> str:
-    path = shutil.which("gcc")
-    assert path, "gcc is needed (it builds the C core on every supported machine)"
-    return path
-
-
 @pytest.fixture(scope="module")
 def objects(tmp_path_factory) -> list[Path]:
     """The batch binding and every core source but run_metrics.c, compiled once."""
-    directory = tmp_path_factory.mktemp("metrics_objects")
-    sources = [ROOT / "models" / "_batch.c", *(p for p in sorted(CORE.glob("*.c")) if p != SOURCE)]
-    proc = subprocess.run([gcc(), *FLAGS, f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}", "-c",
-                           *map(str, sources)], cwd=directory, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    return sorted(directory.glob("*.o"))
+    return compile_objects(tmp_path_factory.mktemp("metrics_objects"), (SOURCE,))
 
 
 def build(objects: list[Path], source_text: str, directory: Path):
     """models._batch with ``source_text`` as run_metrics.c (strict flags, -pedantic included),
     imported from ``directory``."""
-    directory.mkdir()
-    source = directory / "run_metrics.c"
-    source.write_text(source_text)
-    so = directory / f"_batch{sysconfig.get_config_var('EXT_SUFFIX')}"
-    proc = subprocess.run([gcc(), *FLAGS, "-pedantic", "-shared", f"-I{CORE}", str(source),
-                           *map(str, objects), "-lm", "-o", str(so)], capture_output=True, text=True,
-                          timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    spec = importlib.util.spec_from_file_location("_batch", so)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return build_batch(objects, {"run_metrics.c": source_text}, directory, ("-pedantic",))
 
 
 def test_one_ulp_in_run_metrics_is_caught(objects, tmp_path, library_runs, monkeypatch):

@@ -18,9 +18,7 @@ sanitizer report, the rows still run_on_chain's, the metrics the Python referenc
 """
 from __future__ import annotations
 
-import importlib.util
 import os
-import shutil
 import subprocess
 import sys
 import sysconfig
@@ -33,14 +31,11 @@ from harness.run.driver import run_on_chain
 from harness.run.scenario import load_scenario, scenario_from_dict
 from models import batch
 
-ROOT = Path(__file__).resolve().parents[3]
-CORE = ROOT / "models" / "core"
+from batch_build import CORE, FLAGS, ONE_ULP, ROOT, build_batch, compile_objects, gcc
+
 DRIVER = CORE / "scenario_driver.c"
 SPAN_DRIVER = CORE / "span_driver.c"
 LIBRARY = ROOT / "scenarios" / "library"
-FLAGS = ["-std=c99", "-O1", "-ffp-contract=off", "-fno-fast-math", "-fPIC", "-Wall", "-Wextra",
-         "-Werror"]
-ONE_ULP = "(1.0 + 2.220446049250313e-16)"
 
 CRUISE_AND_TABLE = [
     {"name": "cruise", "step_s": 0.1, "duration_s": 120.0,
@@ -84,40 +79,18 @@ SPAN_MUTATIONS = {
 """name: (the span scenario it shows on, the expression in span_driver.c, its one-ulp change)"""
 
 
-def gcc() -> str:
-    path = shutil.which("gcc")
-    assert path, "gcc is needed (it builds the C core on every supported machine)"
-    return path
-
-
 @pytest.fixture(scope="module")
 def objects(tmp_path_factory) -> list[Path]:
     """The binding and every core source but the drivers, compiled once."""
-    directory = tmp_path_factory.mktemp("batch_objects")
-    sources = [ROOT / "models" / "_batch.c",
-               *(p for p in sorted(CORE.glob("*.c")) if p not in (DRIVER, SPAN_DRIVER))]
-    proc = subprocess.run([gcc(), *FLAGS, f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}", "-c",
-                           *map(str, sources)], cwd=directory, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    return sorted(directory.glob("*.o"))
+    return compile_objects(tmp_path_factory.mktemp("batch_objects"), (DRIVER, SPAN_DRIVER))
 
 
 def build(objects: list[Path], driver_source: str, directory: Path, span_source: str | None = None):
     """models._batch with ``driver_source`` as scenario_driver.c and ``span_source`` as
     span_driver.c (default: the file's), imported from ``directory``."""
-    directory.mkdir()
-    source = directory / "scenario_driver.c"
-    source.write_text(driver_source)
-    span = directory / "span_driver.c"
-    span.write_text(SPAN_DRIVER.read_text() if span_source is None else span_source)
-    so = directory / f"_batch{sysconfig.get_config_var('EXT_SUFFIX')}"
-    proc = subprocess.run([gcc(), *FLAGS, "-shared", f"-I{CORE}", str(source), str(span), *map(str, objects),
-                           "-lm", "-o", str(so)], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    spec = importlib.util.spec_from_file_location("_batch", so)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return build_batch(objects, {"scenario_driver.c": driver_source,
+                                 "span_driver.c": SPAN_DRIVER.read_text() if span_source is None else span_source},
+                       directory)
 
 
 def differing_outputs(scenario, module, monkeypatch) -> list[str]:
