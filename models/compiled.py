@@ -114,6 +114,22 @@ def _config_values(cfg: ChainConfig, start_time: float) -> list[float]:
             cfg.track.resolution, cfg.track.jitter, start_time]
 
 
+def chain_values(cfg: ChainConfig, start_time: float) -> list[float]:
+    """A RailCar chain's flat configuration as the C core takes it: _config_values, then
+    est.slope_window (CompiledChain, the batch engine, the ATO study, the service day)."""
+    return [*_config_values(cfg, start_time), int(cfg.identifier.slope_window)]
+
+
+def estimator_chain_values(identifier: IdentifierConfig, filt: FilterConfig, station,
+                           track: TrackSensorConfig) -> list[float]:
+    """An EstimatorChain's flat configuration as the C core takes it (CompiledEstimatorChain, the
+    C oracle filter, the service day): the estimator's numbers, the station's, the track
+    sensor's, est.slope_window."""
+    return [*_estimator_values(identifier, filt), station.dwell, station.speed_threshold,
+            station.position_threshold, track.base, track.resolution, track.jitter,
+            int(identifier.slope_window)]
+
+
 def validate(cfg: ChainConfig, speed_profile: SpeedProfile | None, start_time: float) -> ChainConfig:
     """Raise ValueError naming the first bad setting, in the order RailCarChain meets them;
     returns the private copy the chain runs."""
@@ -149,7 +165,7 @@ class CompiledChain(_railcar.Chain if _railcar is not None else object):
         self.cfg = cfg
         self.start_time = start_time
         sp = speed_profile
-        super().__init__([*_config_values(cfg, start_time), int(cfg.identifier.slope_window)],
+        super().__init__(chain_values(cfg, start_time),
                          grade_profile.distances,
                          grade_profile.grades, sp.distances if sp else (), sp.speeds if sp else (),
                          OUTPUT_NAMES, tuple(n in INTEGER_OUTPUTS for n in OUTPUT_NAMES),
@@ -203,10 +219,7 @@ class CompiledEstimatorChain(_railcar.Estimator if _railcar is not None else obj
         if why:
             raise ValueError(f"the C core does not cover {why}: use open_estimator_chain()")
         sp = speed_profile
-        st = station
-        super().__init__([*_estimator_values(identifier, filt), st.dwell, st.speed_threshold,
-                          st.position_threshold, track.base, track.resolution, track.jitter,
-                          int(identifier.slope_window)],
+        super().__init__(estimator_chain_values(identifier, filt, station, track),
                          grade_profile.distances, grade_profile.grades,
                          sp.distances if sp else (), sp.speeds if sp else (),
                          ESTIMATOR_OUTPUT_NAMES,
@@ -259,7 +272,7 @@ def run_ato_closed_loop(cfg: ChainConfig, span, car, tuning, truth, wind: float,
         raise ValueError(f"the C core does not cover {why}: run the Python loop")
     g = span.grade
     rows = _railcar.ato_closed_loop(
-        [*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], g.distances, g.grades,
+        chain_values(cfg, 0.0), g.distances, g.grades,
         (span.length, span.schedule, span.stop), span.limit_distances, span.limit_speeds,
         dataclass_values(car), dataclass_values(tuning), dataclass_values(truth), float(step),
         float(wind),

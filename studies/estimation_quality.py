@@ -161,7 +161,8 @@ def run_scenarios(jobs) -> list[Run]:
         setups.append(setup)
     out = []
     for k in range(0, len(jobs), CALL_RUNS):
-        results = run_batch(scenarios[k:k + CALL_RUNS], [{"seed": int(seed)} for _, seed in jobs[k:k + CALL_RUNS]])
+        results = run_batch(scenarios[k:k + CALL_RUNS], [{"seed": int(seed)} for _, seed in jobs[k:k + CALL_RUNS]],
+                            setups[k:k + CALL_RUNS])
         for (scenario, setup, (_, seed)), r in zip(zip(scenarios[k:], setups[k:], jobs[k:]), results):
             std = [r[f"est.A{i}_std"][-1] for i in range(3)]
             A_cov = np.diag(np.square(std))

@@ -134,7 +134,7 @@ def _run(scenario, method: int, extra: dict | None = None):
     est.method 1 and 3 run on run_on_chain). Raises ValueError if the configuration rejects them."""
     overrides = {"est.method": method, **(extra or {})}
     setup = scenario.chain_setup(overrides)
-    return setup, run_batch([scenario], [overrides])[0]
+    return setup, run_batch([scenario], [overrides], [setup])[0]
 
 
 def _coverage(estimate, truth, std, mask) -> float:

@@ -617,12 +617,8 @@ def _chain_values(plant_chain, identifier, filt, station) -> tuple[list, list]:
     """The flat configurations the C core builds the two chains from, as CompiledChain and
     CompiledEstimatorChain hand them over (models/compiled.py's order; est.slope_window last;
     the estimator chain's track sensor the default, as open_estimator_chain's here)."""
-    slope_window = int(identifier.slope_window)
-    track = TrackSensorConfig()
-    plant = [*compiled._config_values(plant_chain.cfg, plant_chain.start_time), slope_window]
-    est = [*compiled._estimator_values(identifier, filt), station.dwell, station.speed_threshold,
-           station.position_threshold, track.base, track.resolution, track.jitter, slope_window]
-    return plant, est
+    return (compiled.chain_values(plant_chain.cfg, plant_chain.start_time),
+            compiled.estimator_chain_values(identifier, filt, station, TrackSensorConfig()))
 
 
 def _fill_scores(scores: dict, figures) -> None:

@@ -355,12 +355,6 @@ def compile_platforms(targets, sources: list[Path], folder: Path, member: Callab
     return {member(t): lib for t, lib in zip(targets, built)}
 
 
-def compile_native(out: Path, spec: NativeSpec = RAILCAR_SPEC,
-                   target: Target = LINUX_X86_64) -> Path:
-    """The FMI 2 binary of ``spec`` for ``target`` (default linux x86-64) from the C sources."""
-    return compile_for(target, c_sources(spec), out, f"the native FMU {spec.native_name}")
-
-
 def platforms_page(title: str, folders: list[str], build_note: str) -> bytes:
     """documentation/ page of a native FMU: the binaries it carries and how to build others."""
     items = "".join(f"<li><code>binaries/{html.escape(f)}/</code></li>" for f in folders)

@@ -222,9 +222,10 @@ def c_metrics():
 
 
 def _vehicle_values(p) -> tuple:
-    """A models.plant.dynamics.VehicleParams as the C arrays hold a car (models.batch.VEHICLE_FIELDS)."""
-    from models.batch import VEHICLE_FIELDS
-    return tuple(float(getattr(p, name)) for name in VEHICLE_FIELDS)
+    """A models.plant.dynamics.VehicleParams as the C arrays hold a car (models.batch.VEHICLE_FIELDS,
+    the dataclass's field order: test_core_run_metrics holds them equal)."""
+    from models.compiled import dataclass_values
+    return tuple(dataclass_values(p))
 
 
 def true_theta(mass_t: float, A: tuple, wind: float) -> np.ndarray:
@@ -277,11 +278,9 @@ def oracle_filter(result, setup) -> tuple[np.ndarray, np.ndarray] | None:
     mass = result["car.total_mass"]
     core = c_metrics()
     if core is not None:
-        from models.compiled import _estimator_values
-        st, track, sp = cfg.station, cfg.track, setup.speed
-        config = [*_estimator_values(ident, filt), st.dwell, st.speed_threshold,
-                  st.position_threshold, track.base, track.resolution, track.jitter,
-                  int(ident.slope_window)]
+        from models.compiled import estimator_chain_values
+        sp = setup.speed
+        config = estimator_chain_values(ident, filt, cfg.station, cfg.track)
         return core.oracle_filter(config, (setup.grade.distances, setup.grade.grades),
                                   (sp.distances, sp.speeds) if sp is not None else ((), ()), A, h,
                                   [(w.time_s, w.speed_mps) for w in s.wind], result.time, mass,

@@ -26,11 +26,11 @@ import numpy as np
 from models import batch
 from models.chain import ChainConfig, StepRejected
 from models.ato.interface import AtoCommand
-from models.compiled import (INTEGER_OUTPUTS, OUTPUT_NAMES, _config_values, core_not_covered,
+from models.compiled import (INTEGER_OUTPUTS, OUTPUT_NAMES, chain_values, core_not_covered,
                              dataclass_values, enabled, validate)
 from models.plant.track import GradeProfile, SpeedProfile
 
-from harness.run.driver import run_on_chain
+from harness.run.driver import chain_result
 from harness.run.phases import ACTIONS, INPUTS, PhaseDriver, TimeTable
 from harness.run.result import RunResult
 from harness.run.scenario import Scenario
@@ -94,22 +94,26 @@ def not_covered(scenario: Scenario, setup=None) -> str | None:
     return core_not_covered((setup or scenario.chain_setup()).config.identifier)
 
 
-def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | None = None
-              ) -> list[RunResult]:
+def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | None = None,
+              setups: Sequence | None = None) -> list[RunResult]:
     """run_on_chain(scenarios[i], overrides[i]) for every i, the covered ones (``not_covered``) in C in
     one call. ``overrides``: RailCar parameters by FMU name per run (e.g. {"seed": 5}), as
     run_on_chain takes them: they configure the chain, the driver is the scenario's own.
-    Raises as run_on_chain: ValueError naming the parameter, StepRejected naming the run and
-    the step."""
+    ``setups``: scenarios[i].chain_setup(overrides[i]) when the caller has them already (their
+    profile files are not read again). Raises as run_on_chain: ValueError naming the parameter,
+    StepRejected naming the run and the step."""
     overrides = list(overrides) if overrides is not None else [None] * len(scenarios)
     if len(overrides) != len(scenarios):
         raise ValueError(f"overrides: one per scenario ({len(scenarios)}), got {len(overrides)}")
+    if setups is None:
+        setups = [sc.chain_setup(ov) for sc, ov in zip(scenarios, overrides)]
+    elif len(setups) != len(scenarios):
+        raise ValueError(f"setups: one per scenario ({len(scenarios)}), got {len(setups)}")
     results: list[RunResult | None] = [None] * len(scenarios)
     todo, runs, span_todo, span_runs = [], [], [], []
-    for i, (sc, ov) in enumerate(zip(scenarios, overrides)):
-        setup = sc.chain_setup(ov)
+    for i, (sc, setup) in enumerate(zip(scenarios, setups)):
         if not_covered(sc, setup) is not None:
-            results[i] = run_on_chain(sc, ov)
+            results[i] = chain_result(setup.open(), sc)          # run_on_chain, its setup made once
             ENGINES["python"] += 1
             continue
         if sc.ato is not None:
@@ -127,7 +131,7 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
         done = run_chains(span_runs, spans=True)
         for r, i in enumerate(span_todo):
             if done.log_lines[r] > len(done.log[r]):     # the C side kept only the first lines
-                results[i] = run_on_chain(scenarios[i], overrides[i])
+                results[i] = chain_result(setups[i].open(), scenarios[i])
                 ENGINES["python"] += 1
                 continue
             results[i] = span_result_of(scenarios[i], done, r)
@@ -143,7 +147,7 @@ def chain_arrays(cfg: ChainConfig, grade: GradeProfile, speed: SpeedProfile | No
     why = core_not_covered(cfg.identifier)
     if why:
         raise ValueError(f"the C core does not cover {why}")
-    config = np.array([*_config_values(cfg, 0.0), int(cfg.identifier.slope_window)], dtype=float)
+    config = np.array(chain_values(cfg, 0.0), dtype=float)
     sd, sv = (speed.distances, speed.speeds) if speed is not None else ((), ())
     return tuple(np.ascontiguousarray(a, dtype=float)
                  for a in (config, grade.distances, grade.grades, sd, sv))
