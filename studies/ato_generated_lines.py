@@ -146,11 +146,20 @@ def generate_line(seed: int, n_spans: int):
 
 
 def line_scenario(seed: int, n_spans: int, case: str, folder: Path, tuning: dict | None = None):
+    """(scenario, drawn spans) of ``seed``'s line in ``case`` (CASES), its grade profile written
+    to ``folder``; ``tuning``: [ato] fields."""
+    overrides, wind = CASES[case]
+    return line_scenario_with(seed, n_spans, overrides, wind, folder, tuning)
+
+
+def line_scenario_with(seed: int, n_spans: int, overrides: dict, wind: float, folder: Path,
+                       tuning: dict | None = None):
+    """``line_scenario`` for any truth: RailCar parameter ``overrides`` (over the configured car
+    and prior) and a constant headwind ``wind`` [m/s] (0: none)."""
     distances, grades, spans = generate_line(seed, n_spans)
     profile = folder / f"grade_{seed}.csv"
     profile.write_text("distance_m,grade_permille\n" + "".join(
         f"{d},{g}\n" for d, g in zip(distances, grades)), encoding="utf-8")
-    overrides, wind = CASES[case]
     table = []
     for k, s in enumerate(spans):
         row = {"stop_m": s.stop_m, "length_m": s.stop_m + 50.0, "schedule_s": s.schedule_s,

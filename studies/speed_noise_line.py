@@ -1,9 +1,9 @@
 """Which estimator to ship under a speed sensor with relative noise: mass and w0 at the start
 of each span's final coast, per configuration (a study, not a test; issue 27).
 
-    python studies/speed_noise_line.py [--seeds 60] [--spans 5] [--ato-seeds 10]
+    python studies/speed_noise_line.py [--seeds 60] [--spans 5] [--ato-seeds 10] [--ato-lines 40]
                                        [--with NAME=VALUE[,NAME=VALUE] ...] [--processes 2]
-                                       [--cruise-probability 0.7]
+                                       [--cruise-probability 0.7] [--unknown-car]
 
 Issue 27's target: under sensor.speed_std_rel = 1 % (Meleshin's 2 % as 2 sigma), at the start
 of each span's final coast, |est.mass - true mass| <= 2 t and |w0_est(V) - w0_true(V)| <= 1 N/kN
@@ -30,13 +30,26 @@ Cases (each a table):
         station (harness/run/span_scenario.py says why), so the spans of one seed's line climb
         the same profile from 0, each to its own length and at its own speeds; the profile
         changes from seed to seed. Every configuration runs the same lines (paired).
+  ato_line  the ATO on generated lines (seeds 1..``--ato-lines``, default 40): the lines of
+        studies/ato_generated_lines.py (0.7-2.5 km spans, grades -35..+40 permille, 2-3 speed
+        limit changes per span, a schedule 4-12 % above the fastest run, dwells of 25-40 s with
+        0-4 t boarding or alighting), driven by the ATO (Python) over the chain, with the car's
+        mass est.mass_initial x 0.8-1.2 and a wind in -5..+5 m/s drawn per seed (numpy's
+        generator seeded [27, 2, seed]). The issue's line "of our own" was an ATO's: here the
+        ATO decides where each final coast starts, as it does in service.
   ato   the library's ATO scenarios (scenarios/library/ato_*.toml; the ATO, Python, drives; the
         chain is C), each with its own car, grade, wind and spans, with the speed noise above and
         seed = 1000 x the scenario's seed + k for k = 1..``--ato-seeds``. ato_speed_noise then
         differs from ato_nominal by its seeds only. The ATO steers by the estimates, so its
         coasts differ between configurations.
 
-Both run on the models chain (no FMI) in the C core: models.compiled.open_chain picks it when
+``--unknown-car``: on both generated cases the car's car.A0, car.A1, car.A2 are drawn per seed
+too (generator [27, 3, seed]) in UNKNOWN_CAR, about twice the spread of Meleshin's (2011) Table
+1 (A0 0.11-0.89 N/kN, A1 0.004-0.029 N/kN/(m/s), A2 0.004-0.012 N/kN/(m/s)^2 for metro and
+suburban cars), while the estimator's prior stays the FMU's default car: a user who does not
+know the car. Without it the car's A's are the prior's means (still air).
+
+All run on the models chain (no FMI) in the C core: models.compiled.open_chain picks it when
 the core covers the configuration (est.method 0 and 2); the table names any other engine.
 
 Metrics, per span, at the START of its final coast: the first row of the span's last block of
@@ -108,6 +121,7 @@ from harness.run.driver import chain_result  # noqa: E402
 from harness.metrics.estimation import true_theta  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, load_scenario, scenario_from_dict  # noqa: E402
 from models.plant.dynamics import COASTING, resistance_eq1  # noqa: E402
+from studies.ato_generated_lines import line_scenario_with  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
 OUT = ROOT / "out" / "speed_noise"
@@ -139,6 +153,10 @@ PAYLOAD_T = (0.0, 6.0)       # passengers on board after each station [t]
 DWELL_S = (25.0, 40.0)
 COAST_SHARE = (0.15, 0.3)    # the final coast's planned share of the span's length
 CRUISE_PROBABILITY = 0.7     # spans with a cruise (speed held) before the final coast
+ATO_LINE_SEEDS = 40          # ATO-driven generated lines: 200 spans (a share's standard error 1.5 pp)
+UNKNOWN_CAR = {"car.A0": (0.1, 2.0), "car.A1": (0.004, 0.06), "car.A2": (0.004, 0.016)}
+"""--unknown-car: the ranges [units of eq. (1): N/kN, N/kN/(m/s), N/kN/(m/s)^2] the car's A's are
+drawn in, uniformly (Meleshin's (2011) Table 1 spans A0 0.11-0.89, A1 0.004-0.029, A2 0.004-0.012)."""
 BRAKE_DECEL = 0.7            # [m/s^2] brake_to_stop's planned deceleration
 TRACTION_DECEL_PLAN = 0.35   # [m/s^2] a cautious mean acceleration, for the cruise-speed cap
 
@@ -265,9 +283,24 @@ def line_phases(line: GeneratedLine) -> list[dict]:
     return phases
 
 
-def line_scenario(line: GeneratedLine, config: dict, folder: Path):
+def unknown_car(seed: int) -> dict:
+    """``--unknown-car``: seed's car.A0, car.A1, car.A2, drawn uniformly in UNKNOWN_CAR."""
+    rng = np.random.default_rng([27, 3, seed])
+    return {name: float(rng.uniform(*bounds)) for name, bounds in UNKNOWN_CAR.items()}
+
+
+def ato_line_truth(seed: int, nominal_mass_t: float) -> tuple[float, float]:
+    """(car mass [t], headwind [m/s]) of the ATO-driven line ``seed``: the mass within +-20 % of
+    ``nominal_mass_t``, the wind within +-5 m/s, as on the generated line."""
+    rng = np.random.default_rng([27, 2, seed])
+    return (nominal_mass_t * float(rng.uniform(1.0 - MASS_FACTOR, 1.0 + MASS_FACTOR)),
+            float(rng.uniform(-WIND_MPS, WIND_MPS)))
+
+
+def line_scenario(line: GeneratedLine, config: dict, folder: Path, truth: dict | None = None):
     """The line as a harness scenario (harness.run.scenario.scenario_from_dict: the loader's checks),
-    its grade profile written to ``folder``; the chain configured with ``config``."""
+    its grade profile written to ``folder``; the chain configured with ``config``; ``truth``: more
+    of the car's parameters (``unknown_car``)."""
     grade = folder / f"line_grade_{line.seed}.csv"
     grade.write_text("distance_m,grade_permille\n" + "".join(
         f"{d},{g}\n" for d, g in zip(line.grade_distances_m, line.grade_permille)), encoding="utf-8")
@@ -275,7 +308,7 @@ def line_scenario(line: GeneratedLine, config: dict, folder: Path):
     data = {"name": f"line_seed{line.seed}", "purpose": "studies/speed_noise_line.py: a generated line",
             "step_s": STEP_S, "duration_s": round(duration, 1), "stop_after_last_phase": True,
             "parameters": {"car.mass": line.mass_t, "track.grade_profile": str(grade), "seed": line.seed,
-                           **SPEED_NOISE, **config},
+                           **SPEED_NOISE, **(truth or {}), **config},
             "driver": line_phases(line), "wind": [{"time_s": 0.0, "speed_mps": line.wind_mps}]}
     return scenario_from_dict(data, str(grade.with_suffix(".toml")), folder)
 
@@ -425,18 +458,29 @@ def score_spans(result, vehicle, name: str) -> list[SpanScore]:
 
 def run_job(job: tuple) -> tuple[int, str, list[SpanScore], str]:
     """(config index, case, the run's span scores, the chain's engine) of one job:
-    ("line", config index, config, seed, spans, cruise probability) or ("ato", config index,
+    ("line", config index, config, seed, spans, cruise probability, unknown car),
+    ("ato_line", config index, config, seed, spans, unknown car) or ("ato", config index,
     config, path, seed)."""
     case, index, config = job[:3]
+    nominal = float(config.get("est.mass_initial", RAILCAR_PARAMETERS["est.mass_initial"].start))
     if case == "line":
-        seed, n_spans, cruise_probability = job[3:]
-        nominal = float(config.get("est.mass_initial", RAILCAR_PARAMETERS["est.mass_initial"].start))
+        seed, n_spans, cruise_probability, unknown = job[3:]
         line = generate_line(seed, n_spans, nominal, cruise_probability)
         with tempfile.TemporaryDirectory(prefix="speed_noise_line_") as folder:
-            scenario = line_scenario(line, config, Path(folder))
+            scenario = line_scenario(line, config, Path(folder), unknown_car(seed) if unknown else None)
             setup = scenario.setup.chain          # resolved while the profile file exists
         chain = setup.open()
         result = chain_result(chain, scenario)
+        return index, case, score_spans(result, setup.config.vehicle, scenario.name), chain.engine
+    if case == "ato_line":
+        seed, n_spans, unknown = job[3:]
+        mass, wind = ato_line_truth(seed, nominal)
+        truth = {"car.mass": mass, **SPEED_NOISE, **(unknown_car(seed) if unknown else {}), **config}
+        with tempfile.TemporaryDirectory(prefix="speed_noise_ato_line_") as folder:
+            scenario, _ = line_scenario_with(seed, n_spans, truth, wind, Path(folder))
+            setup = scenario.setup.chain
+            chain = setup.open()
+            result = chain_result(chain, scenario)     # the ATO reads the profile as it plans
         return index, case, score_spans(result, setup.config.vehicle, scenario.name), chain.engine
     path, seed = job[3:]
     scenario = load_scenario(path)
@@ -451,22 +495,27 @@ def ato_paths() -> list[Path]:
 
 
 def jobs_for(configs, seeds: int, spans: int, ato_seeds: int,
-             cruise_probability: float = CRUISE_PROBABILITY) -> list[tuple]:
-    """Every job, the longest first (ato_line, then the other ATO runs, then the lines)."""
-    jobs = []
+             cruise_probability: float = CRUISE_PROBABILITY, ato_lines: int = 0,
+             unknown: bool = False) -> list[tuple]:
+    """Every job, the longest first (the ATO's generated lines, the library's ato_line, the other
+    ATO runs, then the lines)."""
+    jobs = [("ato_line", i, c, seed, spans, unknown)
+            for seed in range(1, ato_lines + 1) for i, c in enumerate(configs)]
     for path in sorted(ato_paths(), key=lambda p: p.stem != "ato_line"):
         own = int(load_scenario(path).parameter("seed"))
         for k in range(1, ato_seeds + 1):
             jobs += [("ato", i, c, path, 1000 * own + k) for i, c in enumerate(configs)]
     for seed in range(1, seeds + 1):
-        jobs += [("line", i, c, seed, spans, cruise_probability) for i, c in enumerate(configs)]
+        jobs += [("line", i, c, seed, spans, cruise_probability, unknown) for i, c in enumerate(configs)]
     return jobs
 
 
 def compute(configs, seeds: int = DEFAULT_SEEDS, spans: int = 5, ato_seeds: int = 10,
-            processes: int = 2, cruise_probability: float = CRUISE_PROBABILITY) -> dict:
-    """{(case, config index): (span scores, engines)} over every job."""
-    jobs = jobs_for(configs, seeds, spans, ato_seeds, cruise_probability)
+            processes: int = 2, cruise_probability: float = CRUISE_PROBABILITY,
+            ato_lines: int = 0, unknown: bool = False) -> dict:
+    """{(case, config index): (span scores, engines)} over every job; ``ato_lines``: seeds of the
+    ATO-driven generated line; ``unknown``: --unknown-car."""
+    jobs = jobs_for(configs, seeds, spans, ato_seeds, cruise_probability, ato_lines, unknown)
     if processes > 1 and len(jobs) > 1:
         with Pool(processes) as pool:
             done = list(pool.imap_unordered(run_job, jobs, chunksize=1))
@@ -590,8 +639,11 @@ def markdown(header: tuple, cells: list[list[str]]) -> str:
 
 
 def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, seconds: float | None,
-           command: str = "", cruise_probability: float = CRUISE_PROBABILITY) -> str:
-    """Both tables with their titles, as markdown."""
+           command: str = "", cruise_probability: float = CRUISE_PROBABILITY, ato_lines: int = 0,
+           unknown: bool = False) -> str:
+    """Every case's table with its title, as markdown."""
+    car = (", the car's A's drawn (--unknown-car: A0 {}-{}, A1 {}-{}, A2 {}-{})".format(
+        *(x for b in UNKNOWN_CAR.values() for x in b)) if unknown else "")
     noise = ", ".join(f"{k} = {v:g}" for k, v in SPEED_NOISE.items())
     parts = ["# Mass and w0 at the start of each span's final coast under relative speed noise", "",
              f"{noise}; targets |mass err| <= {MASS_TARGET_T:g} t and w0 err <= {W0_TARGET:g} N/kN "
@@ -601,9 +653,12 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
              "Models chain, C core unless a row says otherwise."]
     if command:
         parts += ["", f"    {command}"]
-    for case, title in (("line", f"Generated line: {seeds} seeds x {spans} spans, mass ±20 %, wind ±5 m/s, "
+    for case, title in (("ato_line", f"The ATO on generated lines: {ato_lines} seeds x {spans} spans, mass ±20 %, "
+                                     f"wind ±5 m/s, grades -35..+40 ‰, 2-3 limit changes a span, "
+                                     f"boarding ±4 t{car}"),
+                        ("line", f"Generated line: {seeds} seeds x {spans} spans, mass ±20 %, wind ±5 m/s, "
                                  f"grades ±20 ‰, boarding 0-6 t, a cruise before "
-                                 f"{100 * cruise_probability:.0f} % of the final coasts"),
+                                 f"{100 * cruise_probability:.0f} % of the final coasts{car}"),
                         ("ato", f"ATO scenarios ({', '.join(p.stem for p in ato_paths())}), "
                                 f"{ato_seeds} seeds each")):
         cells = table_cells(configs, results, case)
@@ -628,10 +683,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cruise-probability", type=float, default=CRUISE_PROBABILITY,
                     help=f"share of the line's spans with a cruise before the final coast (else it "
                          f"starts at the cruise speed), default {CRUISE_PROBABILITY}")
+    ap.add_argument("--ato-lines", type=int, default=ATO_LINE_SEEDS,
+                    help=f"generated lines the ATO drives (seeds 1..N), default {ATO_LINE_SEEDS} (0: no such table)")
+    ap.add_argument("--unknown-car", action="store_true",
+                    help="draw the car's A's per seed on both generated cases (UNKNOWN_CAR); "
+                         "the estimator's prior stays the FMU's default car")
     ap.add_argument("--processes", type=int, default=2)
     args = ap.parse_args(argv)
-    if args.seeds < 0 or args.spans < 1 or args.ato_seeds < 0:
-        ap.error("--seeds and --ato-seeds must be >= 0, --spans >= 1")
+    if args.seeds < 0 or args.spans < 1 or args.ato_seeds < 0 or args.ato_lines < 0:
+        ap.error("--seeds, --ato-seeds and --ato-lines must be >= 0, --spans >= 1")
     if not 0.0 <= args.cruise_probability <= 1.0:
         ap.error(f"--cruise-probability must be in [0, 1], got {args.cruise_probability}")
     try:
@@ -640,10 +700,10 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(str(e))
     t0 = time.perf_counter()
     results = compute(configs, args.seeds, args.spans, args.ato_seeds, args.processes,
-                      args.cruise_probability)
+                      args.cruise_probability, args.ato_lines, args.unknown_car)
     command = "python studies/speed_noise_line.py " + " ".join(argv if argv is not None else sys.argv[1:])
     text = report(configs, results, args.seeds, args.spans, args.ato_seeds, time.perf_counter() - t0,
-                  command.strip(), args.cruise_probability)
+                  command.strip(), args.cruise_probability, args.ato_lines, args.unknown_car)
     print(text)
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "table.md").write_text(text, encoding="utf-8")
