@@ -1,6 +1,7 @@
 """studies/speed_noise_line.py in short: its generated line, its span scoring and its table, on
-two seeds of two spans (the study runs 60 x 5 and the ATO scenarios: ~2 min), and its coverages
-scored on errors drawn from a known covariance. ~4 s: unit layer."""
+two seeds of two spans and one ATO-driven line of two spans (the study runs 60 x 5, 40 x 5 and
+the ATO scenarios: ~5 min), and its coverages scored on errors drawn from a known covariance.
+~8 s: unit layer."""
 from __future__ import annotations
 
 import sys
@@ -21,7 +22,7 @@ ABSURD = {**SLOPES, "est.A0_initial": 10.0, "est.A0_std_initial": 0.01}
 
 @pytest.fixture(scope="module")
 def results():
-    return snl.compute([SLOPES, ABSURD], seeds=2, spans=2, ato_seeds=0, processes=1)
+    return snl.compute([SLOPES, ABSURD], seeds=2, spans=2, ato_seeds=0, processes=1, ato_lines=1)
 
 
 def test_the_generated_line_is_seeded_and_within_its_ranges():
@@ -67,13 +68,40 @@ def test_an_absurd_prior_scores_worse(results):
 
 
 def test_the_table_has_every_column_and_a_row_per_configuration(results):
-    text = snl.report([SLOPES, ABSURD], results, 2, 2, 0, 1.0)
+    text = snl.report([SLOPES, ABSURD], results, 2, 2, 0, 1.0, ato_lines=1)
     lines = text.splitlines()
     header = next(line for line in lines if line.startswith("| configuration"))
     assert [c.strip() for c in header.strip("|").split("|")] == list(snl.HEADER)
-    rows = [line for line in lines if line.startswith("| est.")]
-    assert len(rows) == 2 and all(len(r.strip("|").split(" | ")) == len(snl.HEADER) for r in rows)
+    rows = [line for line in lines if line.startswith("| est.")]    # two configurations, two cases
+    assert len(rows) == 4 and all(len(r.strip("|").split(" | ")) == len(snl.HEADER) for r in rows)
     assert "## ATO" not in text        # --ato-seeds 0: no ATO table
+    assert "## The ATO on generated lines: 1 seeds x 2 spans" in text
+    assert sum(r.startswith("| est.method=2, est.sigma2_method=1 ") for r in rows) == 2
+    assert "--unknown-car" not in text
+    assert "the car's A's drawn (--unknown-car: A0 0.1-2" in snl.report([SLOPES], results, 2, 2, 0, 1.0, unknown=True)
+
+
+def test_the_ato_drives_a_generated_line_and_each_of_its_spans_is_scored(results):
+    """Seed 1's ATO-driven line, two spans on the C core chain: both scored at a final coast the
+    ATO chose, est.method 2's mass within 2 t (measured <= 0.4 t); its truth is seeded and
+    within the line's ranges."""
+    scores, engines = results[("ato_line", 0)]
+    assert engines == {"c"}
+    assert [(s.source, s.span) for s in scores] == [("line1", 0), ("line1", 1)]
+    assert all(s.coast and s.mass_ok and s.mass_std_t > 0.0 and s.w0_std > 0.0 for s in scores)
+    mass, wind = snl.ato_line_truth(1, 30.0)
+    assert (mass, wind) == snl.ato_line_truth(1, 30.0) != snl.ato_line_truth(2, 30.0)
+    assert 24.0 <= mass <= 36.0 and abs(wind) <= 5.0
+
+
+def test_an_unknown_car_is_drawn_in_its_ranges_and_becomes_the_plants_car(tmp_path):
+    car = snl.unknown_car(4)
+    assert car == snl.unknown_car(4) != snl.unknown_car(5)
+    assert all(lo <= car[name] <= hi for name, (lo, hi) in snl.UNKNOWN_CAR.items())
+    vehicle = snl.line_scenario(snl.generate_line(4, 2, 30.0), {}, tmp_path, car).setup.chain.config.vehicle
+    assert (vehicle.A0, vehicle.A1, vehicle.A2) == (car["car.A0"], car["car.A1"], car["car.A2"])
+    prior = snl.line_scenario(snl.generate_line(4, 2, 30.0), {}, tmp_path).setup.chain.config
+    assert prior.vehicle.A0 == 0.89             # without: the FMU's default car, the prior's means
 
 
 def test_parse_config_types_and_errors():
