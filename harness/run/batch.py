@@ -97,7 +97,8 @@ def not_covered(scenario: Scenario, setup=None) -> str | None:
 def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | None = None,
               setups: Sequence | None = None) -> list[RunResult]:
     """run_on_chain(scenarios[i], overrides[i]) for every i, the covered ones (``not_covered``) in C in
-    one call. ``overrides``: RailCar parameters by FMU name per run (e.g. {"seed": 5}), as
+    one call; each result's ``engine`` says which ran it ("c" or "python": a span run whose ATO
+    logged more lines than the C side keeps is run again on run_on_chain). ``overrides``: RailCar parameters by FMU name per run (e.g. {"seed": 5}), as
     run_on_chain takes them: they configure the chain, the driver is the scenario's own.
     ``setups``: scenarios[i].chain_setup(overrides[i]) when the caller has them already (their
     profile files are not read again). Raises as run_on_chain: ValueError naming the parameter,
@@ -113,9 +114,7 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
     todo, runs, span_todo, span_runs = [], [], [], []
     for i, (sc, setup) in enumerate(zip(scenarios, setups)):
         if not_covered(sc, setup) is not None:
-            results[i] = chain_result(setup.open(), sc)          # run_on_chain, its setup made once
-            ENGINES["python"] += 1
-            continue
+            results[i] = _on_python(sc, setup)
         if sc.ato is not None:
             span_todo.append(i)
             span_runs.append((setup.config, setup.grade, setup.speed, span_script_of(sc)))
@@ -126,17 +125,26 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
         done = run_chains(runs)
         for r, i in enumerate(todo):
             results[i] = result_of(scenarios[i], done, r)
+            results[i].engine = "c"
         ENGINES["c"] += len(runs)
     if span_runs:
         done = run_chains(span_runs, spans=True)
         for r, i in enumerate(span_todo):
             if done.log_lines[r] > len(done.log[r]):     # the C side kept only the first lines
-                results[i] = chain_result(setups[i].open(), scenarios[i])
-                ENGINES["python"] += 1
+                results[i] = _on_python(scenarios[i], setups[i])
                 continue
             results[i] = span_result_of(scenarios[i], done, r)
+            results[i].engine = "c"
             ENGINES["c"] += 1
     return results
+
+
+def _on_python(scenario: Scenario, setup) -> RunResult:
+    """run_on_chain of ``scenario`` on its chain ``setup`` (made once), counted and labelled."""
+    result = chain_result(setup.open(), scenario)
+    result.engine = "python"
+    ENGINES["python"] += 1
+    return result
 
 
 def chain_arrays(cfg: ChainConfig, grade: GradeProfile, speed: SpeedProfile | None) -> tuple:

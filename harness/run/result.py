@@ -37,6 +37,7 @@ class RunResult:
     log: list[str] = field(default_factory=list)
     inputs: dict[str, np.ndarray] = field(default_factory=dict)   # held over [t_k, t_k+1]
     fmu: str = ""                  # which FMU ran: "native" or "python" (FmuRunner.kind); "" no FMU
+    engine: str = ""               # run_batch's loop: "c" its C engine, "python" run_on_chain; "" not run_batch
     driver_steps: tuple | None = None
     driver_log: list[str] = field(default_factory=list)
 

@@ -290,10 +290,13 @@ def _batch_rows(specs: list[RunSpec]) -> list[dict]:
     for (row, spec), (result, error, engine_s) in zip(valid, outcomes):
         t1 = time.perf_counter()
         row["fmu"] = ""
-        try:
-            row["engine"] = ENGINE_C if not_covered(spec.scenario) is None else ENGINE_PYTHON
-        except Exception:
-            row["engine"] = ""               # its parameters were refused: no engine ran it
+        if result is not None:
+            row["engine"] = result.engine    # run_batch's own: a run it moved to Python says so
+        else:
+            try:
+                row["engine"] = ENGINE_C if not_covered(spec.scenario) is None else ENGINE_PYTHON
+            except Exception:
+                row["engine"] = ""           # its parameters were refused: no engine ran it
         if error is not None:
             row.update(status=TEXT_STATUS_FAILED, error=_one_line(f"{type(error).__name__}: {error}"))
         else:

@@ -104,7 +104,7 @@ def test_the_controllers_log_lines_are_the_python_drivers(variant):
     expected = run_on_chain(scenario)
     assert expected.driver_log, f"{variant}: the Python run logged nothing: the test shows nothing"
     [got] = run_batch([scenario])
-    assert differences(expected, got) == []
+    assert differences(expected, got) == [] and got.engine == "c"
     assert all(line.startswith(f"{variant}: span ") for line in got.driver_log)
     if line:
         assert {ln.split(": ")[1] for ln in got.driver_log} >= {"span 1", "span 2"}
@@ -119,6 +119,7 @@ def test_a_run_logging_more_than_the_c_side_keeps_runs_on_the_python_loop(monkey
     [got] = run_batch([scenario])
     assert harness_batch.ENGINES["python"] == before.get("python", 0) + 1
     assert harness_batch.ENGINES["c"] == before.get("c", 0)
+    assert got.engine == "python" and expected.engine == ""
     assert differences(expected, got) == []
 
 

@@ -214,3 +214,22 @@ def test_a_span_run_on_the_batch_engine_gives_the_fmu_rows(native_railcar, tmp_p
     assert (row["status"], row["engine"], row["ato_spans"]) == ("ok", "c", 1)
     keys = [c.key for c in sweep_columns(sweep) if c.key not in NOT_COMPARED]
     assert [cell_text(row.get(k)) for k in keys] == [cell_text(reference.get(k)) for k in keys]
+
+
+def test_a_span_run_the_batch_engine_hands_to_python_is_labelled_python(tmp_path, monkeypatch):
+    """A span run whose ATO logs more lines than the C side keeps is run again on the Python loop
+    (harness.run.batch.run_batch); its row says "python", from run_batch itself (ato_headwind
+    with seed 2 logs one line; with room for none the C run is not kept)."""
+    from models import batch as core_batch
+    path = tmp_path / "span.toml"
+    path.write_text(f'name = "span"\nscenario = "{(ROOT / "scenarios/library/ato_headwind.toml").as_posix()}"\n'
+                    f'seeds = [2]\n', encoding="utf-8")
+    sweep = load_sweep(path)
+    (kept,) = execute_chunk(list(sweep.runs))
+    monkeypatch.setattr(core_batch, "LOG_CAP", 0)
+    (moved,) = execute_chunk(list(sweep.runs))
+    assert (kept["status"], kept["engine"]) == ("ok", "c")
+    assert (moved["status"], moved["engine"]) == ("ok", "python")
+    keys = [c.key for c in sweep_columns(sweep) if c.key not in NOT_COMPARED]
+    assert [cell_text(moved.get(k)) for k in keys] == [cell_text(kept.get(k)) for k in keys]
+
