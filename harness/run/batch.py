@@ -115,6 +115,7 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
     for i, (sc, setup) in enumerate(zip(scenarios, setups)):
         if not_covered(sc, setup) is not None:
             results[i] = _on_python(sc, setup)
+            continue
         if sc.ato is not None:
             span_todo.append(i)
             span_runs.append((setup.config, setup.grade, setup.speed, span_script_of(sc)))

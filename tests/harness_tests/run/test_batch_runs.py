@@ -289,6 +289,7 @@ def test_uncovered_runs_fall_back_to_the_python_loop(monkeypatch):
     before = ENGINES.copy()
     fallback, covered_run = run_batch([sc, sc], [method1, None])
     assert (ENGINES["c"] - before["c"], ENGINES["python"] - before["python"]) == (1, 1)
+    assert (fallback.engine, covered_run.engine) == ("python", "c")
     assert_same(run_on_chain(sc, method1), fallback, "est.method 1")
     assert_same(run_on_chain(sc), covered_run, "est.method 2")
     monkeypatch.setenv("RAILCAR_PURE_PYTHON", "1")
