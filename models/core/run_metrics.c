@@ -9,15 +9,6 @@
 
 #include "validate.h"
 
-double rc_wind_schedule_at(const double *steps, long n, double t)
-{
-    double w = 0.0;
-    for (long k = 0; k < n; k++)
-        if (t + 1e-9 >= steps[2 * k])
-            w = steps[2 * k + 1];
-    return w;
-}
-
 /* adhesion_force_limit: 1000 P frac g psi_k(V) factor [N], Python's association */
 static double adhesion_force_limit(const rc_vehicle *p, double v)
 {

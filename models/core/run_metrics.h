@@ -1,8 +1,9 @@
 /* run_metrics.h -- the metrics of a recorded RailCar run that run a model again, in C (issue 31: a
  * run's metrics at the speed of the core): the twins of harness/metrics/estimation.py's
  * oracle_filter (with _interval_forces and true_theta), coast_segments and coast_time, and of
- * models.plant.dynamics.applied_forces and Scenario.wind_at. Bit-identical to the Python, which
- * stays the reference (tests/model_tests/core/test_core_run_metrics.py).
+ * models.plant.dynamics.applied_forces (the wind they read: script_common.h rc_wind_schedule_at).
+ * Bit-identical to the Python, which stays the reference
+ * (tests/model_tests/core/test_core_run_metrics.py).
  *
  * The oracle is the library's estimator (estimator.h) with a frozen identifier whose theta is set
  * to the truth before every sample, replaying the recorded measurements and interval forces. The
@@ -14,12 +15,9 @@
 
 #include "plant.h"
 #include "railcar.h"
+#include "script_common.h"          /* rc_wind_schedule_at: the wind of a run */
 
 #define RC_COASTING_MODE 2.0     /* car.mode of a coast (RC_COASTING) */
-
-/* Scenario.wind_at: the speed [m/s] of the last of the n (time_s, speed_mps) rows of `steps` (in
- * their order) with t + 1e-9 >= time_s, 0 when none */
-double rc_wind_schedule_at(const double *steps, long n, double t);
 
 /* models.plant.dynamics.applied_forces: the traction and brake force [N] the car p applies at
  * speed v [m/s] for the demands [N] (a brake demand cuts traction; each force clipped to its limit) */

@@ -2,7 +2,7 @@
  * and harness/run/driver.py's drive() in C, each expression in the Python's operand order. */
 #include "rc_fp_contract.h"
 #include "scenario_driver.h"
-#include "run_metrics.h"
+#include "script_common.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -12,7 +12,6 @@
 
 #define STOPPED 1e-6               /* [m/s] PhaseDriver.STOPPED: below this the car stands */
 #define CRUISE_GAIN 0.5            /* [1/s] harness.run.phases.CRUISE_GAIN */
-#define MAX_COUNT 10000000.0       /* phases, table rows, wind steps: a sanity bound */
 #define OUT_SPEED 0                /* car.speed, car.position: the first two of railcar.h's outputs */
 #define OUT_POSITION 1
 
@@ -21,24 +20,6 @@ static const char *const ACTION_NAMES[RC_ACTIONS] = {"traction", "coast", "cruis
 static const char *const PHASE_FIELD_NAMES[RC_PHASE_FIELDS] = {
     "action", "force_N", "until_speed_mps", "until_distance_m", "until_time_s",
     "until_brake_curve", "stop_at_m", "decel_mps2", "mass_change_t", "target_speed_mps"};
-
-/* The message (a printf format) into err; RC_BAD_CONFIG */
-/* "<where><name> <rule>, got <repr(v)>" */
-static rc_status refuse_value(rc_error *err, const char *where, const char *name, const char *rule,
-                              double v)
-{
-    char r[40];
-    rc_repr(v, r, sizeof r);
-    return rc_refuse(err, RC_BAD_CONFIG, "%s%s %s, got %s", where, name, rule, r);
-}
-
-/* A count in the header: a whole number in 0..MAX_COUNT, else -1 */
-static long count_of(double v)
-{
-    if (!(v >= 0.0 && v <= MAX_COUNT) || v != floor(v))
-        return -1;
-    return (long)v;
-}
 
 static int is_flag(double v) { return v == 0.0 || v == 1.0; }
 
@@ -49,8 +30,8 @@ static rc_status read_phase(rc_phase *p, const double *v, long i, rc_error *err)
     snprintf(where, sizeof where, "driver[%ld].", i);
     double action = v[RC_PHASE_ACTION];
     if (!(action >= 0.0 && action < RC_ACTIONS) || action != floor(action))
-        return refuse_value(err, where, "action", "must be a code 0..5 (traction, coast, cruise, "
-                            "brake, brake_to_stop, hold)", action);
+        return rc_refuse_value(err, where, "action", "must be a code 0..5 (traction, coast, "
+                               "cruise, brake, brake_to_stop, hold)", action);
     p->action = (int)action;
     snprintf(where, sizeof where, "driver[%ld] (%s).", i, ACTION_NAMES[p->action]);
     for (int f = RC_PHASE_FORCE; f < RC_PHASE_FIELDS; f++) {
@@ -58,8 +39,9 @@ static rc_status read_phase(rc_phase *p, const double *v, long i, rc_error *err)
                        && f != RC_PHASE_MASS_CHANGE;
         if (isfinite(v[f]) || (optional && isnan(v[f])))
             continue;
-        return refuse_value(err, where, PHASE_FIELD_NAMES[f],
-                            optional ? "must be finite or NaN (not given)" : "must be finite", v[f]);
+        return rc_refuse_value(err, where, PHASE_FIELD_NAMES[f],
+                               optional ? "must be finite or NaN (not given)" : "must be finite",
+                               v[f]);
     }
     p->force_N = v[RC_PHASE_FORCE];
     p->until_speed_mps = v[RC_PHASE_UNTIL_SPEED];
@@ -71,17 +53,17 @@ static rc_status read_phase(rc_phase *p, const double *v, long i, rc_error *err)
     p->target_speed_mps = v[RC_PHASE_TARGET_SPEED];
     p->next_brake = -1;
     if (!is_flag(v[RC_PHASE_UNTIL_BRAKE_CURVE]))
-        return refuse_value(err, where, "until_brake_curve", "must be 0 or 1",
-                            v[RC_PHASE_UNTIL_BRAKE_CURVE]);
+        return rc_refuse_value(err, where, "until_brake_curve", "must be 0 or 1",
+                               v[RC_PHASE_UNTIL_BRAKE_CURVE]);
     p->until_brake_curve = v[RC_PHASE_UNTIL_BRAKE_CURVE] == 1.0;
     if (p->force_N < 0.0)
-        return refuse_value(err, where, "force_N", "must be >= 0", p->force_N);
+        return rc_refuse_value(err, where, "force_N", "must be >= 0", p->force_N);
     if (!(p->decel_mps2 > 0.0))
-        return refuse_value(err, where, "decel_mps2", "must be > 0", p->decel_mps2);
+        return rc_refuse_value(err, where, "decel_mps2", "must be > 0", p->decel_mps2);
     if (p->stop_at_m <= 0.0)
-        return refuse_value(err, where, "stop_at_m", "must be > 0", p->stop_at_m);
+        return rc_refuse_value(err, where, "stop_at_m", "must be > 0", p->stop_at_m);
     if (p->target_speed_mps <= 0.0)
-        return refuse_value(err, where, "target_speed_mps", "must be > 0", p->target_speed_mps);
+        return rc_refuse_value(err, where, "target_speed_mps", "must be > 0", p->target_speed_mps);
     if (p->action == RC_ACTION_BRAKE_TO_STOP && isnan(p->stop_at_m))
         return rc_refuse(err, RC_BAD_CONFIG, "%sstop_at_m: brake_to_stop needs it", where);
     if (p->action == RC_ACTION_HOLD && isnan(p->until_time_s))
@@ -100,30 +82,26 @@ static rc_status read_header(rc_script *s, const double *v, long n, rc_error *er
         return rc_refuse(err, RC_BAD_CONFIG, "script: expected at least %d values (the header), got %ld",
                       RC_SCRIPT_HEADER, n);
     if (v[0] != RC_SCRIPT_PHASES && v[0] != RC_SCRIPT_TABLE)
-        return refuse_value(err, "script ", "kind", "must be 0 (phases) or 1 (time table)", v[0]);
+        return rc_refuse_value(err, "script ", "kind", "must be 0 (phases) or 1 (time table)",
+                               v[0]);
     s->kind = (int)v[0];
-    s->step_s = v[1];
-    s->duration_s = v[2];
-    if (!(s->step_s > 0.0 && isfinite(s->step_s)))
-        return refuse_value(err, "", "step_s", "must be > 0 and finite", s->step_s);
-    if (!(s->duration_s >= 0.0 && isfinite(s->duration_s)))
-        return refuse_value(err, "", "duration_s", "must be >= 0 and finite", s->duration_s);
-    if (!is_flag(v[3]))
-        return refuse_value(err, "", "stop_after_last_phase", "must be 0 or 1", v[3]);
-    s->stop_after_last_phase = v[3] == 1.0;
+    rc_status st = rc_script_read_timing(v + 1, &s->step_s, &s->duration_s,
+                                         &s->stop_after_last_phase, err);
+    if (st != RC_OK)
+        return st;
     static const char *const car[] = {"car.mass", "car.traction_force_max", "car.brake_force_max"};
     for (int k = 0; k < 3; k++)
         if (!(v[4 + k] >= 0.0 && isfinite(v[4 + k])))
-            return refuse_value(err, "the driver's ", car[k], "must be >= 0 and finite", v[4 + k]);
+            return rc_refuse_value(err, "the driver's ", car[k], "must be >= 0 and finite",
+                                   v[4 + k]);
     s->mass_t = v[4];
     s->traction_force_max = v[5];
     s->brake_force_max = v[6];
     static const char *const counts[] = {"phases", "table rows", "wind steps"};
     long c[3];
     for (int k = 0; k < 3; k++)
-        if ((c[k] = count_of(v[7 + k])) < 0)
-            return refuse_value(err, "script: the number of ", counts[k],
-                                "must be a whole number in 0..10000000", v[7 + k]);
+        if ((st = rc_script_read_count(v[7 + k], "script", counts[k], &c[k], err)) != RC_OK)
+            return st;
     s->n_phases = c[0];
     s->n_table = c[1];
     s->n_wind = c[2];
@@ -137,12 +115,7 @@ static rc_status read_header(rc_script *s, const double *v, long n, rc_error *er
     if (s->kind == RC_SCRIPT_TABLE && (c[1] < 1 || c[0] != 0))
         return rc_refuse(err, RC_BAD_CONFIG, "script: a time-table script needs table rows and no phases (got %ld "
                       "phases, %ld table rows)", c[0], c[1]);
-    double steps = nearbyint(s->duration_s / s->step_s);   /* Python's round(): half to even */
-    if (!(steps <= (double)RC_SCRIPT_MAX_STEPS))
-        return refuse_value(err, "", "duration_s / step_s", "must round to at most 1e9 steps",
-                            s->duration_s / s->step_s);
-    s->steps = (long)steps;
-    return RC_OK;
+    return rc_script_count_steps(s->step_s, s->duration_s, &s->steps, err);
 }
 
 /* The time table's and the wind's rows, checked as parse_time_table and the scenario check them */
@@ -155,21 +128,14 @@ static rc_status check_rows(const rc_script *s, rc_error *err)
         snprintf(where, sizeof where, "driver_table row %ld: ", k + 1);
         for (int j = 0; j < 3; j++) {
             if (!isfinite(row[j]))
-                return refuse_value(err, where, cols[j], "must be finite", row[j]);
+                return rc_refuse_value(err, where, cols[j], "must be finite", row[j]);
             if (j > 0 && row[j] < 0.0)
-                return refuse_value(err, where, cols[j], "must be >= 0", row[j]);
+                return rc_refuse_value(err, where, cols[j], "must be >= 0", row[j]);
         }
         if (k > 0 && !(row[0] > row[-3]))
-            return refuse_value(err, where, "time_s", "must increase", row[0]);
+            return rc_refuse_value(err, where, "time_s", "must increase", row[0]);
     }
-    for (long k = 0; k < s->n_wind; k++) {
-        static const char *const cols[] = {"time_s", "speed_mps"};
-        snprintf(where, sizeof where, "wind[%ld].", k);
-        for (int j = 0; j < 2; j++)
-            if (!isfinite(s->wind[2 * k + j]))
-                return refuse_value(err, where, cols[j], "must be finite", s->wind[2 * k + j]);
-    }
-    return RC_OK;
+    return rc_wind_schedule_check(s->wind, s->n_wind, err);
 }
 
 rc_status rc_script_init(rc_script *s, const double *values, long n, rc_error *err)

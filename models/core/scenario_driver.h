@@ -25,6 +25,7 @@
 
 #include "railcar.h"
 #include "rc_common.h"
+#include "script_common.h"
 
 enum { RC_SCRIPT_PHASES = 0, RC_SCRIPT_TABLE = 1 };
 
@@ -41,7 +42,7 @@ enum { RC_PHASE_ACTION, RC_PHASE_FORCE, RC_PHASE_UNTIL_SPEED, RC_PHASE_UNTIL_DIS
 /* A step's inputs as drive() holds them (harness.run.phases.INPUTS): traction and brake demand
  * [N], wind [m/s], payload boarded so far [t] */
 #define RC_SCRIPT_INPUTS 4
-#define RC_SCRIPT_MAX_STEPS 1000000000L
+#define RC_SCRIPT_MAX_STEPS RC_RUN_MAX_STEPS   /* script_common.h: rc_script_count_steps' bound */
 
 typedef struct {                       /* harness.run.phases.DriverPhase; NaN: None */
     int action;                        /* RC_ACTION_* */

@@ -4,7 +4,6 @@
 #include "span_driver.h"
 #include "scenario_driver.h"
 #include "ato_closed_loop.h"
-#include "run_metrics.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -13,53 +12,25 @@
 #include <string.h>
 
 
-#define MAX_COUNT 10000000.0       /* spans, limits, grade rows, wind steps: a sanity bound */
-
-static rc_status refuse_value(rc_error *err, const char *where, const char *rule, double v)
-{
-    char r[40];
-    rc_repr(v, r, sizeof r);
-    return rc_refuse(err, RC_BAD_CONFIG, "%s %s, got %s", where, rule, r);
-}
-
-/* A count: a whole number in 0..MAX_COUNT, else -1 */
-static long count_of(double v)
-{
-    if (!(v >= 0.0 && v <= MAX_COUNT) || v != floor(v))
-        return -1;
-    return (long)v;
-}
-
 /* The header's numbers into s, checked */
 static rc_status read_header(rc_span_script *s, const double *v, long n, rc_error *err)
 {
     if (n < RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS)
         return rc_refuse(err, RC_BAD_CONFIG, "span script: expected at least %d values (the header, the car and the "
                       "tuning), got %ld", RC_SPAN_HEADER + RC_SPAN_CAR_FIELDS + ATO_N_TUNING_FIELDS, n);
-    s->step_s = v[0];
-    s->duration_s = v[1];
-    if (!(s->step_s > 0.0 && isfinite(s->step_s)))
-        return refuse_value(err, "step_s", "must be > 0 and finite", s->step_s);
-    if (!(s->duration_s >= 0.0 && isfinite(s->duration_s)))
-        return refuse_value(err, "duration_s", "must be >= 0 and finite", s->duration_s);
-    if (v[2] != 0.0 && v[2] != 1.0)
-        return refuse_value(err, "stop_after_last_phase", "must be 0 or 1", v[2]);
-    s->stop_after_last_phase = v[2] == 1.0;
-    long wind = count_of(v[3]), spans = count_of(v[4]);
-    if (wind < 0)
-        return refuse_value(err, "span script: the number of wind steps", "must be a whole number "
-                            "in 0..10000000", v[3]);
-    if (spans < 1 || spans > 10000)
-        return refuse_value(err, "span script: the number of spans", "must be a whole number in "
-                            "1..10000", v[4]);
+    long wind, spans;
+    rc_status st = rc_script_read_timing(v, &s->step_s, &s->duration_s, &s->stop_after_last_phase,
+                                         err);
+    if (st != RC_OK)
+        return st;
+    if ((st = rc_script_read_count(v[3], "span script", "wind steps", &wind, err)) != RC_OK)
+        return st;
+    if ((spans = rc_script_count(v[4])) < 1 || spans > 10000)
+        return rc_refuse_value(err, "span script: the number of ", "spans",
+                               "must be a whole number in 1..10000", v[4]);
     s->n_wind = wind;
     s->n_spans = (int)spans;
-    double steps = nearbyint(s->duration_s / s->step_s);   /* Python's round(): half to even */
-    if (!(steps <= (double)RC_SPAN_MAX_STEPS))
-        return refuse_value(err, "duration_s / step_s", "must round to at most 1e9 steps",
-                            s->duration_s / s->step_s);
-    s->steps = (long)steps;
-    return RC_OK;
+    return rc_script_count_steps(s->step_s, s->duration_s, &s->steps, err);
 }
 
 /* The doubles the arrays need (the spans' and the wind's), or -1 with err naming what is wrong */
@@ -71,16 +42,15 @@ static long arrays_needed(const rc_span_script *s, const double *v, long n, rc_e
             rc_refuse(err, RC_BAD_CONFIG, "span script: span[%d] is missing (%ld values given)", i, n);
             return -1;
         }
-        long nl = count_of(v[at + 5]), ng = count_of(v[at + 6]);
+        long nl = rc_script_count(v[at + 5]), ng = rc_script_count(v[at + 6]);
         char where[64];
-        snprintf(where, sizeof where, "span[%d]: the number of limits", i);
+        snprintf(where, sizeof where, "span[%d]: the number of ", i);
         if (nl < 1) {
-            refuse_value(err, where, "must be a whole number >= 1", v[at + 5]);
+            rc_refuse_value(err, where, "limits", "must be a whole number >= 1", v[at + 5]);
             return -1;
         }
-        snprintf(where, sizeof where, "span[%d]: the number of grade rows", i);
         if (ng < 1) {
-            refuse_value(err, where, "must be a whole number >= 1", v[at + 6]);
+            rc_refuse_value(err, where, "grade rows", "must be a whole number >= 1", v[at + 6]);
             return -1;
         }
         at += RC_SPAN_FIELDS + 2 * nl + 2 * ng;
@@ -152,15 +122,10 @@ rc_status rc_span_script_init(rc_span_script *s, const double *values, long n, r
     }
     s->wind = a;
     memcpy(s->wind, v, sizeof *a * (size_t)(2 * s->n_wind));
-    for (long k = 0; k < 2 * s->n_wind; k++)
-        if (!isfinite(s->wind[k])) {
-            double bad = s->wind[k];
-            char where[64];
-            snprintf(where, sizeof where, "wind[%ld].%s", k / 2, k % 2 ? "speed_mps" : "time_s");
-            rc_span_script_free(s);
-            return refuse_value(err, where, "must be finite", bad);
-        }
-    return RC_OK;
+    st = rc_wind_schedule_check(s->wind, s->n_wind, err);
+    if (st != RC_OK)
+        rc_span_script_free(s);
+    return st;
 }
 
 void rc_span_script_free(rc_span_script *s)
