@@ -256,8 +256,6 @@ def test_the_coast_and_force_calls_refuse_bad_arrays_by_name():
 MUTATIONS = {
     "true_theta": ("level_run", "oracle", "theta[0] = 1.0 / (RC_G * mass_t);",
                    f"theta[0] = 1.0 / (RC_G * mass_t) * {ONE_ULP};"),
-    "wind_schedule": ("headwind_change", "coasts in the wind", "            w = steps[2 * k + 1];",
-                      f"            w = steps[2 * k + 1] * {ONE_ULP};"),
     "interval_force": ("level_run", "oracle", "traction_mean[k] = 0.5 * (f0 + f1);",
                        f"traction_mean[k] = 0.5 * (f0 + f1) * {ONE_ULP};"),
     "adhesion": ("low_adhesion", "oracle",
