@@ -94,10 +94,11 @@ data), median and worst |errors|, the +-2 sigma coverages above, and the median 
 stated sigma (for w0 over every (span, V of the grid)); 0.674 if the sigma is the error's
 true spread and the error Gaussian: below, the sigma is overstated; above, understated. The
 tables go to the terminal and, as markdown, to out/speed_noise/table.md, with a per-scenario
-line for the ATO case. Seeded: the numbers repeat. Runtime of the default (60 x 5 line spans,
-10 seeds per ATO scenario, six configurations): 100 s on 2 cores shared with other work,
-~70 % of it the ATO runs (the ATO is Python; the line alone, --ato-seeds 0: 30 s; the honest
-references' draws ~2 s).
+line for the ATO case. Seeded: the numbers repeat. Runtime of the default (40 x 5 ATO-line
+spans, 60 x 5 line spans, 10 seeds per ATO scenario, six configurations): ~6 min on 2 cores,
+most of it the ATO runs (the ATO is Python; the line alone, --ato-seeds 0 --ato-lines 0: 30 s;
+--ato-lines 100: ~15 min; the honest references' draws ~2 s). A span without a final coast
+(the ATO goes from traction to braking) is counted in its own column and left out of the shares.
 """
 from __future__ import annotations
 
