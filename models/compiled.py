@@ -69,10 +69,15 @@ def enabled() -> bool:
 NOT_COVERED = "est.method 1 or 3"
 """The estimator options the C core does not run (models/core/estimator.h RC_NOT_COVERED)."""
 
+COVERAGE_PARAMETERS = ("est.method",)
+"""The RailCar parameters (FMU names) core_not_covered's answer depends on: runs that share them
+share it (a sweep decides its engine from one run unless it sweeps one of these)."""
+
 
 def core_not_covered(identifier: IdentifierConfig) -> str | None:
     """Why the C core does not run this estimator in this process (CompiledChain,
-    CompiledEstimatorChain: NOT_COVERED), or None when it does."""
+    CompiledEstimatorChain: NOT_COVERED), or None when it does. Reads only what
+    COVERAGE_PARAMETERS names: keep the two in step."""
     if identifier.method not in (0, 2):
         return NOT_COVERED
     return None

@@ -18,6 +18,7 @@ bounded sample, so that it ends in flat memory at any number of runs.
 """
 from __future__ import annotations
 
+import itertools
 import os
 import sys
 import time
@@ -194,15 +195,19 @@ def choose_engine(asked: str, fmu_asked: str | None, sweep: Sweep) -> tuple[str,
     FMU path), else the FMU path; ``batch`` runs the batch engine even so (its uncovered runs on
     run_on_chain, the Python reference: the engine column says "python")."""
     from harness.run.batch import not_covered
+    from models.compiled import COVERAGE_PARAMETERS
     if asked == "fmu":
         return "fmu", "--engine fmu"
     if asked == "auto" and fmu_asked is not None:
         return "fmu", f"--engine auto: --fmu {fmu_asked} asks for an FMU"
     if asked not in ENGINES:
         raise SweepError(f"--engine {asked}: expected one of {', '.join(ENGINES)}")
-    # one run per point is built here (a seed changes no coverage): only when the answer needs it
-    uncovered = next(((s.run_id, why) for s in sweep.runs.representatives() if s.scenario is not None
-                      for why in [not_covered(s.scenario)] if why), None)
+    # built here only when the answer needs it: one run per point (a seed changes no coverage), or
+    # the first valid run alone when no axis sweeps a parameter coverage depends on
+    valid = (s for s in sweep.runs.representatives() if s.scenario is not None)
+    if not set(sweep.axes) & set(COVERAGE_PARAMETERS):
+        valid = itertools.islice(valid, 1)
+    uncovered = next(((s.run_id, why) for s in valid for why in [not_covered(s.scenario)] if why), None)
     if asked == "batch":
         return "batch", ("--engine batch: C core" if uncovered is None else
                          f"--engine batch: run {uncovered[0]} and maybe others on the Python reference: {uncovered[1]}")

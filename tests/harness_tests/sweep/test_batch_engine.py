@@ -163,6 +163,10 @@ def test_the_engine_choice_and_the_chunk_size(tmp_path):
     engine, why = choose_engine("auto", None, load_sweep(method1))
     assert engine == "fmu" and "does not cover run 0" in why
     assert choose_engine("batch", None, load_sweep(method1))[0] == "batch"
+    swept = cut_down(tmp_path, "grid_mass_noise", KINDS["grid_mass_noise"][0]
+                     + [(r"^\"car.mass\" = \[26\.0, 42\.0\]", '"est.method" = [2, 1]')], "duration_s = 60.0")
+    engine, why = choose_engine("auto", None, load_sweep(swept))          # the method swept: run 2 has 1
+    assert engine == "fmu" and "does not cover run 2" in why
     assert [chunk_size(n, 2) for n in (1, 8, 9, 200, 1000, 100_000)] == [1, 1, 2, 25, 100, 100]
     from harness.sweep.main import _usage_error
     base = dict(scheduler=None, workers=None, limit=None, resume=False, overwrite=False)
@@ -232,4 +236,19 @@ def test_a_span_run_the_batch_engine_hands_to_python_is_labelled_python(tmp_path
     assert (moved["status"], moved["engine"]) == ("ok", "python")
     keys = [c.key for c in sweep_columns(sweep) if c.key not in NOT_COMPARED]
     assert [cell_text(moved.get(k)) for k in keys] == [cell_text(kept.get(k)) for k in keys]
+
+
+def test_the_engine_is_decided_from_one_run_when_no_axis_changes_coverage(tmp_path, monkeypatch):
+    """A sweep whose axes do not include a parameter coverage depends on (models.compiled.
+    COVERAGE_PARAMETERS) builds one run to choose the engine, not one per point (~0.1-1 ms each:
+    seconds for a 100,000-point Latin hypercube)."""
+    from harness.run import batch as harness_batch
+    asked = []
+    real = harness_batch.not_covered
+    monkeypatch.setattr(harness_batch, "not_covered", lambda sc, setup=None: asked.append(sc) or real(sc, setup))
+    sweep = load_sweep(cut_down(tmp_path, "lhs_mass_A0_noise", [(r"^samples = 200", "samples = 50")],
+                                "duration_s = 60.0"))
+    assert len(sweep.runs) == 50
+    assert choose_engine("auto", None, sweep) == ("batch", "--engine auto: the C core covers every run")
+    assert len(asked) == 1
 
