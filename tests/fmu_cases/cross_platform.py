@@ -54,6 +54,10 @@ NATIVE = {  # native FMU -> (modelIdentifier, FMI version)
     "RailCarNative3": ("RailCar", 3),
     "RailCarEstimatorNative3": ("RailCarEstimator", 3),
 }
+ATO_NATIVE = {  # the native AtoControllers: fed a span's inputs by the tests, not a scenario
+    "AtoControllerNative": ("AtoController", 2),
+    "AtoControllerNative3": ("AtoController", 3),
+}
 FOREIGN = (LINUX_AARCH64, WINDOWS_X86_64)
 AARCH64_SYSROOT = Path("/usr/aarch64-linux-gnu")    # Debian's libc6-arm64-cross
 QEMU = "qemu-aarch64"
@@ -86,7 +90,7 @@ class Platform:
 
     def binary(self, root: Path, name: str) -> Path:
         """The FMU's library for this platform in the FMU unpacked at ``root``."""
-        model, version = NATIVE[name]
+        model, version = {**NATIVE, **ATO_NATIVE}[name]
         folder = self.target.fmi2_folder if version == 2 else self.target.tuple
         return root / "binaries" / folder / f"{model}{self.target.extension}"
 
@@ -219,6 +223,11 @@ def _value_text(value, word: str, platform: Platform) -> str:
     return "true" if value else "false"
 
 
+def _input_text(value, word: str) -> str:
+    """An input cell as the host reads it: reals by repr (exact), Int32 and Booleans as integers."""
+    return repr(float(value)) if word == "real" else str(int(value))
+
+
 def write_case_files(case: Case, fmu: NativeFmu, platform: Platform, folder: Path) -> Path:
     """PARAMS.csv and INPUTS.csv of one case for one platform; its OUT.csv path."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -228,7 +237,8 @@ def write_case_files(case: Case, fmu: NativeFmu, platform: Platform, folder: Pat
         params.append(f"{vr},{word},{_value_text(value, word, platform)}")
     (folder / "params.csv").write_text("\n".join(params) + "\n")
     lines = [",".join(["time [s]", *(fmu.spec(n) for n in case.inputs)])]
-    lines += [",".join([repr(float(t)), *(repr(float(x)) for x in row)])
+    words = [fmu.vars[n][1] for n in case.inputs]
+    lines += [",".join([repr(float(t)), *(_input_text(x, w) for x, w in zip(row, words))])
               for t, row in zip(case.times, case.rows)]
     (folder / "inputs.csv").write_text("\n".join(lines) + "\n")
     return folder / "out.csv"
@@ -272,6 +282,107 @@ def run_platform(platform: Platform, cases: list[Case], fmus: dict[str, NativeFm
                                f"{len(case.times)} steps, statuses {sorted(set(status))}")
         got[case.key] = {"time": time, **columns}
     return got
+
+
+# ------------------------------------------------------------------- FMU states (csv_host -k)
+
+@dataclass
+class StateRun:
+    """One case's FMU-state round trip through csv_host -k on one platform (the host's header
+    documents the passes): its REPORT.txt as key -> the rest of the line, the bytes it serialized
+    at the state's row (-S), and whether pass A's OUT.csv was written."""
+    key: str
+    row: int                    # the state is taken before this row's step
+    report: dict
+    state: bytes | None
+    out_written: bool
+
+    def identical(self) -> bool:
+        """Passes B and C replayed pass A bit for bit, and no call failed."""
+        return (self.report.get("pass_b") == "identical" and self.report.get("pass_c") ==
+                "identical" and "failed" not in self.report)
+
+
+def state_row(case: Case) -> int:
+    """The row in the middle of the run (the ATO's span: mid-span)."""
+    return len(case.times) // 2
+
+
+def _read_report(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    return dict((line.split(" ", 1) + [""])[:2] for line in path.read_text().splitlines() if line)
+
+
+def run_state_round_trips(platform: Platform, cases: list[Case], fmus: dict[str, NativeFmu],
+                          folder: Path, foreign: dict[str, Path] | None = None,
+                          timeout: float = 900):
+    """Every case's state round trip (csv_host -k at state_row, -S the bytes) in one host
+    process; with ``foreign`` (case key -> bytes another platform serialized at that row) each
+    such case also runs with -L: pass B deserializes the other platform's bytes. Returns
+    (case key -> StateRun, case key -> StateRun of the -L runs, the host's CompletedProcess); the
+    caller judges the exit status, since a refused state is an expected outcome of -L."""
+    lines, runs = [], []
+    foreign = foreign or {}
+    for case in cases:
+        fmu = fmus[case.fmu]
+        case_folder = folder / platform.target.tuple / case.key
+        write_case_files(case, fmu, platform, case_folder)
+        variants = [("", None)] + ([("_foreign", foreign[case.key])] if case.key in foreign else [])
+        for suffix, bytes_in in variants:
+            files = {name: case_folder / f"{name}{suffix}{ext}" for name, ext in
+                     (("out", ".csv"), ("state", ".bin"), ("report", ".txt"))}
+            for f in files.values():
+                f.unlink(missing_ok=True)
+            args = ["-q", "-k", str(state_row(case)), "-R", platform.path(files["report"])]
+            args += (["-S", platform.path(files["state"])] if bytes_in is None
+                     else ["-L", platform.path(bytes_in)])
+            args += ["-s", repr(float(case.step))] if case.step is not None else []
+            args += ["-e", repr(float(case.stop)), f"fmi{fmu.version}",
+                     platform.path(platform.binary(fmu.root, case.fmu)),
+                     platform.path(fmu.resources), fmu.token,
+                     platform.path(case_folder / "params.csv"),
+                     platform.path(case_folder / "inputs.csv"), platform.path(files["out"]),
+                     *(fmu.spec(n) for n in fmu.outputs)]
+            lines.append("\t".join(args))
+            runs.append((case, suffix, files))
+    batch = folder / platform.target.tuple / "state_runs.txt"
+    batch.write_text("\n".join(lines) + "\n")
+    proc = subprocess.run(platform.command(batch), capture_output=True, text=True,
+                          env=platform.env, timeout=timeout)
+    own, loaded = {}, {}
+    for case, suffix, files in runs:
+        run = StateRun(case.key, state_row(case), _read_report(files["report"]),
+                       files["state"].read_bytes() if files["state"].is_file() else None,
+                       files["out"].is_file())
+        (loaded if suffix else own)[case.key] = run
+    return own, loaded, proc
+
+
+def state_field_difference(a: bytes, b: bytes) -> str:
+    """Where two serialized FMU states (glue_common.c's layout) first differ, named: the header's
+    fields by name, else the offset into the model's part."""
+    if a == b:
+        return "equal"
+    if len(a) != len(b):
+        prefix = f"{len(a)} vs {len(b)} bytes; "
+    else:
+        prefix = ""
+    at = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+    header = [(0, 8, "magic"), (8, 12, "format version"), (12, 16, "byte-order mark"),
+              (16, 24, "type sizes (double, long, void *, int, size_t)"),
+              (24, 28, "layout fingerprint"), (28, 32, "token length"),
+              (32, 40, "total length")]
+    for lo, hi, name in header:
+        if lo <= at < hi:
+            return f"{prefix}first at byte {at}: the header's {name} ({a[lo:hi].hex()} vs {b[lo:hi].hex()})"
+    token_len = int.from_bytes(a[28:32], sys.byteorder)
+    model_at = 40 + token_len + 24
+    if at < model_at:
+        return f"{prefix}first at byte {at}: the token or the glue's fields"
+    if at >= len(a) - 8:
+        return f"{prefix}first at byte {at}: the checksum"
+    return f"{prefix}first at byte {at}: offset {at - model_at} of the model's part"
 
 
 # ------------------------------------------------------------------------------ comparison
