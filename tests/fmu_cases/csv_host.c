@@ -1495,8 +1495,9 @@ static int replay(Host *h, const char *pass, void *state, const char *how) {
         h->mismatches++;
         fprintf(h->report, "%s differs row %lu column %s: A %.17g, replay %.17g\n", pass,
                 (unsigned long)row, name, ref[column], got[column]);
-        say("%s: the replay differs from the run at row %lu of %s, column %s: %.17g, not %.17g",
-            h->where, (unsigned long)row, a->out_path, name, got[column], ref[column]);
+        say("%s: %s (%s) differs from the run at row %lu of %s, column %s: %.17g, not %.17g",
+            h->where, pass, how, (unsigned long)row, a->out_path, name, got[column],
+            ref[column]);
     }
     free(got);
     return 0;

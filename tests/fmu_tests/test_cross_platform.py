@@ -716,36 +716,46 @@ def test_fmu_states_on_the_foreign_binary(sweep_inputs, state_runs, target):
     assert proc.returncode == (0 if outcome == "portable" else 2), proc.stderr[-4000:]
 
 
-def test_a_corrupt_or_truncated_state_is_refused_not_read(state_runs, tmp_path):
-    """csv_host -L with bytes that are not a whole state of this FMU: one byte flipped in the
-    model's part (the checksum sees it), the bytes cut short, another FMU's state: each refused
-    by the deserialize call with its reason, pass A written, the host's exit status 2 (x86-64:
-    the check is the platform's own, the header's)."""
-    case = next(c for c in state_runs.cases if c.fmu == "RailCarEstimatorNative3")
-    other = next(c for c in state_runs.cases if c.fmu == "RailCarNative3")
+def test_a_corrupt_state_is_refused_and_another_runs_state_is_seen(state_runs, tmp_path):
+    """csv_host -L with bytes that are not this run's state, on x86-64 (the checks are the
+    platform's own): one byte flipped in the model's part (the checksum sees it), the bytes cut
+    short, another FMU's state: each refused by fmi3DeserializeFMUState with its reason, pass A
+    written, the run stopped there (no pass B). A whole state of the same FMU from another
+    scenario's run (steep_grades' at its row, for headwind_change) is accepted, and
+    the host's comparison sees pass B leave pass A at the state's row, while pass C (the state
+    taken with get) stays identical. One host process; its exit status 2."""
+    case = next(c for c in state_runs.cases
+                if c.fmu == "RailCarEstimatorNative3" and c.scenario == "headwind_change")
     good = state_runs.x86[case.key].state
     flipped = bytearray(good)
     flipped[len(good) // 2] ^= 0x01
     bad = {"flipped": bytes(flipped), "truncated": good[:-100],
-           "other_fmu": state_runs.x86[other.key].state}
+           "other_fmu": state_runs.x86["headwind_change.RailCarNative3"].state,
+           "other_run": state_runs.x86["steep_grades.RailCarEstimatorNative3"].state}
     reasons = {"flipped": "the FMU state is corrupt (checksum mismatch",
                "truncated": "(truncated)",
                "other_fmu": "the FMU state belongs to another FMU"}
     cases, foreign = [], {}
-    for label, data in bad.items():       # one case per corruption: one host process
+    for label, data in bad.items():       # one case per bad state: one host process
         (tmp_path / f"{label}.bin").write_bytes(data)
         cases.append(dataclasses.replace(case, scenario=f"{case.scenario}_{label}"))
         foreign[cases[-1].key] = tmp_path / f"{label}.bin"
     own, loaded, proc = cross_platform.run_state_round_trips(state_runs.platform, cases,
                                                              state_runs.fmus, tmp_path, foreign)
     assert proc.returncode == 2, proc.stderr
-    for label, corrupt in zip(bad, cases):
-        run = loaded[corrupt.key]
-        assert run.out_written and "pass_b" not in run.report, (label, run.report)
+    for label, run_case in zip(bad, cases):
+        run = loaded[run_case.key]
+        assert own[run_case.key].identical(), own[run_case.key].report
+        assert run.out_written, label
+        assert f"state_runs.txt:{2 * cases.index(run_case) + 2}: exit status 2" in proc.stderr
+        if label == "other_run":
+            row = cross_platform.state_row(case)
+            assert run.report["pass_b"].startswith(f"differs row {row} column "), run.report
+            assert run.report["pass_c"] == "identical" and "failed" not in run.report
+            continue
+        assert "pass_b" not in run.report, (label, run.report)
         assert "fmi3DeserializeFMUState returned Error" in run.report.get("failed", ""), run.report
         assert reasons[label] in run.report["failed"], (label, run.report)
-        assert own[corrupt.key].identical(), own[corrupt.key].report
-        assert f"state_runs.txt:{2 * cases.index(corrupt) + 2}: exit status 2" in proc.stderr
 
 
 # ------------------------------------------------------------- a machine without a compiler
