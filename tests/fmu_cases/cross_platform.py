@@ -25,6 +25,11 @@ between the two values) and absolutely.
 prints the table "scenario x output -> largest difference" for both platforms (building the FMUs
 into a temporary folder unless --dist names a build.py output folder holding native/).
 tests/fmu_tests/test_cross_platform.py runs the same sweep and bounds the differences.
+
+FMU states: run_state_round_trips runs csv_host -k (the state's round trip, pass B from the
+serialized bytes, pass C from the state itself, against pass A bit for bit) for a list of cases in
+one host process, optionally deserializing another platform's bytes (-L);
+state_field_difference names where two serialized states first differ.
 """
 from __future__ import annotations
 

@@ -16,6 +16,12 @@ compile for each of them with all warnings as errors.
   Python controller's closed loop (test_ato_fmu.closed_loop_on_chain), through the same host on
   each platform (Booleans and Int32 among the inputs and outputs): every output at every step
   as the x86-64 binary's, within ATO_ULP_BOUNDS (the ATO calls libm's pow);
+- FMU states on every platform (csv_host -k): all six native FMUs (RailCar and the estimator on
+  two library scenarios, the AtoControllers on ato_nominal's span) take their state mid-run,
+  serialize it, and replay from the deserialized bytes and from the state itself bit for bit,
+  on each platform's binary; the bytes are compared with the x86-64 ones and the x86-64 bytes
+  are deserialized on the foreign platform: the same and replaying bit for bit on aarch64,
+  refused by the type-size check on Windows (LLP64), as STATE_OUTCOME records;
 - the commands docs/native_fmus.md gives Windows and ARM users, run as written: the libraries
   they build, put back into the FMU and zipped, run like the shipped binaries.
 
