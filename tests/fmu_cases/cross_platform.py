@@ -25,6 +25,11 @@ between the two values) and absolutely.
 prints the table "scenario x output -> largest difference" for both platforms (building the FMUs
 into a temporary folder unless --dist names a build.py output folder holding native/).
 tests/fmu_tests/test_cross_platform.py runs the same sweep and bounds the differences.
+
+FMU states: run_state_round_trips runs csv_host -k (the state's round trip, pass B from the
+serialized bytes, pass C from the state itself, against pass A bit for bit) for a list of cases in
+one host process, optionally deserializing another platform's bytes (-L);
+state_field_difference names where two serialized states first differ.
 """
 from __future__ import annotations
 
@@ -53,6 +58,10 @@ NATIVE = {  # native FMU -> (modelIdentifier, FMI version)
     "RailCarEstimatorNative": ("RailCarEstimator", 2),
     "RailCarNative3": ("RailCar", 3),
     "RailCarEstimatorNative3": ("RailCarEstimator", 3),
+}
+ATO_NATIVE = {  # the native AtoControllers: fed a span's inputs by the tests, not a scenario
+    "AtoControllerNative": ("AtoController", 2),
+    "AtoControllerNative3": ("AtoController", 3),
 }
 FOREIGN = (LINUX_AARCH64, WINDOWS_X86_64)
 AARCH64_SYSROOT = Path("/usr/aarch64-linux-gnu")    # Debian's libc6-arm64-cross
@@ -86,7 +95,7 @@ class Platform:
 
     def binary(self, root: Path, name: str) -> Path:
         """The FMU's library for this platform in the FMU unpacked at ``root``."""
-        model, version = NATIVE[name]
+        model, version = {**NATIVE, **ATO_NATIVE}[name]
         folder = self.target.fmi2_folder if version == 2 else self.target.tuple
         return root / "binaries" / folder / f"{model}{self.target.extension}"
 
@@ -219,6 +228,11 @@ def _value_text(value, word: str, platform: Platform) -> str:
     return "true" if value else "false"
 
 
+def _input_text(value, word: str) -> str:
+    """An input cell as the host reads it: reals by repr (exact), Int32 and Booleans as integers."""
+    return repr(float(value)) if word == "real" else str(int(value))
+
+
 def write_case_files(case: Case, fmu: NativeFmu, platform: Platform, folder: Path) -> Path:
     """PARAMS.csv and INPUTS.csv of one case for one platform; its OUT.csv path."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -228,7 +242,8 @@ def write_case_files(case: Case, fmu: NativeFmu, platform: Platform, folder: Pat
         params.append(f"{vr},{word},{_value_text(value, word, platform)}")
     (folder / "params.csv").write_text("\n".join(params) + "\n")
     lines = [",".join(["time [s]", *(fmu.spec(n) for n in case.inputs)])]
-    lines += [",".join([repr(float(t)), *(repr(float(x)) for x in row)])
+    words = [fmu.vars[n][1] for n in case.inputs]
+    lines += [",".join([repr(float(t)), *(_input_text(x, w) for x, w in zip(row, words))])
               for t, row in zip(case.times, case.rows)]
     (folder / "inputs.csv").write_text("\n".join(lines) + "\n")
     return folder / "out.csv"
@@ -272,6 +287,170 @@ def run_platform(platform: Platform, cases: list[Case], fmus: dict[str, NativeFm
                                f"{len(case.times)} steps, statuses {sorted(set(status))}")
         got[case.key] = {"time": time, **columns}
     return got
+
+
+# ------------------------------------------------------------------- FMU states (csv_host -k)
+
+@dataclass
+class StateRun:
+    """One case's FMU-state round trip through csv_host -k on one platform (the host's header
+    documents the passes): its REPORT.txt as key -> the rest of the line, the bytes it serialized
+    at the state's row (-S), and whether pass A's OUT.csv was written."""
+    key: str
+    row: int                    # the state is taken before this row's step
+    report: dict
+    state: bytes | None
+    out_written: bool
+
+    def identical(self) -> bool:
+        """Passes B and C replayed pass A bit for bit, and no call failed."""
+        return (self.report.get("pass_b") == "identical" and self.report.get("pass_c") ==
+                "identical" and "failed" not in self.report)
+
+
+def state_row(case: Case) -> int:
+    """The row in the middle of the run (the ATO's span: mid-span)."""
+    return len(case.times) // 2
+
+
+def _read_report(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    return dict((line.split(" ", 1) + [""])[:2] for line in path.read_text().splitlines() if line)
+
+
+def run_state_round_trips(platform: Platform, cases: list[Case], fmus: dict[str, NativeFmu],
+                          folder: Path, foreign: dict[str, Path] | None = None,
+                          timeout: float = 900):
+    """Every case's state round trip (csv_host -k at state_row, -S the bytes) in one host
+    process; with ``foreign`` (case key -> bytes another platform serialized at that row) each
+    such case also runs with -L: pass B deserializes the other platform's bytes. Returns
+    (case key -> StateRun, case key -> StateRun of the -L runs, the host's CompletedProcess); the
+    caller judges the exit status, since a refused state is an expected outcome of -L."""
+    lines, runs = [], []
+    foreign = foreign or {}
+    for case in cases:
+        fmu = fmus[case.fmu]
+        case_folder = folder / platform.target.tuple / case.key
+        write_case_files(case, fmu, platform, case_folder)
+        variants = [("", None)] + ([("_foreign", foreign[case.key])] if case.key in foreign else [])
+        for suffix, bytes_in in variants:
+            files = {name: case_folder / f"{name}{suffix}{ext}" for name, ext in
+                     (("out", ".csv"), ("state", ".bin"), ("report", ".txt"))}
+            for f in files.values():
+                f.unlink(missing_ok=True)
+            args = ["-q", "-k", str(state_row(case)), "-R", platform.path(files["report"])]
+            args += (["-S", platform.path(files["state"])] if bytes_in is None
+                     else ["-L", platform.path(bytes_in)])
+            args += ["-s", repr(float(case.step))] if case.step is not None else []
+            args += ["-e", repr(float(case.stop)), f"fmi{fmu.version}",
+                     platform.path(platform.binary(fmu.root, case.fmu)),
+                     platform.path(fmu.resources), fmu.token,
+                     platform.path(case_folder / "params.csv"),
+                     platform.path(case_folder / "inputs.csv"), platform.path(files["out"]),
+                     *(fmu.spec(n) for n in fmu.outputs)]
+            lines.append("\t".join(args))
+            runs.append((case, suffix, files))
+    batch = folder / platform.target.tuple / "state_runs.txt"
+    batch.write_text("\n".join(lines) + "\n")
+    proc = subprocess.run(platform.command(batch), capture_output=True, text=True,
+                          env=platform.env, timeout=timeout)
+    own, loaded = {}, {}
+    for case, suffix, files in runs:
+        run = StateRun(case.key, state_row(case), _read_report(files["report"]),
+                       files["state"].read_bytes() if files["state"].is_file() else None,
+                       files["out"].is_file())
+        (loaded if suffix else own)[case.key] = run
+    return own, loaded, proc
+
+
+def state_field_difference(a: bytes, b: bytes) -> str:
+    """Where two serialized FMU states (glue_common.c's layout) first differ, named: the header's
+    fields by name, else the offset into the model's part."""
+    if a == b:
+        return "equal"
+    if len(a) != len(b):
+        prefix = f"{len(a)} vs {len(b)} bytes; "
+    else:
+        prefix = ""
+    at = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+    header = [(0, 8, "magic"), (8, 12, "format version"), (12, 16, "byte-order mark"),
+              (16, 24, "type sizes (double, long, void *, int, size_t)"),
+              (24, 28, "layout fingerprint"), (28, 32, "token length"),
+              (32, 40, "total length")]
+    for lo, hi, name in header:
+        if lo <= at < hi:
+            return f"{prefix}first at byte {at}: the header's {name} ({a[lo:hi].hex()} vs {b[lo:hi].hex()})"
+    token_len = int.from_bytes(a[28:32], sys.byteorder)
+    model_at = 40 + token_len + 24
+    if at < model_at:
+        return f"{prefix}first at byte {at}: the token or the glue's fields"
+    if at >= len(a) - 8:
+        return f"{prefix}first at byte {at}: the checksum"
+    return f"{prefix}first at byte {at}: offset {at - model_at} of the model's part"
+
+
+# ATO_TUNING_PADDING: the bytes of each controller image (models/core/ato_line.c put_controller:
+# the ato_controller struct whole) that are struct padding inside its ato_tuning, on LP64 (linux
+# x86-64 and aarch64 lay it out alike): ``tuning`` is at offset 16; the 4 bytes after the int
+# min_samples (tuning offset 32) and after the int ep_stages (tuning offset 128). They hold
+# whatever the stack held (native_ato.c build()'s ``ato_tuning tuning`` is filled field by field,
+# then copied whole by ato_controller_init's ``c->tuning = *tuning``): the upper half of a heap
+# pointer was measured there, so they differ from run to run (ASLR) on one platform too.
+ATO_TUNING_PADDING = ((16 + 36, 16 + 40), (16 + 132, 16 + 136))
+
+
+def _u32(b: bytes, at: int) -> int:
+    return int.from_bytes(b[at:at + 4], "little")
+
+
+def _u64(b: bytes, at: int) -> int:
+    return int.from_bytes(b[at:at + 8], "little")
+
+
+def ato_padding_ranges(state: bytes) -> list[tuple[int, int]]:
+    """[start, end) byte ranges of ATO_TUNING_PADDING in a serialized AtoController state of a
+    little-endian LP64 platform, walking native_ato_state.c's layout (its header comment) to
+    each controller image. [] for a state whose line is not built."""
+    at = 40 + _u32(state, 28) + 24                 # glue header, token, glue fields: the model
+    nvars = _u32(state, at)
+    at += 4 + 8 * nvars + 4 * nvars + 16           # Reals, Integers, start time, time
+    for _ in range(nvars):                         # Strings
+        length = _u64(state, at)
+        at += 8 + (0 if length == 2 ** 64 - 1 else length)
+    built, n_spans = _u32(state, at), _u32(state, at + 4)
+    if not built:
+        return []
+    at += 8
+    at += 8 + 24 * _u64(state, at)                 # the grade: 3 doubles a row
+    at += 8 + _u64(state, at)                      # the car
+    at += 8                                        # the limits' rows, all spans
+    for _ in range(n_spans):                       # length, schedule, stop; the limits
+        at += 24
+        at += 8 + 16 * _u64(state, at)
+    at += 24 * n_spans                             # dwells, boardings, events logged
+    at += 8                                        # the line's running state's size
+    at += 8 + _u64(state, at)                      # the ato_line image
+    at += 8 * n_spans                              # the departures
+    ranges = []
+    for _ in range(n_spans):                       # each controller (ato_line.c put_controller)
+        size = _u64(state, at)
+        image = at + 8
+        ranges += [(image + lo, image + hi) for lo, hi in ATO_TUNING_PADDING]
+        at = image + size + 5 * 4                  # the image, five pointer codes
+        nodes = _u64(state, at)
+        at += 8 + 8 * (3 * nodes - 1)              # the course: s, g, qlim
+        at += 8 + _u64(state, at)                  # the planner's block
+    assert at == len(state) - 8, f"the walk ended at {at}, the checksum is at {len(state) - 8}"
+    return ranges
+
+
+def masked(state: bytes, ranges: list[tuple[int, int]]) -> bytes:
+    """The bytes with the given ranges and the checksum (which covers them) zeroed."""
+    out = bytearray(state)
+    for lo, hi in [*ranges, (len(state) - 8, len(state))]:
+        out[lo:hi] = bytes(hi - lo)
+    return bytes(out)
 
 
 # ------------------------------------------------------------------------------ comparison

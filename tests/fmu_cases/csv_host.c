@@ -42,6 +42,18 @@
  *   -d stop    a discarded step is an error
  *   -q         quiet: no warning lines, no summary (discards and errors are still reported)
  *   -v         loggingOn = true, and every message the FMU logs is printed
+ *   -k ROW     the FMU state's round trip (the code's section "-k" says more): before row ROW's
+ *              step (0: right after initialisation) the state is taken and serialized; pass A
+ *              (the normal run, OUT.csv) goes on to the end; pass B deserializes the bytes, sets
+ *              that state and replays rows ROW.. with the same inputs; pass C sets the state
+ *              taken with get and replays again; both replays must give pass A's rows bit for
+ *              bit. Needs -R. The FMU-state functions are loaded only with -k.
+ *   -R REPORT.txt   (-k) the round trip's result, one "key value" line each: row, serialized_size,
+ *              bytes_written, bytes_read, pass_b / pass_c "identical" or "differs row R column
+ *              NAME: A x, replay y", failed (a call that failed, as reported on standard error)
+ *   -S STATE.bin    (-k) the serialized state written to this file
+ *   -L STATE.bin    (-k) pass B deserializes these bytes (another host's -S: another platform's
+ *              state) instead of its own; a refusal is a failed call (exit status 2)
  *   -b RUNS.txt   many runs in one process (a process start is what costs under Wine or qemu):
  *              each line of RUNS.txt is one run's arguments, OPTIONS included, separated by tabs;
  *              the runs go one after the other, each reported as alone, and a run that fails
@@ -58,7 +70,8 @@
  * status 2); 2 the run failed (an FMU call returned Error or Fatal, a retry was discarded,
  * -d stop saw a discard, the FMU asked to terminate) and OUT.csv holds the rows up to there;
  * 3 bad arguments or input files (named with the line), a library or symbol that cannot be
- * loaded, a version mismatch, or OUT.csv cannot be written.
+ * loaded, a version mismatch, or OUT.csv cannot be written. With -k a replay that differs from
+ * pass A, or a refused state, is status 2 (OUT.csv holds pass A whole).
  *
  * After Error the instance is freed without fmi2Terminate/fmi3Terminate; after Fatal it is not
  * touched again. Both follow "Status Returned by Functions" (FMI 2.0 section 2.1.3, FMI 3.0
@@ -131,6 +144,7 @@ typedef struct {
     int truncated;
     int verbose;            /* -v: messages of OK level printed too */
     int quiet;              /* -q: warnings counted, not printed */
+    char failure[SINK_SIZE + 256];  /* the last call that failed, as reported (-R writes it) */
 } LogSink;
 
 static void sink_clear(LogSink *s) {
@@ -204,6 +218,7 @@ static int report_call(LogSink *s, const char *where, const char *call, int stat
             snprintf(line + len, sizeof line - len, "(the FMU logged no message)");
         if (status == 1 && warnings == 0) warnings = 1;
         if (status > 1 || !s->quiet) say("%s%s", line, s->truncated ? " [more messages cut]" : "");
+        if (status > 1) memcpy(s->failure, line, sizeof s->failure);
     } else {
         for (at = 0; at < s->used; at += strlen(s->text + at) + 1) {
             int level = s->text[at] - '0';
@@ -647,6 +662,13 @@ typedef struct {
         fmi2GetIntegerTYPE *getInteger;
         fmi2GetBooleanTYPE *getBoolean;
         fmi2DoStepTYPE *doStep;
+        /* FMU states: loaded only for -k */
+        fmi2GetFMUstateTYPE *getState;
+        fmi2SetFMUstateTYPE *setState;
+        fmi2FreeFMUstateTYPE *freeState;
+        fmi2SerializedFMUstateSizeTYPE *stateSize;
+        fmi2SerializeFMUstateTYPE *serializeState;
+        fmi2DeSerializeFMUstateTYPE *deserializeState;
     } f2;
     struct {
         fmi3GetVersionTYPE *getVersion;
@@ -663,7 +685,14 @@ typedef struct {
         fmi3GetInt32TYPE *getInt32;
         fmi3GetBooleanTYPE *getBoolean;
         fmi3DoStepTYPE *doStep;
+        fmi3GetFMUStateTYPE *getState;
+        fmi3SetFMUStateTYPE *setState;
+        fmi3FreeFMUStateTYPE *freeState;
+        fmi3SerializedFMUStateSizeTYPE *stateSize;
+        fmi3SerializeFMUStateTYPE *serializeState;
+        fmi3DeserializeFMUStateTYPE *deserializeState;
     } f3;
+    int states;           /* -k: the FMU-state functions are needed */
     /* scratch for one set/get call (sized for the largest group) */
     double *reals;
     fmi2Integer *ints2;
@@ -756,6 +785,14 @@ static int fmu_load(Fmu *f) {
         LOAD(f->f2.getInteger, fmi2GetIntegerTYPE, "fmi2GetInteger");
         LOAD(f->f2.getBoolean, fmi2GetBooleanTYPE, "fmi2GetBoolean");
         LOAD(f->f2.doStep, fmi2DoStepTYPE, "fmi2DoStep");
+        if (f->states) {
+            LOAD(f->f2.getState, fmi2GetFMUstateTYPE, "fmi2GetFMUstate");
+            LOAD(f->f2.setState, fmi2SetFMUstateTYPE, "fmi2SetFMUstate");
+            LOAD(f->f2.freeState, fmi2FreeFMUstateTYPE, "fmi2FreeFMUstate");
+            LOAD(f->f2.stateSize, fmi2SerializedFMUstateSizeTYPE, "fmi2SerializedFMUstateSize");
+            LOAD(f->f2.serializeState, fmi2SerializeFMUstateTYPE, "fmi2SerializeFMUstate");
+            LOAD(f->f2.deserializeState, fmi2DeSerializeFMUstateTYPE, "fmi2DeSerializeFMUstate");
+        }
     } else {
         LOAD(f->f3.getVersion, fmi3GetVersionTYPE, "fmi3GetVersion");
         LOAD(f->f3.instantiateCoSimulation, fmi3InstantiateCoSimulationTYPE,
@@ -774,6 +811,14 @@ static int fmu_load(Fmu *f) {
         LOAD(f->f3.getInt32, fmi3GetInt32TYPE, "fmi3GetInt32");
         LOAD(f->f3.getBoolean, fmi3GetBooleanTYPE, "fmi3GetBoolean");
         LOAD(f->f3.doStep, fmi3DoStepTYPE, "fmi3DoStep");
+        if (f->states) {
+            LOAD(f->f3.getState, fmi3GetFMUStateTYPE, "fmi3GetFMUState");
+            LOAD(f->f3.setState, fmi3SetFMUStateTYPE, "fmi3SetFMUState");
+            LOAD(f->f3.freeState, fmi3FreeFMUStateTYPE, "fmi3FreeFMUState");
+            LOAD(f->f3.stateSize, fmi3SerializedFMUStateSizeTYPE, "fmi3SerializedFMUStateSize");
+            LOAD(f->f3.serializeState, fmi3SerializeFMUStateTYPE, "fmi3SerializeFMUState");
+            LOAD(f->f3.deserializeState, fmi3DeserializeFMUStateTYPE, "fmi3DeserializeFMUState");
+        }
     }
     if (missing) {
         say("%s: %d FMI %d.0 co-simulation function(s) missing", f->binary, missing, f->version);
@@ -1001,10 +1046,13 @@ typedef struct {
     char **outputs;
     int fixed_step, stop_given, hold, quiet, verbose;
     double step, stop;
+    long state_row;       /* -k: the row before whose step the FMU state is taken; -1: none */
+    const char *state_out, *state_in, *report_path;     /* -S, -L, -R */
 } Args;
 
 static void usage(FILE *to) {
-    fputs("usage: " PROGRAM " [-s STEP] [-e STOP] [-d hold|stop] [-q] [-v] fmi2|fmi3 BINARY "
+    fputs("usage: " PROGRAM " [-s STEP] [-e STOP] [-d hold|stop] [-q] [-v] "
+          "[-k ROW -R REPORT.txt [-S STATE.bin] [-L STATE.bin]] fmi2|fmi3 BINARY "
           "RESOURCE_DIR GUID PARAMS.csv INPUTS.csv OUT.csv OUTPUT...\n"
           "  OUTPUT: a value reference, optionally typed: 12 or r12 (real), i12, b12\n"
           "  (the header of csv_host.c documents the files, the options and the exit status)\n",
@@ -1015,6 +1063,7 @@ static int parse_args(int argc, char **argv, Args *a) {
     int i = 1;
     memset(a, 0, sizeof *a);
     a->hold = 1;
+    a->state_row = -1;
     for (; i < argc && argv[i][0] == '-' && argv[i][1] != '\0'; i++) {
         const char *o = argv[i];
         if (!strcmp(o, "--")) {
@@ -1029,6 +1078,24 @@ static int parse_args(int argc, char **argv, Args *a) {
             a->quiet = 1;
         } else if (!strcmp(o, "-v")) {
             a->verbose = 1;
+        } else if (!strcmp(o, "-S") || !strcmp(o, "-L") || !strcmp(o, "-R")) {
+            const char *v = i + 1 < argc ? argv[++i] : NULL;
+            if (!v || !*v) {
+                say("option %s needs a file", o);
+                return -1;
+            }
+            if (o[1] == 'S') a->state_out = v;
+            else if (o[1] == 'L') a->state_in = v;
+            else a->report_path = v;
+        } else if (!strcmp(o, "-k")) {
+            const char *v = i + 1 < argc ? argv[++i] : NULL;
+            double row;
+            if (!v || parse_int32(v, &row) != 0 || row < 0.0) {
+                say("-k %s: the row is an integer >= 0 (0: right after initialisation)",
+                    v ? v : "");
+                return -1;
+            }
+            a->state_row = (long)row;
         } else if (!strcmp(o, "-s") || !strcmp(o, "-e") || !strcmp(o, "-d")) {
             const char *v = i + 1 < argc ? argv[++i] : NULL;
             double x;
@@ -1080,6 +1147,15 @@ static int parse_args(int argc, char **argv, Args *a) {
         say("give -s STEP (each row's step size) or -e STOP (the last row's step ends there)");
         return -1;
     }
+    if (a->state_row < 0 && (a->state_out || a->state_in || a->report_path)) {
+        say("-S, -L and -R go with -k ROW (the FMU state's round trip)");
+        return -1;
+    }
+    if (a->state_row >= 0 && !a->report_path) {
+        say("-k %ld needs -R REPORT.txt (where the round trip's result is written)",
+            a->state_row);
+        return -1;
+    }
     return 0;
 }
 
@@ -1129,6 +1205,18 @@ typedef struct {
     FILE *out;
     char where[512];
     long warnings, discards, errors, rows;
+    /* -k: the FMU state's round trip */
+    FILE *report;          /* -R */
+    double *recorded;      /* pass A's rows from the state's row on: time, outputs, status */
+    double *held_at_state; /* held and held_line when the state was taken */
+    long held_line_at_state;
+    void *state;           /* the state taken with get (fmi2FMUstate and fmi3FMUState: void *) */
+    void *restored;        /* the state deserialized from the bytes */
+    unsigned char *bytes;  /* the state serialized */
+    size_t n_bytes;
+    unsigned char *foreign;        /* -L: bytes another host serialized, for pass B */
+    size_t n_foreign;
+    long mismatches;       /* replayed rows that differ from pass A */
 } Host;
 
 /* After an FMU call: report it and count; 0 if the run may go on (OK, Warning), the status
@@ -1207,6 +1295,253 @@ static int do_step(Host *h, double t, double step, double *end, int *terminate) 
     return s;
 }
 
+/* Row k's step: its inputs set, doStep, -d hold's retry of a discarded step. 0 with the time
+   reached (*end), the row's status (0, 1, 2: discarded and retried) and the FMU's terminate
+   request; or the run's exit status. */
+static int step_row(Host *h, size_t k, double *end, int *row_status, int *terminate) {
+    Args *a = &h->args;
+    Fmu *f = &h->fmu;
+    Inputs *in = &h->inputs;
+    const double *row = in->values + k * in->n_cols;
+    double tk = in->time[k], stop = a->stop_given ? a->stop : in->time[in->n_rows - 1] + a->step;
+    double step = a->fixed_step ? a->step : (k + 1 < in->n_rows ? in->time[k + 1] : stop) - tk;
+    int s;
+    snprintf(h->where, sizeof h->where, "%s:%ld (t = %.17g)", a->inputs_path, in->line[k], tk);
+    if (set_all(h, row) != 0) return EXIT_RUN_FAILED;
+    s = do_step(h, tk, step, end, terminate);
+    *row_status = s;
+    if (s == 2) {
+        h->discards++;
+        h->warnings += report_call(&f->sink, h->where,
+                                   call_name(f, "fmi2DoStep", "fmi3DoStep"), s);
+        if (!a->hold) {
+            say("%s: stopped (-d stop)", h->where);
+            return EXIT_RUN_FAILED;
+        }
+        if (h->held_line > 0)
+            say("%s: retried from t = %.17g over %.17g s with the inputs of %s:%ld", h->where,
+                tk, step, a->inputs_path, h->held_line);
+        else
+            say("%s: retried from t = %.17g over %.17g s with the inputs the FMU had after "
+                "initialisation", h->where, tk, step);
+        if (set_all(h, h->held) != 0) return EXIT_RUN_FAILED;
+        s = do_step(h, tk, step, end, terminate);
+        if (s == 2) {
+            h->discards++;
+            h->warnings += report_call(&f->sink, h->where,
+                                       call_name(f, "fmi2DoStep", "fmi3DoStep"), s);
+            say("%s: the retry was discarded too: stopped", h->where);
+            return EXIT_RUN_FAILED;
+        }
+    } else {
+        memcpy(h->held, row, in->n_cols * sizeof *row);
+        h->held_line = in->line[k];
+    }
+    if (after_call(h, call_name(f, "fmi2DoStep", "fmi3DoStep"), s)) return EXIT_RUN_FAILED;
+    return 0;
+}
+
+/* ---------------------------------------------------------------- -k: the FMU state's round trip
+ * Before row K's step (-k K) the host takes the FMU state (get), asks its serialized size and
+ * serializes it (-S: the bytes written to a file); pass A, the normal run, goes on to the end
+ * and its rows from K on are kept. Pass B: the bytes (or -L's, another host's) deserialized into
+ * a new state, that state set, rows K.. replayed with the same inputs; pass C: the state taken
+ * with get set once more and replayed again. Every replayed row (the outputs right after the
+ * set; then after each step: the time reached, the outputs, the status) must equal pass A's bit
+ * for bit. Both states are freed. REPORT.txt (-R), one "key value" line each:
+ *   row K, serialized_size N, bytes_written FILE (-S), bytes_read FILE N (-L),
+ *   pass_b identical | pass_b differs row R column NAME: A VALUE, replay VALUE (the first),
+ *   pass_c likewise, failed CALL... (a call that failed: the line on standard error).
+ * A replay that differs makes the exit status 2 (after both passes ran). */
+
+static void record_row(Host *h, double *dest, double time, int status) {
+    int n = h->args.n_outputs;
+    dest[0] = time;
+    memcpy(dest + 1, h->out_row, (size_t)n * sizeof *dest);
+    dest[n + 1] = (double)status;
+}
+
+/* A whole file's bytes (malloc'd, *n long); NULL with the reason reported. */
+static unsigned char *read_bytes(const char *path, size_t *n) {
+    FILE *in = fopen(path, "rb");
+    unsigned char *data = NULL, *grown;
+    size_t cap = 0, got;
+    *n = 0;
+    if (!in) {
+        say("%s: cannot open: %s", path, strerror(errno));
+        return NULL;
+    }
+    do {
+        if (*n == cap) {
+            cap = cap ? 2 * cap : 65536;
+            if (!(grown = realloc(data, cap))) {
+                say("%s: out of memory", path);
+                free(data);
+                fclose(in);
+                return NULL;
+            }
+            data = grown;
+        }
+        got = fread(data + *n, 1, cap - *n, in);
+        *n += got;
+    } while (got > 0);
+    if (ferror(in)) {
+        say("%s: cannot read: %s", path, strerror(errno));
+        free(data);
+        data = NULL;
+    }
+    fclose(in);
+    return data;
+}
+
+/* get, size, serialize (the bytes kept; -S: written); the inputs held for -d hold kept too. */
+static int take_state(Host *h) {
+    Fmu *f = &h->fmu;
+    int s;
+    snprintf(h->where, sizeof h->where, "-k %ld (t = %.17g)", h->args.state_row,
+             h->inputs.time[h->args.state_row]);
+    s = f->version == 2 ? (int)f->f2.getState(f->instance, &h->state)
+                        : (int)f->f3.getState(f->instance, &h->state);
+    if (after_call(h, call_name(f, "fmi2GetFMUstate", "fmi3GetFMUState"), s))
+        return EXIT_RUN_FAILED;
+    s = f->version == 2 ? (int)f->f2.stateSize(f->instance, h->state, &h->n_bytes)
+                        : (int)f->f3.stateSize(f->instance, h->state, &h->n_bytes);
+    if (after_call(h, call_name(f, "fmi2SerializedFMUstateSize", "fmi3SerializedFMUStateSize"),
+                   s))
+        return EXIT_RUN_FAILED;
+    if (!(h->bytes = malloc(h->n_bytes ? h->n_bytes : 1))) {
+        say("%s: out of memory (%lu bytes for the serialized state)", h->where,
+            (unsigned long)h->n_bytes);
+        return EXIT_RUN_FAILED;
+    }
+    s = f->version == 2
+            ? (int)f->f2.serializeState(f->instance, h->state, (fmi2Byte *)h->bytes, h->n_bytes)
+            : (int)f->f3.serializeState(f->instance, h->state, (fmi3Byte *)h->bytes, h->n_bytes);
+    if (after_call(h, call_name(f, "fmi2SerializeFMUstate", "fmi3SerializeFMUState"), s))
+        return EXIT_RUN_FAILED;
+    fprintf(h->report, "row %ld\nserialized_size %lu\n", h->args.state_row,
+            (unsigned long)h->n_bytes);
+    if (h->args.state_out) {
+        FILE *out = fopen(h->args.state_out, "wb");
+        if (!out || fwrite(h->bytes, 1, h->n_bytes, out) != h->n_bytes || fclose(out) != 0) {
+            say("%s: cannot write: %s", h->args.state_out, strerror(errno));
+            return EXIT_BAD_INPUT;
+        }
+        fprintf(h->report, "bytes_written %s\n", h->args.state_out);
+    }
+    memcpy(h->held_at_state, h->held, (h->inputs.n_cols + 1) * sizeof *h->held);
+    h->held_line_at_state = h->held_line;
+    /* the state's own row of pass A: the outputs it was taken with */
+    record_row(h, h->recorded, h->inputs.time[h->args.state_row], 0);
+    return 0;
+}
+
+/* The first column where a replayed row (time, outputs, status) differs from pass A's, bit for
+   bit; -1: none. `from` 1 skips the time (the row right after a set has no step). */
+static int first_difference(const double *a, const double *b, int n, int from) {
+    int j;
+    for (j = from; j < n; j++)
+        if (memcmp(a + j, b + j, sizeof *a) != 0) return j;
+    return -1;
+}
+
+/* Sets `state` and replays rows K.. against pass A; 0 (differences counted and reported), or
+   the run's exit status when a call fails. */
+static int replay(Host *h, const char *pass, void *state, const char *how) {
+    Args *a = &h->args;
+    Fmu *f = &h->fmu;
+    int width = a->n_outputs + 2, s, terminate, row_status, column;
+    size_t k, K = (size_t)a->state_row;
+    double *got = malloc((size_t)width * sizeof *got), end;
+    if (!got) {
+        say("out of memory");
+        return EXIT_RUN_FAILED;
+    }
+    snprintf(h->where, sizeof h->where, "%s (%s, row %ld)", pass, how, a->state_row);
+    s = f->version == 2 ? (int)f->f2.setState(f->instance, state)
+                        : (int)f->f3.setState(f->instance, state);
+    if (after_call(h, call_name(f, "fmi2SetFMUstate", "fmi3SetFMUState"), s)) {
+        free(got);
+        return EXIT_RUN_FAILED;
+    }
+    memcpy(h->held, h->held_at_state, (h->inputs.n_cols + 1) * sizeof *h->held);
+    h->held_line = h->held_line_at_state;
+    if (get_outputs(h) != 0) {
+        free(got);
+        return EXIT_RUN_FAILED;
+    }
+    record_row(h, got, h->recorded[0], 0);
+    column = first_difference(h->recorded, got, width, 1);
+    for (k = K; column < 0 && k < h->inputs.n_rows; k++) {
+        if ((s = step_row(h, k, &end, &row_status, &terminate)) != 0 || get_outputs(h) != 0) {
+            free(got);
+            return s ? s : EXIT_RUN_FAILED;
+        }
+        record_row(h, got, end, row_status);
+        column = first_difference(h->recorded + (k + 1 - K) * (size_t)width, got, width, 0);
+        if (terminate && k + 1 < h->inputs.n_rows) {
+            say("%s: the FMU asked to terminate the replay at t = %.17g", h->where, end);
+            free(got);
+            return EXIT_RUN_FAILED;
+        }
+    }
+    if (column < 0) {
+        fprintf(h->report, "%s identical\n", pass);
+    } else {
+        size_t row = k;         /* the row that differs: the loop stopped just past its step */
+        const double *ref = h->recorded + (row - K) * (size_t)width;
+        const char *name = column == 0 ? "time" : column == width - 1 ? "status"
+                                                                     : a->outputs[column - 1];
+        h->mismatches++;
+        fprintf(h->report, "%s differs row %lu column %s: A %.17g, replay %.17g\n", pass,
+                (unsigned long)row, name, ref[column], got[column]);
+        say("%s: %s (%s) differs from the run at row %lu of %s, column %s: %.17g, not %.17g",
+            h->where, pass, how, (unsigned long)row, a->out_path, name, got[column],
+            ref[column]);
+    }
+    free(got);
+    return 0;
+}
+
+/* Passes B (the bytes deserialized) and C (the state taken with get), then both states freed. */
+static int round_trip(Host *h) {
+    Fmu *f = &h->fmu;
+    const unsigned char *bytes = h->foreign ? h->foreign : h->bytes;
+    size_t n = h->foreign ? h->n_foreign : h->n_bytes;
+    int s;
+    snprintf(h->where, sizeof h->where, "pass_b (row %ld, %s)", h->args.state_row,
+             h->foreign ? h->args.state_in : "the bytes serialized");
+    s = f->version == 2
+            ? (int)f->f2.deserializeState(f->instance, (const fmi2Byte *)bytes, n, &h->restored)
+            : (int)f->f3.deserializeState(f->instance, (const fmi3Byte *)bytes, n, &h->restored);
+    if (after_call(h, call_name(f, "fmi2DeSerializeFMUstate", "fmi3DeserializeFMUState"), s))
+        return EXIT_RUN_FAILED;
+    if ((s = replay(h, "pass_b", h->restored,
+                    h->foreign ? h->args.state_in : "the bytes serialized")) != 0)
+        return s;
+    if ((s = replay(h, "pass_c", h->state, "the state taken with get")) != 0) return s;
+    return h->mismatches ? EXIT_RUN_FAILED : 0;
+}
+
+/* Frees the states (allowed after Error too; not after Fatal); 0, or the exit status. */
+static int free_states(Host *h) {
+    Fmu *f = &h->fmu;
+    void **states[2];
+    int i, rc = 0;
+    states[0] = &h->state;
+    states[1] = &h->restored;
+    snprintf(h->where, sizeof h->where, "the end");
+    for (i = 0; i < 2; i++) {
+        int s;
+        if (!*states[i] || !f->instance || f->fatal) continue;
+        s = f->version == 2 ? (int)f->f2.freeState(f->instance, states[i])
+                            : (int)f->f3.freeState(f->instance, states[i]);
+        if (after_call(h, call_name(f, "fmi2FreeFMUstate", "fmi3FreeFMUState"), s))
+            rc = EXIT_RUN_FAILED;
+    }
+    return rc;
+}
+
 static int run(Host *h) {
     Args *a = &h->args;
     Fmu *f = &h->fmu;
@@ -1245,6 +1580,30 @@ static int run(Host *h) {
     if (!(stop > start)) {
         say("the stop time %.17g must come after the start time %.17g", stop, start);
         return EXIT_BAD_INPUT;
+    }
+    if (a->state_row >= 0) {
+        if ((size_t)a->state_row >= in->n_rows) {
+            say("-k %ld: %s has %lu row(s); the state is taken before a row's step (0 .. %lu)",
+                a->state_row, a->inputs_path, (unsigned long)in->n_rows,
+                (unsigned long)in->n_rows - 1);
+            return EXIT_BAD_INPUT;
+        }
+        h->recorded = malloc((in->n_rows - (size_t)a->state_row + 1) *
+                             ((size_t)a->n_outputs + 2) * sizeof *h->recorded);
+        h->held_at_state = malloc((in->n_cols + 1) * sizeof *h->held_at_state);
+        if (!h->recorded || !h->held_at_state) {
+            say("out of memory");
+            return EXIT_BAD_INPUT;
+        }
+        if (a->state_in && !(h->foreign = read_bytes(a->state_in, &h->n_foreign)))
+            return EXIT_BAD_INPUT;
+        if (!(h->report = fopen(a->report_path, "w"))) {
+            say("%s: cannot write: %s", a->report_path, strerror(errno));
+            return EXIT_BAD_INPUT;
+        }
+        if (a->state_in)
+            fprintf(h->report, "bytes_read %s %lu\n", a->state_in, (unsigned long)h->n_foreign);
+        f->states = 1;
     }
     n_max = in->n_cols > (size_t)a->n_outputs ? in->n_cols : (size_t)a->n_outputs;
     f->reals = malloc((n_max + 1) * sizeof *f->reals);
@@ -1311,49 +1670,28 @@ static int run(Host *h) {
 
     /* ---- the rows */
     for (k = 0; k < in->n_rows; k++) {
-        const double *row = in->values + k * in->n_cols;
-        double tk = in->time[k], end;
-        double step = a->fixed_step ? a->step : (k + 1 < in->n_rows ? in->time[k + 1] : stop) - tk;
+        double end;
         int terminate, row_status;
-        snprintf(h->where, sizeof h->where, "%s:%ld (t = %.17g)", a->inputs_path, in->line[k], tk);
-        if (set_all(h, row) != 0) return EXIT_RUN_FAILED;
-        s = do_step(h, tk, step, &end, &terminate);
-        row_status = s;
-        if (s == 2) {
-            h->discards++;
-            h->warnings += report_call(&f->sink, h->where,
-                                       call_name(f, "fmi2DoStep", "fmi3DoStep"), s);
-            if (!a->hold) {
-                say("%s: stopped (-d stop)", h->where);
-                return EXIT_RUN_FAILED;
-            }
-            if (h->held_line > 0)
-                say("%s: retried from t = %.17g over %.17g s with the inputs of %s:%ld", h->where,
-                    tk, step, a->inputs_path, h->held_line);
-            else
-                say("%s: retried from t = %.17g over %.17g s with the inputs the FMU had after "
-                    "initialisation", h->where, tk, step);
-            if (set_all(h, h->held) != 0) return EXIT_RUN_FAILED;
-            s = do_step(h, tk, step, &end, &terminate);
-            if (s == 2) {
-                h->discards++;
-                h->warnings += report_call(&f->sink, h->where,
-                                           call_name(f, "fmi2DoStep", "fmi3DoStep"), s);
-                say("%s: the retry was discarded too: stopped", h->where);
-                return EXIT_RUN_FAILED;
-            }
-            exit_code = EXIT_DISCARDED;
-        } else {
-            memcpy(h->held, row, in->n_cols * sizeof *row);
-            h->held_line = in->line[k];
+        if (a->state_row >= 0 && k == (size_t)a->state_row) {
+            s = take_state(h);
+            if (s) return s;
         }
-        if (after_call(h, call_name(f, "fmi2DoStep", "fmi3DoStep"), s)) return EXIT_RUN_FAILED;
+        s = step_row(h, k, &end, &row_status, &terminate);
+        if (s) return s;
+        if (row_status == 2) exit_code = EXIT_DISCARDED;
         if (get_outputs(h) != 0) return EXIT_RUN_FAILED;
         if (write_row(h, end, row_status) != 0) return EXIT_BAD_INPUT;
+        if (h->recorded && k >= (size_t)a->state_row)
+            record_row(h, h->recorded + (k + 1 - (size_t)a->state_row) * (a->n_outputs + 2), end,
+                       row_status);
         if (terminate) {
             say("%s: the FMU asked to terminate the simulation at t = %.17g", h->where, end);
             if (k + 1 < in->n_rows) return EXIT_RUN_FAILED;
         }
+    }
+    if (a->state_row >= 0) {
+        s = round_trip(h);
+        if (s) return s;
     }
     return exit_code;
 }
@@ -1377,6 +1715,10 @@ static int run_command(int argc, char **argv) {
     h->fmu.sink.quiet = h->args.quiet;
     rc = run(h);
     instantiated = h->fmu.instance != NULL;
+    {
+        int freed = free_states(h);
+        if (freed > rc) rc = freed;
+    }
 
     /* ---- finish: terminate and free the instance as the FMI state allows */
     if (h->fmu.instance && !h->fmu.fatal) {
@@ -1394,6 +1736,14 @@ static int run_command(int argc, char **argv) {
         report_call(&f->sink, h->where, call_name(f, "fmi2FreeInstance", "fmi3FreeInstance"), 0);
     }
     if (h->fmu.library && !h->fmu.fatal) library_close(h->fmu.library);
+    if (h->report) {
+        if (rc >= EXIT_RUN_FAILED && h->fmu.sink.failure[0])
+            fprintf(h->report, "failed %s\n", h->fmu.sink.failure);
+        if (fclose(h->report) != 0) {
+            say("%s: cannot write: %s", h->args.report_path, strerror(errno));
+            rc = EXIT_BAD_INPUT;
+        }
+    }
     if (h->out && h->out != stdout) {
         if (fclose(h->out) != 0) {
             say("%s: cannot write: %s", h->args.out_path, strerror(errno));
@@ -1413,6 +1763,10 @@ static int run_command(int argc, char **argv) {
     free(h->out_vars);
     free(h->out_row);
     free(h->held);
+    free(h->recorded);
+    free(h->held_at_state);
+    free(h->bytes);
+    free(h->foreign);
     free(h->fmu.reals);
     free(h->fmu.ints2);
     free(h->fmu.ints3);

@@ -16,6 +16,12 @@ compile for each of them with all warnings as errors.
   Python controller's closed loop (test_ato_fmu.closed_loop_on_chain), through the same host on
   each platform (Booleans and Int32 among the inputs and outputs): every output at every step
   as the x86-64 binary's, within ATO_ULP_BOUNDS (the ATO calls libm's pow);
+- FMU states on every platform (csv_host -k): all six native FMUs (RailCar and the estimator on
+  two library scenarios, the AtoControllers on ato_nominal's span) take their state mid-run,
+  serialize it, and replay from the deserialized bytes and from the state itself bit for bit,
+  on each platform's binary; the bytes are compared with the x86-64 ones and the x86-64 bytes
+  are deserialized on the foreign platform: the same and replaying bit for bit on aarch64,
+  refused by the type-size check on Windows (LLP64), as STATE_OUTCOME records;
 - the commands docs/native_fmus.md gives Windows and ARM users, run as written: the libraries
   they build, put back into the FMU and zipped, run like the shipped binaries.
 
@@ -25,6 +31,7 @@ them all).
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import shutil
@@ -586,6 +593,175 @@ def test_the_native_atocontrollers_on_the_foreign_binary(hosts, ato_span, target
                    for output, d in diffs.items() if d.ulps > bounds.get(output, 0)]
     print("\n".join(report))
     assert not beyond, "\n".join(["beyond the bounds:", *beyond, *report])
+
+
+# ------------------------------------------- FMU states on every platform (csv_host -k)
+
+STATE_SCENARIOS = ("steep_grades", "headwind_change")
+"""The RailCar and estimator cases whose FMU states are checked: est.method 2 (the default: the
+slope window is in the state), steep_grades naming a grade-profile file (a String in the state),
+headwind_change with est.forgetting set. The AtoControllers: ato_nominal's span."""
+STATE_OUTCOME = {
+    "aarch64-linux": "portable",
+    "x86_64-windows": "refused",
+}
+"""What a state serialized by the linux x86-64 binary does on each foreign platform, measured
+2026-11-28. aarch64 (LP64, little-endian, the same struct layout): the same bytes (but for the
+ATO's ATO_TUNING_PADDING, cross_platform.py), and deserialized there it replays bit for bit.
+Windows x86-64 (LLP64: long has 4 bytes): other bytes from the header's type sizes on (every
+struct with a long is laid out otherwise; the state is the machine's representation by design,
+glue_common.c), refused by fmi2DeSerializeFMUstate / fmi3DeserializeFMUState naming the type
+sizes and "(another platform)", the instance left as the FMI's Error state allows (no crash)."""
+
+
+def ato_state_cases(span: SimpleNamespace) -> list:
+    """ato_nominal's span as cross_platform Cases (the inputs the Python controller saw), one per
+    native AtoController."""
+    names = tuple(span.seen[0])
+    rows = np.array([[float(inputs[n]) for n in names] for inputs in span.seen])
+    times = np.arange(len(span.seen)) * STEP_ATO
+    return [cross_platform.Case("ato_nominal", name, dict(span.parameters), names, times, rows,
+                                STEP_ATO, len(span.seen) * STEP_ATO) for name in ATO_NATIVE]
+
+
+def comparable(case, state: bytes) -> bytes:
+    """The bytes two platforms should share: an AtoController's with its tuning's padding (and
+    the checksum over it) zeroed -- see ATO_TUNING_PADDING for why that differs."""
+    if NATIVE[case.fmu][0] != "AtoController":
+        return state
+    return cross_platform.masked(state, cross_platform.ato_padding_ranges(state))
+
+
+@pytest.fixture(scope="module")
+def state_runs(sweep_inputs, ato_span) -> SimpleNamespace:
+    """Every native FMU's state round trip (csv_host -k, the state taken mid-run) on the linux
+    x86-64 binaries, in one host process: the reference bytes."""
+    cases = [c for c in sweep_inputs.cases if c.scenario in STATE_SCENARIOS]
+    cases += ato_state_cases(ato_span)
+    fmus = {**sweep_inputs.fmus, **ato_span.fmus}
+    folder = sweep_inputs.folder / "states"
+    started = time.perf_counter()
+    own, _, proc = cross_platform.run_state_round_trips(sweep_inputs.x86, cases, fmus, folder)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return SimpleNamespace(cases=cases, fmus=fmus, folder=folder, x86=own, proc=proc,
+                           seconds=time.perf_counter() - started, span=ato_span,
+                           platform=sweep_inputs.x86)
+
+
+def assert_round_trips(runs: dict, cases: list, label: str) -> None:
+    """Each case's passes B (from the bytes) and C (the state taken with get) equal pass A bit for
+    bit, and the report is whole: the row, the size of the bytes written."""
+    assert sorted(runs) == sorted(c.key for c in cases), label
+    for case in cases:
+        run = runs[case.key]
+        assert run.identical(), f"{label} {case.key}: {run.report}"
+        assert run.out_written and run.state is not None, f"{label} {case.key}"
+        assert int(run.report["row"]) == run.row == cross_platform.state_row(case)
+        assert int(run.report["serialized_size"]) == len(run.state) > 1000, case.key
+        assert run.state[:8] == b"RCFMUST\0", case.key
+
+
+def test_fmu_states_round_trip_on_the_x86_64_binary(state_runs):
+    """All six native FMUs (two library scenarios each for RailCar and the estimator, FMI 2 and
+    3; the AtoControllers mid-span on ato_nominal): the state taken mid-run, serialized,
+    deserialized and set, and the rows from there replayed bit for bit; the state taken with get
+    set again, likewise. The reference for the foreign platforms."""
+    assert {c.fmu for c in state_runs.cases} == set(NATIVE)
+    assert_round_trips(state_runs.x86, state_runs.cases, "x86_64-linux")
+    for case in state_runs.cases:
+        row = cross_platform.state_row(case)
+        assert 0.4 < row / len(case.times) < 0.6, case.key
+        if case.fmu in ATO_NATIVE:          # mid-span: on the move, far from both ends
+            seen = state_runs.span.seen[row]
+            assert 0.2 * ATO_SPAN["span.stop"] < seen["filter.position"] < 0.8 * ATO_SPAN["span.stop"]
+            assert seen["filter.speed"] > 5.0, case.key
+    print(f"x86_64-linux: {len(state_runs.cases)} state round trips in {state_runs.seconds:.1f} s")
+
+
+@pytest.mark.parametrize("target", FOREIGN, ids=[t.tuple for t in FOREIGN])
+def test_fmu_states_on_the_foreign_binary(sweep_inputs, state_runs, target):
+    """On ``target``'s binaries (one host process under qemu or Wine): every case's state round
+    trip bit for bit, as on x86-64; the bytes serialized there against the x86-64 ones; and the
+    x86-64 bytes deserialized there (csv_host -L): STATE_OUTCOME says which of "portable" (the
+    same bytes, and pass B from them bit for bit) or "refused" (other bytes from the header's
+    type sizes on, and the deserialize refused naming them, pass A whole, no crash) is the
+    platform's."""
+    platform = platform_or_skip(sweep_inputs, target)
+    cases = state_runs.cases
+    foreign = {c.key: state_runs.folder / LINUX_X86_64.tuple / c.key / "state.bin" for c in cases}
+    started = time.perf_counter()
+    own, loaded, proc = cross_platform.run_state_round_trips(platform, cases, state_runs.fmus,
+                                                             state_runs.folder, foreign)
+    seconds = time.perf_counter() - started
+    assert_round_trips(own, cases, target.tuple)
+    outcome = STATE_OUTCOME[target.tuple]
+    report = [f"{target.tuple}: {len(cases)} state round trips and {len(loaded)} x86-64 states "
+              f"loaded in {seconds:.1f} s (exit status {proc.returncode})"]
+    for case in cases:
+        mine, reference = own[case.key].state, state_runs.x86[case.key].state
+        report.append(f"  {case.key}: bytes against x86-64: "
+                      f"{cross_platform.state_field_difference(reference, mine)}; x86-64's "
+                      f"deserialized here: {loaded[case.key].report.get('pass_b') or loaded[case.key].report.get('failed')}")
+    text = "\n".join(report)
+    print(text)
+    assert sorted(loaded) == sorted(c.key for c in cases)
+    for case in cases:
+        mine, reference = own[case.key].state, state_runs.x86[case.key].state
+        run = loaded[case.key]
+        assert run.out_written, f"{case.key}: pass A not written\n{text}"
+        if outcome == "portable":
+            assert comparable(case, mine) == comparable(case, reference), text
+            assert run.identical(), f"{case.key}: {run.report}\n{text}"
+        else:
+            assert mine[:16] == reference[:16] and mine[16:24] != reference[16:24], text
+            assert "pass_b" not in run.report and "pass_c" not in run.report, run.report
+            call = "fmi2DeSerializeFMUstate" if NATIVE[case.fmu][1] == 2 else "fmi3DeserializeFMUState"
+            assert f"{call} returned Error: {call}: the FMU state was written where double, " \
+                   "long, void *, int, size_t have 8, 8, 8, 4, 8 bytes; here they have 8, 4, 8, " \
+                   "4, 8 (another platform)" in run.report.get("failed", ""), run.report
+    assert proc.returncode == (0 if outcome == "portable" else 2), proc.stderr[-4000:]
+
+
+def test_a_corrupt_state_is_refused_and_another_runs_state_is_seen(state_runs, tmp_path):
+    """csv_host -L with bytes that are not this run's state, on x86-64 (the checks are the
+    platform's own): one byte flipped in the model's part (the checksum sees it), the bytes cut
+    short, another FMU's state: each refused by fmi3DeserializeFMUState with its reason, pass A
+    written, the run stopped there (no pass B). A whole state of the same FMU from another
+    scenario's run (steep_grades' at its row, for headwind_change) is accepted, and
+    the host's comparison sees pass B leave pass A at the state's row, while pass C (the state
+    taken with get) stays identical. One host process; its exit status 2."""
+    case = next(c for c in state_runs.cases
+                if c.fmu == "RailCarEstimatorNative3" and c.scenario == "headwind_change")
+    good = state_runs.x86[case.key].state
+    flipped = bytearray(good)
+    flipped[len(good) // 2] ^= 0x01
+    bad = {"flipped": bytes(flipped), "truncated": good[:-100],
+           "other_fmu": state_runs.x86["headwind_change.RailCarNative3"].state,
+           "other_run": state_runs.x86["steep_grades.RailCarEstimatorNative3"].state}
+    reasons = {"flipped": "the FMU state is corrupt (checksum mismatch",
+               "truncated": "(truncated)",
+               "other_fmu": "the FMU state belongs to another FMU"}
+    cases, foreign = [], {}
+    for label, data in bad.items():       # one case per bad state: one host process
+        (tmp_path / f"{label}.bin").write_bytes(data)
+        cases.append(dataclasses.replace(case, scenario=f"{case.scenario}_{label}"))
+        foreign[cases[-1].key] = tmp_path / f"{label}.bin"
+    own, loaded, proc = cross_platform.run_state_round_trips(state_runs.platform, cases,
+                                                             state_runs.fmus, tmp_path, foreign)
+    assert proc.returncode == 2, proc.stderr
+    for label, run_case in zip(bad, cases):
+        run = loaded[run_case.key]
+        assert own[run_case.key].identical(), own[run_case.key].report
+        assert run.out_written, label
+        assert f"state_runs.txt:{2 * cases.index(run_case) + 2}: exit status 2" in proc.stderr
+        if label == "other_run":
+            row = cross_platform.state_row(case)
+            assert run.report["pass_b"].startswith(f"differs row {row} column "), run.report
+            assert run.report["pass_c"] == "identical" and "failed" not in run.report
+            continue
+        assert "pass_b" not in run.report, (label, run.report)
+        assert "fmi3DeserializeFMUState returned Error" in run.report.get("failed", ""), run.report
+        assert reasons[label] in run.report["failed"], (label, run.report)
 
 
 # ------------------------------------------------------------- a machine without a compiler
