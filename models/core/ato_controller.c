@@ -284,7 +284,7 @@ rc_status ato_controller_init(ato_controller *c, const rc_ato_span *span, const 
     memset(c, 0, sizeof *c);
     c->span = span;
     c->car = car;
-    c->tuning = *tuning;
+    memcpy(&c->tuning, tuning, sizeof c->tuning);   /* padding too: a state's bytes are written whole */
     if (msg != NULL)
         msg[0] = '\0';
     rc_error err;

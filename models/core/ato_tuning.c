@@ -30,6 +30,7 @@ double ato_stated_prior(int index)
 
 void ato_tuning_defaults(ato_tuning *t)
 {
+    memset(t, 0, sizeof *t);      /* padding included: an FMU state holds the struct's bytes */
     t->replan = 1;
     t->use_estimates = 1;
     t->replan_period = 2.0;

@@ -390,69 +390,6 @@ def state_field_difference(a: bytes, b: bytes) -> str:
     return f"{prefix}first at byte {at}: offset {at - model_at} of the model's part"
 
 
-# ATO_TUNING_PADDING: the bytes of each controller image (models/core/ato_line.c put_controller:
-# the ato_controller struct whole) that are struct padding inside its ato_tuning, on LP64 (linux
-# x86-64 and aarch64 lay it out alike): ``tuning`` is at offset 16; the 4 bytes after the int
-# min_samples (tuning offset 32) and after the int ep_stages (tuning offset 128). They hold
-# whatever the stack held (native_ato.c build()'s ``ato_tuning tuning`` is filled field by field,
-# then copied whole by ato_controller_init's ``c->tuning = *tuning``): the upper half of a heap
-# pointer was measured there, so they differ from run to run (ASLR) on one platform too.
-ATO_TUNING_PADDING = ((16 + 36, 16 + 40), (16 + 132, 16 + 136))
-
-
-def _u32(b: bytes, at: int) -> int:
-    return int.from_bytes(b[at:at + 4], "little")
-
-
-def _u64(b: bytes, at: int) -> int:
-    return int.from_bytes(b[at:at + 8], "little")
-
-
-def ato_padding_ranges(state: bytes) -> list[tuple[int, int]]:
-    """[start, end) byte ranges of ATO_TUNING_PADDING in a serialized AtoController state of a
-    little-endian LP64 platform, walking native_ato_state.c's layout (its header comment) to
-    each controller image. [] for a state whose line is not built."""
-    at = 40 + _u32(state, 28) + 24                 # glue header, token, glue fields: the model
-    nvars = _u32(state, at)
-    at += 4 + 8 * nvars + 4 * nvars + 16           # Reals, Integers, start time, time
-    for _ in range(nvars):                         # Strings
-        length = _u64(state, at)
-        at += 8 + (0 if length == 2 ** 64 - 1 else length)
-    built, n_spans = _u32(state, at), _u32(state, at + 4)
-    if not built:
-        return []
-    at += 8
-    at += 8 + 24 * _u64(state, at)                 # the grade: 3 doubles a row
-    at += 8 + _u64(state, at)                      # the car
-    at += 8                                        # the limits' rows, all spans
-    for _ in range(n_spans):                       # length, schedule, stop; the limits
-        at += 24
-        at += 8 + 16 * _u64(state, at)
-    at += 24 * n_spans                             # dwells, boardings, events logged
-    at += 8                                        # the line's running state's size
-    at += 8 + _u64(state, at)                      # the ato_line image
-    at += 8 * n_spans                              # the departures
-    ranges = []
-    for _ in range(n_spans):                       # each controller (ato_line.c put_controller)
-        size = _u64(state, at)
-        image = at + 8
-        ranges += [(image + lo, image + hi) for lo, hi in ATO_TUNING_PADDING]
-        at = image + size + 5 * 4                  # the image, five pointer codes
-        nodes = _u64(state, at)
-        at += 8 + 8 * (3 * nodes - 1)              # the course: s, g, qlim
-        at += 8 + _u64(state, at)                  # the planner's block
-    assert at == len(state) - 8, f"the walk ended at {at}, the checksum is at {len(state) - 8}"
-    return ranges
-
-
-def masked(state: bytes, ranges: list[tuple[int, int]]) -> bytes:
-    """The bytes with the given ranges and the checksum (which covers them) zeroed."""
-    out = bytearray(state)
-    for lo, hi in [*ranges, (len(state) - 8, len(state))]:
-        out[lo:hi] = bytes(hi - lo)
-    return bytes(out)
-
-
 # ------------------------------------------------------------------------------ comparison
 
 def _ordered(a: np.ndarray) -> np.ndarray:
