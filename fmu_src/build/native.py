@@ -511,8 +511,9 @@ def build_native_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
 
 ATO_NATIVE_NAME = "AtoControllerNative"
 ATO_TABLE_HEADER = C_DIR / "native_ato_table.h"
-ATO_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_ato.c", "native_ato_state.c"]
-ATO_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_ato.h"]
+ATO_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_ato.c", "native_ato_profiles.c",
+               "native_ato_state.c"]
+ATO_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_ato.h", "native_ato_profiles.h"]
 _GLUE_ATO = {**_GLUE, "Boolean": "GLUE_BOOLEAN"}
 
 
