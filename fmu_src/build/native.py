@@ -68,8 +68,9 @@ BASE_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", "-f
 C_FLAGS = [*BASE_FLAGS, *LINUX_X86_64.flags]
 """The linux x86-64 flags (benchmarks compile with them)."""
 CONFIG_CONSTANT, CONFIG_START_TIME = -1, -2
-COMMON_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_common.c", "native_state.c"]
-COMMON_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_common.h"]
+COMMON_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_common.c", "native_state.c",
+                  "native_state_read.c"]
+COMMON_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_common.h", "native_state_read.h"]
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 
 _GLUE = {"Real": "GLUE_REAL", "Integer": "GLUE_INTEGER", "String": "GLUE_STRING"}
@@ -511,8 +512,10 @@ def build_native_estimator_fmu(dest_dir, estimator_fmu=None) -> Path:
 
 ATO_NATIVE_NAME = "AtoControllerNative"
 ATO_TABLE_HEADER = C_DIR / "native_ato_table.h"
-ATO_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_ato.c", "native_ato_state.c"]
-ATO_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_ato.h"]
+ATO_SOURCES = ["fmi2_glue.c", "glue_common.c", "native_ato.c", "native_ato_profiles.c",
+               "native_ato_state.c", "native_state_read.c"]
+ATO_HEADERS = ["fmi2_glue.h", "glue_common.h", "native_ato.h", "native_ato_profiles.h",
+               "native_state_read.h"]
 _GLUE_ATO = {**_GLUE, "Boolean": "GLUE_BOOLEAN"}
 
 

@@ -24,26 +24,21 @@
  *   ("t = %.3f s: [span k: ]<text>", the span named on a line of several); fmi2Warning when
  *   the command is the safe brake (ato.mode 9).
  *
- * FMU states (canGetAndSetFMUstate and canSerializeFMUstate "true"): native_ato_state.c (the
- * instance, nat_instance, is native_ato.h's).
+ * The profile files (their names checked, span.grade_profile, span.speed_limit_profile, the
+ * line files) are read by native_ato_profiles.c. FMU states (canGetAndSetFMUstate and
+ * canSerializeFMUstate "true"): native_ato_state.c (the instance, nat_instance, is
+ * native_ato.h's).
  */
-#define _POSIX_C_SOURCE 200809L
-
-#include <errno.h>
-#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
-#include "native_ato.h"
+#include "native_ato_profiles.h"
 #include "plant.h"
-#include "profile.h"
 #include "rc_common.h"
 
-#define MSG_SIZE ATO_TEXT_SIZE
 #define REPR_SIZE 40
 #define NAT_MAX_SPEED 200.0      /* [m/s] models.plant.track.MAX_SPEED, Span's limit bound */
 #define NAT_MAX_STEP 3600.0      /* [s] models.chain.MAX_STEP */
@@ -54,7 +49,7 @@ GLUE_EXPORT const char *railcar_fmu_binary_id(void) {
 }
 
 
-static const char *string_of(const nat_instance *m, int vr) {
+const char *nat_string_of(const nat_instance *m, int vr) {
     return m->string[vr] ? m->string[vr] : NAT_VARS[vr].start_string;
 }
 
@@ -187,13 +182,13 @@ fmi2Status model_get(GlueInstance *g, GlueType type, const fmi2ValueReference vr
         for (i = 0; i < nvr; i++) ((fmi2Boolean *)values)[i] = m->integer[vr[i]] ? fmi2True : fmi2False;
         return fmi2OK;
     case GLUE_STRING:
-        for (i = 0; i < nvr; i++) total += strlen(string_of(m, (int)vr[i])) + 1;
+        for (i = 0; i < nvr; i++) total += strlen(nat_string_of(m, (int)vr[i])) + 1;
         if (!(space = glue_string_space(g, total ? total : 1))) {
             glue_log(g, fmi2Error, "logStatusError", "fmi2GetString: out of memory");
             return fmi2Error;
         }
         for (i = 0; i < nvr; i++) {   /* valid until the next call on this instance */
-            const char *s = string_of(m, (int)vr[i]);
+            const char *s = nat_string_of(m, (int)vr[i]);
             size_t n = strlen(s) + 1;
             memcpy(space, s, n);
             ((fmi2String *)values)[i] = space;
@@ -238,16 +233,10 @@ fmi2Status model_set(GlueInstance *g, GlueType type, const fmi2ValueReference vr
 
 /* ------------------------------------------------------------------------- messages */
 
-/* msg[MSG_SIZE] = the formatted text; returns 0 (a refusal) */
-static int refuse(char *msg, const char *fmt, ...)
-#if defined(__GNUC__)
-    __attribute__((format(printf, 2, 3)))
-#endif
-    ;
-static int refuse(char *msg, const char *fmt, ...) {
+int nat_refuse(char *msg, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(msg, MSG_SIZE, fmt, ap);
+    rc_vrefuse(msg, NAT_MSG_SIZE, RC_BAD_CONFIG, fmt, ap);
     va_end(ap);
     return 0;
 }
@@ -262,7 +251,7 @@ static const char *repr(double x, char *buf) {
    "span.speed_limit_profile", "line.speed_limit_profile span 3"), else "span.speed_limit";
    "tuning." -> "ato." */
 static void fmu_names(char *msg, const char *rows) {
-    char out[MSG_SIZE];
+    char out[NAT_MSG_SIZE];
     size_t o = 0;
     const char *p = msg;
     while (*p && o + 1 < sizeof out) {
@@ -293,138 +282,6 @@ static void fmu_names(char *msg, const char *rows) {
     memcpy(msg, out, o + 1);
 }
 
-/* ------------------------------------------------------------------------- profile files */
-
-/* check_span_parameters' file-name check: a name the file system refuses names the parameter */
-static int usable_name(GlueInstance *g, const nat_instance *m, int vr, char *msg) {
-    const char *raw = string_of(m, vr);
-    char *path;
-    struct stat st;
-    int bad = 0, code = 0;
-    if (!raw[0]) return 1;
-    if (!(path = gc_resolve_profile_path(raw, g->resources))) return refuse(msg, "out of memory");
-    if (stat(path, &st) != 0) {
-        code = errno;             /* pathlib's is_file() lets only these through */
-        bad = code != ENOENT && code != ENOTDIR && code != EBADF && code != ELOOP;
-    }
-    free(path);
-    if (!bad) return 1;
-    {
-        size_t chars = 0, cut = 0;
-        const unsigned char *s = (const unsigned char *)raw;
-        size_t i;
-        for (i = 0; s[i]; i++)
-            if ((s[i] & 0xC0) != 0x80) {
-                if (chars == 60) cut = i;
-                chars++;
-            }
-        if (chars <= 80)
-            return refuse(msg, "%s: cannot use '%s' as a file name: %s", NAT_VARS[vr].name, raw,
-                          strerror(code));
-        return refuse(msg, "%s: cannot use '%.*s...(%lu characters)' as a file name: %s",
-                      NAT_VARS[vr].name, (int)cut, raw, (unsigned long)chars, strerror(code));
-    }
-}
-
-/* read_grade: the grade profile of span.grade_profile (level if empty), its integral ready */
-static int read_grade(GlueInstance *g, nat_instance *m, char *msg) {
-    static const double level = 0.0;
-    const char *raw = string_of(m, NAT_VR_SPAN_GRADE_PROFILE);
-    const double *d = &level, *gr = &level;
-    long n = 1;
-    rc_profile prof;
-    memset(&prof, 0, sizeof prof);
-    if (raw[0]) {
-        char *path = gc_resolve_profile_path(raw, g->resources);
-        int status;
-        if (!path) return refuse(msg, "out of memory");
-        status = rc_profile_read_file(path, "span.grade_profile", raw, RC_PROFILE_GRADE, &prof);
-        free(path);
-        if (status != RC_OK) {
-            refuse(msg, "%s", prof.message ? prof.message : prof.err.msg);
-            rc_profile_free(&prof);
-            return 0;
-        }
-        d = prof.distances;
-        gr = prof.values;
-        n = prof.n;
-    }
-    if (!(m->grade_block = malloc(3 * (size_t)n * sizeof(double)))) {
-        rc_profile_free(&prof);
-        return refuse(msg, "out of memory");
-    }
-    memcpy(m->grade_block, d, (size_t)n * sizeof(double));
-    memcpy(m->grade_block + n, gr, (size_t)n * sizeof(double));
-    rc_profile_free(&prof);
-    m->span.grade.n = (int)n;
-    m->span.grade.distances = m->grade_block;
-    m->span.grade.grades = m->grade_block + n;
-    rc_grade_cumulate(m->grade_block, m->grade_block + n, n, m->grade_block + 2 * n);
-    m->span.grade.cum = m->grade_block + 2 * n;
-    return 1;
-}
-
-/* read_profile_text: the text of the file the parameter `param` (value raw) names, 1 with
-   *text NULL for an empty raw; else 0 with Python's refusal in msg. *text and *where (str(path))
-   malloc'd: the caller frees them. */
-static int read_text(GlueInstance *g, const char *param, const char *raw, char **text,
-                     size_t *len, char **where, char *msg) {
-    rc_profile refusal;
-    char *path;
-    int status;
-    *text = NULL;
-    *where = NULL;
-    *len = 0;
-    if (!raw[0]) return 1;
-    if (!(path = gc_resolve_profile_path(raw, g->resources))) return refuse(msg, "out of memory");
-    status = rc_profile_read_text(path, param, raw, text, len, where, &refusal);
-    free(path);
-    if (status == RC_OK) return 1;
-    refuse(msg, "%s", refusal.message ? refusal.message : refusal.err.msg);
-    rc_profile_free(&refusal);
-    return 0;
-}
-
-/* open_ato's limits: span.speed_limit_profile (parse_profile_csv with columns distance_m,
-   speed_limit_mps, read by read_profile_text) or the one limit span.speed_limit */
-static int read_limits(GlueInstance *g, nat_instance *m, int *from_profile, char *msg) {
-    const char *raw = string_of(m, NAT_VR_SPAN_SPEED_LIMIT_PROFILE);
-    rc_profile lim;
-    char *text, *where;
-    size_t len;
-    int status;
-    *from_profile = raw[0] != '\0';
-    if (!raw[0]) {
-        if (!(m->limit_block = malloc(2 * sizeof(double)))) return refuse(msg, "out of memory");
-        m->limit_block[0] = 0.0;
-        m->limit_block[1] = m->real[NAT_VR_SPAN_SPEED_LIMIT];
-        m->span.n_limits = 1;
-        m->span.limit_distances = m->limit_block;
-        m->span.limit_speeds = m->limit_block + 1;
-        return 1;
-    }
-    if (!read_text(g, "span.speed_limit_profile", raw, &text, &len, &where, msg)) return 0;
-    status = rc_profile_parse(text, len, where, "distance_m", "speed_limit_mps", 0, INFINITY, &lim);
-    free(text);
-    free(where);
-    if (status != RC_OK) {
-        refuse(msg, "span.speed_limit_profile: %s", lim.message ? lim.message : lim.err.msg);
-        rc_profile_free(&lim);
-        return 0;
-    }
-    if (!(m->limit_block = malloc(2 * (size_t)lim.n * sizeof(double)))) {
-        rc_profile_free(&lim);
-        return refuse(msg, "out of memory");
-    }
-    memcpy(m->limit_block, lim.distances, (size_t)lim.n * sizeof(double));
-    memcpy(m->limit_block + lim.n, lim.values, (size_t)lim.n * sizeof(double));
-    m->span.n_limits = (int)lim.n;
-    m->span.limit_distances = m->limit_block;
-    m->span.limit_speeds = m->limit_block + lim.n;
-    rc_profile_free(&lim);
-    return 1;
-}
-
 /* ------------------------------------------------------------------------- the checks */
 
 /* check_span_parameters */
@@ -436,15 +293,15 @@ static int check_span_parameters(GlueInstance *g, const nat_instance *m, char *m
     char r[REPR_SIZE];
     size_t k;
     if (!(isfinite(stop) && stop > 0.0))
-        return refuse(msg, "span.stop = %s m must be finite and > 0 (the stop mark's distance "
-                      "from the departure station)", repr(stop, r));
+        return nat_refuse(msg, "span.stop = %s m must be finite and > 0 (the stop mark's distance "
+                          "from the departure station)", repr(stop, r));
     if (!(isfinite(length) && length >= 0.0))
-        return refuse(msg, "span.length = %s m must be finite and >= 0 (0: span.stop)",
-                      repr(length, r));
+        return nat_refuse(msg, "span.length = %s m must be finite and >= 0 (0: span.stop)",
+                          repr(length, r));
     if (!(isfinite(schedule) && schedule > 0.0))
-        return refuse(msg, "span.schedule = %s s must be finite and > 0", repr(schedule, r));
+        return nat_refuse(msg, "span.schedule = %s s must be finite and > 0", repr(schedule, r));
     for (k = 0; k < sizeof profiles / sizeof profiles[0]; k++)
-        if (!usable_name(g, m, profiles[k], msg)) return 0;
+        if (!nat_usable_name(g, m, profiles[k], msg)) return 0;
     return 1;
 }
 
@@ -453,29 +310,30 @@ static int check_span(const rc_ato_span *s, char *msg) {
     char a[REPR_SIZE], b[REPR_SIZE], c[REPR_SIZE];
     int k;
     if (s->stop > s->length)
-        return refuse(msg, "span.stop = %s m is beyond the span (span.length = %s m)",
-                      repr(s->stop, a), repr(s->length, b));
+        return nat_refuse(msg, "span.stop = %s m is beyond the span (span.length = %s m)",
+                          repr(s->stop, a), repr(s->length, b));
     for (k = 0; k < s->n_limits; k++)
         if (!isfinite(s->limit_distances[k]))
-            return refuse(msg, "span.limit_distances[%d] must be finite, got %s", k,
-                          repr(s->limit_distances[k], a));
+            return nat_refuse(msg, "span.limit_distances[%d] must be finite, got %s", k,
+                              repr(s->limit_distances[k], a));
     for (k = 0; k < s->n_limits; k++)
         if (!isfinite(s->limit_speeds[k]))
-            return refuse(msg, "span.limit_speeds[%d] must be finite, got %s", k,
-                          repr(s->limit_speeds[k], a));
+            return nat_refuse(msg, "span.limit_speeds[%d] must be finite, got %s", k,
+                              repr(s->limit_speeds[k], a));
     if (s->limit_distances[0] != 0.0)
-        return refuse(msg, "span.limit_distances[0] must be 0, got %s",
-                      repr(s->limit_distances[0], a));
+        return nat_refuse(msg, "span.limit_distances[0] must be 0, got %s",
+                          repr(s->limit_distances[0], a));
     for (k = 1; k < s->n_limits; k++)
         if (!(s->limit_distances[k - 1] < s->limit_distances[k] &&
               s->limit_distances[k] < s->length))
-            return refuse(msg, "span.limit_distances[%d] = %s must increase and lie inside the "
-                          "span [0, %s)", k, repr(s->limit_distances[k], a), repr(s->length, b));
+            return nat_refuse(msg, "span.limit_distances[%d] = %s must increase and lie inside "
+                              "the span [0, %s)", k, repr(s->limit_distances[k], a),
+                              repr(s->length, b));
     for (k = 0; k < s->n_limits; k++)
         if (!(0.0 < s->limit_speeds[k] && s->limit_speeds[k] <= NAT_MAX_SPEED))
-            return refuse(msg, "span.limit_speeds[%d] = %s m/s (from s = %s m) must be in (0, %s]",
-                          k, repr(s->limit_speeds[k], a), repr(s->limit_distances[k], b),
-                          repr(NAT_MAX_SPEED, c));
+            return nat_refuse(msg, "span.limit_speeds[%d] = %s m/s (from s = %s m) must be in "
+                              "(0, %s]", k, repr(s->limit_speeds[k], a),
+                              repr(s->limit_distances[k], b), repr(NAT_MAX_SPEED, c));
     return 1;                   /* the grades: the profile reader bounds them as Span does */
 }
 
@@ -501,24 +359,29 @@ static int read_car(const nat_instance *m, rc_ato_car *car, char *msg) {
     for (k = 0; k < NAT_CAR_FIELDS; k++) {
         double x = m->real[NAT_VR_CAR_MASS + k];
         if (strcmp(NAT_VARS[NAT_VR_CAR_MASS + k].name + 4, names[k]))
-            return refuse(msg, "car.%s is not where this FMU expects it (rebuild it)", names[k]);
+            return nat_refuse(msg, "car.%s is not where this FMU expects it (rebuild it)",
+                              names[k]);
         if (!isfinite(x))
-            return refuse(msg, "car.%s must be finite, got %s", names[k], repr(x, a));
+            return nat_refuse(msg, "car.%s must be finite, got %s", names[k], repr(x, a));
         *fields[k] = x;
     }
     if (car->regen_force_max < 0)
-        return refuse(msg, "car.regen_force_max must be >= 0, got %s", repr(car->regen_force_max, a));
+        return nat_refuse(msg, "car.regen_force_max must be >= 0, got %s",
+                          repr(car->regen_force_max, a));
     if (car->regen_power_max < 0 || car->regen_power_max == 0)
-        return refuse(msg, "car.regen_power_max must be > 0, got %s", repr(car->regen_power_max, a));
+        return nat_refuse(msg, "car.regen_power_max must be > 0, got %s",
+                          repr(car->regen_power_max, a));
     if (car->mech_force_max < 0)
-        return refuse(msg, "car.mech_force_max must be >= 0, got %s", repr(car->mech_force_max, a));
+        return nat_refuse(msg, "car.mech_force_max must be >= 0, got %s",
+                          repr(car->mech_force_max, a));
     if (!(0.0 <= car->regen_off_speed && car->regen_off_speed <= car->regen_fade_speed))
-        return refuse(msg, "car.regen_off_speed must be in [0, car.regen_fade_speed = %s], got %s",
-                      repr(car->regen_fade_speed, a), repr(car->regen_off_speed, b));
+        return nat_refuse(msg, "car.regen_off_speed must be in [0, car.regen_fade_speed = %s], "
+                          "got %s",
+                          repr(car->regen_fade_speed, a), repr(car->regen_off_speed, b));
     if (!(0.0 < car->eta_f && car->eta_f <= 1.0))
-        return refuse(msg, "car.eta_f must be in (0, 1], got %s", repr(car->eta_f, a));
+        return nat_refuse(msg, "car.eta_f must be in (0, 1], got %s", repr(car->eta_f, a));
     if (!(0.0 <= car->eta && car->eta <= 1.0))
-        return refuse(msg, "car.eta must be in [0, 1], got %s", repr(car->eta, a));
+        return nat_refuse(msg, "car.eta must be in [0, 1], got %s", repr(car->eta, a));
     memset(&vehicle, 0, sizeof vehicle);
     vehicle.mass = car->mass;
     vehicle.A0 = car->A0;
@@ -532,7 +395,8 @@ static int read_car(const nat_instance *m, rc_ato_car *car, char *msg) {
     vehicle.adhesion_mass_fraction = car->adhesion_mass_fraction;
     vehicle.adhesion_factor = car->adhesion_factor;
     /* VehicleParams.validate("car."); a step and noise it accepts: only the car is checked */
-    if (rc_plant_validate(&vehicle, 0.01, 0.0, &err) != RC_OK) return refuse(msg, "%s", err.msg);
+    if (rc_plant_validate(&vehicle, 0.01, 0.0, &err) != RC_OK)
+        return nat_refuse(msg, "%s", err.msg);
     return 1;
 }
 
@@ -548,7 +412,7 @@ static int read_tuning(const nat_instance *m, ato_tuning *tn, char *msg) {
                 && !strcmp(NAT_VARS[vr].name + 4, f->name))
                 break;
         if (vr == NAT_NVARS)
-            return refuse(msg, "ato.%s is not a parameter of this FMU (rebuild it)", f->name);
+            return nat_refuse(msg, "ato.%s is not a parameter of this FMU (rebuild it)", f->name);
         if (f->kind == ATO_FIELD_REAL) *(double *)(void *)at = m->real[vr];
         else *(int *)(void *)at = (int)m->integer[vr];
     }
@@ -580,7 +444,7 @@ static int alloc_line(nat_instance *m, int n, char *msg) {
     m->controllers = calloc((size_t)n, sizeof *m->controllers);
     m->logged = calloc((size_t)n, sizeof *m->logged);
     if (!m->spans || !m->line_block || !m->controllers || !m->logged)
-        return refuse(msg, "out of memory");
+        return nat_refuse(msg, "out of memory");
     m->n_spans = n;
     m->spans[0] = m->span;      /* LineSpan(span): the first span has no dwell nor boarding */
     return 1;
@@ -620,35 +484,11 @@ static int refuse_first_span(char *msg, int from_profile) {
    reads the line files, so its refusal wins over theirs. */
 static int build_line(GlueInstance *g, nat_instance *m, const ato_tuning *tuning,
                       int from_profile, char *msg) {
-    char *line_text = NULL, *line_where = NULL, *lim_text = NULL, *lim_where = NULL;
-    size_t line_len = 0, lim_len = 0;
+    char *line_where = NULL;
     ato_line_row *rows = NULL;
     long n_rows = 0, j;
-    rc_profile refusal;
     int ok = 0, n;
-    memset(&refusal, 0, sizeof refusal);
-    if (!read_text(g, "line.profile", string_of(m, NAT_VR_LINE_PROFILE), &line_text, &line_len,
-                   &line_where, msg) ||
-        !read_text(g, "line.speed_limit_profile", string_of(m, NAT_VR_LINE_SPEED_LIMIT_PROFILE),
-                   &lim_text, &lim_len, &lim_where, msg))
-        goto refused_files;
-    if (!line_text && lim_text) {
-        refuse(msg, "line.speed_limit_profile: %s: given without line.profile (the spans it "
-               "limits)", lim_where);
-        goto refused_files;
-    }
-    if (line_text) {
-        if (ato_line_profile_parse(line_text, line_len, line_where, &rows, &n_rows, &refusal)
-                != RC_OK)
-            goto refused_parse;
-        if (n_rows >= INT_MAX / 8) {
-            refuse(msg, "line.profile: %s: out of memory (%ld spans)", line_where, n_rows);
-            goto refused_files;
-        }
-        if (lim_text && ato_line_limits_parse(lim_text, lim_len, lim_where, (int)n_rows + 1,
-                                              &m->line_limits, &refusal) != RC_OK)
-            goto refused_parse;
-    }
+    if (!nat_read_line_files(g, m, &rows, &n_rows, &line_where, msg)) goto refused_files;
     n = (int)n_rows + 1;
     if (!alloc_line(m, n, msg)) goto done;
     for (j = 0; j < n_rows; j++) {                  /* span k = j + 2 */
@@ -678,10 +518,10 @@ static int build_line(GlueInstance *g, nat_instance *m, const ato_tuning *tuning
             snprintf(rows_of, sizeof rows_of, "line.speed_limit_profile span %d", k);
             fmu_names(msg, limited ? rows_of : NULL);
             {
-                char reason[MSG_SIZE];
-                memcpy(reason, msg, MSG_SIZE);
-                refuse(msg, "line.profile: %s: line %ld (span %d): %s", line_where, row->line, k,
-                       reason);
+                char reason[NAT_MSG_SIZE];
+                memcpy(reason, msg, NAT_MSG_SIZE);
+                nat_refuse(msg, "line.profile: %s: line %ld (span %d): %s", line_where,
+                           row->line, k, reason);
             }
             goto refused_files;
         }
@@ -692,40 +532,34 @@ static int build_line(GlueInstance *g, nat_instance *m, const ato_tuning *tuning
         if (k <= 1 || !end || strncmp(end, ": ", 2) || k > n) {
             refuse_first_span(msg, from_profile);
         } else {                                    /* AtoController's refusal of span k */
-            char reason[MSG_SIZE], rows_of[64];
+            char reason[NAT_MSG_SIZE], rows_of[64];
             int limited = m->line_limits.count && m->line_limits.count[k] > 0;
             snprintf(reason, sizeof reason, "%s", end + 2);
             snprintf(rows_of, sizeof rows_of, "line.speed_limit_profile span %ld", k);
             fmu_names(reason, limited ? rows_of : NULL);
-            refuse(msg, "line.profile: %s: line %ld (span %ld): the ATO cannot run this span: %s",
-                   line_where, rows[k - 2].line, k, reason);
+            nat_refuse(msg, "line.profile: %s: line %ld (span %ld): the ATO cannot run this "
+                       "span: %s", line_where, rows[k - 2].line, k, reason);
         }
         goto done;
     }
     ok = 1;
     goto done;
-refused_parse:
-    refuse(msg, "%s", refusal.message ? refusal.message : refusal.err.msg);
 refused_files:
     {                                               /* unless span 1's controller refuses */
-        char first[MSG_SIZE];
+        char first[NAT_MSG_SIZE];
         drop_spans(m);
         if (!alloc_line(m, 1, first)) {
-            memcpy(msg, first, MSG_SIZE);
+            memcpy(msg, first, NAT_MSG_SIZE);
         } else if (init_line(m, tuning, first) == RC_OK) {
             ato_line_free(&m->line);                /* span 1 runs: the files' refusal stands */
         } else {
-            memcpy(msg, first, MSG_SIZE);
+            memcpy(msg, first, NAT_MSG_SIZE);
             refuse_first_span(msg, from_profile);
         }
     }
 done:
-    rc_profile_free(&refusal);
     free(rows);
-    free(line_text);
     free(line_where);
-    free(lim_text);
-    free(lim_where);
     return ok;
 }
 
@@ -734,8 +568,8 @@ static int build(GlueInstance *g, nat_instance *m, char *msg) {
     ato_tuning tuning;
     int from_profile = 0;
     double length;
-    if (!check_span_parameters(g, m, msg) || !read_grade(g, m, msg) ||
-        !read_limits(g, m, &from_profile, msg))
+    if (!check_span_parameters(g, m, msg) || !nat_read_grade(g, m, msg) ||
+        !nat_read_limits(g, m, &from_profile, msg))
         return 0;
     length = m->real[NAT_VR_SPAN_LENGTH];
     m->span.stop = m->real[NAT_VR_SPAN_STOP];
@@ -747,7 +581,8 @@ static int build(GlueInstance *g, nat_instance *m, char *msg) {
     }
     {
         rc_error err;
-        if (ato_tuning_validate(&tuning, "ato.", &err) != RC_OK) return refuse(msg, "%s", err.msg);
+        if (ato_tuning_validate(&tuning, "ato.", &err) != RC_OK)
+            return nat_refuse(msg, "%s", err.msg);
     }
     if (!build_line(g, m, &tuning, from_profile, msg)) return 0;
     m->built = 1;
@@ -759,7 +594,7 @@ static int build(GlueInstance *g, nat_instance *m, char *msg) {
 
 fmi2Status model_exit_initialization_mode(GlueInstance *g) {
     nat_instance *m = MODEL(g);
-    char msg[MSG_SIZE];
+    char msg[NAT_MSG_SIZE];
     msg[0] = '\0';
     nat_drop_line(m);
     memset(&m->span, 0, sizeof m->span);

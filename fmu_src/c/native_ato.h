@@ -1,5 +1,6 @@
-/* native_ato.h -- what the native AtoController's two files share: the instance (native_ato.c
- * builds and steps it) and its FMU states (native_ato_state.c saves and restores it). */
+/* native_ato.h -- what the native AtoController's files share: the instance (native_ato.c
+ * builds and steps it, reading its profile files with native_ato_profiles.c) and its FMU states
+ * (native_ato_state.c saves and restores it). */
 #ifndef NATIVE_ATO_H
 #define NATIVE_ATO_H
 
@@ -32,6 +33,18 @@ typedef struct {
 } nat_instance;
 
 #define MODEL(g) ((nat_instance *)(g)->model)
+
+#define NAT_MSG_SIZE ATO_TEXT_SIZE     /* a refusal's message buffer [chars] */
+
+/* String parameter vr's value: the one set, else its start value (native_ato.c) */
+const char *nat_string_of(const nat_instance *m, int vr);
+
+/* msg[NAT_MSG_SIZE] printf-formatted (the core's rc_vrefuse); returns 0, a refusal
+   (native_ato.c) */
+#if defined(__GNUC__)
+__attribute__((format(printf, 2, 3)))
+#endif
+int nat_refuse(char *msg, const char *fmt, ...);
 
 /* frees the line and everything built with it (the instance is unbuilt after; native_ato.c) */
 void nat_drop_line(nat_instance *m);

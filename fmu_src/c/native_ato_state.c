@@ -45,6 +45,7 @@
 #include <string.h>
 
 #include "native_ato.h"
+#include "native_state_read.h"
 #include "rc_bytes.h"
 
 /* The model's part of an FMU state (NAT_STATE_OPS; the glue adds its header, the token, its own
@@ -128,29 +129,6 @@ static void state_write(GlueInstance *g, unsigned char *out) {
     put_model(&s, g);
 }
 
-/* whose state is read: a source's context */
-typedef struct {
-    GlueInstance *g;
-    const char *function;
-} nat_reader;
-
-#define READER(r) ((const nat_reader *)(r)->context)
-
-/* "<function>: the FMU state is corrupt or of another build (<what>)", once per read */
-static void state_corrupt(rc_byte_source *r, const char *what) {
-    glue_log(READER(r)->g, fmi2Error, "logStatusError", "%s: the FMU state is corrupt or of "
-             "another build (%s)", READER(r)->function, what);
-}
-
-/* "<function>: out of memory", once per read; the read stops */
-static int no_memory(rc_byte_source *r) {
-    if (r->ok)
-        glue_log(READER(r)->g, fmi2Error, "logStatusError", "%s: out of memory",
-                 READER(r)->function);
-    r->ok = 0;
-    return 0;
-}
-
 /* count doubles, allocated and read; NULL (logged) when they are not all there */
 static double *take_doubles(rc_byte_source *r, uint64_t count, const char *what) {
     double *block;
@@ -160,7 +138,7 @@ static double *take_doubles(rc_byte_source *r, uint64_t count, const char *what)
         return NULL;
     }
     if (!(block = malloc(count ? (size_t)count * sizeof(double) : 1))) {
-        no_memory(r);
+        native_state_no_memory(r);
         return NULL;
     }
     rc_take(r, block, (size_t)count * sizeof(double), what);
@@ -195,7 +173,7 @@ static int take_line(rc_byte_source *r, nat_instance *st) {
     st->logged = calloc(n, sizeof *st->logged);
     st->limit_block = malloc(2 * (size_t)limit_rows * sizeof(double));
     if (!st->spans || !st->line_block || !st->controllers || !st->logged || !st->limit_block)
-        return no_memory(r);
+        return native_state_no_memory(r);
     for (k = 0; k < (int)n && r->ok; k++) {
         rc_ato_span *sp = &st->spans[k];
         uint64_t rows;
@@ -235,7 +213,7 @@ static int take_line(rc_byte_source *r, nat_instance *st) {
         if (ato_line_state_read(&st->line, (int)n, st->spans, st->line_block, st->line_block + n,
                                 &st->car, st->controllers, st->line_block + 2 * n, r->p,
                                 (size_t)line_size, &used, why) != RC_OK) {
-            if (!strcmp(why, "out of memory")) return no_memory(r);
+            if (!strcmp(why, "out of memory")) return native_state_no_memory(r);
             return rc_bytes_refuse(r, why);
         }
         st->built = 1;             /* from here on drop_line frees the controllers' grids */
@@ -261,11 +239,9 @@ static int state_read(GlueInstance *g, const char *function, const unsigned char
     rc_byte_source r;
     uint32_t built;
     int vr;
-    nat_reader who;
-    who.g = g;
-    who.function = function;
-    rc_bytes_source(&r, in, n, state_corrupt, &who);
-    if (!st) return no_memory(&r);
+    native_state_reader who;
+    native_state_source(&r, &who, g, function, in, n);
+    if (!st) return native_state_no_memory(&r);
     if (rc_take_u32(&r, "variable count") != NAT_NVARS) rc_bytes_refuse(&r, "variable count");
     rc_take(&r, st->real, sizeof st->real, "Real values");
     rc_take(&r, st->integer, sizeof st->integer, "Integer values");
@@ -277,7 +253,7 @@ static int state_read(GlueInstance *g, const char *function, const unsigned char
         if (len > (uint64_t)(r.end - r.p)) {
             rc_bytes_refuse(&r, "string length");
         } else if (!(st->string[vr] = malloc((size_t)len + 1))) {
-            no_memory(&r);
+            native_state_no_memory(&r);
         } else {
             rc_take(&r, st->string[vr], (size_t)len, "string");
             st->string[vr][len] = '\0';

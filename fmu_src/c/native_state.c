@@ -32,6 +32,7 @@
 
 #include "estimator.h"
 #include "native_common.h"
+#include "native_state_read.h"
 #include "noise.h"
 #include "rc_bytes.h"
 #include "track.h"
@@ -161,27 +162,6 @@ static void state_write(GlueInstance *g, unsigned char *out) {
 
 typedef rc_byte_source reader;
 
-/* whose state is read: a reader's context */
-typedef struct {
-    GlueInstance *g;
-    const char *function;
-} state_reader;
-
-#define READER(r) ((const state_reader *)(r)->context)
-
-/* "<function>: the FMU state is corrupt or of another build (<what>)", once per read */
-static void state_corrupt(reader *r, const char *what) {
-    glue_log(READER(r)->g, fmi2Error, "logStatusError", "%s: the FMU state is corrupt or of "
-             "another build (%s)", READER(r)->function, what);
-}
-
-/* "<function>: out of memory"; the read stops */
-static int no_memory(reader *r) {
-    glue_log(READER(r)->g, fmi2Error, "logStatusError", "%s: out of memory", READER(r)->function);
-    r->ok = 0;
-    return 0;
-}
-
 /* count elements of `element` bytes, allocated and read (count 0: NULL, fine); NULL logged when
    they are not all there or memory runs out */
 static void *take_block(reader *r, size_t count, size_t element, const char *what) {
@@ -192,7 +172,7 @@ static void *take_block(reader *r, size_t count, size_t element, const char *wha
         return NULL;
     }
     if (!(block = malloc(count ? count * element : 1))) {
-        no_memory(r);
+        native_state_no_memory(r);
         return NULL;
     }
     rc_take(r, block, count * element, what);
@@ -228,7 +208,7 @@ static int read_slope(reader *r, rc_estimator *e) {
     if (rc_take_u64(r, "slope window struct size") != sizeof *w)
         return r->ok ? rc_bytes_refuse(r, "slope window struct size") : 0;
     if (!(w = calloc(1, sizeof *w))) {
-        return no_memory(r);
+        return native_state_no_memory(r);
     }
     e->slope = w;                           /* released with the chain on failure */
     if (!rc_take(r, w, sizeof *w, "slope window")) return 0;
@@ -287,7 +267,7 @@ static void *read_chain(reader *r, const native_chain_kind *k) {
         return NULL;
     }
     if (!(chain = malloc(k->chain_size))) {
-        no_memory(r);
+        native_state_no_memory(r);
         return NULL;
     }
     if (!rc_take(r, chain, k->chain_size, "chain struct")) {
@@ -353,7 +333,7 @@ static void free_staged(const native_chain_kind *k, staged *st, int nvars) {
 static int read_strings(reader *r, staged *st, int nvars) {
     int vr;
     if (!(st->string = calloc((size_t)nvars, sizeof *st->string))) {
-        return no_memory(r);
+        return native_state_no_memory(r);
     }
     for (vr = 0; vr < nvars && r->ok; vr++) {
         uint64_t len = rc_take_u64(r, "string length");
@@ -361,7 +341,7 @@ static int read_strings(reader *r, staged *st, int nvars) {
         if (!r->ok || len == NO_STRING) continue;
         if (len > (uint64_t)(r->end - r->p)) return rc_bytes_refuse(r, "string length");
         if (!(copy = malloc((size_t)len + 1))) {
-            return no_memory(r);
+            return native_state_no_memory(r);
         }
         rc_take(r, copy, (size_t)len, "string");
         copy[len] = '\0';
@@ -380,10 +360,8 @@ static int state_read(GlueInstance *g, const char *function, const unsigned char
     staged st;
     uint32_t has_chain;
     int vr;
-    state_reader who;
-    who.g = g;
-    who.function = function;
-    rc_bytes_source(&r, in, n, state_corrupt, &who);
+    native_state_reader who;
+    native_state_source(&r, &who, g, function, in, n);
     memset(&st, 0, sizeof st);
     if (rc_take_u32(&r, "variable count") != (uint32_t)md->nvars ||
         rc_take_u32(&r, "output count") != (uint32_t)md->noutputs) {

@@ -151,7 +151,8 @@ static int named_in(const char *name, const char *const *list, size_t n)
 
 #define COUNT(a) (sizeof(a) / sizeof((a)[0]))
 
-/* "<prefix><name> " then the printf-formatted rest into err; RC_BAD_CONFIG */
+/* "<prefix><name> " then the printf-formatted rest after it (rc_vrefuse: the whole cut to
+   RC_MSG_SIZE - 1 bytes) into err; RC_BAD_CONFIG */
 static rc_status refuse(rc_error *err, const char *prefix, const char *name, const char *fmt, ...)
 {
     if (err) {
@@ -159,7 +160,7 @@ static rc_status refuse(rc_error *err, const char *prefix, const char *name, con
         if (n > 0 && (size_t)n < sizeof err->msg) {
             va_list ap;
             va_start(ap, fmt);
-            vsnprintf(err->msg + n, sizeof err->msg - (size_t)n, fmt, ap);
+            rc_vrefuse(err->msg + n, sizeof err->msg - (size_t)n, RC_BAD_CONFIG, fmt, ap);
             va_end(ap);
         }
     }

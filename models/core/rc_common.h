@@ -10,6 +10,8 @@
 #define RAILCAR_COMMON_H
 
 #include <math.h>
+#include <stdarg.h>
+#include <stddef.h>
 
 #define RC_G 9.81                 /* gravity [m/s^2], models.units.G */
 
@@ -40,5 +42,13 @@ void rc_repr(double x, char *buf, int size);
 __attribute__((format(printf, 3, 4)))
 #endif
 rc_status rc_refuse(rc_error *err, rc_status status, const char *fmt, ...);
+
+/* rc_refuse's va_list form, into any message buffer: msg[size] printf-formatted from ap (when
+ * msg is not NULL; cut to size - 1 bytes, as vsnprintf cuts); returns status. For callers whose
+ * buffer is not an rc_error's (repr.c) */
+#if defined(__GNUC__)
+__attribute__((format(printf, 4, 0)))
+#endif
+rc_status rc_vrefuse(char *msg, size_t size, rc_status status, const char *fmt, va_list ap);
 
 #endif

@@ -1,5 +1,5 @@
 /* repr.c -- the core's messages: Python's repr() of a float (a message names a value as Python
- * does) and rc_refuse, which writes a refusal's message. */
+ * does) and rc_refuse / rc_vrefuse, which write a refusal's message. */
 #include "rc_fp_contract.h"
 #include "rc_common.h"
 
@@ -60,12 +60,19 @@ void rc_repr(double x, char *buf, int size)
     snprintf(buf, size, "%s", out);
 }
 
+rc_status rc_vrefuse(char *msg, size_t size, rc_status status, const char *fmt, va_list ap)
+{
+    if (msg)
+        vsnprintf(msg, size, fmt, ap);
+    return status;
+}
+
 rc_status rc_refuse(rc_error *err, rc_status status, const char *fmt, ...)
 {
     if (err) {
         va_list ap;
         va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
+        rc_vrefuse(err->msg, sizeof err->msg, status, fmt, ap);
         va_end(ap);
     }
     return status;
