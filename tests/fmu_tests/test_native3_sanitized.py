@@ -112,8 +112,8 @@ def _compile_all(out: Path) -> dict[str, Path]:
     jobs["host_estimator"] = (HOST, ["-DNATIVE_ESTIMATOR"])
     jobs["host_leak_host"] = (HOST, ["-DNATIVE3_LEAK_HOST"])
     jobs["host_leak_instance"] = (HOST, ["-DNATIVE3_LEAK_INSTANCE"])
-    jobs["native_ato"] = (toolchain.C_DIR / "native_ato.c", [])
-    jobs["native_ato_state"] = (toolchain.C_DIR / "native_ato_state.c", [])
+    for s in native_fmi3.ato_c_sources():        # the AtoController's own files, however many
+        jobs.setdefault(s.stem, (s, []))
     jobs["host_ato"] = (ATO_HOST, ["-DATO_FMI3"])
 
     def compile_one(item):

@@ -75,8 +75,8 @@ def _compile_all(out: Path) -> dict[str, Path]:
     jobs["host_railcar"] = ([str(HOST)], [])
     jobs["host_estimator"] = ([str(HOST)], ["-DNATIVE_ESTIMATOR"])
     jobs["host_leak"] = ([str(HOST)], ["-DNATIVE_CYCLES_LEAK"])
-    jobs["native_ato"] = ([str(native.C_DIR / "native_ato.c")], [])
-    jobs["native_ato_state"] = ([str(native.C_DIR / "native_ato_state.c")], [])
+    for s in native.ato_c_sources():             # the AtoController's own files, however many
+        jobs.setdefault(s.stem, ([str(s)], []))
     jobs["host_ato"] = ([str(ATO_HOST)], [])
 
     def compile_one(item):
