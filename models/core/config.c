@@ -8,10 +8,12 @@
 #include "railcar.h"
 
 #include <stddef.h>
+#include <string.h>
 
 /* See railcar.h: the order of models/compiled.py's _config_values */
 long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
 {
+    memset(c, 0, sizeof *c);      /* padding included: the chain's FMU state holds these bytes */
     double *f[] = {
         &c->vehicle.mass, &c->vehicle.A0, &c->vehicle.A1, &c->vehicle.A2, &c->vehicle.gamma,
         &c->vehicle.length, &c->vehicle.traction_force_max, &c->vehicle.traction_power_max,
@@ -56,6 +58,7 @@ long rc_chain_config_from_values(rc_chain_config *c, const double *v, long n)
 /* See railcar.h: the order of models/compiled.py's CompiledEstimatorChain */
 long rc_estchain_config_from_values(rc_estchain_config *c, const double *v, long n)
 {
+    memset(c, 0, sizeof *c);      /* padding included: the chain's FMU state holds these bytes */
     double *f[] = {
         &c->identifier.dt, NULL /* batch_size */, &c->identifier.forgetting, &c->identifier.gamma,
         &c->identifier.mass_initial, &c->identifier.mass_std_initial, &c->identifier.A0_initial,

@@ -31,7 +31,7 @@ rc_status rc_estchain_init(rc_estchain *c, const rc_estchain_config *cfg, rc_err
                      : "out of memory for the profiles");
         return RC_BAD_CONFIG;
     }
-    c->cfg = *cfg;
+    memcpy(&c->cfg, cfg, sizeof c->cfg);            /* padding too: a state holds the bytes */
     c->cfg.grade_distances = c->grade.distances;
     c->cfg.grades = c->grade.grades;
     c->cfg.speed_distances = c->speed.distances;

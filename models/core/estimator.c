@@ -217,8 +217,10 @@ int rc_estimator_init(rc_estimator *e, const rc_ident_config *id_cfg, const rc_f
                       const rc_speed_profile *speed, double dt, long slope_window,
                       int physical, int sigma2_method)
 {
-    rc_ident_config ic = *id_cfg;          /* build_estimator's private copies */
-    rc_filter_config fc = *filt;
+    rc_ident_config ic;                    /* build_estimator's private copies, padding too */
+    rc_filter_config fc;
+    memcpy(&ic, id_cfg, sizeof ic);
+    memcpy(&fc, filt, sizeof fc);
     ic.dt = dt;
     ic.speed_std = fc.speed_std;
     ic.speed_std_rel = fc.speed_std_rel;

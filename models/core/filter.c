@@ -7,6 +7,7 @@
 
 #include "filter.h"
 #include "fpmath.h"
+#include <string.h>
 
 /* Python's float ** 2: OverflowError when a finite base gives an infinite square */
 static rc_status square(double x, double *out)
@@ -86,7 +87,7 @@ rc_status rc_filter_validate(const rc_filter_config *cfg, int has_speed, rc_erro
 void rc_filter_init(rc_filter *f, const rc_filter_config *cfg, const rc_grade_profile *grade,
                     const rc_speed_profile *speed)
 {
-    f->cfg = *cfg;
+    memcpy(&f->cfg, cfg, sizeof f->cfg);            /* padding too: a state holds the bytes */
     f->grade = grade;
     f->speed = speed;
     f->kind = cfg->kind ? cfg->kind : (has_speed_profile(f) ? RC_LINEARISED : RC_EKF);

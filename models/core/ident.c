@@ -74,11 +74,12 @@ int rc_ident_init(rc_ident *id, const rc_ident_config *cfg)
 int rc_ident_init_rows(rc_ident *id, const rc_ident_config *cfg, long slope_window)
 {
     memset(id, 0, sizeof *id);
-    id->cfg = *cfg;
+    memcpy(&id->cfg, cfg, sizeof id->cfg);         /* padding too: a state holds the bytes */
     long nb = cfg->batch_size;
-    id->batch_phi = malloc((size_t)nb * 4 * sizeof(double));
-    id->batch_y = malloc((size_t)nb * sizeof(double));
-    id->batch_contiguous = malloc((size_t)nb * sizeof(int));
+    /* zeroed: a state saves the batch whole, before it has filled too */
+    id->batch_phi = calloc((size_t)nb * 4, sizeof(double));
+    id->batch_y = calloc((size_t)nb, sizeof(double));
+    id->batch_contiguous = calloc((size_t)nb, sizeof(int));
     if (!id->batch_phi || !id->batch_y || !id->batch_contiguous) {
         rc_ident_free(id);
         return -1;

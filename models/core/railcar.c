@@ -167,7 +167,7 @@ rc_status rc_chain_init(rc_chain *c, const rc_chain_config *cfg, rc_error *err)
                          ? "track.grade_profile must have at least one row"
                          : "out of memory for the profiles");
     }
-    c->cfg = *cfg;
+    memcpy(&c->cfg, cfg, sizeof c->cfg);            /* padding too: a state holds the bytes */
     c->cfg.grade_distances = c->grade.distances;
     c->cfg.grades = c->grade.grades;
     c->cfg.speed_distances = c->speed.distances;

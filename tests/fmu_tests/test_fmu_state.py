@@ -22,6 +22,7 @@ the identifier's batch, est.method 2's slope window, the plant's noise streams).
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -278,6 +279,52 @@ def test_two_instances_given_the_same_calls_save_the_same_bytes(natives, name, m
         assert u.errors() == ""
 
 
+EARLY_STEPS = (0, 5, 30)
+"""Steps after initialisation at which state_digests serializes: before est.batch_size's 50 rows
+have filled, where the batch buffers hold only what the calls wrote if they were zeroed."""
+
+
+def state_digests(natives: dict[str, NativeFmu]) -> list[str]:
+    """'name method steps sha256' of the serialized state of each native FMU and est.method at
+    each of EARLY_STEPS (the child process of the test below prints these)."""
+    out = []
+    for name in NATIVE:
+        for method in (0, 2):
+            nf = natives[name]
+            unit = Unit(nf, "digest")
+            unit.initialize(parameters(nf, method))
+            rows = input_rows(nf, EARLY_STEPS[-1])
+            for k in range(EARLY_STEPS[-1] + 1):
+                if k in EARLY_STEPS:
+                    state = unit.get_state()
+                    digest = hashlib.sha256(unit.fmu.serializeFMUState(state)).hexdigest()
+                    out.append(f"{name} {method} {k} {digest}")
+                    unit.fmu.freeFMUState(state)
+                if k < EARLY_STEPS[-1]:
+                    unit.step(k, rows[k])
+            unit.close()
+    return out
+
+
+def test_a_state_holds_no_uninitialised_heap_or_padding(natives):
+    """Two processes whose malloc fills new memory with different bytes (glibc's MALLOC_PERTURB_)
+    serialize the same bytes for the same calls, right after initialisation and before the
+    identification batch has filled (the batch buffers came from malloc and the configurations'
+    padding from the stack: 1,926 bytes differed)."""
+    unzipdirs = json.dumps({n: str(nf.unzipdir) for n, nf in natives.items()})
+    runs = []
+    for perturb in ("165", "90"):
+        env = dict(os.environ, MALLOC_PERTURB_=perturb,
+                   PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+        proc = subprocess.run([sys.executable, __file__, unzipdirs, "--digests"], capture_output=True,
+                              text=True, env=env, timeout=300, cwd=ROOT)
+        assert proc.returncode == 0, proc.stderr[-4000:]
+        runs.append(proc.stdout.split("\n")[:-1])
+    assert len(runs[0]) == len(NATIVE) * 2 * len(EARLY_STEPS)
+    differ = [a for a, b in zip(*runs) if a != b]
+    assert not differ, f"{len(differ)} states differ, e.g. {differ[0]}"
+
+
 @pytest.mark.parametrize("name, method", CASES)
 def test_serialized_state_continues_in_a_fresh_instance(natives, name, method):
     nf = natives[name]
@@ -521,7 +568,11 @@ def test_state_calls_clean_under_sanitizers(natives, name, tmp_path):
     assert proc.stdout.strip().endswith("STATE-SANITIZED-DONE"), proc.stdout[-500:]
 
 
-if __name__ == "__main__":        # the sanitized process: unzipped FMUs by name, the FMU to check
-    folders = json.loads(sys.argv[1])
-    state_session({n: NativeFmu(n, Path(p), p) for n, p in folders.items()}, sys.argv[2])
-    print("STATE-SANITIZED-DONE")
+if __name__ == "__main__":        # a child process: unzipped FMUs by name, then the FMU to check
+    folders = json.loads(sys.argv[1])      # under the sanitizers, or --digests
+    children = {n: NativeFmu(n, Path(p), p) for n, p in folders.items()}
+    if sys.argv[2] == "--digests":
+        print("\n".join(state_digests(children)))
+    else:
+        state_session(children, sys.argv[2])
+        print("STATE-SANITIZED-DONE")
