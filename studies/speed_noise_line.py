@@ -36,7 +36,9 @@ Cases (each a table):
         0-4 t boarding or alighting), driven by the ATO (Python) over the chain, with the car's
         mass est.mass_initial x 0.8-1.2 and a wind in -5..+5 m/s drawn per seed (numpy's
         generator seeded [27, 2, seed]). The issue's line "of our own" was an ATO's: here the
-        ATO decides where each final coast starts, as it does in service.
+        ATO decides where each final coast starts, as it does in service. Every configuration
+        runs the same lines, but the ATO steers by the estimates: its coasts (and which spans
+        have none) differ between configurations.
   ato   the library's ATO scenarios (scenarios/library/ato_*.toml; the ATO, Python, drives; the
         chain is C), each with its own car, grade, wind and spans, with the speed noise above and
         seed = 1000 x the scenario's seed + k for k = 1..``--ato-seeds``. ato_speed_noise then
@@ -104,6 +106,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import sys
 import tempfile
 import time
@@ -122,6 +125,7 @@ from harness.run.driver import chain_result  # noqa: E402
 from harness.metrics.estimation import true_theta  # noqa: E402
 from harness.run.scenario import RAILCAR_PARAMETERS, load_scenario, scenario_from_dict  # noqa: E402
 from models.plant.dynamics import COASTING, resistance_eq1  # noqa: E402
+import studies.ato_generated_lines as ato_lines_module  # noqa: E402
 from studies.ato_generated_lines import line_scenario_with  # noqa: E402
 
 LIBRARY = ROOT / "scenarios" / "library"
@@ -333,6 +337,7 @@ class SpanScore:
     w0_z: tuple = ()                 # |err(V)| / sigma(V) at the W0_GRID speeds [-]
     a_d2: float = math.nan           # (A - A')^T C^-1 (A - A'): the A's against chi2(3) [-]
     a_cov: tuple = ()                # C, est.A*'s stated covariance, as 3 rows
+    cruise: bool | None = None       # the generated line's plan: a cruise before the final coast (None: not planned)
 
     @property
     def mass_ok(self) -> bool:
@@ -472,7 +477,9 @@ def run_job(job: tuple) -> tuple[int, str, list[SpanScore], str]:
             setup = scenario.setup.chain          # resolved while the profile file exists
         chain = setup.open()
         result = chain_result(chain, scenario)
-        return index, case, score_spans(result, setup.config.vehicle, scenario.name), chain.engine
+        scores = [replace(sc, cruise=line.spans[sc.span].cruise)
+                  for sc in score_spans(result, setup.config.vehicle, scenario.name)]
+        return index, case, scores, chain.engine
     if case == "ato_line":
         seed, n_spans, unknown = job[3:]
         mass, wind = ato_line_truth(seed, nominal)
@@ -535,7 +542,7 @@ def compute(configs, seeds: int = DEFAULT_SEEDS, spans: int = 5, ato_seeds: int 
 # ------------------------------------------------------------------------------ tables
 
 HEADER = ("configuration", "spans (no final coast)", "mass err within 2 t [%]", "w0 err within 1 N/kN [%]",
-          "both [%]", "both, 2nd+ span [%]", "abs mass err median / worst [t]",
+          "both [%]", "both, 1st span [%]", "both, 2nd+ span [%]", "abs mass err median / worst [t]",
           "w0 err median / worst [N/kN]", "mass ±2σ cover [%]", "w0 ±2σ cover pointwise [%] (honest 95.4)",
           "w0 ±2σ cover at the worst V [%] (honest σ)", "A's d² within χ²₃ 95 % [%] (honest 95)",
           "median err/σ mass / w0 pointwise (honest: 0.67)")
@@ -550,6 +557,7 @@ class Summary:
     mass_ok: float
     w0_ok: float
     both_ok: float
+    both_ok_first: float           # a run's first spans
     both_ok_later: float           # spans after a run's first
     mass_median: float             # |error| [t]
     mass_worst: float
@@ -568,7 +576,8 @@ def summarise(scores: list[SpanScore]) -> Summary:
     ok = [s for s in scores if s.coast]
     if not ok:
         n = math.nan
-        return Summary(len(scores), len(scores), *([n] * 15))
+        return Summary(len(scores), len(scores), *([n] * 16))
+    first = [s for s in ok if s.span == 0]
     later = [s for s in ok if s.span > 0]
     mass = np.abs([s.mass_err_t for s in ok])
     w0 = np.array([s.w0_err for s in ok])
@@ -578,6 +587,7 @@ def summarise(scores: list[SpanScore]) -> Summary:
         len(scores), len(scores) - len(ok),
         float(np.mean([s.mass_ok for s in ok])), float(np.mean([s.w0_ok for s in ok])),
         float(np.mean([s.mass_ok and s.w0_ok for s in ok])),
+        float(np.mean([s.mass_ok and s.w0_ok for s in first])) if first else math.nan,
         float(np.mean([s.mass_ok and s.w0_ok for s in later])) if later else math.nan,
         float(np.median(mass)), float(mass.max()), float(np.median(w0)), float(w0.max()),
         float(np.mean([abs(s.mass_err_t) <= 2.0 * s.mass_std_t for s in ok])),
@@ -606,7 +616,7 @@ def table_cells(configs, results: dict, case: str) -> list[list[str]]:
         s = summarise(scores)
         label = config_label(config) + ("" if engines == {"c"} else f" [engine: {', '.join(sorted(engines))}]")
         cells.append([label, f"{s.spans} ({s.no_coast})", _pct(s.mass_ok), _pct(s.w0_ok), _pct(s.both_ok),
-                      _pct(s.both_ok_later),
+                      _pct(s.both_ok_first), _pct(s.both_ok_later),
                       f"{_num(s.mass_median, '{:.2f}')} / {_num(s.mass_worst, '{:.2f}')}",
                       f"{_num(s.w0_median, '{:.2f}')} / {_num(s.w0_worst, '{:.2f}')}",
                       _pct(s.mass_cover), _pct(s.w0_cover_pointwise),
@@ -629,6 +639,22 @@ def by_scenario_cells(configs, results: dict) -> tuple[tuple, list[list[str]]]:
             row.append(f"{_pct(s.both_ok)} ({_num(s.w0_median, '{:.2f}')})")
         cells.append(row)
     return ("configuration", *names), cells
+
+
+def first_span_cells(configs, results: dict) -> tuple[tuple, list[list[str]]]:
+    """The line case's first spans (with a final coast) within both bounds, "k of n", split by
+    the plan: a cruise before the final coast, or the traction alone."""
+    cells = []
+    for i, config in enumerate(configs):
+        if ("line", i) not in results:
+            continue
+        first = [x for x in results[("line", i)][0] if x.span == 0 and x.coast]
+        row = [config_label(config)]
+        for cruise in (True, False):
+            part = [x for x in first if x.cruise is cruise]
+            row.append(f"{sum(x.mass_ok and x.w0_ok for x in part)} of {len(part)}")
+        cells.append(row)
+    return ("configuration", "after a cruise", "after the traction alone"), cells
 
 
 def markdown(header: tuple, cells: list[list[str]]) -> str:
@@ -654,9 +680,12 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
              "Models chain, C core unless a row says otherwise."]
     if command:
         parts += ["", f"    {command}"]
+    grades, changes, boarding = ato_lines_module.GRADE_PERMILLE, ato_lines_module.LIMIT_CHANGES, \
+        ato_lines_module.BOARDING_T
     for case, title in (("ato_line", f"The ATO on generated lines: {ato_lines} seeds x {spans} spans, mass ±20 %, "
-                                     f"wind ±5 m/s, grades -35..+40 ‰, 2-3 limit changes a span, "
-                                     f"boarding ±4 t{car}"),
+                                     f"wind ±5 m/s, grades {grades[0]:+g}..{grades[1]:+g} ‰, "
+                                     f"{changes[0]}-{changes[1]} limit changes a span, "
+                                     f"boarding {boarding[0]:+g}..{boarding[1]:+g} t{car}"),
                         ("line", f"Generated line: {seeds} seeds x {spans} spans, mass ±20 %, wind ±5 m/s, "
                                  f"grades ±20 ‰, boarding 0-6 t, a cruise before "
                                  f"{100 * cruise_probability:.0f} % of the final coasts{car}"),
@@ -668,6 +697,9 @@ def report(configs, results: dict, seeds: int, spans: int, ato_seeds: int, secon
         if cells and case == "ato":
             parts += ["", "Per ATO scenario: both within target [%] (w0 err median [N/kN])", "",
                       markdown(*by_scenario_cells(configs, results))]
+        if cells and case == "line":
+            parts += ["", "The line's first spans within both bounds, by what came before the final coast", "",
+                      markdown(*first_span_cells(configs, results))]
     if seconds is not None:
         parts += ["", f"Computed in {seconds:.0f} s."]
     return "\n".join(parts) + "\n"
@@ -702,7 +734,7 @@ def main(argv: list[str] | None = None) -> None:
     t0 = time.perf_counter()
     results = compute(configs, args.seeds, args.spans, args.ato_seeds, args.processes,
                       args.cruise_probability, args.ato_lines, args.unknown_car)
-    command = "python studies/speed_noise_line.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python studies/speed_noise_line.py " + shlex.join(argv if argv is not None else sys.argv[1:])
     text = report(configs, results, args.seeds, args.spans, args.ato_seeds, time.perf_counter() - t0,
                   command.strip(), args.cruise_probability, args.ato_lines, args.unknown_car)
     print(text)

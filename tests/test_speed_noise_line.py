@@ -1,6 +1,6 @@
 """studies/speed_noise_line.py in short: its generated line, its span scoring and its table, on
 two seeds of two spans and one ATO-driven line of two spans (the study runs 60 x 5, 40 x 5 and
-the ATO scenarios: ~5 min), and its coverages scored on errors drawn from a known covariance.
+the ATO scenarios: ~6 min), and its coverages scored on errors drawn from a known covariance.
 ~8 s: unit layer."""
 from __future__ import annotations
 
@@ -42,6 +42,17 @@ def test_the_generated_line_is_seeded_and_within_its_ranges():
     assert [s.length_m for s in cruising.spans] == [s.length_m for s in line.spans]
 
 
+def test_the_lines_first_spans_are_split_by_their_plan(results):
+    """Each line span carries its plan's cruise flag, and the split counts the first spans."""
+    scores = results[("line", 0)][0]
+    assert [s.cruise for s in scores] == [snl.generate_line(k, 2, 30.0).spans[j].cruise
+                                          for k in (1, 2) for j in (0, 1)]
+    header, cells = snl.first_span_cells([SLOPES, ABSURD], results)
+    assert header == ("configuration", "after a cruise", "after the traction alone")
+    counts = [int(c.split(" of ")[1]) for c in cells[0][1:]]
+    assert sum(counts) == 2                                           # two seeds, one first span each
+
+
 def test_every_span_is_scored_at_its_final_coast_on_the_c_core(results):
     """2 seeds x 2 spans, each with a final coast, run by the C core; est.method 2's mass within
     2 t at every coast start (measured <= 0.13 t), its stated sigmas positive."""
@@ -72,8 +83,12 @@ def test_the_table_has_every_column_and_a_row_per_configuration(results):
     lines = text.splitlines()
     header = next(line for line in lines if line.startswith("| configuration"))
     assert [c.strip() for c in header.strip("|").split("|")] == list(snl.HEADER)
-    rows = [line for line in lines if line.startswith("| est.")]    # two configurations, two cases
+    tables = text.split("\n\n")
+    rows = [line for t in tables if "| spans (no final coast)" in t.split("\n")[0] for line in t.splitlines()
+            if line.startswith("| est.")]                          # two configurations, two cases
     assert len(rows) == 4 and all(len(r.strip("|").split(" | ")) == len(snl.HEADER) for r in rows)
+    split = next(t for t in tables if "| after a cruise" in t.split("\n")[0])
+    assert len(split.splitlines()) == 4                             # header, rule, a row per configuration
     assert "## ATO" not in text        # --ato-seeds 0: no ATO table
     assert "## The ATO on generated lines: 1 seeds x 2 spans" in text
     assert sum(r.startswith("| est.method=2, est.sigma2_method=1 ") for r in rows) == 2
@@ -99,6 +114,9 @@ def test_an_unknown_car_is_drawn_in_its_ranges_and_becomes_the_plants_car(tmp_pa
     assert car == snl.unknown_car(4) != snl.unknown_car(5)
     assert all(lo <= car[name] <= hi for name, (lo, hi) in snl.UNKNOWN_CAR.items())
     vehicle = snl.line_scenario(snl.generate_line(4, 2, 30.0), {}, tmp_path, car).setup.chain.config.vehicle
+    assert (vehicle.A0, vehicle.A1, vehicle.A2) == (car["car.A0"], car["car.A1"], car["car.A2"])
+    ato_line, _ = snl.line_scenario_with(4, 2, car, 0.0, tmp_path)          # the ATO-driven case
+    vehicle = ato_line.setup.chain.config.vehicle
     assert (vehicle.A0, vehicle.A1, vehicle.A2) == (car["car.A0"], car["car.A1"], car["car.A2"])
     prior = snl.line_scenario(snl.generate_line(4, 2, 30.0), {}, tmp_path).setup.chain.config
     assert prior.vehicle.A0 == 0.89             # without: the FMU's default car, the prior's means
