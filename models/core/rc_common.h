@@ -45,10 +45,15 @@ rc_status rc_refuse(rc_error *err, rc_status status, const char *fmt, ...);
 
 /* rc_refuse's va_list form, into any message buffer: msg[size] printf-formatted from ap (when
  * msg is not NULL; cut to size - 1 bytes, as vsnprintf cuts); returns status. For callers whose
- * buffer is not an rc_error's (repr.c) */
+ * buffer is not an rc_error's: the native AtoController's 512-byte messages) */
 #if defined(__GNUC__)
 __attribute__((format(printf, 4, 0)))
 #endif
 rc_status rc_vrefuse(char *msg, size_t size, rc_status status, const char *fmt, va_list ap);
+
+/* err's message "<where><name> <rule>, got <repr(v)>" (where, e.g. "driver[2] (hold).", may be
+ * ""); returns RC_BAD_CONFIG (repr.c) */
+rc_status rc_refuse_value(rc_error *err, const char *where, const char *name, const char *rule,
+                          double v);
 
 #endif

@@ -77,3 +77,11 @@ rc_status rc_refuse(rc_error *err, rc_status status, const char *fmt, ...)
     }
     return status;
 }
+
+rc_status rc_refuse_value(rc_error *err, const char *where, const char *name, const char *rule,
+                          double v)
+{
+    char r[40];
+    rc_repr(v, r, sizeof r);
+    return rc_refuse(err, RC_BAD_CONFIG, "%s%s %s, got %s", where, name, rule, r);
+}

@@ -5,14 +5,6 @@
 #include <math.h>
 #include <stdio.h>
 
-rc_status rc_refuse_value(rc_error *err, const char *where, const char *name, const char *rule,
-                          double v)
-{
-    char r[40];
-    rc_repr(v, r, sizeof r);
-    return rc_refuse(err, RC_BAD_CONFIG, "%s%s %s, got %s", where, name, rule, r);
-}
-
 long rc_script_count(double v)
 {
     if (!(v >= 0.0 && v <= (double)RC_SCRIPT_MAX_COUNT) || v != floor(v))

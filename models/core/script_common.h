@@ -16,11 +16,6 @@
 #define RC_RUN_MAX_STEPS 1000000000L   /* drive()'s steps of one run: a sanity bound */
 #define RC_SCRIPT_MAX_COUNT 10000000L  /* phases, table rows, wind steps...: a sanity bound */
 
-/* err's message "<where><name> <rule>, got <repr(v)>" (where, e.g. "driver[2] (hold).", may be
- * ""); returns RC_BAD_CONFIG */
-rc_status rc_refuse_value(rc_error *err, const char *where, const char *name, const char *rule,
-                          double v);
-
 /* A count of a script: a whole number in 0..RC_SCRIPT_MAX_COUNT, else -1 */
 long rc_script_count(double v);
 

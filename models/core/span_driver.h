@@ -41,7 +41,6 @@
 #define RC_SPAN_LOG_SIZE (ATO_TEXT_SIZE + 64)
 /* drive()'s step inputs: traction and brake demand [N], wind [m/s], payload boarded so far [t] */
 #define RC_SPAN_INPUTS 4
-#define RC_SPAN_MAX_STEPS RC_RUN_MAX_STEPS     /* script_common.h: rc_script_count_steps' bound */
 /* est.station_stops in railcar.h's outputs (models.batch holds it to models.compiled.OUTPUT_NAMES) */
 #define RC_SPAN_STATION_STOPS 22
 

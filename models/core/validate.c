@@ -11,14 +11,6 @@
 #define MAX_BATCH_SIZE 100000L          /* identification.MAX_BATCH_SIZE */
 #define MAX_SLOPE_WINDOW 1000L          /* identification.MAX_SLOPE_WINDOW */
 
-/* RC_BAD_CONFIG with "<name> <rule>, got <repr(v)>" */
-static rc_status refuse_value(rc_error *err, const char *name, const char *rule, double v)
-{
-    char r[40];
-    rc_repr(v, r, sizeof r);
-    return rc_refuse(err, RC_BAD_CONFIG, "%s %s, got %s", name, rule, r);
-}
-
 static void clear(rc_error *err)
 {
     if (err)
@@ -33,11 +25,11 @@ rc_status rc_track_sensors_validate(double spacing, double base, double resoluti
     const double values[] = {spacing, jitter};
     for (int k = 0; k < 2; k++)
         if (!(values[k] >= 0 && isfinite(values[k])))
-            return refuse_value(err, names[k], "must be >= 0", values[k]);
+            return rc_refuse_value(err, "", names[k], "must be >= 0", values[k]);
     if (!(base > 0 && isfinite(base)))
-        return refuse_value(err, "sensor.track_base", "must be > 0", base);
+        return rc_refuse_value(err, "", "sensor.track_base", "must be > 0", base);
     if (!(resolution >= 0 && isfinite(resolution)))
-        return refuse_value(err, "sensor.track_resolution", "must be >= 0", resolution);
+        return rc_refuse_value(err, "", "sensor.track_resolution", "must be >= 0", resolution);
     if (spacing != 0.0 && spacing <= base) {           /* `if self.spacing and ...` */
         char a[40], b[40];
         rc_repr(spacing, a, sizeof a);
@@ -51,7 +43,7 @@ rc_status rc_station_validate(const rc_station_config *cfg, rc_error *err)
 {
     clear(err);
     if (!(cfg->dwell > 0 && isfinite(cfg->dwell)))
-        return refuse_value(err, "track.station_dwell", "must be > 0", cfg->dwell);
+        return rc_refuse_value(err, "", "track.station_dwell", "must be > 0", cfg->dwell);
     return RC_OK;
 }
 
@@ -83,26 +75,26 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
         return rc_refuse(err, RC_BAD_CONFIG, "est.slope_window must be >= 2 (a first-order fit), got %ld",
                       slope_window);
     if (!(0.0 <= c->run_forgetting && c->run_forgetting < 1.0))
-        return refuse_value(err, "est.run_forgetting", "must be in [0, 1)", c->run_forgetting);
+        return rc_refuse_value(err, "", "est.run_forgetting", "must be in [0, 1)", c->run_forgetting);
     if (!(0.0 <= c->forgetting && c->forgetting < 1.0))
-        return refuse_value(err, "est.forgetting", "must be in [0, 1)", c->forgetting);
+        return rc_refuse_value(err, "", "est.forgetting", "must be in [0, 1)", c->forgetting);
     if (!(c->dt > 0 && isfinite(c->dt)))
-        return refuse_value(err, "sampling period", "must be > 0", c->dt);
+        return rc_refuse_value(err, "", "sampling period", "must be > 0", c->dt);
     const char *positive[] = {"est.mass_initial", "est.mass_std_initial", "est.A0_std_initial",
                               "est.A1_std_initial", "est.A2_std_initial", "est.sigma2_initial"};
     const double pv[] = {c->mass_initial, c->mass_std_initial, c->A0_std_initial,
                          c->A1_std_initial, c->A2_std_initial, c->sigma2_initial};
     for (int k = 0; k < 6; k++)
         if (!(pv[k] > 0 && isfinite(pv[k])))
-            return refuse_value(err, positive[k], "must be > 0", pv[k]);
+            return rc_refuse_value(err, "", positive[k], "must be > 0", pv[k]);
     const char *finite[] = {"est.A0_initial", "est.A1_initial", "est.A2_initial", "est.gamma",
                             "est.speed_std"};
     const double fv[] = {c->A0_initial, c->A1_initial, c->A2_initial, c->gamma, c->speed_std};
     for (int k = 0; k < 5; k++)
         if (!isfinite(fv[k]))
-            return refuse_value(err, finite[k], "must be finite", fv[k]);
+            return rc_refuse_value(err, "", finite[k], "must be finite", fv[k]);
     if (c->gamma < 0)
-        return refuse_value(err, "est.gamma", "must be >= 0", c->gamma);
+        return rc_refuse_value(err, "", "est.gamma", "must be >= 0", c->gamma);
     /* identification.PRIOR_BOUNDS: the priors a run stays alive with (why: there) */
     static const struct {
         const char *name, *rule;
@@ -126,7 +118,7 @@ static rc_status ident_validate(const rc_ident_config *c, int method, int physic
                          c->sigma2_initial, c->gamma, c->A0_drift_std, c->A1_drift_std};
     for (size_t k = 0; k < sizeof bv / sizeof bv[0]; k++)
         if (!(bounds[k].low <= bv[k] && bv[k] <= bounds[k].high))
-            return refuse_value(err, bounds[k].name, bounds[k].rule, bv[k]);
+            return rc_refuse_value(err, "", bounds[k].name, bounds[k].rule, bv[k]);
     /* identification.DRIFT_METHODS: the LS's own carried A's */
     if ((c->A0_drift_std != 0.0 || c->A1_drift_std != 0.0) && method != 0 && method != 2) {
         char q0[40], q1[40];
@@ -193,13 +185,13 @@ rc_status rc_chain_validate(const rc_chain_config *cfg, long slope_window, int h
         return rc_refuse(err, RC_BAD_CONFIG, "seed must be in 0..2147483647 (a 32-bit fmi2Integer), got %ld",
                       cfg->seed);
     if (!(cfg->sample_period > 0 && isfinite(cfg->sample_period)))
-        return refuse_value(err, "sensor.sample_period", "must be > 0", cfg->sample_period);
+        return rc_refuse_value(err, "", "sensor.sample_period", "must be > 0", cfg->sample_period);
     if (!(cfg->initial_speed >= 0 && isfinite(cfg->initial_speed)))
-        return refuse_value(err, "car.initial_speed", "must be >= 0", cfg->initial_speed);
+        return rc_refuse_value(err, "", "car.initial_speed", "must be >= 0", cfg->initial_speed);
     if (!(cfg->initial_position >= 0 && isfinite(cfg->initial_position)))
-        return refuse_value(err, "car.initial_position", "must be >= 0", cfg->initial_position);
+        return rc_refuse_value(err, "", "car.initial_position", "must be >= 0", cfg->initial_position);
     if (cfg->initial_speed > MAX_INITIAL_SPEED)     /* chain.MAX_MEASURED_SPEED */
-        return refuse_value(err, "car.initial_speed",
+        return rc_refuse_value(err, "", "car.initial_speed",
                             "must be <= 200 m/s (no rail car is that fast)", cfg->initial_speed);
     if (cfg->sample_period + 1e-12 < cfg->solver_step) {
         char a[40], b[40];
@@ -209,7 +201,7 @@ rc_status rc_chain_validate(const rc_chain_config *cfg, long slope_window, int h
     }
     /* RailCarChain.__init__ */
     if (!isfinite(cfg->start_time))
-        return refuse_value(err, "start time", "must be finite", cfg->start_time);
+        return rc_refuse_value(err, "", "start time", "must be finite", cfg->start_time);
     if ((st = rc_plant_validate(&cfg->vehicle, cfg->solver_step, cfg->process_noise_psd, err)))
         return st;
     rc_filter_config filt = cfg->filter;
