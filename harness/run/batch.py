@@ -98,8 +98,9 @@ def run_batch(scenarios: Sequence[Scenario], overrides: Sequence[dict | None] | 
               setups: Sequence | None = None) -> list[RunResult]:
     """run_on_chain(scenarios[i], overrides[i]) for every i, the covered ones (``not_covered``) in C in
     one call; each result's ``engine`` says which ran it ("c" or "python": a span run whose ATO
-    logged more lines than the C side keeps is run again on run_on_chain). ``overrides``: RailCar parameters by FMU name per run (e.g. {"seed": 5}), as
-    run_on_chain takes them: they configure the chain, the driver is the scenario's own.
+    logged more lines than the C side keeps is run again on run_on_chain). ``overrides``: RailCar
+    parameters by FMU name per run (e.g. {"seed": 5}), as run_on_chain takes them: they configure
+    the chain, the driver is the scenario's own.
     ``setups``: scenarios[i].chain_setup(overrides[i]) when the caller has them already (their
     profile files are not read again). Raises as run_on_chain: ValueError naming the parameter,
     StepRejected naming the run and the step."""

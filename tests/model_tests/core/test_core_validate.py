@@ -539,3 +539,27 @@ def test_sanitized_run_of_the_catalogue(lib, tmp_path):
     assert len(got) == len(expected)
     for (st, msg), (est, emsg) in zip(got, expected):
         assert (int(st), msg) == (est, emsg)
+
+
+def test_coverage_reads_only_the_parameters_it_names():
+    """models.compiled.core_not_covered reads only what COVERAGE_PARAMETERS names, est.method
+    (IdentifierConfig.method): a sweep decides its engine from one run when it sweeps none of
+    them (harness.sweep.main.choose_engine). Changing any other field of the identifier leaves
+    the answer alone, for every method; the method changes it."""
+    from dataclasses import fields, replace
+    from models.estimation.identification import IdentifierConfig
+    assert compiled.COVERAGE_PARAMETERS == ("est.method",)
+    base = IdentifierConfig()
+    for method in (0, 1, 2, 3):
+        ident = replace(base, method=method)
+        expected = compiled.core_not_covered(ident)
+        changed = 0
+        for f in fields(IdentifierConfig):
+            value = getattr(ident, f.name)
+            if f.name == "method" or not isinstance(value, (bool, int, float)):
+                continue
+            other = (not value) if isinstance(value, bool) else value + 1
+            assert compiled.core_not_covered(replace(ident, **{f.name: other})) == expected, f.name
+            changed += 1
+        assert changed >= 15                                      # every setting of the identifier
+    assert compiled.core_not_covered(replace(base, method=1)) != compiled.core_not_covered(base)
