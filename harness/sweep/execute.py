@@ -410,8 +410,10 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
     import dask
     with scratch_folder() as root:
         with workers_ignore_ctrl_c(), dask.config.set(CLUSTER_CONFIG):
+            # a free port for the scheduler's HTTP server: None still binds dask's 8787, which a
+            # user's own dashboard or a second sweep may hold ("Port 8787 is already in use")
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                   processes=True, dashboard_address=None, host="127.0.0.1",
+                                   processes=True, dashboard_address="127.0.0.1:0", host="127.0.0.1",
                                    silence_logs=logging.ERROR, local_directory=root,
                                    scheduler_kwargs={"local_directory": root})
         try:

@@ -233,7 +233,7 @@ def scheduler():
     ~5 s); the sweep runs on it through --scheduler exactly as on an embedded cluster."""
     import logging
     from distributed import LocalCluster
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                       host="127.0.0.1", silence_logs=logging.ERROR) as cluster:
         yield cluster.scheduler_address
 

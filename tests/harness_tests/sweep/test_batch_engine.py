@@ -54,7 +54,7 @@ KINDS = {    # sweep file -> (its cut: 4 or 5 runs, 60-150 s simulated)
 def client():
     from distributed import Client, LocalCluster
     import logging
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                            host="127.0.0.1", silence_logs=logging.ERROR)
     c = Client(cluster)
     try:
@@ -252,3 +252,27 @@ def test_the_engine_is_decided_from_one_run_when_no_axis_changes_coverage(tmp_pa
     assert choose_engine("auto", None, sweep) == ("batch", "--engine auto: the C core covers every run")
     assert len(asked) == 1
 
+
+
+def test_the_embedded_cluster_takes_a_free_port_for_its_http_server():
+    """With dask's default port 8787 held (a user's own dashboard, a second sweep), the embedded
+    cluster starts without "Port 8787 is already in use" and serves on another port."""
+    import socket
+    import warnings
+    from harness.sweep.execute import dask_client
+    held = socket.socket()
+    try:
+        held.bind(("127.0.0.1", 8787))
+    except OSError:
+        held.close()
+        held = None                                     # something else holds it: as good
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with dask_client(workers=1) as (client, _):
+                port = client.cluster.scheduler.http_server.port
+        assert port != 8787
+        assert not [w for w in caught if "already in use" in str(w.message)], [str(w.message) for w in caught]
+    finally:
+        if held is not None:
+            held.close()
