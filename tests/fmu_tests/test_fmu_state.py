@@ -110,7 +110,9 @@ def deserialize(fmu, version: int, data: bytes, state: c_void_p | None = None) -
 
 class Unit:
     """One instance of a native FMU through fmpy (FMU2Slave or FMU3Slave), variables by name;
-    ``call`` returns the status instead of raising, ``messages`` collects the log."""
+    ``call`` returns the status instead of raising, ``messages`` collects the log. ``native_fmu``:
+    an extracted FMU with ``version``, ``md``, ``unzipdir``, ``variables`` and ``as_fmu_file()``
+    (NativeFmu here, test_native_ato_state's AtoFmu)."""
 
     def __init__(self, native_fmu: "NativeFmu", instance_name: str = "unit"):
         self.nf = native_fmu
@@ -136,17 +138,19 @@ class Unit:
             getattr(self.fmu, function)(*args)
             return OK
         except FMICallException as e:
-            return e.status
+            return int(e.status)
 
     def set(self, values: dict) -> None:
+        two = self.nf.version == 2
         for name, value in values.items():
             v = self.nf.variables[name]
+            vr = [v.valueReference]
             if v.type in ("Real", "Float64"):
-                (self.fmu.setReal if self.nf.version == 2 else self.fmu.setFloat64)(
-                    [v.valueReference], [float(value)])
+                (self.fmu.setReal if two else self.fmu.setFloat64)(vr, [float(value)])
             elif v.type in ("Integer", "Int32"):
-                (self.fmu.setInteger if self.nf.version == 2 else self.fmu.setInt32)(
-                    [v.valueReference], [int(value)])
+                (self.fmu.setInteger if two else self.fmu.setInt32)(vr, [int(value)])
+            elif v.type == "Boolean":
+                self.fmu.setBoolean(vr, [bool(value)])
             else:
                 self.fmu.setString([v.valueReference], [str(value)])
 
@@ -166,11 +170,15 @@ class Unit:
         return self.read_outputs()
 
     def read_outputs(self) -> np.ndarray:
+        """Every output: the Reals, then the Integers, then the Booleans, all as doubles."""
         reals = [v.valueReference for v in self.outputs if v.type in ("Real", "Float64")]
         ints = [v.valueReference for v in self.outputs if v.type in ("Integer", "Int32")]
-        if self.nf.version == 2:
-            return np.array([*self.fmu.getReal(reals), *self.fmu.getInteger(ints)], dtype=float)
-        return np.array([*self.fmu.getFloat64(reals), *self.fmu.getInt32(ints)], dtype=float)
+        bools = [v.valueReference for v in self.outputs if v.type == "Boolean"]
+        two = self.nf.version == 2
+        values = [*(self.fmu.getReal if two else self.fmu.getFloat64)(reals),
+                  *(self.fmu.getInteger if two else self.fmu.getInt32)(ints),
+                  *(self.fmu.getBoolean(bools) if bools else [])]
+        return np.array(values, dtype=float)
 
     # -- FMU states (fmpy's FMU3Slave.deserializeFMUState returns nothing: called directly)
     def get_state(self, state: c_void_p | None = None) -> c_void_p:

@@ -40,11 +40,10 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi3 import FMU3Slave
 
-from conftest import ERROR, OK, ROOT, FmuFile, LogMessage, Slave
+from conftest import ERROR, OK, ROOT, FmuFile
 from fmu_src.build import native, native_fmi3, toolchain
-from test_fmu_state import bits, deserialize, get_state, refused, resealed
+from test_fmu_state import Unit as StateUnit, bits, refused, resealed
 from test_native_ato_fmu import closed_loop, line_run, profiles  # noqa: F401  (fixtures)
 
 WARNING = 1
@@ -75,75 +74,18 @@ class AtoFmu:
         self.variables = {v.name: v for v in self.md.modelVariables}
         self.outputs = [v for v in self.md.modelVariables if v.causality == "output"]
 
+    def as_fmu_file(self) -> FmuFile:
+        return FmuFile("AtoController", self.path, self.md, self.unzipdir)
 
-class Unit:
-    """One instance, variables by name; ``messages`` collects its log."""
 
-    def __init__(self, fmu: AtoFmu, instance_name: str = "unit"):
-        self.af = fmu
-        self.messages: list[LogMessage] = []
-        if fmu.version == 2:
-            self.slave = Slave(FmuFile("AtoController", fmu.path, fmu.md, fmu.unzipdir),
-                               instance_name)
-            self.messages = self.slave.messages
-            self.fmu = self.slave.fmu
-        else:
-            def logger(_env, status, category, message):
-                text = message.decode(errors="replace") if message else ""
-                self.messages.append(LogMessage(int(status),
-                                                category.decode() if category else None, text))
-            self.fmu = FMU3Slave(guid=fmu.md.guid, unzipDirectory=fmu.unzipdir,
-                                 modelIdentifier=fmu.md.coSimulation.modelIdentifier,
-                                 instanceName=instance_name)
-            self.fmu.instantiate(loggingOn=True, logMessage=logger)
-
-    def call(self, function: str, *args) -> int:
-        try:
-            getattr(self.fmu, function)(*args)
-            return OK
-        except FMICallException as e:
-            return int(e.status)
-
-    def set(self, values: dict) -> None:
-        two = self.af.version == 2
-        for name, value in values.items():
-            v = self.af.variables[name]
-            vr = [v.valueReference]
-            if v.type in ("Real", "Float64"):
-                (self.fmu.setReal if two else self.fmu.setFloat64)(vr, [float(value)])
-            elif v.type in ("Integer", "Int32"):
-                (self.fmu.setInteger if two else self.fmu.setInt32)(vr, [int(value)])
-            elif v.type == "Boolean":
-                self.fmu.setBoolean(vr, [bool(value)])
-            else:
-                self.fmu.setString(vr, [str(value)])
-
-    def initialize(self, parameters: dict) -> None:
-        if self.af.version == 2:
-            self.fmu.setupExperiment(startTime=0.0)
-            self.fmu.enterInitializationMode()
-        else:
-            self.fmu.enterInitializationMode(startTime=0.0)
-        self.set(parameters)
-        self.fmu.exitInitializationMode()
-
-    def read_outputs(self) -> np.ndarray:
-        """Every output; Integers and Booleans as doubles."""
-        two = self.af.version == 2
-        by_type: dict[str, list[int]] = {}
-        for v in self.af.outputs:
-            by_type.setdefault(v.type, []).append(v.valueReference)
-        values = [*(self.fmu.getReal if two else self.fmu.getFloat64)(by_type.get(
-                      "Real" if two else "Float64", [])),
-                  *(self.fmu.getInteger if two else self.fmu.getInt32)(by_type.get(
-                      "Integer" if two else "Int32", [])),
-                  *self.fmu.getBoolean(by_type.get("Boolean", []))]
-        return np.array(values, dtype=float)
+class Unit(StateUnit):
+    """test_fmu_state's instance of a native FMU, with the ATO's runs: rows of (t, step, inputs)
+    and the warnings logged."""
 
     def ordered(self) -> list:
         """The outputs in read_outputs' order."""
         order = ("Real", "Float64", "Integer", "Int32", "Boolean")
-        return sorted(self.af.outputs, key=lambda v: order.index(v.type))
+        return sorted(self.outputs, key=lambda v: order.index(v.type))
 
     def run(self, rows: list, first: int, n: int) -> tuple[np.ndarray, list[str]]:
         """Steps first .. first + n - 1: every output after each, and the warnings logged."""
@@ -157,20 +99,6 @@ class Unit:
 
     def warnings(self, since: int = 0) -> list[str]:
         return [m.message for m in self.messages[since:] if m.status == WARNING]
-
-    def errors(self) -> str:
-        return "\n".join(m.message for m in self.messages if m.status == ERROR)
-
-    # -- FMU states (fmpy's FMU3Slave.deserializeFMUState returns nothing: called directly)
-    def get_state(self, state: c_void_p | None = None) -> c_void_p:
-        return get_state(self.fmu, self.af.version, state)
-
-    def deserialize(self, data: bytes, state: c_void_p | None = None) -> c_void_p:
-        return deserialize(self.fmu, self.af.version, data, state)
-
-    def close(self) -> None:
-        self.fmu.terminate()
-        self.fmu.freeInstance()
 
 
 def with_bad_speed(rows: list, k: int) -> list:
@@ -484,7 +412,7 @@ def random_state_calls(name: str, path: str, unzipdir: str, parameters: dict, ro
     for _ in range(n):
         call = rng.choice(STATE_CALLS)
         if call == "init":
-            status = unit.call("enterInitializationMode") if unit.af.version == 2 else \
+            status = unit.call("enterInitializationMode") if unit.nf.version == 2 else \
                 unit.call("enterInitializationMode", None, 0.0)
             if status == OK:
                 unit.set(parameters)
@@ -499,8 +427,8 @@ def random_state_calls(name: str, path: str, unzipdir: str, parameters: dict, ro
             status = unit.call("doStep", t, h if call == "doStep" else math.nan)
             k = k + 1 if status <= WARNING and call == "doStep" else k
         elif call == "setNaN":
-            status = unit.call("setReal" if unit.af.version == 2 else "setFloat64",
-                               [unit.af.variables["filter.speed"].valueReference], [math.nan])
+            status = unit.call("setReal" if unit.nf.version == 2 else "setFloat64",
+                               [unit.nf.variables["filter.speed"].valueReference], [math.nan])
         elif call == "reset":
             status, k = unit.call("reset"), 0
         elif call == "getState":
@@ -531,10 +459,10 @@ def random_state_calls(name: str, path: str, unzipdir: str, parameters: dict, ro
             except FMICallException as e:
                 status = int(e.status)
         else:
-            status = max(unit.call("getReal" if unit.af.version == 2 else "getFloat64",
-                                   [v.valueReference for v in unit.af.outputs
+            status = max(unit.call("getReal" if unit.nf.version == 2 else "getFloat64",
+                                   [v.valueReference for v in unit.nf.outputs
                                     if v.type in ("Real", "Float64")]),
-                         unit.call("getString", [unit.af.variables["span.grade_profile"]
+                         unit.call("getString", [unit.nf.variables["span.grade_profile"]
                                                  .valueReference]))
         statuses.append([call, status])
         if status == 4:
