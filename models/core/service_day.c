@@ -69,13 +69,11 @@ static rc_status check_day(const double *v, long n, rc_error *err)
     if (n != RC_SD_DAY_VALUES)
         return rc_refuse(err, RC_BAD_CONFIG, "day: expected %d values, got %ld", RC_SD_DAY_VALUES, n);
     for (int i = 0; i < RC_SD_DAY_VALUES; i++) {
-        char r[40];
-        rc_repr(v[i], r, sizeof r);
         if (!isfinite(v[i]))
-            return rc_refuse(err, RC_BAD_CONFIG, "day.%s must be finite, got %s", DAY_NAMES[i], r);
+            return rc_refuse_value(err, "day.", DAY_NAMES[i], "must be finite", v[i]);
         if (v[i] < 0.0 && i != RC_SD_PAYLOAD_LO && i != RC_SD_PAYLOAD_HI
                 && i != RC_SD_FIRST_PAYLOAD)
-            return rc_refuse(err, RC_BAD_CONFIG, "day.%s must be >= 0, got %s", DAY_NAMES[i], r);
+            return rc_refuse_value(err, "day.", DAY_NAMES[i], "must be >= 0", v[i]);
     }
     if (!(v[RC_SD_STEP_S] > 0.0 && v[RC_SD_STEP_S] <= RC_SD_MAX_STEP_S)) {
         char r[40];
