@@ -543,19 +543,16 @@ def state_session(natives: dict[str, NativeFmu], name: str) -> None:
     test_state_pointer_rules(natives, name)
 
 
-@pytest.mark.parametrize("name", ["RailCarNative", "RailCarEstimatorNative3"])
-def test_state_calls_clean_under_sanitizers(natives, name, tmp_path):
+def sanitized_copy(extracted, sources: list, folder: Path) -> Path:
+    """A copy of the extracted FMU ``extracted`` (``unzipdir``, ``md``, ``version``) in
+    ``folder`` whose linux x86-64 binary is rebuilt from ``sources`` under ASan/UBSan."""
     gcc = shutil.which("gcc")
     assert gcc, "no gcc"
-    nf = natives[name]
-    unzipdir = tmp_path / name
-    shutil.copytree(nf.unzipdir, unzipdir)
-    model = nf.md.coSimulation.modelIdentifier
-    folder = toolchain.LINUX_X86_64.fmi2_folder if nf.version == 2 else toolchain.LINUX_X86_64.tuple
-    binary = unzipdir / "binaries" / folder / f"{model}.so"
+    shutil.copytree(extracted.unzipdir, folder)
+    target = toolchain.LINUX_X86_64
+    platform = target.fmi2_folder if extracted.version == 2 else target.tuple
+    binary = folder / "binaries" / platform / f"{extracted.md.coSimulation.modelIdentifier}.so"
     assert binary.is_file()
-    spec = native.RAILCAR_SPEC if nf.is_railcar() else native.ESTIMATOR_SPEC
-    sources = native.c_sources(spec) if nf.version == 2 else native_fmi3.c_sources(spec)
     flags = [f for f in native.C_FLAGS if f not in ("-O2", "-Wl,--no-undefined")]
     proc = subprocess.run([gcc, *flags, "-O1", "-g", "-fsanitize=address,undefined",
                            "-fno-sanitize-recover=all", "-I", str(native.C_DIR), "-I",
@@ -564,12 +561,26 @@ def test_state_calls_clean_under_sanitizers(natives, name, tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert b"__asan_" in binary.read_bytes()
+    return folder
+
+
+def sanitizer_env() -> dict:
+    """The environment of a Python child process that loads sanitized FMU binaries."""
+    gcc = shutil.which("gcc")
     runtimes = [subprocess.run([gcc, f"-print-file-name={lib}"], capture_output=True, text=True,
                                check=True).stdout.strip() for lib in ("libasan.so", "libubsan.so")]
+    return dict(os.environ, LD_PRELOAD=" ".join(runtimes),
+                ASAN_OPTIONS="detect_leaks=0:abort_on_error=1", PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+
+
+@pytest.mark.parametrize("name", ["RailCarNative", "RailCarEstimatorNative3"])
+def test_state_calls_clean_under_sanitizers(natives, name, tmp_path):
+    nf = natives[name]
+    spec = native.RAILCAR_SPEC if nf.is_railcar() else native.ESTIMATOR_SPEC
+    sources = native.c_sources(spec) if nf.version == 2 else native_fmi3.c_sources(spec)
+    unzipdir = sanitized_copy(nf, sources, tmp_path / name)
     unzipdirs = {n: str(unzipdir if n == name else other.unzipdir) for n, other in natives.items()}
-    env = dict(os.environ, LD_PRELOAD=" ".join(runtimes),
-               ASAN_OPTIONS="detect_leaks=0:abort_on_error=1",
-               PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+    env = sanitizer_env()
     proc = subprocess.run([sys.executable, __file__, json.dumps(unzipdirs), name],
                           capture_output=True, text=True, env=env, timeout=600, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]

@@ -28,7 +28,6 @@ import json
 import math
 import os
 import random
-import shutil
 import struct
 import subprocess
 import sys
@@ -42,8 +41,8 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 
 from conftest import ERROR, OK, ROOT, FmuFile
-from fmu_src.build import native, native_fmi3, toolchain
-from test_fmu_state import Unit as StateUnit, bits, refused, resealed
+from fmu_src.build import native, native_fmi3
+from test_fmu_state import Unit as StateUnit, bits, refused, resealed, sanitized_copy, sanitizer_env
 from test_native_ato_fmu import closed_loop, line_run, profiles  # noqa: F401  (fixtures)
 
 WARNING = 1
@@ -510,36 +509,15 @@ def sanitized_session(atos: dict[str, AtoFmu], cases: list[Case]) -> None:
 
 
 def test_the_state_path_is_clean_under_sanitizers(atos, cases, tmp_path):
-    gcc = shutil.which("gcc")
-    assert gcc, "no gcc"
     folders = {}
-    flags = [f for f in native.C_FLAGS if f not in ("-O2", "-Wl,--no-undefined")]
     for name, af in atos.items():
-        unzipdir = tmp_path / name
-        shutil.copytree(af.unzipdir, unzipdir)
-        model = af.md.coSimulation.modelIdentifier
-        folder = (toolchain.LINUX_X86_64.fmi2_folder if af.version == 2
-                  else toolchain.LINUX_X86_64.tuple)
-        binary = unzipdir / "binaries" / folder / f"{model}.so"
-        assert binary.is_file()
         sources = native.ato_c_sources() if af.version == 2 else native_fmi3.ato_c_sources()
-        proc = subprocess.run([gcc, *flags, "-O1", "-g", "-fsanitize=address,undefined",
-                               "-fno-sanitize-recover=all", "-I", str(native.C_DIR), "-I",
-                               str(native.CORE_DIR), "-I", str(toolchain.fmi_headers()),
-                               *[str(s) for s in sources], "-o", str(binary), "-lm"],
-                              capture_output=True, text=True)
-        assert proc.returncode == 0, proc.stderr
-        assert b"__asan_" in binary.read_bytes()
-        folders[name] = str(unzipdir)
+        folders[name] = str(sanitized_copy(af, sources, tmp_path / name))
     spec = tmp_path / "cases.json"
     spec.write_text(json.dumps({"folders": folders, "cases": [
         {"name": c.name, "parameters": c.parameters, "rows": c.rows[:c.at + c.n],
          "at": c.at, "n": c.n} for c in cases]}))
-    runtimes = [subprocess.run([gcc, f"-print-file-name={lib}"], capture_output=True, text=True,
-                               check=True).stdout.strip() for lib in ("libasan.so", "libubsan.so")]
-    env = dict(os.environ, LD_PRELOAD=" ".join(runtimes),
-               ASAN_OPTIONS="detect_leaks=0:abort_on_error=1",
-               PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+    env = sanitizer_env()
     proc = subprocess.run([sys.executable, __file__, str(spec)], capture_output=True, text=True,
                           env=env, timeout=600, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
