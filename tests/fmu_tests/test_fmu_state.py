@@ -570,7 +570,8 @@ def sanitizer_env() -> dict:
     runtimes = [subprocess.run([gcc, f"-print-file-name={lib}"], capture_output=True, text=True,
                                check=True).stdout.strip() for lib in ("libasan.so", "libubsan.so")]
     return dict(os.environ, LD_PRELOAD=" ".join(runtimes),
-                ASAN_OPTIONS="detect_leaks=0:abort_on_error=1", PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
+                ASAN_OPTIONS="detect_leaks=0:abort_on_error=1",
+                PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "tests")]))
 
 
 @pytest.mark.parametrize("name", ["RailCarNative", "RailCarEstimatorNative3"])
